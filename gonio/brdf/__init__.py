@@ -1,0 +1,33 @@
+"""Analytic BRDF models, one published model per module, and their registry.
+
+>>> from gonio.brdf import make
+>>> make("lambert", albedo=0.5).eval([0, 0, 1], [0, 0, 1])  # doctest: +SKIP
+array([0.159..., 0.159..., 0.159...])
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from gonio.brdf.base import BRDF, Param
+from gonio.brdf.lambert import Lambert
+from gonio.errors import ConfigError
+
+#: Registry: model name -> class. Names are a contract (material files, CLI, fit reports).
+MODELS: dict[str, type[BRDF]] = {cls.name: cls for cls in (Lambert,)}
+
+
+def make(name: str, *, source: str | None = None, **params: Any) -> BRDF:
+    """Construct the model registered as ``name`` with ``params``.
+
+    ``source`` (a file name or option) is named in the :class:`ConfigError` raised for an unknown
+    model or a bad parameter.
+    """
+    try:
+        cls = MODELS[name]
+    except KeyError:
+        raise ConfigError.field(source, "model", name, f"unknown model; known: {', '.join(sorted(MODELS))}") from None
+    return cls(_source=source, **params)
+
+
+__all__ = ["BRDF", "Param", "MODELS", "make"]

@@ -1,0 +1,163 @@
+"""The BRDF model contract shared by every model in :mod:`gonio.brdf` (DESIGN.md §2, §6).
+
+A model is a small immutable object: ``eval(wi, wo) -> ndarray[..., 3]`` in 1/sr (RGB), ``params``
+(a dict), ``bounds()`` for fitting, and a name in the registry (:func:`gonio.brdf.make`).
+Below the horizon (cos θ ≤ 0 for wi or wo) the value is 0, never NaN.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any, ClassVar, Mapping
+
+import numpy as np
+
+from gonio.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Param:
+    """Specification of one model parameter.
+
+    Attributes
+    ----------
+    kind : {"rgb", "scalar", "choice"}
+        ``rgb`` accepts a scalar or 3 values and is stored as shape ``(3,)``; ``scalar`` is one
+        float; ``choice`` is one of ``choices`` (a string, not fitted).
+    lo, hi : float
+        Valid closed range (also the fitting bounds); ``hi`` may be ``inf``.
+    default : object
+        Value used when the parameter is omitted; ``None`` means required.
+    doc : str
+        One line: meaning and unit.
+    """
+
+    kind: str
+    lo: float = 0.0
+    hi: float = np.inf
+    default: Any = None
+    choices: tuple[str, ...] = ()
+    doc: str = ""
+
+    def coerce(self, model: str, name: str, value: Any, source: str | None = None) -> Any:
+        """Validate and convert ``value``; raise :class:`ConfigError` naming model, field and value."""
+        field = f"{model}.{name}"
+        if self.kind == "choice":
+            if value not in self.choices:
+                raise ConfigError.field(source, field, value, f"must be one of {', '.join(self.choices)}")
+            return value
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ConfigError.field(source, field, value, "must be a number") from None
+        if self.kind == "rgb":
+            if arr.ndim == 0:
+                arr = np.full(3, float(arr))
+            if arr.shape != (3,):
+                raise ConfigError.field(source, field, value, "must be a number or 3 numbers (R, G, B)")
+        elif arr.ndim != 0:
+            raise ConfigError.field(source, field, value, "must be a single number")
+        if not np.all(np.isfinite(arr)) or np.any(arr < self.lo) or np.any(arr > self.hi):
+            raise ConfigError.field(source, field, value, f"must be finite and in [{self.lo:g}, {self.hi:g}]")
+        if self.kind == "rgb":
+            arr = arr.copy()
+            arr.setflags(write=False)
+            return arr
+        return float(arr)
+
+
+class BRDF:
+    """Base class of analytic BRDF models.
+
+    Subclasses set :attr:`name`, :attr:`PARAMS` and implement :meth:`_eval`, which receives unit
+    directions already known to be above the horizon (the base class zeroes the rest) and returns
+    RGB values of shape ``(..., 3)``. Parameters are validated once, at construction, and the object
+    is immutable afterwards.
+    """
+
+    #: Registry name (``gonio.brdf.make(name, ...)``).
+    name: ClassVar[str] = ""
+    #: Parameter specifications, in a stable order.
+    PARAMS: ClassVar[Mapping[str, Param]] = {}
+    #: f(wi, wo) = f(wo, wi) for every parameter value.
+    reciprocal: ClassVar[bool] = True
+    #: Invariant under rotation of both directions about the normal.
+    isotropic: ClassVar[bool] = True
+    #: Directional albedo ≤ 1 for physical parameters (kd + ks ≤ 1 etc.), as the model is normalized.
+    energy_conserving: ClassVar[bool] = True
+
+    def __init__(self, *, _source: str | None = None, **params: Any):
+        unknown = sorted(set(params) - set(self.PARAMS))
+        if unknown:
+            raise ConfigError.field(
+                _source, f"{self.name}.{unknown[0]}", params[unknown[0]],
+                f"unknown parameter; {self.name} takes {', '.join(self.PARAMS)}",
+            )
+        values = {}
+        for key, spec in self.PARAMS.items():
+            if key in params:
+                value = params[key]
+            elif spec.default is not None:
+                value = spec.default
+            else:
+                raise ConfigError(
+                    f"{_source + ': ' if _source else ''}{self.name}: missing parameter {key!r} ({spec.doc})"
+                )
+            values[key] = spec.coerce(self.name, key, value, _source)
+        object.__setattr__(self, "_params", MappingProxyType(values))
+        self._validate()
+
+    def _validate(self) -> None:
+        """Hook for checks across parameters (raise :class:`ConfigError`)."""
+
+    def __setattr__(self, key, value):
+        raise AttributeError(f"{type(self).__name__} is immutable; use .replace(...)")
+
+    def __getattr__(self, key):
+        params = self.__dict__.get("_params")
+        if params is not None and key in params:
+            return params[key]
+        raise AttributeError(key)
+
+    @property
+    def params(self) -> dict[str, Any]:
+        """Parameter values: RGB as lists of 3 floats, scalars as floats, choices as strings."""
+        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in self._params.items()}
+
+    def replace(self, **changes: Any) -> "BRDF":
+        """A copy with some parameters changed."""
+        return type(self)(**{**self._params, **changes})
+
+    @classmethod
+    def bounds(cls) -> dict[str, tuple[float, float]]:
+        """Fitting bounds ``(lo, hi)`` of every numeric parameter."""
+        return {k: (p.lo, p.hi) for k, p in cls.PARAMS.items() if p.kind != "choice"}
+
+    def eval(self, wi, wo) -> np.ndarray:
+        """BRDF value f(wi, wo) in 1/sr, RGB on the last axis, shape ``broadcast(wi, wo)[:-1] + (3,)``.
+
+        ``wi`` (toward the light) and ``wo`` (toward the camera) are unit vectors in the local frame.
+        Where either is at or below the horizon the result is exactly 0.
+        """
+        wi = np.asarray(wi, dtype=np.float64)
+        wo = np.asarray(wo, dtype=np.float64)
+        wi, wo = np.broadcast_arrays(wi, wo)
+        above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
+        with np.errstate(all="ignore"):
+            value = np.broadcast_to(self._eval(wi, wo), wi.shape[:-1] + (3,))
+        return np.where(above[..., None], value, 0.0)
+
+    def _eval(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={v!r}" for k, v in self.params.items())
+        return f"{self.name}({args})"
+
+    def __eq__(self, other) -> bool:
+        return type(self) is type(other) and all(
+            np.array_equal(a, b) for a, b in zip(self._params.values(), other._params.values())
+        )
+
+    __hash__ = None  # type: ignore[assignment]

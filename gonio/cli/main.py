@@ -1,0 +1,48 @@
+"""Entry point of the ``gonio`` command: builds the parser from the subcommand modules and turns
+every :class:`gonio.errors.GonioError` into a one-line message and a non-zero exit code."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from gonio import __version__
+from gonio.errors import GonioError
+
+#: Subcommand modules under gonio.cli, in the order ``--help`` lists them.
+COMMANDS = ["models"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="gonio",
+        description="Run a gonioreflectometer (or its simulation) and turn measurements into BRDFs.",
+    )
+    parser.add_argument("--version", action="version", version=f"gonio {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        importlib.import_module(f"gonio.cli.{name}").register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except GonioError as exc:
+        print(f"gonio {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print(f"gonio {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # e.g. `gonio ... | head`
+        return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

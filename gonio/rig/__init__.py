@@ -1,0 +1,1 @@
+"""Hardware layer: device interfaces (:mod:`gonio.rig.interfaces`), clocks, drivers, kinematics."""

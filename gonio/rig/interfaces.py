@@ -1,0 +1,131 @@
+"""Small capability interfaces of the rig's devices (DESIGN.md §1, §6).
+
+Each device kind is a :class:`typing.Protocol` with a few methods; a real implementation and a
+simulated twin satisfy the same protocol, so the session runner cannot tell them apart. Every
+blocking call has a finite timeout. Units: seconds, radians, metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping, Protocol, Sequence, runtime_checkable
+
+import numpy as np
+
+
+@runtime_checkable
+class Clock(Protocol):
+    """Source of time for hardware code (real or simulated)."""
+
+    simulated: bool
+
+    def now(self) -> float:
+        """Seconds since an arbitrary origin."""
+
+    def sleep(self, seconds: float) -> None:
+        """Wait ``seconds`` (really, or by advancing simulated time)."""
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One camera frame and what is needed to interpret its pixels radiometrically.
+
+    Attributes
+    ----------
+    pixels : ndarray
+        Raw sensor values, shape ``(H, W)`` or ``(H, W, 3)`` (RGB order), integer dtype.
+    exposure : float
+        Exposure time actually used, seconds.
+    gain : float
+        Analogue gain actually used (linear factor, 1 = unity).
+    bit_depth : int
+        Significant bits per pixel value (8, 10, 12, 14 or 16).
+    black_level : float
+        Pedestal added by the sensor, in pixel units (subtracted by the pipeline).
+    timestamp : float
+        Capture time from the session's :class:`Clock`, seconds.
+    linear : bool
+        True if pixel values are proportional to irradiance × exposure (above black level).
+    meta : mapping
+        Anything else the backend knows (device name, temperature, trigger mode...).
+    """
+
+    pixels: np.ndarray
+    exposure: float
+    gain: float
+    bit_depth: int
+    black_level: float
+    timestamp: float
+    linear: bool = True
+    meta: Mapping[str, object] = field(default_factory=dict)
+
+    @property
+    def saturation_level(self) -> int:
+        """Largest value the sensor can report."""
+        return (1 << self.bit_depth) - 1
+
+
+@runtime_checkable
+class Camera(Protocol):
+    """A camera that captures one frame at a requested exposure and gain."""
+
+    def capture(self, exposure: float, gain: float = 1.0, *, timeout: float = 10.0) -> Frame:
+        """Capture one frame; raise :class:`gonio.errors.HardwareError` on failure."""
+
+    def close(self) -> None:
+        """Release the device."""
+
+
+@dataclass(frozen=True)
+class ControllerStatus:
+    """What the rig controller reports about itself (see firmware_protocol/SPEC.md)."""
+
+    estop: bool
+    interlock_open: bool
+    light_on: bool
+    light_level: float
+    temperature_c: float
+    uptime_s: float
+    flags: int = 0
+
+
+@runtime_checkable
+class RigController(Protocol):
+    """The rig's microcontroller: light source, reference photodiode, camera trigger, E-stop."""
+
+    def set_light(self, on: bool, level: float = 1.0) -> None:
+        """Switch the light on/off at relative level 0..1."""
+
+    def read_photodiode(self, samples: int = 1) -> tuple[float, float]:
+        """Mean reference photodiode reading and its standard uncertainty (relative units)."""
+
+    def trigger_camera(self, exposure: float) -> None:
+        """Fire the camera's hardware trigger for ``exposure`` seconds."""
+
+    def status(self) -> ControllerStatus:
+        """Current status (E-stop, interlocks, light, temperature)."""
+
+    def heartbeat(self) -> None:
+        """Tell the controller the host is alive (feeds its watchdog)."""
+
+    def close(self) -> None:
+        """Switch the light off if possible and release the port."""
+
+
+@runtime_checkable
+class Axes(Protocol):
+    """A set of named joints moved together (e.g. Dynamixel servos on one bus).
+
+    Joint angles are radians in the rig's joint frame (after gear ratio and zero offset).
+    """
+
+    names: Sequence[str]
+
+    def move_to(self, targets: Mapping[str, float], *, timeout: float = 60.0) -> dict[str, float]:
+        """Move all named joints together, wait until settled; return the *measured* angles."""
+
+    def positions(self) -> dict[str, float]:
+        """Measured joint angles now."""
+
+    def close(self) -> None:
+        """Leave the joints in a safe state and release the bus."""
