@@ -1,0 +1,69 @@
+"""Shared pieces of the benchmarks: a result table that prints as Markdown, and a timer."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+
+@dataclass
+class Table:
+    """One benchmark table.
+
+    ``columns`` name the cells of each row; ``baseline`` is the index of the row others are compared
+    with (the ratios are computed by the benchmark itself, from the same run); ``default`` marks the
+    row that is gonio's default, and ``why_default`` says why (e.g. the knee of the curve).
+    """
+
+    title: str
+    columns: Sequence[str]
+    rows: list[Sequence[object]] = field(default_factory=list)
+    baseline: int | None = None
+    default: int | None = None
+    why_default: str = ""
+    notes: list[str] = field(default_factory=list)
+
+    def add(self, *cells: object) -> None:
+        if len(cells) != len(self.columns):
+            raise ValueError(f"{self.title}: row has {len(cells)} cells, table has {len(self.columns)} columns")
+        self.rows.append(cells)
+
+    def to_markdown(self) -> str:
+        def fmt(x: object) -> str:
+            if isinstance(x, float):
+                if x == 0 or math.isnan(x) or math.isinf(x):
+                    return f"{x:g}"
+                return f"{x:.4g}" if 1e-3 <= abs(x) < 1e6 else f"{x:.3e}"
+            return str(x)
+
+        head = ["", *self.columns]
+        lines = [f"### {self.title}", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for i, row in enumerate(self.rows):
+            mark = []
+            if i == self.baseline:
+                mark.append("baseline")
+            if i == self.default:
+                mark.append("**default**")
+            lines.append("| " + " | ".join([" ".join(mark), *map(fmt, row)]) + " |")
+        if self.default is not None and self.why_default:
+            lines += ["", f"Default: {self.why_default}"]
+        lines += ["", *[f"- {n}" for n in self.notes]] if self.notes else []
+        return "\n".join(lines) + "\n"
+
+
+def time_call(fn: Callable[[], object], *, min_time: float = 0.2, repeat: int = 3) -> float:
+    """Seconds per call of ``fn``: best of ``repeat`` rounds, each running ≥ ``min_time`` seconds."""
+    fn()  # warm up (imports, caches)
+    best = math.inf
+    for _ in range(repeat):
+        n, start = 0, time.perf_counter()
+        while True:
+            fn()
+            n += 1
+            elapsed = time.perf_counter() - start
+            if elapsed >= min_time:
+                break
+        best = min(best, elapsed / n)
+    return best
