@@ -1,0 +1,118 @@
+"""Serve a byte-level device protocol on a pseudo-terminal.
+
+The host opens :attr:`PtyServer.path` (``/dev/pts/N``) exactly as it would open a USB serial
+adapter, so the real client code (pyserial, dynamixel-sdk) runs unchanged. Facts this relies on
+(FIELD-NOTES.md): the slave is put in raw mode and the server keeps the slave fd open, otherwise
+reading the master raises EIO once the client closes the port; baud rates are not paced on a pty.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import threading
+import time
+import tty
+
+from sim.faults import LinkFaults
+
+
+class PtyServer:
+    """Base class of the emulators: a reader thread passes incoming bytes to :meth:`on_bytes`;
+    replies go out through :meth:`send`, which applies the link's :class:`LinkFaults`.
+
+    Subclasses implement :meth:`on_bytes`. Use as a context manager or call :meth:`start` and
+    :meth:`stop`.
+    """
+
+    def __init__(self, name: str = "device", faults: LinkFaults | None = None):
+        self.name = name
+        self.faults = faults or LinkFaults()
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        tty.setraw(self._master)
+        self.path = os.ttyname(self._slave)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._write_lock = threading.Lock()
+        self.silent = False  #: when True the device receives but never answers (unplugged / powered off)
+        self.bytes_in = 0
+        self.bytes_out = 0
+
+    # -- lifecycle ----------------------------------------------------------------------------
+    def start(self) -> "PtyServer":
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._loop, name=f"pty-{self.name}", daemon=True)
+            self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        for fd in (self._master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()
+
+    # -- I/O ----------------------------------------------------------------------------------
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                ready, _, _ = select.select([self._master], [], [], 0.05)
+                if not ready:
+                    self.on_idle()
+                    continue
+                data = os.read(self._master, 4096)
+            except OSError:
+                if self._stop.is_set():
+                    return
+                time.sleep(0.01)
+                continue
+            if data:
+                self.bytes_in += len(data)
+                self.on_bytes(data)
+
+    def on_bytes(self, data: bytes) -> None:  # pragma: no cover - abstract
+        """Handle bytes from the host (called on the reader thread)."""
+        raise NotImplementedError
+
+    def on_idle(self) -> None:
+        """Called about every 50 ms of real time when no bytes arrive (watchdogs, timers)."""
+
+    def send(self, reply: bytes, *, faults: bool = True) -> None:
+        """Send ``reply`` to the host, through the link faults unless ``faults`` is False."""
+        if self.silent or not reply:
+            return
+        fate = self.faults.apply(reply) if faults else (0.0, reply)
+        if fate is None:
+            return
+        delay, data = fate
+        if delay > 0:
+            timer = threading.Timer(delay, self._write, args=(data,))
+            timer.daemon = True
+            timer.start()
+        else:
+            self._write(data)
+
+    def _write(self, data: bytes) -> None:
+        with self._write_lock:
+            view = memoryview(data)
+            while view:
+                try:
+                    n = os.write(self._master, view)
+                except BlockingIOError:
+                    time.sleep(0.001)
+                    continue
+                except OSError:
+                    return  # closed
+                self.bytes_out += n
+                view = view[n:]
