@@ -1,0 +1,300 @@
+"""The MERL isotropic BRDF binary format (Matusik, Pfister, Brand, McMillan, "A Data-Driven Reflectance
+Model", SIGGRAPH 2003; layout as in the reference reader ``BRDFRead.cpp`` and DESIGN.md §2).
+
+Layout
+------
+Three little-endian int32 dims ``(90, 90, 180)`` for ``(θh, θd, φd)``, then 3 × 1,458,000
+little-endian float64: all red, then all green, then all blue. ``value = stored × scale`` with
+``scale = (1/1500, 1.15/1500, 1.66/1500)`` for R, G, B. Cell indices::
+
+    iθh = floor(sqrt(θh / (π/2)) · 90)      (the sqrt mapping: dense near the specular peak)
+    iθd = floor(θd / (π/2) · 90)
+    iφd = floor(φd / π · 180)              φd folded to [0, π) by reciprocity (φd ≡ φd + π)
+
+each clamped to its range; flat index = iφd + 180·(iθd + 90·iθh). Negative stored values mark
+cells that were not measured; in memory they are NaN.
+
+Angles come from :func:`gonio.geometry.half_diff_from_dirs` (Rusinkiewicz 1998); φh is ignored, so a
+table holds an *isotropic* BRDF.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from gonio.errors import DataError
+from gonio.geometry import dirs_from_half_diff, half_diff_from_dirs
+from gonio.samples import SampleSet
+
+__all__ = [
+    "N_THETA_H",
+    "N_THETA_D",
+    "N_PHI_D",
+    "SHAPE",
+    "SCALE",
+    "FILE_SIZE",
+    "grid_coords",
+    "grid_index",
+    "flat_index",
+    "cell_centres",
+    "cell_directions",
+    "MerlTable",
+    "read_merl",
+    "write_merl",
+]
+
+N_THETA_H, N_THETA_D, N_PHI_D = 90, 90, 180
+#: Grid shape ``(θh, θd, φd)``.
+SHAPE = (N_THETA_H, N_THETA_D, N_PHI_D)
+N_CELLS = N_THETA_H * N_THETA_D * N_PHI_D  # 1,458,000
+#: Stored-to-1/sr scale factors of the R, G, B channels (Matusik et al. 2003, BRDFRead.cpp).
+SCALE = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
+_HEADER = np.array(SHAPE, dtype="<i4")
+#: Size in bytes of a MERL binary: 12-byte header + 3 · 1,458,000 float64.
+FILE_SIZE = _HEADER.nbytes + 3 * N_CELLS * 8  # 34,992,012
+_CHANNELS = "RGB"
+
+
+def grid_coords(theta_h, theta_d, phi_d) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Continuous grid coordinates of half/difference angles (radians): cell ``i`` covers ``[i, i+1)``.
+
+    ``uθh = sqrt(θh / (π/2)) · 90``, ``uθd = θd / (π/2) · 90``, ``uφd = (φd mod π) / π · 180``
+    (DESIGN.md §2; Matusik et al. 2003). Not clamped; φd is folded by reciprocity.
+    """
+    th = np.asarray(theta_h, dtype=np.float64)
+    td = np.asarray(theta_d, dtype=np.float64)
+    pd = np.asarray(phi_d, dtype=np.float64)
+    u_h = np.sqrt(np.clip(th, 0.0, None) / (np.pi / 2)) * N_THETA_H
+    u_d = td / (np.pi / 2) * N_THETA_D
+    u_p = np.mod(pd, np.pi) / np.pi * N_PHI_D
+    return u_h, u_d, u_p
+
+
+def grid_index(theta_h, theta_d, phi_d) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Clamped integer cell indices ``(iθh, iθd, iφd)`` of half/difference angles (radians)."""
+    u_h, u_d, u_p = grid_coords(theta_h, theta_d, phi_d)
+    i_h = np.clip(np.floor(u_h), 0, N_THETA_H - 1).astype(np.intp)
+    i_d = np.clip(np.floor(u_d), 0, N_THETA_D - 1).astype(np.intp)
+    i_p = np.clip(np.floor(u_p), 0, N_PHI_D - 1).astype(np.intp)
+    return i_h, i_d, i_p
+
+
+def flat_index(wi, wo) -> np.ndarray:
+    """Flat MERL cell index ``iφd + 180·(iθd + 90·iθh)`` of direction pairs (any shape ``(..., 3)``)."""
+    th, _, td, pd = half_diff_from_dirs(wi, wo)
+    i_h, i_d, i_p = grid_index(th, td, pd)
+    return i_p + N_PHI_D * (i_d + N_THETA_D * i_h)
+
+
+def cell_centres() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Angles (radians) of the cell centres in index space: 1-D arrays ``θh (90,), θd (90,), φd (180,)``.
+
+    ``θh = ((i + ½)/90)² · π/2`` (inverse of the sqrt mapping), ``θd = (j + ½)/90 · π/2``,
+    ``φd = (k + ½)/180 · π``.
+    """
+    th = ((np.arange(N_THETA_H) + 0.5) / N_THETA_H) ** 2 * (np.pi / 2)
+    td = (np.arange(N_THETA_D) + 0.5) / N_THETA_D * (np.pi / 2)
+    pd = (np.arange(N_PHI_D) + 0.5) / N_PHI_D * np.pi
+    return th, td, pd
+
+
+def cell_directions(phi_h: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Directions of every cell centre at azimuth ``phi_h`` of the half vector.
+
+    Returns ``(wi, wo, above)``: ``wi``, ``wo`` of shape ``(90, 90, 180, 3)`` from
+    :func:`gonio.geometry.dirs_from_half_diff`, and ``above`` (90, 90, 180) bool, True where both
+    are above the horizon (independent of ``phi_h``: a rotation about z keeps cos θ).
+    """
+    th, td, pd = cell_centres()
+    TH, TD, PD = np.meshgrid(th, td, pd, indexing="ij")
+    wi, wo = dirs_from_half_diff(TH, np.full_like(TH, phi_h), TD, PD)
+    above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
+    return wi, wo, above
+
+
+def _as_grid(name: str, a, trailing: tuple[int, ...], dtype) -> np.ndarray | None:
+    if a is None:
+        return None
+    arr = np.asarray(a, dtype=dtype)
+    want = SHAPE + trailing
+    if arr.shape != want:
+        raise DataError(f"MERL table: {name} has shape {arr.shape}, expected {want}")
+    return arr
+
+
+@dataclass(frozen=True)
+class MerlTable:
+    """An isotropic BRDF tabulated on the MERL 90 × 90 × 180 half/difference grid.
+
+    Attributes
+    ----------
+    values : ndarray (90, 90, 180, 3) float64
+        BRDF in 1/sr (not × cos θ), axes ``(θh, θd, φd, RGB)``; NaN = not measured.
+    sigma : ndarray (90, 90, 180, 3) or None
+        Standard uncertainty of ``values`` (tabulation fills it; a MERL file does not hold it).
+    count : ndarray (90, 90, 180) int or None
+        Samples averaged into each cell; 0 for holes (filled by interpolation or not measured).
+    """
+
+    values: np.ndarray
+    sigma: np.ndarray | None = field(default=None)
+    count: np.ndarray | None = field(default=None)
+
+    def __post_init__(self):
+        object.__setattr__(self, "values", _as_grid("values", self.values, (3,), np.float64))
+        object.__setattr__(self, "sigma", _as_grid("sigma", self.sigma, (3,), np.float64))
+        object.__setattr__(self, "count", _as_grid("count", self.count, (), np.int64))
+
+    @classmethod
+    def empty(cls) -> "MerlTable":
+        """A table with no measured cell."""
+        return cls(np.full(SHAPE + (3,), np.nan))
+
+    @property
+    def measured(self) -> np.ndarray:
+        """(90, 90, 180) bool: cells with a value in every channel."""
+        return np.all(np.isfinite(self.values), axis=-1)
+
+    def lookup(self, wi, wo, method: str = "nearest") -> np.ndarray:
+        """BRDF (1/sr, RGB) at direction pairs ``wi``, ``wo`` of shape ``(..., 3)``.
+
+        ``method="nearest"``: the value of the cell holding the pair (the MERL reference lookup).
+        ``method="trilinear"``: trilinear interpolation between the 8 surrounding cell centres in
+        index space ``(uθh − ½, uθd − ½, uφd − ½)`` (see :func:`grid_coords`), clamped at the θh/θd
+        edges and periodic in φd (reciprocity: cell 179 neighbours cell 0). Not-measured corners
+        are left out and the remaining weights renormalized.
+
+        Not-measured cells give NaN; below the horizon the value is 0 (DESIGN.md §2).
+        """
+        wi = np.asarray(wi, dtype=np.float64)
+        wo = np.asarray(wo, dtype=np.float64)
+        wi, wo = np.broadcast_arrays(wi, wo)
+        th, _, td, pd = half_diff_from_dirs(wi, wo)
+        if method == "nearest":
+            i_h, i_d, i_p = grid_index(th, td, pd)
+            out = self.values[i_h, i_d, i_p]
+        elif method == "trilinear":
+            out = self._trilinear(*grid_coords(th, td, pd))
+        else:
+            raise ValueError(f"MerlTable.lookup: method = {method!r}: must be 'nearest' or 'trilinear'")
+        above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
+        return np.where(above[..., None], out, 0.0)
+
+    def _trilinear(self, u_h, u_d, u_p) -> np.ndarray:
+        def edge(u, n):
+            x = np.clip(u - 0.5, 0.0, n - 1)
+            i0 = np.minimum(np.floor(x).astype(np.intp), n - 2)
+            return i0, i0 + 1, x - i0
+
+        h0, h1, th = edge(u_h, N_THETA_H)
+        d0, d1, td = edge(u_d, N_THETA_D)
+        x = u_p - 0.5
+        f = np.floor(x)
+        tp = x - f
+        p0 = np.mod(f, N_PHI_D).astype(np.intp)
+        p1 = np.mod(p0 + 1, N_PHI_D)
+        acc = np.zeros(np.shape(u_h) + (3,))
+        wsum = np.zeros(np.shape(u_h) + (3,))
+        for ih, wh in ((h0, 1 - th), (h1, th)):
+            for id_, wd in ((d0, 1 - td), (d1, td)):
+                for ip, wp in ((p0, 1 - tp), (p1, tp)):
+                    v = self.values[ih, id_, ip]
+                    ok = np.isfinite(v)
+                    w = (wh * wd * wp)[..., None] * ok
+                    acc += w * np.where(ok, v, 0.0)
+                    wsum += w
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(wsum > 1e-12, acc / np.where(wsum > 0, wsum, 1.0), np.nan)
+
+    def to_samples(self, phi_h: float = 0.0, sigma_rel: float = 0.01) -> SampleSet:
+        """The measured cells above the horizon as a :class:`SampleSet` at the cell-centre directions.
+
+        ``sigma`` is the table's uncertainty where it has one, else ``sigma_rel · |f|`` (floored at
+        ``1e-6 × max |f|``) so that fits weight cells by relative error.
+        """
+        wi, wo, above = cell_directions(phi_h)
+        keep = above & self.measured
+        f = self.values[keep]
+        if self.sigma is not None and np.all(np.isfinite(self.sigma[keep])):
+            sigma = self.sigma[keep]
+        else:
+            floor = 1e-6 * (np.max(np.abs(f)) if f.size else 1.0) or 1e-12
+            sigma = np.maximum(sigma_rel * np.abs(f), floor)
+        n = self.count[keep] if self.count is not None else None
+        return SampleSet(wi[keep], wo[keep], f, sigma, n_pixels=n)
+
+
+def _read_error(path, what: str) -> DataError:
+    return DataError(f"{path}: not a MERL BRDF binary: {what}")
+
+
+def read_merl(path) -> MerlTable:
+    """Read a MERL binary (layout in the module docstring).
+
+    Raises
+    ------
+    DataError
+        The file is missing or unreadable, has the wrong header dims, the wrong size (truncated or
+        trailing bytes), or holds NaN/inf; the message names the file and the fault.
+    """
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as fh:
+            header = np.frombuffer(fh.read(12), dtype="<i4")
+            if header.size < 3:
+                raise _read_error(path, f"truncated header ({size} bytes, expected {FILE_SIZE})")
+            if tuple(header) != SHAPE:
+                raise _read_error(path, f"header dims {tuple(int(x) for x in header)}, expected {SHAPE}")
+            if size != FILE_SIZE:
+                what = "truncated" if size < FILE_SIZE else "trailing data"
+                raise _read_error(path, f"{what}: {size} bytes, expected {FILE_SIZE}")
+            stored = np.fromfile(fh, dtype="<f8", count=3 * N_CELLS)
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read MERL file ({exc.strerror or exc})") from None
+    if stored.size != 3 * N_CELLS:  # the file shrank between stat and read
+        raise _read_error(path, f"truncated: {12 + stored.size * 8} bytes, expected {FILE_SIZE}")
+    stored = stored.reshape((3,) + SHAPE)
+    bad = ~np.isfinite(stored)
+    if bad.any():
+        c, i, j, k = (int(x[0]) for x in np.nonzero(bad))
+        raise _read_error(
+            path, f"{int(bad.sum())} stored values are NaN or inf (first: channel {_CHANNELS[c]}, "
+                  f"cell (θh {i}, θd {j}, φd {k}))")
+    values = np.moveaxis(stored, 0, -1) * SCALE
+    values[values < 0] = np.nan
+    return MerlTable(values)
+
+
+def write_merl(path, table: MerlTable) -> Path:
+    """Write ``table`` as a MERL binary; returns the path.
+
+    Not-measured (NaN) values are stored as −1. Measured values below 0 (noise around zero) are
+    stored as 0, since a negative stored value means "not measured". The file is written to a
+    temporary name and renamed, so an existing file is never left half-written.
+
+    Raises
+    ------
+    DataError
+        ``table`` holds ±inf (a MERL file cannot), or the file cannot be written.
+    """
+    path = Path(path)
+    values = table.values
+    if np.isinf(values).any():
+        raise DataError(f"{path}: cannot write MERL table: {int(np.isinf(values).sum())} values are infinite")
+    stored = np.moveaxis(values / SCALE, -1, 0)
+    stored = np.where(np.isnan(stored), -1.0, np.maximum(stored, 0.0)).astype("<f8")
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(_HEADER.tobytes())
+            fh.write(np.ascontiguousarray(stored).tobytes())
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise DataError(f"{path}: cannot write MERL file ({exc.strerror or exc})") from None
+    return path
