@@ -10,11 +10,17 @@ from __future__ import annotations
 from typing import Any
 
 from gonio.brdf.base import BRDF, Param
+from gonio.brdf.blinn_phong import BlinnPhong
+from gonio.brdf.cook_torrance import CookTorrance
 from gonio.brdf.lambert import Lambert
+from gonio.brdf.microfacet import Microfacet
+from gonio.brdf.phong import Phong
 from gonio.errors import ConfigError
 
 #: Registry: model name -> class. Names are a contract (material files, CLI, fit reports).
-MODELS: dict[str, type[BRDF]] = {cls.name: cls for cls in (Lambert,)}
+MODELS: dict[str, type[BRDF]] = {
+    cls.name: cls for cls in (Lambert, Phong, BlinnPhong, CookTorrance, Microfacet)
+}
 
 
 def make(name: str, *, source: str | None = None, **params: Any) -> BRDF:

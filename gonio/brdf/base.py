@@ -134,19 +134,32 @@ class BRDF:
         """Fitting bounds ``(lo, hi)`` of every numeric parameter."""
         return {k: (p.lo, p.hi) for k, p in cls.PARAMS.items() if p.kind != "choice"}
 
-    def eval(self, wi, wo) -> np.ndarray:
+    def eval(self, wi, wo, dtype=np.float64) -> np.ndarray:
         """BRDF value f(wi, wo) in 1/sr, RGB on the last axis, shape ``broadcast(wi, wo)[:-1] + (3,)``.
 
         ``wi`` (toward the light) and ``wo`` (toward the camera) are unit vectors in the local frame.
         Where either is at or below the horizon the result is exactly 0.
+
+        ``dtype`` (default float64) is the floating type of the computation and the result;
+        ``np.float32`` evaluates with float32 inputs and parameters (faster, less accurate: see
+        ``python -m benchmarks brdf``). The finiteness guarantees at the extremes are for float64.
         """
-        wi = np.asarray(wi, dtype=np.float64)
-        wo = np.asarray(wo, dtype=np.float64)
+        dtype = np.dtype(dtype)
+        wi = np.asarray(wi, dtype=dtype)
+        wo = np.asarray(wo, dtype=dtype)
         wi, wo = np.broadcast_arrays(wi, wo)
         above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
+        model = self if dtype == np.float64 else self._astype(dtype)
         with np.errstate(all="ignore"):
-            value = np.broadcast_to(self._eval(wi, wo), wi.shape[:-1] + (3,))
-        return np.where(above[..., None], value, 0.0)
+            value = np.broadcast_to(model._eval(wi, wo), wi.shape[:-1] + (3,))
+        return np.where(above[..., None], value, dtype.type(0.0))
+
+    def _astype(self, dtype) -> "BRDF":
+        """A twin whose numeric parameters are of ``dtype`` (for :meth:`eval` with ``dtype``)."""
+        twin = object.__new__(type(self))
+        cast = {k: (v if isinstance(v, str) else np.asarray(v, dtype=dtype)[()]) for k, v in self._params.items()}
+        object.__setattr__(twin, "_params", MappingProxyType(cast))
+        return twin
 
     def _eval(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError

@@ -1,0 +1,108 @@
+"""Fresnel reflectance: Schlick's approximation, exact dielectric (η), exact conductor (η, k).
+
+All functions take the cosine of the angle between the incident direction and the (micro)normal,
+clipped to [0, 1], and broadcast it against the material constants: with RGB constants of shape
+``(3,)`` the result has shape ``cos.shape + (3,)``; with scalar constants, ``cos.shape``.
+They keep the floating dtype of ``cos_theta``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["schlick", "schlick_rational_power", "f0_from_eta", "dielectric", "conductor"]
+
+
+def _prep(cos_theta, *consts):
+    c = np.clip(np.asarray(cos_theta), 0.0, 1.0)
+    if not np.issubdtype(c.dtype, np.floating):
+        c = c.astype(np.float64)
+    out = []
+    rgb = False
+    for k in consts:
+        k = np.asarray(k)
+        if k.ndim:
+            rgb = True
+        out.append(k.astype(c.dtype) if np.issubdtype(k.dtype, np.floating) or k.dtype.kind in "iu" else k)
+    if rgb:
+        c = c[..., None]
+    return c, out
+
+
+def schlick(f0, cos_theta) -> np.ndarray:
+    """Schlick's approximation F = f0 + (1 − f0)(1 − cos θ)⁵.
+
+    C. Schlick, "An Inexpensive BRDF Model for Physically-based Rendering", Computer Graphics Forum
+    13(3), 1994, eq. 15; lecture notes ``004_6b0fa14dcb48ed2f.txt`` ("Fresnel(F0, V·H)").
+    """
+    c, (f0,) = _prep(cos_theta, f0)
+    m = 1.0 - c
+    m2 = m * m
+    return f0 + (1.0 - f0) * (m2 * m2 * m)
+
+
+def schlick_rational_power(t, s) -> np.ndarray:
+    """Schlick's rational approximation of a power: t^s ≈ t / (s − s t + t), for t in [0, 1], s ≥ 0.
+
+    C. Schlick, "A Fast Alternative to Phong's Specular Model", Graphics Gems IV, 1994; lecture notes
+    ``000_b5f942c329dc4daf.txt`` ("replace t^s with t/(s − st + t)"). Exact at t = 0 and t = 1.
+    The denominator vanishes only for t = 0 and s = 0 where t^0 = 1 is returned.
+    """
+    t = np.clip(t, 0.0, 1.0)
+    den = s - s * t + t
+    ok = den > 0.0
+    return np.where(ok, t / np.where(ok, den, 1.0), 1.0)
+
+
+def f0_from_eta(eta) -> np.ndarray:
+    """Normal-incidence reflectance of a dielectric interface, ((η − 1)/(η + 1))² (Fresnel)."""
+    eta = np.asarray(eta, dtype=np.float64)
+    return ((eta - 1.0) / (eta + 1.0)) ** 2
+
+
+def dielectric(cos_theta, eta) -> np.ndarray:
+    """Exact unpolarized Fresnel reflectance of a dielectric interface.
+
+    η = n_t / n_i (relative index of refraction, > 0). With cos θ_t = √(1 − (1 − cos²θ_i)/η²):
+
+    r_s = (cos θ_i − η cos θ_t) / (cos θ_i + η cos θ_t),
+    r_p = (η cos θ_i − cos θ_t) / (η cos θ_i + cos θ_t),   F = (r_s² + r_p²) / 2,
+
+    and F = 1 under total internal reflection (η < 1 past the critical angle).
+    (M. Born, E. Wolf, *Principles of Optics*, §1.5; Walter et al. 2007, eq. 22 is the same function.)
+    """
+    c, (eta,) = _prep(cos_theta, eta)
+    s2t = (1.0 - c * c) / (eta * eta)
+    tir = s2t >= 1.0
+    ct = np.sqrt(np.maximum(1.0 - s2t, 0.0))
+    rs = (c - eta * ct) / np.maximum(c + eta * ct, 1e-30)
+    rp = (eta * c - ct) / np.maximum(eta * c + ct, 1e-30)
+    f = 0.5 * (rs * rs + rp * rp)
+    return np.where(tir, 1.0, np.clip(f, 0.0, 1.0))
+
+
+def conductor(cos_theta, eta, k) -> np.ndarray:
+    """Exact unpolarized Fresnel reflectance of a conductor with complex index η + i k.
+
+    With s² = sin²θ, t = η² − k² − s², a²+b² = √(t² + 4η²k²), a = √((a²+b² + t)/2):
+
+    R_s = (a²+b² + cos²θ − 2a cos θ) / (a²+b² + cos²θ + 2a cos θ),
+    R_p = R_s · (cos²θ (a²+b²) + s⁴ − 2a cos θ s²) / (cos²θ (a²+b²) + s⁴ + 2a cos θ s²),
+    F = (R_s + R_p) / 2.
+
+    (Cook & Torrance 1982 appendix; the form of Mitsuba 3 ``fresnel_conductor`` and of
+    S. Lagarde, "Memo on Fresnel equations", 2013.) η = 0, k = 1 gives F = 1.
+    """
+    c, (eta, k) = _prep(cos_theta, eta, k)
+    c2 = c * c
+    s2 = 1.0 - c2
+    t = eta * eta - k * k - s2
+    ab = np.sqrt(t * t + 4.0 * eta * eta * k * k)
+    a = np.sqrt(np.maximum(0.5 * (ab + t), 0.0))
+    t1 = ab + c2
+    t2 = 2.0 * c * a
+    rs = (t1 - t2) / np.maximum(t1 + t2, 1e-30)
+    t3 = ab * c2 + s2 * s2
+    t4 = t2 * s2
+    rp = rs * (t3 - t4) / np.maximum(t3 + t4, 1e-30)
+    return np.clip(0.5 * (rs + rp), 0.0, 1.0)
