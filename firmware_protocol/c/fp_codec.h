@@ -1,0 +1,104 @@
+/*
+ * fp_codec.h - C99 codec of the gonio rig-controller protocol (see ../SPEC.md, normative).
+ *
+ * Frame on the wire:  00 | COBS( TYPE SEQ LEN PAYLOAD[LEN] CRC16_LE ) | 00
+ * CRC-16/CCITT-FALSE: poly 0x1021, init 0xFFFF, no reflection, xorout 0, over TYPE..PAYLOAD.
+ *
+ * No malloc, no globals, fixed buffers: a decoder is one struct of ~80 bytes the firmware owns.
+ */
+#ifndef FP_CODEC_H
+#define FP_CODEC_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#define FP_PROTOCOL_MAJOR 1u
+#define FP_PROTOCOL_MINOR 0u
+
+#define FP_MAX_PAYLOAD 64u
+#define FP_MIN_FRAME 5u                                /* TYPE SEQ LEN CRC16 */
+#define FP_MAX_FRAME (FP_MIN_FRAME + FP_MAX_PAYLOAD)   /* 69 */
+#define FP_MAX_ENCODED (FP_MAX_FRAME + 1u)             /* 70: COBS adds one byte */
+#define FP_MAX_WIRE (FP_MAX_ENCODED + 2u)              /* 72: with both delimiters */
+
+/* message types (SPEC.md section 4); replies are request | FP_REPLY_BIT */
+#define FP_REPLY_BIT 0x80u
+#define FP_HELLO 0x01u
+#define FP_HEARTBEAT 0x02u
+#define FP_SET_LIGHT 0x03u
+#define FP_READ_PHOTODIODE 0x04u
+#define FP_TRIGGER 0x05u
+#define FP_STATUS 0x06u
+#define FP_SET_WATCHDOG 0x07u
+#define FP_ERROR 0xFFu
+
+/* capability bits (HELLO reply) */
+#define FP_CAP_DIMMING 0x0001u
+#define FP_CAP_PHOTODIODE 0x0002u
+#define FP_CAP_TRIGGER 0x0004u
+#define FP_CAP_TEMPERATURE 0x0008u
+#define FP_CAP_INTERLOCK 0x0010u
+
+/* status flags (STATUS reply) */
+#define FP_FLAG_ESTOP 0x0001u
+#define FP_FLAG_INTERLOCK_OPEN 0x0002u
+#define FP_FLAG_LIGHT_ON 0x0004u
+#define FP_FLAG_WATCHDOG_TRIPPED 0x0008u
+#define FP_FLAG_NOT_CONFIGURED 0x0010u
+#define FP_FLAG_OVERTEMP 0x0020u
+#define FP_FLAG_TRIGGER_ACTIVE 0x0040u
+
+/* error codes (ERROR reply) */
+#define FP_ERR_UNKNOWN_TYPE 0x01u
+#define FP_ERR_BAD_LENGTH 0x02u
+#define FP_ERR_BAD_VALUE 0x03u
+#define FP_ERR_ESTOP 0x04u
+#define FP_ERR_NOT_READY 0x05u
+#define FP_ERR_BUSY 0x06u
+#define FP_ERR_VERSION 0x07u
+#define FP_ERR_OVERTEMP 0x08u
+
+typedef struct {
+    uint8_t type;
+    uint8_t seq;
+    uint8_t len;
+    uint8_t payload[FP_MAX_PAYLOAD];
+} fp_frame;
+
+/* Result of feeding one byte to the decoder. */
+typedef enum {
+    FP_NONE = 0,      /* nothing completed yet */
+    FP_OK = 1,        /* *out holds a valid frame */
+    FP_REJ_OVERFLOW,  /* segment longer than FP_MAX_ENCODED */
+    FP_REJ_COBS,      /* a COBS block overruns the segment */
+    FP_REJ_LENGTH,    /* decoded size outside 5..69, or LEN != size - 5 */
+    FP_REJ_CRC        /* CRC mismatch */
+} fp_result;
+
+typedef struct {
+    uint8_t buf[FP_MAX_ENCODED];
+    size_t n;
+    int overflow;
+} fp_decoder;
+
+uint16_t fp_crc16(const uint8_t *data, size_t n);
+
+/* Encode frame f into out (capacity cap); returns bytes written (<= FP_MAX_WIRE) or 0 if f->len is
+ * too large or cap too small. */
+size_t fp_encode(const fp_frame *f, uint8_t *out, size_t cap);
+
+void fp_decoder_init(fp_decoder *d);
+
+/* Feed one received byte; on FP_OK the frame is written to *out. Never fails on any input. */
+fp_result fp_decoder_feed(fp_decoder *d, uint8_t byte, fp_frame *out);
+
+/* Decode one segment (bytes between delimiters, no zero bytes); same verdicts as the stream decoder. */
+fp_result fp_decode_segment(const uint8_t *seg, size_t n, fp_frame *out);
+
+/* Little-endian payload helpers. */
+void fp_put_u16(uint8_t *p, uint16_t v);
+void fp_put_u32(uint8_t *p, uint32_t v);
+uint16_t fp_get_u16(const uint8_t *p);
+uint32_t fp_get_u32(const uint8_t *p);
+
+#endif /* FP_CODEC_H */

@@ -1,0 +1,383 @@
+"""Python codec of the rig-controller protocol (normative text: ``SPEC.md`` beside this file).
+
+Two layers:
+
+* **Frames** — ``00 | COBS(TYPE SEQ LEN PAYLOAD CRC16) | 00``; CRC-16/CCITT-FALSE (poly 0x1021,
+  init 0xFFFF, no reflection, no final xor) over ``TYPE SEQ LEN PAYLOAD``, sent little-endian.
+  :func:`encode_frame`, :func:`decode_frame`, and the streaming :class:`Decoder`, which takes arbitrary
+  byte chunks, never raises, and reports every rejected segment with its verdict.
+* **Messages** — the catalogue (:data:`MESSAGES`): field names, wire types, units and ranges of each
+  message type. :func:`encode_message` validates values and packs them; :func:`decode_message` unpacks.
+
+This module depends on nothing but the standard library, so the firmware engineer (and the emulator in
+``sim/``) can use it alone.
+"""
+
+from __future__ import annotations
+
+import binascii
+import struct
+from dataclasses import dataclass, field
+from typing import Mapping
+
+PROTOCOL_MAJOR = 1
+PROTOCOL_MINOR = 0
+
+MAX_PAYLOAD = 64
+HEADER = 3  # TYPE SEQ LEN
+CRC_SIZE = 2
+MIN_FRAME = HEADER + CRC_SIZE
+MAX_FRAME = HEADER + MAX_PAYLOAD + CRC_SIZE
+MAX_ENCODED = MAX_FRAME + 1  # COBS adds one byte per 254 bytes: one byte here
+DELIMITER = 0x00
+
+#: Decoder verdicts for rejected segments, in the order the checks are made (SPEC.md §2.4).
+VERDICTS = ("overflow", "cobs", "length", "crc")
+
+REPLY_BIT = 0x80
+
+# -- message type codes (SPEC.md §4) -------------------------------------------------------------
+HELLO = 0x01
+HEARTBEAT = 0x02
+SET_LIGHT = 0x03
+READ_PHOTODIODE = 0x04
+TRIGGER = 0x05
+STATUS = 0x06
+SET_WATCHDOG = 0x07
+ERROR = 0xFF
+
+# -- capability bits (HELLO reply) ---------------------------------------------------------------
+CAP_DIMMING = 1 << 0
+CAP_PHOTODIODE = 1 << 1
+CAP_TRIGGER = 1 << 2
+CAP_TEMPERATURE = 1 << 3
+CAP_INTERLOCK = 1 << 4
+
+# -- status flag bits (STATUS reply) -------------------------------------------------------------
+FLAG_ESTOP = 1 << 0
+FLAG_INTERLOCK_OPEN = 1 << 1
+FLAG_LIGHT_ON = 1 << 2
+FLAG_WATCHDOG_TRIPPED = 1 << 3
+FLAG_NOT_CONFIGURED = 1 << 4
+FLAG_OVERTEMP = 1 << 5
+FLAG_TRIGGER_ACTIVE = 1 << 6
+
+# -- error codes (ERROR reply) -------------------------------------------------------------------
+ERR_UNKNOWN_TYPE = 0x01
+ERR_BAD_LENGTH = 0x02
+ERR_BAD_VALUE = 0x03
+ERR_ESTOP = 0x04
+ERR_NOT_READY = 0x05
+ERR_BUSY = 0x06
+ERR_VERSION = 0x07
+ERR_OVERTEMP = 0x08
+ERROR_NAMES = {
+    ERR_UNKNOWN_TYPE: "UNKNOWN_TYPE", ERR_BAD_LENGTH: "BAD_LENGTH", ERR_BAD_VALUE: "BAD_VALUE",
+    ERR_ESTOP: "ESTOP", ERR_NOT_READY: "NOT_READY", ERR_BUSY: "BUSY", ERR_VERSION: "VERSION",
+    ERR_OVERTEMP: "OVERTEMP",
+}
+
+# -- timing (SPEC.md §6) -------------------------------------------------------------------------
+DEFAULT_WATCHDOG_MS = 10_000
+WATCHDOG_MIN_MS = 100
+WATCHDOG_MAX_MS = 3_600_000
+LEVEL_FULL_SCALE = 65535
+MICRO = 1e-6
+
+
+class ProtocolError(ValueError):
+    """A value cannot be encoded, or bytes cannot be decoded (message names the field or verdict)."""
+
+
+# ================================================================================================
+# CRC and COBS
+# ================================================================================================
+def crc16(data: bytes) -> int:
+    """CRC-16/CCITT-FALSE of ``data``: poly 0x1021, init 0xFFFF, no reflection, xorout 0.
+
+    Check value (Rocksoft catalogue): ``crc16(b"123456789") == 0x29B1``.
+    ``binascii.crc_hqx`` computes exactly this non-reflected CRC-CCITT from a given initial value.
+    """
+    return binascii.crc_hqx(data, 0xFFFF)
+
+
+def cobs_encode(data: bytes) -> bytes:
+    """Consistent Overhead Byte Stuffing (Cheshire & Baker, IEEE/ACM ToN 7(2), 1999).
+
+    The output contains no zero byte; each block is a code byte ``n`` (1..255) followed by ``n - 1``
+    data bytes, and every block with ``n < 255`` stands for its bytes plus one zero, except the last.
+    """
+    out = bytearray()
+    for part in bytes(data).split(b"\x00"):
+        while len(part) >= 254:
+            out.append(0xFF)
+            out += part[:254]
+            part = part[254:]
+        out.append(len(part) + 1)
+        out += part
+    return bytes(out)
+
+
+def cobs_decode(enc: bytes) -> bytes:
+    """Inverse of :func:`cobs_encode`; raises :class:`ProtocolError` ("cobs") on a malformed block."""
+    out = bytearray()
+    i, n = 0, len(enc)
+    while i < n:
+        code = enc[i]
+        j = i + code
+        if code == 0 or j > n:
+            raise ProtocolError(f"cobs: block code {code} at offset {i} overruns the {n}-byte segment")
+        out += enc[i + 1:j]
+        if code < 0xFF and j < n:
+            out.append(0)
+        i = j
+    return bytes(out)
+
+
+# ================================================================================================
+# Frames
+# ================================================================================================
+@dataclass(frozen=True)
+class Frame:
+    """One decoded frame: message ``type`` (0..255), sequence number ``seq`` (0..255), ``payload``."""
+
+    type: int
+    seq: int
+    payload: bytes = b""
+
+
+@dataclass(frozen=True)
+class Reject:
+    """A segment the decoder refused: ``verdict`` is one of :data:`VERDICTS`; ``raw`` its bytes."""
+
+    verdict: str
+    raw: bytes
+
+
+def frame_body(type_: int, seq: int, payload: bytes = b"") -> bytes:
+    """Unstuffed frame ``TYPE SEQ LEN PAYLOAD CRC16(LE)``."""
+    if not (0 <= type_ <= 255 and 0 <= seq <= 255):
+        raise ProtocolError(f"frame: type {type_} / seq {seq} must be bytes (0..255)")
+    if len(payload) > MAX_PAYLOAD:
+        raise ProtocolError(f"frame: payload of {len(payload)} bytes exceeds MAX_PAYLOAD = {MAX_PAYLOAD}")
+    head = bytes((type_, seq, len(payload))) + bytes(payload)
+    return head + struct.pack("<H", crc16(head))
+
+
+def encode_frame(type_: int, seq: int, payload: bytes = b"") -> bytes:
+    """Bytes on the wire for one frame: ``00 COBS(body) 00``."""
+    return b"\x00" + cobs_encode(frame_body(type_, seq, payload)) + b"\x00"
+
+
+def decode_segment(seg: bytes) -> Frame | Reject:
+    """Verdict on one segment (the bytes between two delimiters, non-empty); never raises."""
+    if len(seg) > MAX_ENCODED:
+        return Reject("overflow", bytes(seg))
+    try:
+        body = cobs_decode(seg)
+    except ProtocolError:
+        return Reject("cobs", bytes(seg))
+    n = len(body)
+    if n < MIN_FRAME or n > MAX_FRAME:
+        return Reject("length", bytes(seg))
+    if crc16(body[:-2]) != body[-2] | (body[-1] << 8):
+        return Reject("crc", bytes(seg))
+    if body[2] != n - MIN_FRAME:
+        return Reject("length", bytes(seg))
+    return Frame(body[0], body[1], body[3:-2])
+
+
+def decode_frame(data: bytes) -> Frame:
+    """Decode exactly one frame (delimiters optional); raise :class:`ProtocolError` naming the verdict."""
+    events = Decoder().feed(bytes(data) + b"\x00")
+    if len(events) != 1 or not isinstance(events[0], Frame):
+        verdicts = [e.verdict if isinstance(e, Reject) else "frame" for e in events] or ["incomplete"]
+        raise ProtocolError(f"frame: expected exactly one valid frame, got {', '.join(verdicts)}")
+    return events[0]
+
+
+class Decoder:
+    """Streaming frame decoder: feed arbitrary chunks, get frames and rejects; never raises.
+
+    Bytes accumulate until a delimiter (0x00); each non-empty segment then gets a verdict
+    (:func:`decode_segment`). A segment longer than :data:`MAX_ENCODED` is discarded as it grows (the
+    buffer never exceeds ``MAX_ENCODED`` bytes) and reported once, as ``"overflow"``, at its delimiter.
+    Garbage therefore costs at most the frame it touches: the decoder resynchronizes at the next 0x00.
+    """
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+        self._overflow = False
+        self._overflow_raw = b""
+        self.frames = 0  #: frames accepted so far
+        self.rejects = {v: 0 for v in VERDICTS}  #: rejected segments so far, by verdict
+
+    def reset(self) -> None:
+        """Forget any partial segment (e.g. after the host flushed its input)."""
+        self._buf.clear()
+        self._overflow = False
+
+    def feed(self, chunk: bytes) -> list[Frame | Reject]:
+        """Consume ``chunk``; return the frames and rejects it completed, in order."""
+        events: list[Frame | Reject] = []
+        data = bytes(chunk)
+        start = 0
+        while True:
+            k = data.find(b"\x00", start)
+            piece = data[start:] if k < 0 else data[start:k]
+            if self._overflow or len(self._buf) + len(piece) > MAX_ENCODED:
+                if not self._overflow:
+                    self._overflow_raw = bytes(self._buf[:16])
+                self._overflow = True
+                self._buf.clear()
+            else:
+                self._buf += piece
+            if k < 0:
+                return events
+            if self._overflow:
+                ev: Frame | Reject = Reject("overflow", self._overflow_raw)
+                self._overflow = False
+            elif self._buf:
+                ev = decode_segment(self._buf)
+            else:
+                start = k + 1
+                continue
+            self._buf.clear()
+            if isinstance(ev, Frame):
+                self.frames += 1
+            else:
+                self.rejects[ev.verdict] += 1
+            events.append(ev)
+            start = k + 1
+
+
+# ================================================================================================
+# Messages
+# ================================================================================================
+@dataclass(frozen=True)
+class Field:
+    """One payload field: ``name``, struct code (little-endian), inclusive range, unit (for docs)."""
+
+    name: str
+    fmt: str
+    lo: int
+    hi: int
+    unit: str = ""
+
+
+@dataclass(frozen=True)
+class MessageSpec:
+    """A message type: its ``code``, ``name`` and payload ``fields`` (in wire order)."""
+
+    code: int
+    name: str
+    fields: tuple[Field, ...] = ()
+    _struct: struct.Struct = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        object.__setattr__(self, "_struct", struct.Struct("<" + "".join(f.fmt for f in self.fields)))
+
+    @property
+    def size(self) -> int:
+        return self._struct.size
+
+
+def _u(fmt: str) -> tuple[int, int]:
+    return {"B": (0, 0xFF), "H": (0, 0xFFFF), "I": (0, 0xFFFFFFFF), "h": (-0x8000, 0x7FFF)}[fmt]
+
+
+def _f(name: str, fmt: str, lo: int | None = None, hi: int | None = None, unit: str = "") -> Field:
+    dlo, dhi = _u(fmt)
+    return Field(name, fmt, dlo if lo is None else lo, dhi if hi is None else hi, unit)
+
+
+#: The message catalogue (SPEC.md §4), requests and their replies (code | 0x80), and ERROR.
+MESSAGES: dict[int, MessageSpec] = {m.code: m for m in (
+    MessageSpec(HELLO, "HELLO", (_f("major", "B"), _f("minor", "B"))),
+    MessageSpec(HEARTBEAT, "HEARTBEAT"),
+    MessageSpec(SET_LIGHT, "SET_LIGHT", (_f("on", "B", 0, 1), _f("level", "H", unit="1/65535"))),
+    MessageSpec(READ_PHOTODIODE, "READ_PHOTODIODE", (_f("samples", "B", 1, 255),)),
+    MessageSpec(TRIGGER, "TRIGGER", (_f("exposure_us", "I", 1, 600_000_000, "us"),)),
+    MessageSpec(STATUS, "STATUS"),
+    MessageSpec(SET_WATCHDOG, "SET_WATCHDOG", (_f("period_ms", "I", WATCHDOG_MIN_MS, WATCHDOG_MAX_MS, "ms"),)),
+    MessageSpec(HELLO | REPLY_BIT, "HELLO_REPLY", (
+        _f("major", "B"), _f("minor", "B"), _f("capabilities", "H"), _f("firmware", "H"),
+        _f("max_payload", "B"), _f("watchdog_ms", "I", unit="ms"))),
+    MessageSpec(HEARTBEAT | REPLY_BIT, "HEARTBEAT_REPLY"),
+    MessageSpec(SET_LIGHT | REPLY_BIT, "SET_LIGHT_REPLY", (_f("on", "B", 0, 1), _f("level", "H", unit="1/65535"))),
+    MessageSpec(READ_PHOTODIODE | REPLY_BIT, "READ_PHOTODIODE_REPLY", (
+        _f("samples", "B", 1, 255), _f("mean", "I", unit="1e-6 rel"), _f("sem", "I", unit="1e-6 rel"))),
+    MessageSpec(TRIGGER | REPLY_BIT, "TRIGGER_REPLY", (_f("exposure_us", "I", unit="us"), _f("count", "I"))),
+    MessageSpec(STATUS | REPLY_BIT, "STATUS_REPLY", (
+        _f("flags", "H"), _f("level", "H", unit="1/65535"), _f("temperature", "h", unit="0.01 degC"),
+        _f("uptime_ms", "I", unit="ms"), _f("watchdog_ms", "I", unit="ms"))),
+    MessageSpec(SET_WATCHDOG | REPLY_BIT, "SET_WATCHDOG_REPLY", (_f("period_ms", "I", unit="ms"),)),
+    MessageSpec(ERROR, "ERROR", (_f("code", "B"), _f("request", "B"))),
+)}
+BY_NAME: dict[str, MessageSpec] = {m.name: m for m in MESSAGES.values()}
+
+
+@dataclass(frozen=True)
+class Message:
+    """A decoded message: catalogue ``name``, ``seq`` and field ``values`` (wire integers)."""
+
+    name: str
+    seq: int
+    values: Mapping[str, int] = field(default_factory=dict)
+
+    @property
+    def code(self) -> int:
+        return BY_NAME[self.name].code
+
+    def __getitem__(self, key: str) -> int:
+        return self.values[key]
+
+
+def pack_payload(name: str, values: Mapping[str, int]) -> tuple[int, bytes]:
+    """Validate ``values`` against message ``name`` and pack them; return ``(code, payload)``."""
+    spec = BY_NAME.get(name)
+    if spec is None:
+        raise ProtocolError(f"message: unknown name {name!r}")
+    names = [f.name for f in spec.fields]
+    extra = set(values) - set(names)
+    if extra:
+        raise ProtocolError(f"{name}: unknown field {sorted(extra)[0]!r}; fields: {', '.join(names) or 'none'}")
+    out = []
+    for f in spec.fields:
+        if f.name not in values:
+            raise ProtocolError(f"{name}: missing field {f.name!r}")
+        v = values[f.name]
+        if isinstance(v, bool):
+            v = int(v)
+        if not isinstance(v, int) or not f.lo <= v <= f.hi:
+            raise ProtocolError(f"{name}: {f.name} = {v!r}: must be an integer in [{f.lo}, {f.hi}]")
+        out.append(v)
+    return spec.code, spec._struct.pack(*out)
+
+
+def encode_message(name: str, seq: int, **values: int) -> bytes:
+    """Wire bytes of message ``name`` with sequence number ``seq`` and field ``values``."""
+    code, payload = pack_payload(name, values)
+    return encode_frame(code, seq, payload)
+
+
+def decode_message(frame: Frame) -> Message:
+    """Unpack a frame's payload by the catalogue; :class:`ProtocolError` on unknown type or bad size.
+
+    Values are only range-checked by the receiver's logic, not here (a controller answers BAD_VALUE).
+    """
+    spec = MESSAGES.get(frame.type)
+    if spec is None:
+        raise ProtocolError(f"message: unknown type 0x{frame.type:02X}")
+    if len(frame.payload) != spec.size:
+        raise ProtocolError(f"{spec.name}: payload is {len(frame.payload)} bytes, expected {spec.size}")
+    vals = spec._struct.unpack(frame.payload)
+    return Message(spec.name, frame.seq, dict(zip((f.name for f in spec.fields), vals)))
+
+
+def check_ranges(msg: Message) -> str | None:
+    """Name of the first field of ``msg`` outside its catalogue range, or None if all are in range."""
+    for f in BY_NAME[msg.name].fields:
+        if not f.lo <= msg.values[f.name] <= f.hi:
+            return f.name
+    return None

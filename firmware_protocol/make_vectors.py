@@ -1,0 +1,132 @@
+"""Regenerate ``vectors.json`` (``python -m firmware_protocol.make_vectors``).
+
+Run only when the protocol changes, and review the diff by hand: the vectors are the contract both
+codecs are tested against; the CRC check value and the COBS examples in them are independent of this
+codec (Rocksoft catalogue; Cheshire & Baker 1999), and tests/protocol re-derives the frames with a
+bit-by-bit CRC and a hand-written stuffing rule.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+
+from firmware_protocol import codec as c
+
+
+def _frame_dict(f: c.Frame) -> dict:
+    return {"type": f.type, "seq": f.seq, "payload": f.payload.hex()}
+
+
+def _stream(description: str, data: bytes) -> dict:
+    events = []
+    for ev in c.Decoder().feed(data):
+        events.append({"frame": _frame_dict(ev)} if isinstance(ev, c.Frame) else {"reject": ev.verdict})
+    return {"description": description, "bytes": data.hex(), "events": events}
+
+
+def _raw_body(type_: int, seq: int, length: int, payload: bytes) -> bytes:
+    head = bytes((type_, seq, length)) + payload
+    return head + struct.pack("<H", c.crc16(head))
+
+
+def build() -> dict:
+    msgs = [
+        ("HELLO", 0, {"major": 1, "minor": 0}),
+        ("HELLO_REPLY", 0, {"major": 1, "minor": 0, "capabilities": 0x1F, "firmware": 0x0100,
+                            "max_payload": 64, "watchdog_ms": 10000}),
+        ("HEARTBEAT", 1, {}),
+        ("HEARTBEAT_REPLY", 1, {}),
+        ("SET_LIGHT", 2, {"on": 1, "level": 65535}),
+        ("SET_LIGHT_REPLY", 2, {"on": 1, "level": 65535}),
+        ("SET_LIGHT", 3, {"on": 0, "level": 0}),
+        ("READ_PHOTODIODE", 4, {"samples": 16}),
+        ("READ_PHOTODIODE_REPLY", 4, {"samples": 16, "mean": 987654, "sem": 500}),
+        ("TRIGGER", 5, {"exposure_us": 20000}),
+        ("TRIGGER_REPLY", 5, {"exposure_us": 20000, "count": 1}),
+        ("STATUS", 6, {}),
+        ("STATUS_REPLY", 6, {"flags": 0x0004, "level": 32768, "temperature": 2537, "uptime_ms": 123456,
+                             "watchdog_ms": 10000}),
+        ("STATUS_REPLY", 7, {"flags": 0x0009, "level": 0, "temperature": -500, "uptime_ms": 0, "watchdog_ms": 100}),
+        ("SET_WATCHDOG", 8, {"period_ms": 2000}),
+        ("SET_WATCHDOG_REPLY", 8, {"period_ms": 2000}),
+        ("ERROR", 9, {"code": c.ERR_ESTOP, "request": c.SET_LIGHT}),
+        ("HEARTBEAT", 0, {}),   # seq 0: the body's zero bytes are stuffed
+        ("HEARTBEAT", 255, {}),
+    ]
+    messages = []
+    for name, seq, values in msgs:
+        code, payload = c.pack_payload(name, values)
+        messages.append({"name": name, "seq": seq, "values": values,
+                         "frame": {"type": code, "seq": seq, "payload": payload.hex()},
+                         "bytes": c.encode_frame(code, seq, payload).hex()})
+
+    status = c.encode_message("STATUS", 6)
+    light = c.encode_message("SET_LIGHT", 2, on=1, level=65535)
+    hb0 = c.encode_message("HEARTBEAT", 0)
+    body = bytearray(c.frame_body(c.SET_LIGHT, 2, bytes([1, 0xFF, 0xFF])))
+    flip_payload = bytearray(body)
+    flip_payload[4] ^= 0x01
+    flip_crc = bytearray(body)
+    flip_crc[-1] ^= 0x80
+    streams = [
+        _stream("one frame", status),
+        _stream("two frames back to back", light + status),
+        _stream("leading delimiter is optional", status[1:]),
+        _stream("empty segments (repeated delimiters) are ignored", b"\x00\x00\x00" + status + b"\x00\x00"),
+        _stream("garbage without zero bytes before a frame: one reject, then the frame",
+                b"\x13\x37\xAB" + status),
+        _stream("payload bit flipped -> crc", b"\x00" + c.cobs_encode(bytes(flip_payload)) + b"\x00" + status),
+        _stream("CRC bit flipped -> crc", b"\x00" + c.cobs_encode(bytes(flip_crc)) + b"\x00"),
+        _stream("LEN field disagrees with the frame size (CRC valid) -> length",
+                b"\x00" + c.cobs_encode(_raw_body(c.SET_LIGHT, 2, 2, bytes([1, 0xFF, 0xFF]))) + b"\x00"),
+        _stream("decoded frame shorter than 5 bytes -> length", b"\x00" + c.cobs_encode(b"\x06\x06\x00") + b"\x00"),
+        _stream("COBS block overruns the segment -> cobs", b"\x00\x05\x01\x02\x00" + status),
+        _stream("more than 70 bytes without a delimiter -> one overflow, then resync",
+                bytes(range(1, 101)) + status),
+        _stream("truncated frame, then a complete one", light[:5] + status),
+        _stream("a zero byte inside a frame splits it into two rejects",
+                light[:4] + b"\x00" + light[4:] + status),
+        _stream("seq 0 frame (zero bytes stuffed)", hb0),
+        _stream("frame of unknown type is still a valid frame (the message layer answers UNKNOWN_TYPE)",
+                c.encode_frame(0x42, 1, b"\x01\x02")),
+        _stream("largest frame: 64-byte payload", c.encode_frame(0x10, 3, bytes(range(64)))),
+        _stream("65-byte payload encodes to 71 bytes -> overflow",
+                b"\x00" + c.cobs_encode(_raw_body(0x10, 3, 65, bytes(range(1, 66)))) + b"\x00"),
+    ]
+    encode_errors = [
+        {"name": "SET_LIGHT", "values": {"on": 2, "level": 0}, "field": "on"},
+        {"name": "SET_LIGHT", "values": {"on": 1, "level": 65536}, "field": "level"},
+        {"name": "READ_PHOTODIODE", "values": {"samples": 0}, "field": "samples"},
+        {"name": "TRIGGER", "values": {"exposure_us": 0}, "field": "exposure_us"},
+        {"name": "TRIGGER", "values": {"exposure_us": 600_000_001}, "field": "exposure_us"},
+        {"name": "SET_WATCHDOG", "values": {"period_ms": 99}, "field": "period_ms"},
+    ]
+    message_errors = [
+        {"description": "unknown type", "frame": {"type": 0x42, "seq": 1, "payload": "0102"}},
+        {"description": "SET_LIGHT with a 2-byte payload", "frame": {"type": 3, "seq": 1, "payload": "01ff"}},
+        {"description": "STATUS with a payload", "frame": {"type": 6, "seq": 1, "payload": "00"}},
+    ]
+    return {
+        "protocol": {"major": c.PROTOCOL_MAJOR, "minor": c.PROTOCOL_MINOR},
+        "crc": [{"data": b"123456789".hex(), "crc": 0x29B1}, {"data": "", "crc": 0xFFFF},
+                {"data": "0606" + "00", "crc": c.crc16(b"\x06\x06\x00")}],
+        "cobs": [{"data": "00", "encoded": "0101"}, {"data": "0000", "encoded": "010101"},
+                 {"data": "11220033", "encoded": "03112202" + "33"}, {"data": "11223344", "encoded": "0511223344"},
+                 {"data": "11000000", "encoded": "0211010101"}],
+        "messages": messages,
+        "streams": streams,
+        "encode_errors": encode_errors,
+        "message_errors": message_errors,
+    }
+
+
+def main() -> None:
+    from firmware_protocol import VECTORS_PATH
+
+    VECTORS_PATH.write_text(json.dumps(build(), indent=1) + "\n")
+    print(f"wrote {VECTORS_PATH}")
+
+
+if __name__ == "__main__":
+    main()
