@@ -9,29 +9,43 @@ from __future__ import annotations
 
 from typing import Any
 
+from gonio.brdf.ashikhmin_shirley import AshikhminShirley
 from gonio.brdf.base import BRDF, Param
 from gonio.brdf.blinn_phong import BlinnPhong
 from gonio.brdf.cook_torrance import CookTorrance
+from gonio.brdf.lafortune import Lafortune
 from gonio.brdf.lambert import Lambert
+from gonio.brdf.lobes import PRESETS, is_sum_name, lobe_sum
 from gonio.brdf.microfacet import Microfacet
+from gonio.brdf.oren_nayar import OrenNayar
 from gonio.brdf.phong import Phong
+from gonio.brdf.ward import Ward
 from gonio.errors import ConfigError
 
 #: Registry: model name -> class. Names are a contract (material files, CLI, fit reports).
 MODELS: dict[str, type[BRDF]] = {
-    cls.name: cls for cls in (Lambert, Phong, BlinnPhong, CookTorrance, Microfacet)
+    cls.name: cls
+    for cls in (Lambert, Phong, BlinnPhong, CookTorrance, Microfacet, Ward, Lafortune, OrenNayar, AshikhminShirley)
 }
+MODELS.update({name: lobe_sum(name) for name in PRESETS})
 
 
 def make(name: str, *, source: str | None = None, **params: Any) -> BRDF:
     """Construct the model registered as ``name`` with ``params``.
 
-    ``source`` (a file name or option) is named in the :class:`ConfigError` raised for an unknown
+    Sums of lobes (``"lambert+2ggx"`` etc., :mod:`gonio.brdf.lobes`) are accepted by name even when
+    not listed in ``MODELS``. ``source`` (a file name or option) is named in the :class:`ConfigError` raised for an unknown
     model or a bad parameter.
     """
     try:
         cls = MODELS[name]
     except KeyError:
+        if is_sum_name(name):
+            try:
+                cls = lobe_sum(name)
+            except ConfigError as exc:
+                raise ConfigError(f"{source + ': ' if source else ''}{exc}") from None
+            return cls(_source=source, **params)
         raise ConfigError.field(source, "model", name, f"unknown model; known: {', '.join(sorted(MODELS))}") from None
     return cls(_source=source, **params)
 
