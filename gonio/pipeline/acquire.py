@@ -1,0 +1,185 @@
+"""One pose, end to end: meter, pick a bracket, capture, subtract darks, merge, locate, compute samples.
+
+The session runner calls :meth:`Pipeline.measure` once per pose with the light position from the
+kinematics (sample frame); the camera pose comes from the ChArUco board in the frame (or, flagged
+``NO_BOARD``, from the kinematics' hint when the board is not found).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gonio import samples as S
+from gonio.errors import HardwareError
+from gonio.pipeline.dark import DarkCache
+from gonio.pipeline.exposure import CapturePlan, ExposureSettings, plan_bracket
+from gonio.pipeline.hdr import BadFrame, SATURATION_MARGIN, average_frames, check_frame, merge_linear
+from gonio.pipeline.markers import BoardPose, detect_board_pose, to_gray8
+from gonio.pipeline.reflectance import build_roi, reflectance_samples
+from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
+from gonio.rig.interfaces import Camera, Clock, Frame
+from gonio.samples import SampleSet
+
+__all__ = ["PipelineSettings", "PoseResult", "BoardNotFound", "Pipeline"]
+
+
+class BoardNotFound(HardwareError):
+    """The ChArUco board is not visible and no kinematic camera pose was given."""
+
+
+@dataclass(frozen=True)
+class PipelineSettings:
+    """Knobs of :class:`Pipeline` (defaults are the benchmarked ones, benchmarks/bench_pipeline.py)."""
+
+    exposure: ExposureSettings = field(default_factory=ExposureSettings)
+    initial_exposure: float = 0.01
+    gain: float = 1.0
+    meter_tries: int = 6
+    max_bin_deg: float = 2.0
+    max_bins: int = 8
+    margin_px: float = 3.0
+    min_snr: float = 10.0
+    drift_tolerance: float = 0.02
+    dark_frames: int = 4
+    dark_max_age: float = 900.0
+    retries: int = 2
+    light_level: float = 1.0
+
+
+@dataclass
+class PoseResult:
+    """Samples of one pose and how they were obtained."""
+
+    samples: SampleSet
+    plan: CapturePlan
+    board: BoardPose | None
+    camera_pose: CameraPose
+    light: list[float]
+
+
+class Pipeline:
+    """Frames in, calibrated reflectance samples out.
+
+    Parameters
+    ----------
+    camera : Camera
+    calibration : CameraCalibration
+    layout : TargetLayout
+    light : RigController-like, optional
+        ``set_light(on, level)`` for dark frames and ``read_photodiode()`` for drift normalization.
+        Without it, darks are the black level only and the light output is taken as 1.
+    clock : Clock, optional
+        For the dark-frame schedule.
+    absolute_scale : 3 floats, optional
+        Absolute mode: DN/s at gain 1 per unit (f · I cos θ / r²) at photodiode 1, instead of the white reference.
+    """
+
+    def __init__(self, camera: Camera, calibration: CameraCalibration, layout: TargetLayout, *, light=None,
+                 clock: Clock | None = None, settings: PipelineSettings | None = None, absolute_scale=None):
+        self.camera = camera
+        self.calib = calibration
+        self.layout = layout
+        self.light = light
+        self.settings = settings or PipelineSettings()
+        self.absolute_scale = absolute_scale
+        self.darks = DarkCache(camera, calibration, light=light, clock=clock, n_frames=self.settings.dark_frames,
+                               max_age=self.settings.dark_max_age, level=self.settings.light_level)
+        self._board = layout.charuco.board()
+        self._next_exposure = self.settings.initial_exposure
+
+    # -- capture helpers ----------------------------------------------------------------------
+    def _grab(self, exposure: float, gain: float) -> tuple[Frame, np.ndarray, float]:
+        """One checked frame and the light output read right after it (bounded retries on bad frames)."""
+        last: Exception | None = None
+        for _ in range(self.settings.retries + 1):
+            frame = self.camera.capture(exposure, gain)
+            try:
+                px = check_frame(frame, self.calib)
+            except BadFrame as exc:
+                last = exc
+                continue
+            level = 1.0 if self.light is None else float(self.light.read_photodiode()[0])
+            return frame, px, level
+        raise last  # type: ignore[misc]
+
+    def _limit(self, frame: Frame) -> float:
+        return self.calib.noise.linear_limit(frame.saturation_level, frame.black_level, frame.gain)
+
+    def _locate(self, frame: Frame, px: np.ndarray, hint: CameraPose | None) -> tuple[BoardPose | None, CameraPose]:
+        gray = to_gray8(px, frame.bit_depth if frame.linear else 8, frame.black_level if frame.linear else 0.0)
+        bp = detect_board_pose(gray, self.calib, self.layout.charuco, self._board)
+        if bp is not None:
+            return bp, bp.pose
+        if hint is None:
+            raise BoardNotFound("camera frame: ChArUco board not found (fewer than 6 corners) and no kinematic "
+                                "camera pose given", device="camera")
+        return None, hint
+
+    # -- the pose -----------------------------------------------------------------------------
+    def measure(self, light_position, *, pose_index: int = -1, camera_pose_hint: CameraPose | None = None,
+                plan: CapturePlan | None = None) -> PoseResult:
+        """Measure one pose; see the module docstring. Raises :class:`BoardNotFound` or :class:`BadFrame`."""
+        st = self.settings
+        gain = st.gain if plan is None else plan.gain
+        flags = 0
+        t = self._next_exposure
+        # 1. meter (and locate the board on the metering frame)
+        frame, px, level = self._grab(t, gain)
+        board, cam_pose = self._locate(frame, px, camera_pose_hint)
+        if board is None:
+            flags |= S.NO_BOARD
+        roi = build_roi(cam_pose, self.calib, self.layout, light_position, margin_px=st.margin_px,
+                        max_bin_deg=st.max_bin_deg, max_bins=st.max_bins)
+        if roi.empty:
+            raise BoardNotFound("camera frame: the sample or white patch is outside the image at this pose",
+                                device="camera")
+        if plan is None:
+            plan = self._meter(frame, px, level, roi, gain)
+        # 2. capture the bracket, darks, merge
+        stacks, darks, lights = [], [], []
+        for t_k, n_k in zip(plan.exposures, plan.frames):
+            grabs = [self._grab(t_k, plan.gain) for _ in range(n_k)]
+            lv = [g[2] for g in grabs]
+            lights.extend(lv)
+            stacks.append(average_frames([g[1] for g in grabs], [g[0] for g in grabs], lv, self._limit(grabs[0][0]),
+                                         roi.region))
+            d = self.darks.get(t_k, plan.gain)
+            darks.append((d.mean[roi.region].astype(np.float64), d.var[roi.region].astype(np.float64)))
+        hdr = merge_linear(stacks, darks, self.calib.noise)
+        lv = np.asarray(lights)
+        if lv.size and (lv.max() - lv.min()) > st.drift_tolerance * max(lv.mean(), 1e-12):
+            flags |= S.DRIFT
+        if lv.size and not (lv.min() > 0):
+            raise HardwareError(f"light: photodiode reads {lv.min():g}: the light is off or failed", device="light")
+        samples = reflectance_samples(hdr, roi, cam_pose, light_position, self.layout, absolute_scale=self.absolute_scale,
+                                      min_snr=st.min_snr, pose_index=pose_index, flags=flags)
+        self._next_exposure = plan.exposures[len(plan.exposures) // 2]
+        return PoseResult(samples, plan, board, cam_pose, lights)
+
+    def _meter(self, frame: Frame, px: np.ndarray, level: float, roi, gain: float) -> CapturePlan:
+        """Find signal rates of the sample and white pixels; re-meter (bounded) when saturated or dark."""
+        st, es = self.settings, self.settings.exposure
+        mask = (roi.label >= 0) | roi.white
+        n_min = max(1, int(np.bincount(roi.label[roi.label >= 0], minlength=roi.n_tiles).min()))
+        t = frame.exposure
+        for _ in range(st.meter_tries):
+            limit = self._limit(frame)
+            rng = limit - frame.black_level
+            vals = px[roi.region][mask].astype(np.float64) - frame.black_level
+            sat = vals >= (1 - SATURATION_MARGIN) * rng
+            frac_sat = sat.any(axis=-1).mean()
+            bright = float(np.percentile(vals, 99.9))
+            if frac_sat > 0.001 and t > es.min_exposure:
+                t = max(t / es.step**2, es.min_exposure)
+            elif bright < 0.05 * rng and t < es.max_exposure:
+                t = min(t * es.step**2, es.max_exposure)
+            else:
+                break
+            frame, px, level = self._grab(t, gain)
+        scale = frame.exposure * frame.gain * max(level, 1e-12)
+        vals = np.maximum(px[roi.region][mask].astype(np.float64) - frame.black_level, 0.5) / scale
+        rate_bright = float(np.percentile(vals, 99.9)) * (1.0 if frac_sat <= 0.001 else 4.0)
+        rate_dim = float(np.percentile(vals, 2.0))
+        return plan_bracket(rate_bright, rate_dim, rng, n_min, self.calib.noise, es, gain)

@@ -1,0 +1,101 @@
+"""Exposure control: a bracket that puts the sample and the white reference in the linear range, and
+enough frames per exposure to reach the target signal-to-noise ratio."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from gonio.errors import ConfigError
+from gonio.pipeline.target import NoiseModel
+
+__all__ = ["CapturePlan", "ExposureSettings", "plan_bracket"]
+
+
+@dataclass(frozen=True)
+class CapturePlan:
+    """Exposures (s, shortest first), frames averaged at each, and the analogue gain."""
+
+    exposures: tuple[float, ...]
+    frames: tuple[int, ...]
+    gain: float = 1.0
+
+    def __post_init__(self):
+        if not self.exposures or len(self.exposures) != len(self.frames):
+            raise ConfigError.field(None, "capture.frames", self.frames, "needs one count per exposure")
+        if any(not (t > 0 and math.isfinite(t)) for t in self.exposures):
+            raise ConfigError.field(None, "capture.exposures", self.exposures, "must be positive seconds")
+        if any(int(n) < 1 for n in self.frames):
+            raise ConfigError.field(None, "capture.frames", self.frames, "must be >= 1")
+
+
+@dataclass(frozen=True)
+class ExposureSettings:
+    """How brackets are chosen.
+
+    Attributes
+    ----------
+    high : float
+        Brightest relevant pixel at the shortest exposure, as a fraction of the linear range.
+    low : float
+        Dimmest relevant pixel at the longest exposure, as a fraction of the linear range.
+    step : float
+        Exposure ratio between bracket members.
+    max_brackets, min_frames, max_frames : int
+    target_snr : float
+        Wanted SNR of one sample (mean over its pixels) of the dimmest region.
+    min_exposure, max_exposure : float
+        Seconds.
+    """
+
+    high: float = 0.75
+    low: float = 0.25
+    step: float = 4.0
+    max_brackets: int = 3
+    min_frames: int = 1
+    max_frames: int = 8
+    target_snr: float = 300.0
+    min_exposure: float = 1e-5
+    max_exposure: float = 2.0
+
+    def __post_init__(self):
+        if not (0 < self.low < 1 and 0 < self.high < 1):
+            raise ConfigError.field(None, "exposure.high/low", (self.high, self.low), "must be in (0, 1)")
+        if self.step <= 1:
+            raise ConfigError.field(None, "exposure.step", self.step, "must be > 1")
+        if self.max_brackets < 1 or self.max_frames < self.min_frames or self.min_frames < 1:
+            raise ConfigError.field(None, "exposure.frames", (self.min_frames, self.max_frames), "needs 1 <= min <= max")
+
+
+def plan_bracket(rate_bright: float, rate_dim: float, range_dn: float, n_pixels: int, noise: NoiseModel,
+                 settings: ExposureSettings, gain: float = 1.0, dark_dn_per_s: float = 0.0) -> CapturePlan:
+    """Choose a bracket from metered signal rates (DN/s at gain 1 above black).
+
+    Shortest exposure ``t₁ = high · range / rate_bright`` (brightest pixel below saturation); then
+    ×``step`` until the dimmest pixel reaches ``low · range`` or ``max_brackets``. Frames per
+    exposure: ``n = ⌈(SNR_target / (SNR_px √N_pix))²⌉`` where ``SNR_px`` is the dimmest pixel's SNR
+    at the longest exposure under the EMVA 1288 noise model, clamped to [min_frames, max_frames].
+    """
+    s = settings
+    rate_bright = max(float(rate_bright), 1e-12)
+    rate_dim = min(max(float(rate_dim), 1e-12), rate_bright)
+    g = float(gain)
+    t1 = float(np.clip(s.high * range_dn / (rate_bright * g), s.min_exposure, s.max_exposure))
+    t_need = s.low * range_dn / (rate_dim * g)
+    n = 1 if t_need <= t1 else 1 + math.ceil(math.log(t_need / t1) / math.log(s.step) - 1e-9)
+    n = max(1, min(n, s.max_brackets))
+    exposures = []
+    for k in range(n):
+        t = min(t1 * s.step**k, s.max_exposure)
+        if exposures and t <= exposures[-1]:
+            break
+        exposures.append(t)
+    t_long = exposures[-1]
+    sig = min(rate_dim * g * t_long, range_dn)
+    var = float(noise.variance(sig + dark_dn_per_s * g * t_long, g))
+    snr_px = sig / math.sqrt(var) if var > 0 else float("inf")
+    need = (s.target_snr / max(snr_px * math.sqrt(max(n_pixels, 1)), 1e-12)) ** 2
+    frames = int(min(max(math.ceil(need), s.min_frames), s.max_frames))
+    return CapturePlan(tuple(exposures), (frames,) * len(exposures), g)

@@ -1,0 +1,186 @@
+"""From a merged radiometric image to BRDF samples: per-pixel geometry, the white reference, binning.
+
+Per pixel x on the sample plane (sample frame, z = 0): ``wo = (C − x)/|C − x|``, ``wi = (S − x)/|S − x|``
+(C camera centre, S light position), irradiance per unit source intensity ``E = cos θi / r²``
+(point source; lecture notes 004, "point light"). The camera measures ``rate = k I L`` with
+``L = f E`` (lecture notes 004: reflected radiance = BRDF × irradiance). The white reference
+(Lambertian, albedo ρ_w) gives ``k I = rate_w / (ρ_w/π · E_w)`` at its own pixels (its own wi,
+distance to the light), so ``f = rate / (k I · E)`` — light intensity, lens and sensor responsivity
+cancel; only ρ_w must be known. In absolute mode ``k I`` comes from the calibration instead.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gonio import samples as S
+from gonio.geometry import dot, normalize
+from gonio.pipeline.hdr import HdrImage
+from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
+from gonio.samples import SampleSet
+
+__all__ = ["Roi", "build_roi", "reflectance_samples"]
+
+
+@dataclass
+class Roi:
+    """Pixels of the frame that see the sample or the white reference.
+
+    ``rows``/``cols`` crop the frame; ``p`` (h, w, 3) are the plane points of the crop's pixels;
+    ``label`` (h, w) is the sample tile index (−1 elsewhere); ``white`` (h, w) marks white-patch pixels.
+    """
+
+    rows: slice
+    cols: slice
+    p: np.ndarray
+    label: np.ndarray
+    white: np.ndarray
+    n_tiles: int
+
+    @property
+    def region(self) -> tuple[slice, slice]:
+        return self.rows, self.cols
+
+    @property
+    def empty(self) -> bool:
+        return not (self.label >= 0).any() or not self.white.any()
+
+
+def _angle_span(vectors: np.ndarray) -> float:
+    """Largest angle (radians) between any two of a few unit vectors."""
+    c = np.clip(vectors @ vectors.T, -1.0, 1.0)
+    return float(np.arccos(c.min()))
+
+
+def build_roi(pose: CameraPose, calib: CameraCalibration, layout: TargetLayout, light_position, *,
+              margin_px: float = 3.0, max_bin_deg: float = 2.0, max_bins: int = 8) -> Roi:
+    """Region of interest, per-pixel plane points and tiles for one camera pose.
+
+    The sample patch is cut into n × n tiles (n ≤ ``max_bins``) so that each tile spans at most
+    ``max_bin_deg`` of wi and of wo (estimated from the patch corners); a margin of ``margin_px``
+    pixel footprints is dropped along every patch edge (pixels there mix patch and board).
+    """
+    C = pose.centre
+    S_ = np.asarray(light_position, dtype=np.float64)
+    corners = np.concatenate([layout.sample.corners(), layout.white.corners()])
+    uv = pose.project(corners, calib)
+    in_front = (corners @ pose.R.T + pose.t)[:, 2] > 0
+    if not in_front.all() or not np.isfinite(uv).all():
+        z = np.zeros((0, 0))
+        return Roi(slice(0, 0), slice(0, 0), np.zeros((0, 0, 3)), z.astype(int) - 1, z.astype(bool), 1)
+    c0, r0 = np.floor(uv.min(axis=0)).astype(int) - 2
+    c1, r1 = np.ceil(uv.max(axis=0)).astype(int) + 3
+    rows = slice(int(np.clip(r0, 0, calib.height)), int(np.clip(r1, 0, calib.height)))
+    cols = slice(int(np.clip(c0, 0, calib.width)), int(np.clip(c1, 0, calib.width)))
+    v, u = np.mgrid[rows, cols].astype(np.float64)
+    d = calib.rays(u, v) @ pose.R
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(d[..., 2] < -1e-12, -C[2] / d[..., 2], np.nan)
+    p = C + t[..., None] * d
+    foot = np.linalg.norm(C) / calib.K[0, 0]
+    m = margin_px * foot
+    x, y = p[..., 0], p[..., 1]
+    sr = layout.sample
+    in_sample = sr.contains(x, y, m)
+    white = layout.white.contains(x, y, m)
+    sc = sr.corners()
+    span = max(_angle_span(normalize(C - sc)), _angle_span(normalize(S_ - sc)))
+    n = int(np.clip(np.ceil(np.degrees(span) / max_bin_deg), 1, max_bins))
+    with np.errstate(invalid="ignore"):
+        ix = np.clip(((x - sr.x0) / (sr.x1 - sr.x0) * n).astype(int), 0, n - 1)
+        iy = np.clip(((y - sr.y0) / (sr.y1 - sr.y0) * n).astype(int), 0, n - 1)
+    label = np.where(in_sample, iy * n + ix, -1)
+    return Roi(rows, cols, p, label, white, n * n)
+
+
+def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_position, layout: TargetLayout, *,
+                        absolute_scale=None, min_snr: float = 10.0, pose_index: int = -1, flags: int = 0,
+                        light_rel_sigma: float = 0.0) -> SampleSet:
+    """BRDF samples (one per tile) from a merged image over ``roi`` (see the module docstring).
+
+    Uncertainty: per pixel ``σ_f² = σ²_rate / (kI E)²``; per tile the mean's variance
+    ``Σσ_f²/n²`` plus the white reference's relative variance (and ``light_rel_sigma``, the light
+    normalization's) times f², per RGB channel (GUM, JCGM 100:2008, eq. 10, uncorrelated inputs).
+    Pixels saturated in every exposure are excluded and their tile flagged ``SATURATED``; a tile
+    with no usable pixel gets f = σ = NaN (flagged). SNR below ``min_snr`` → ``LOW_SIGNAL``.
+    ``flags`` (e.g. ``NO_BOARD``, ``DRIFT``) are set on every sample.
+    """
+    C = pose.centre
+    S_ = np.asarray(light_position, dtype=np.float64)
+    nt = roi.n_tiles
+    p = roi.p
+    to_l = S_ - p
+    r2 = dot(to_l, to_l)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        wi = to_l / np.sqrt(r2)[..., None]
+        wo = normalize(C - p)
+        E = np.maximum(wi[..., 2], 0.0) / r2
+    finite = np.isfinite(p).all(axis=-1) & (wi[..., 2] > 0) & (wo[..., 2] > 0)
+    sat_px = hdr.saturated.any(axis=-1)
+    # --- white reference: k·I per channel ------------------------------------------------------
+    rho = np.asarray(layout.white_albedo) / np.pi
+    white_flags = 0
+    if absolute_scale is None:
+        wmask = roi.white & finite
+        if (wmask & sat_px).any():
+            white_flags |= S.SATURATED
+        wmask &= ~sat_px
+        if wmask.any():
+            den = rho * E[wmask][:, None]
+            kI_px = hdr.rate[wmask] / den
+            kI = kI_px.mean(axis=0)
+            kI_var = (hdr.var[wmask] / den**2).sum(axis=0) / wmask.sum() ** 2
+        else:
+            kI = np.full(3 if hdr.rate.shape[-1] == 3 else 1, np.nan)
+            kI_var = kI.copy()
+            white_flags |= S.SATURATED
+    else:
+        kI = np.asarray(absolute_scale, dtype=np.float64)
+        kI_var = np.zeros_like(kI)
+    # --- sample pixels -> tiles ----------------------------------------------------------------
+    lab = roi.label
+    in_s = (lab >= 0) & finite
+    good = in_s & ~sat_px
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f_px = hdr.rate[good] / (kI * E[good][:, None])
+        v_px = hdr.var[good] / (kI * E[good][:, None]) ** 2
+    lg = lab[good]
+    n = np.bincount(lg, minlength=nt).astype(np.float64)
+    nsat = np.bincount(lab[in_s & sat_px], minlength=nt)
+    nany = np.bincount(lab[in_s], minlength=nt)
+    chans = f_px.shape[-1] if f_px.ndim == 2 else hdr.rate.shape[-1]
+    fsum = np.stack([np.bincount(lg, f_px[:, c], minlength=nt) for c in range(chans)], axis=-1)
+    vsum = np.stack([np.bincount(lg, v_px[:, c], minlength=nt) for c in range(chans)], axis=-1)
+
+    def vec_mean(vecs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        return normalize(np.stack([np.bincount(lab[mask], vecs[mask][:, k], minlength=nt) for k in range(3)], -1))
+
+    # directions: mean over all sample pixels of the tile (saturated ones included: same geometry)
+    wi_t = vec_mean(wi, in_s)
+    wo_t = vec_mean(wo, in_s)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = fsum / n[:, None]
+        var = vsum / n[:, None] ** 2 + f**2 * (kI_var / kI**2 + light_rel_sigma**2)
+    if chans == 1:
+        f, var = np.repeat(f, 3, axis=1), np.repeat(var, 3, axis=1)
+    sigma = np.sqrt(var)
+    fl = np.full(nt, int(flags) | white_flags, dtype=np.int64)
+    fl[nsat > 0] |= S.SATURATED
+    with np.errstate(invalid="ignore", divide="ignore"):
+        snr = np.where(sigma > 0, f / sigma, np.inf)
+    fl[~(snr.min(axis=1) >= min_snr)] |= S.LOW_SIGNAL
+    empty = n == 0
+    f[empty] = np.nan
+    sigma[empty] = np.nan
+    keep = nany > 0  # tiles with no pixel at all (outside the view) are not samples
+    if not keep.any():
+        keep = np.zeros(nt, bool)
+        keep[0] = True
+        wi_t[0] = normalize(S_)
+        wo_t[0] = normalize(C)
+        f[0], sigma[0] = np.nan, np.nan
+        fl[0] |= S.BAD_FRAME
+    return SampleSet(wi=wi_t[keep], wo=wo_t[keep], f=f[keep], sigma=sigma[keep], n_pixels=n[keep].astype(np.int64),
+                     flags=fl[keep], pose=np.full(int(keep.sum()), pose_index))

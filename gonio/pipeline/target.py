@@ -1,0 +1,258 @@
+"""What the camera looks at and how it sees it: the target layout, the camera model and its pose.
+
+Shared by the renderer (``sim.camera``) and the pipeline, so both agree on where the ChArUco board,
+the sample patch and the white reference patch are.
+
+Frames
+------
+*Sample frame* (= world frame of the simulation, DESIGN.md §2): origin at the sample centre,
+z = sample normal, x = reference direction. *Board frame* (OpenCV's ChArUco object points):
+origin at the board's top-left corner, x along the image columns, y along the rows, z into the
+board. The board is mounted with its centre on the sample centre, so
+``board = (x_s + W/2, H/2 − y_s, −z_s)`` — a rotation by π about x plus a translation.
+*Camera frame* (OpenCV pinhole): x right, y down, z forward; ``X_cam = R X_world + t``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gonio.errors import ConfigError
+from gonio.geometry import normalize
+
+__all__ = ["Rect", "CharucoSpec", "TargetLayout", "NoiseModel", "CameraCalibration", "CameraPose"]
+
+#: Rotation board frame -> sample frame (and its own inverse): π about x.
+BOARD_TO_SAMPLE_R = np.diag([1.0, -1.0, -1.0])
+
+
+@dataclass(frozen=True)
+class Rect:
+    """Axis-aligned rectangle ``[x0, x1] × [y0, y1]`` in the sample plane (metres, sample frame)."""
+
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+
+    def __post_init__(self):
+        if not (np.isfinite([self.x0, self.y0, self.x1, self.y1]).all() and self.x1 > self.x0 and self.y1 > self.y0):
+            raise ConfigError.field(None, "target.rect", (self.x0, self.y0, self.x1, self.y1), "needs x0 < x1 and y0 < y1")
+
+    def contains(self, x, y, margin: float = 0.0) -> np.ndarray:
+        """Boolean mask of points ``(x, y)`` at least ``margin`` inside the rectangle."""
+        return (x >= self.x0 + margin) & (x <= self.x1 - margin) & (y >= self.y0 + margin) & (y <= self.y1 - margin)
+
+    def corners(self) -> np.ndarray:
+        """The 4 corners, shape (4, 3), z = 0."""
+        return np.array([[self.x0, self.y0, 0], [self.x1, self.y0, 0], [self.x1, self.y1, 0], [self.x0, self.y1, 0]], float)
+
+    def overlaps(self, other: "Rect") -> bool:
+        return not (self.x1 <= other.x0 or other.x1 <= self.x0 or self.y1 <= other.y0 or other.y1 <= self.y0)
+
+
+@dataclass(frozen=True)
+class CharucoSpec:
+    """A ChArUco board (OpenCV 5 ``cv2.aruco.CharucoBoard``), centred on the sample.
+
+    Attributes
+    ----------
+    squares : (int, int)
+        Squares along x (columns) and y (rows).
+    square_length, marker_length : float
+        Metres.
+    dictionary : str
+        Name of a ``cv2.aruco`` predefined dictionary, e.g. ``"DICT_5X5_100"``.
+    """
+
+    squares: tuple[int, int] = (9, 7)
+    square_length: float = 0.03
+    marker_length: float = 0.022
+    dictionary: str = "DICT_5X5_100"
+
+    def __post_init__(self):
+        if not (0 < self.marker_length < self.square_length):
+            raise ConfigError.field(None, "target.marker_length", self.marker_length, "must be in (0, square_length)")
+        if min(self.squares) < 3:
+            raise ConfigError.field(None, "target.squares", self.squares, "needs at least 3 × 3 squares")
+
+    @property
+    def size(self) -> tuple[float, float]:
+        """Board width and height in metres."""
+        return self.squares[0] * self.square_length, self.squares[1] * self.square_length
+
+    def board(self):
+        """The OpenCV board object (imports cv2)."""
+        import cv2
+
+        try:
+            dict_id = getattr(cv2.aruco, self.dictionary)
+        except AttributeError:
+            raise ConfigError.field(None, "target.dictionary", self.dictionary, "not a cv2.aruco dictionary") from None
+        d = cv2.aruco.getPredefinedDictionary(dict_id)
+        return cv2.aruco.CharucoBoard(tuple(self.squares), self.square_length, self.marker_length, d)
+
+    def sample_to_board(self, p) -> np.ndarray:
+        """Sample-frame points (..., 3) -> board-frame points."""
+        w, h = self.size
+        p = np.asarray(p, dtype=np.float64)
+        return p @ BOARD_TO_SAMPLE_R + np.array([w / 2, h / 2, 0.0])
+
+    def board_to_sample(self, p) -> np.ndarray:
+        """Board-frame points (..., 3) -> sample-frame points."""
+        w, h = self.size
+        return (np.asarray(p, dtype=np.float64) - np.array([w / 2, h / 2, 0.0])) @ BOARD_TO_SAMPLE_R
+
+
+@dataclass(frozen=True)
+class TargetLayout:
+    """Board, sample patch and white reference patch (rectangles in the sample frame, metres).
+
+    The white reference is Lambertian with albedo ``white_albedo`` (per RGB channel, e.g. a
+    calibrated Spectralon tile: 0.99).
+    """
+
+    charuco: CharucoSpec = field(default_factory=CharucoSpec)
+    sample: Rect = field(default_factory=lambda: Rect(-0.025, -0.025, 0.025, 0.025))
+    white: Rect = field(default_factory=lambda: Rect(-0.105, -0.02, -0.065, 0.02))
+    white_albedo: tuple[float, float, float] = (0.99, 0.99, 0.99)
+
+    def __post_init__(self):
+        w, h = self.charuco.size
+        board = Rect(-w / 2, -h / 2, w / 2, h / 2)
+        for name, r in (("sample", self.sample), ("white", self.white)):
+            if not (board.contains(r.x0, r.y0) and board.contains(r.x1, r.y1)):
+                raise ConfigError.field(None, f"target.{name}", r, f"must lie on the {w:g} × {h:g} m board")
+        if self.sample.overlaps(self.white):
+            raise ConfigError.field(None, "target.white", self.white, "overlaps the sample patch")
+        a = np.asarray(self.white_albedo, dtype=np.float64)
+        if a.shape != (3,) or not np.all((a > 0) & (a <= 1)):
+            raise ConfigError.field(None, "target.white_albedo", self.white_albedo, "needs 3 values in (0, 1]")
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Sensor noise model used to propagate uncertainty (EMVA 1288 linear camera model).
+
+    Raw value above black level ``y = K·G·(n_e) + noise``; variance
+    ``σ_y² = (K G)² (μ_e + σ_read²) + 1/12`` (shot noise of signal and dark electrons, read noise,
+    quantization); EMVA Standard 1288 release 4.0, §2 ("Mathematical model").
+
+    Attributes
+    ----------
+    dn_per_electron : float
+        System gain K at analogue gain 1 (DN per electron).
+    read_noise_e : float
+        Temporal dark (read) noise, electrons.
+    full_well_e : float or None
+        Saturation capacity in electrons (where the response stops being linear), if known.
+    """
+
+    dn_per_electron: float = 0.2
+    read_noise_e: float = 3.0
+    full_well_e: float | None = None
+
+    def linear_limit(self, saturation_dn: float, black_level: float, gain: float = 1.0) -> float:
+        """Largest raw value still on the linear response: ADC saturation or the full well, if lower."""
+        if self.full_well_e is None:
+            return float(saturation_dn)
+        return float(min(saturation_dn, black_level + self.full_well_e * self.dn_per_electron * gain))
+
+    def variance(self, signal_dn, gain: float = 1.0) -> np.ndarray:
+        """Variance (DN²) of one raw value whose mean signal above black is ``signal_dn`` (signal + dark)."""
+        kg = self.dn_per_electron * gain
+        return kg * np.maximum(signal_dn, 0.0) + (kg * self.read_noise_e) ** 2 + 1.0 / 12.0
+
+
+@dataclass(frozen=True)
+class CameraCalibration:
+    """Pinhole intrinsics, lens distortion (OpenCV's 5-coefficient model) and the noise model.
+
+    ``radiometric_scale`` (optional, absolute mode): DN per second at gain 1 per unit radiance for
+    the calibrated light at photodiode reading 1, per RGB channel.
+    """
+
+    K: np.ndarray
+    width: int
+    height: int
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    noise: NoiseModel = field(default_factory=NoiseModel)
+    radiometric_scale: tuple[float, float, float] | None = None
+
+    def __post_init__(self):
+        K = np.asarray(self.K, dtype=np.float64)
+        if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise ConfigError.field(None, "calibration.K", self.K, "needs a finite 3x3 matrix with fx, fy > 0")
+        dist = np.asarray(self.dist, dtype=np.float64).ravel()
+        if dist.size not in (4, 5, 8, 12, 14):
+            raise ConfigError.field(None, "calibration.dist", self.dist, "needs 4, 5, 8, 12 or 14 coefficients")
+        if int(self.width) <= 0 or int(self.height) <= 0:
+            raise ConfigError.field(None, "calibration.size", (self.width, self.height), "must be positive")
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "dist", dist)
+
+    @classmethod
+    def pinhole(cls, width: int, height: int, focal_px: float, **kw) -> "CameraCalibration":
+        """An ideal pinhole with the principal point at the image centre."""
+        K = np.array([[focal_px, 0, (width - 1) / 2], [0, focal_px, (height - 1) / 2], [0, 0, 1.0]])
+        return cls(K=K, width=width, height=height, **kw)
+
+    def rays(self, u, v) -> np.ndarray:
+        """Unit viewing rays (camera frame) through pixel coordinates ``(u, v)`` (pixel centres at integers).
+
+        Distortion is removed with ``cv2.undistortPoints`` when any coefficient is non-zero.
+        """
+        u = np.asarray(u, dtype=np.float64)
+        v = np.asarray(v, dtype=np.float64)
+        if np.any(self.dist):
+            import cv2
+
+            pts = np.stack([u.ravel(), v.ravel()], axis=-1).reshape(-1, 1, 2)
+            xy = cv2.undistortPoints(pts, self.K, self.dist).reshape(u.shape + (2,))
+            x, y = xy[..., 0], xy[..., 1]
+        else:
+            fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
+            x = (u - cx) / fx - self.K[0, 1] * (v - cy) / (fx * fy)
+            y = (v - cy) / fy
+        return normalize(np.stack([x, y, np.ones_like(x)], axis=-1))
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """Rigid camera pose: ``X_cam = R X_world + t`` (world = sample frame)."""
+
+    R: np.ndarray
+    t: np.ndarray
+
+    def __post_init__(self):
+        object.__setattr__(self, "R", np.asarray(self.R, dtype=np.float64).reshape(3, 3))
+        object.__setattr__(self, "t", np.asarray(self.t, dtype=np.float64).reshape(3))
+
+    @property
+    def centre(self) -> np.ndarray:
+        """Camera centre in world coordinates, ``−Rᵀ t``."""
+        return -self.R.T @ self.t
+
+    @classmethod
+    def look_at(cls, eye, target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0)) -> "CameraPose":
+        """Camera at ``eye`` looking at ``target``; image 'up' toward ``up`` (falls back to +x if parallel)."""
+        eye = np.asarray(eye, dtype=np.float64)
+        z = normalize(np.asarray(target, dtype=np.float64) - eye)
+        x = np.cross(z, np.asarray(up, dtype=np.float64))
+        if np.linalg.norm(x) < 1e-9:
+            x = np.cross(z, [1.0, 0.0, 0.0])
+        x = normalize(x)
+        y = np.cross(z, x)
+        R = np.stack([x, y, z])
+        return cls(R, -R @ eye)
+
+    def project(self, points, calib: CameraCalibration) -> np.ndarray:
+        """Pixel coordinates (..., 2) of world points (..., 3) (pinhole + distortion via OpenCV)."""
+        import cv2
+
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        rvec, _ = cv2.Rodrigues(self.R)
+        uv, _ = cv2.projectPoints(p, rvec, self.t, calib.K, calib.dist)
+        return uv.reshape(np.shape(points)[:-1] + (2,))

@@ -1,0 +1,332 @@
+"""The simulated camera: renders what the rig's camera would see, through the same ``Camera`` interface.
+
+Scene (sample frame = world frame): a ChArUco board in the plane z = 0 centred on the sample, the
+sample patch carrying a :mod:`gonio.brdf` model (optionally tilted/transformed), a Lambertian white
+reference patch, a point light with 1/r² falloff. Per-pixel ray/plane intersection gives per-pixel
+wi/wo, so the pixels of one frame see slightly different angles.
+
+Rendering is split in two: the noiseless electron rate image depends only on the camera pose and
+the light position and is cached; :meth:`SimCamera.capture` scales it by exposure and the light's
+current output and adds the sensor model (shot, read, dark noise, full well, gain, black level,
+quantization). The rig wiring (``sim/rig.py``) calls :meth:`SimCamera.set_pose` and
+:meth:`SimCamera.set_light` per pose and may pass ``light_output`` so that the camera sees the same
+output the controller emulator's reference photodiode reports.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from gonio.brdf.base import BRDF
+from gonio.errors import ConfigError, HardwareError
+from gonio.geometry import dot, frame_from_normal, normalize, to_local, transform_normals
+from gonio.pipeline.target import CameraCalibration, CameraPose, NoiseModel, TargetLayout
+from gonio.rig.interfaces import Clock, Frame
+
+__all__ = ["SensorModel", "SimScene", "SimCamera", "SceneLight"]
+
+#: Below this mean count (electrons) shot noise is drawn from the exact Poisson law; above it from
+#: its normal approximation N(μ, μ), whose CDF error is below 1 % of σ there (Berry–Esseen bound
+#: ~0.4/√μ on the CDF; the mean and variance are exact in both cases).
+POISSON_EXACT_BELOW = 30.0
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """Linear sensor (EMVA 1288 model) with an optional 8-bit gamma response.
+
+    Attributes
+    ----------
+    bit_depth : int
+        8, 10, 12, 14 or 16 bits per value.
+    full_well : float
+        Electrons at which the pixel saturates.
+    dn_per_electron : float or None
+        System gain K at analogue gain 1; default maps the full well to ~95 % of the range.
+    read_noise_e, dark_current_e : float
+        Read noise (electrons rms) and dark current (electrons per second).
+    black_level : float or None
+        Pedestal in DN; default 2^(bits−6) for linear sensors, 0 for 8-bit gamma.
+    responsivity : 3 floats
+        Electrons per second per unit radiance (W m⁻² sr⁻¹), per RGB channel (lens + QE + filters).
+    linear : bool
+        False for an 8-bit camera with the response ``y = 255 (x / x_sat)^(1/gamma)``.
+    """
+
+    bit_depth: int = 12
+    full_well: float = 20000.0
+    dn_per_electron: float | None = None
+    read_noise_e: float = 3.0
+    dark_current_e: float = 20.0
+    black_level: float | None = None
+    responsivity: tuple[float, float, float] = (3.0e6, 3.4e6, 2.6e6)
+    linear: bool = True
+    gamma: float = 2.2
+    min_exposure: float = 1e-5
+    max_exposure: float = 2.0
+
+    def __post_init__(self):
+        if self.bit_depth not in (8, 10, 12, 14, 16):
+            raise ConfigError.field(None, "sensor.bit_depth", self.bit_depth, "must be 8, 10, 12, 14 or 16")
+        if not self.linear and self.bit_depth != 8:
+            raise ConfigError.field(None, "sensor.linear", self.linear, "a non-linear response needs bit_depth 8")
+        if self.dn_per_electron is None:
+            object.__setattr__(self, "dn_per_electron", 0.95 * (2 ** self.bit_depth) / self.full_well)
+        if self.black_level is None:
+            object.__setattr__(self, "black_level", float(2 ** (self.bit_depth - 6)) if self.linear else 0.0)
+
+    @property
+    def saturation(self) -> int:
+        return (1 << self.bit_depth) - 1
+
+    def noise_model(self) -> NoiseModel:
+        """The noise model the pipeline should use for this sensor."""
+        return NoiseModel(dn_per_electron=float(self.dn_per_electron), read_noise_e=self.read_noise_e,
+                          full_well_e=self.full_well)
+
+
+@dataclass(frozen=True)
+class SimScene:
+    """What is on the sample stage and how the light shines on it.
+
+    ``light_intensity`` is the radiant intensity (W/sr) of the point source at output 1;
+    ``sample_transform`` (4×4, optional) moves the sample patch off the board plane (a tilt, a
+    mounting error); its normals are transformed by the inverse-transpose.
+    """
+
+    layout: TargetLayout
+    material: BRDF
+    light_intensity: float = 1.0
+    board_white: float = 0.8
+    board_black: float = 0.03
+    background: float = 0.02
+    sample_transform: np.ndarray | None = None
+    texel: float = 0.25e-3
+
+
+class SceneLight:
+    """The light and reference photodiode of the rig, driven directly (no serial link).
+
+    A stand-in for the light half of the controller emulator, for camera/pipeline tests that run
+    before ``sim/rig.py`` wires the emulator: ``set_light``/``read_photodiode`` as in
+    :class:`gonio.rig.interfaces.RigController`. Warm-up drift:
+    ``output(t) = level · (1 − drift · exp(−t / tau))``.
+    """
+
+    def __init__(self, clock: Clock, *, drift: float = 0.0, tau: float = 300.0, pd_noise: float = 0.0,
+                 seed: int = 0):
+        self.clock = clock
+        self.drift = drift
+        self.tau = tau
+        self.pd_noise = pd_noise
+        self._rng = np.random.default_rng(seed)
+        self._on = True
+        self._level = 1.0
+
+    def set_light(self, on: bool, level: float = 1.0) -> None:
+        self._on = bool(on)
+        self._level = float(level)
+
+    def output(self) -> float:
+        """Relative output now (0 when off)."""
+        if not self._on:
+            return 0.0
+        return self._level * (1.0 - self.drift * np.exp(-self.clock.now() / self.tau))
+
+    def read_photodiode(self, samples: int = 1) -> tuple[float, float]:
+        sigma = self.pd_noise / np.sqrt(max(samples, 1))
+        return self.output() + (self._rng.normal(0.0, sigma) if sigma > 0 else 0.0), sigma
+
+
+class SimCamera:
+    """A rendering camera implementing :class:`gonio.rig.interfaces.Camera`.
+
+    Parameters
+    ----------
+    calibration : CameraCalibration
+        Intrinsics used to render (the truth; the pipeline may be given a perturbed copy).
+    sensor : SensorModel
+    scene : SimScene
+    seed : int
+        Seed of the noise generator: the same seed and call sequence give identical frames.
+    clock : Clock, optional
+        Timestamps frames; ``capture`` sleeps the exposure time on it.
+    light_output : callable, optional
+        Returns the light's relative output now (0 = off); default: :meth:`set_light` state.
+    """
+
+    def __init__(self, calibration: CameraCalibration, sensor: SensorModel, scene: SimScene, *, seed: int = 0,
+                 clock: Clock | None = None, light_output: Callable[[], float] | None = None):
+        self.calibration = calibration
+        self.sensor = sensor
+        self.scene = scene
+        self.clock = clock
+        self._rng = np.random.default_rng(seed)
+        self._light_output = light_output
+        self._on, self._level = True, 1.0
+        self._pose = CameraPose.look_at([0.0, 0.0, 0.6])
+        self._light_pos = np.array([0.0, 0.3, 0.5])
+        self._cache_key: bytes | None = None
+        self._rate: np.ndarray | None = None
+        self._rays: np.ndarray | None = None
+        self._texture = None
+        self._closed = False
+
+    # -- what the rig wiring sets per pose ------------------------------------------------------
+    def set_pose(self, pose: CameraPose) -> None:
+        """Place the camera (world = sample frame)."""
+        self._pose = pose
+
+    def set_light(self, position=None, *, on: bool | None = None, output: float | None = None) -> None:
+        """Move the point light (sample frame, metres) and/or switch it / set its relative output."""
+        if position is not None:
+            p = np.asarray(position, dtype=np.float64)
+            if p.shape != (3,) or not np.isfinite(p).all():
+                raise ConfigError.field(None, "light.position", position, "needs 3 finite numbers (metres)")
+            self._light_pos = p
+        if on is not None:
+            self._on = bool(on)
+        if output is not None:
+            self._level = float(output)
+
+    def light_level(self) -> float:
+        """The relative light output the next frame sees."""
+        if self._light_output is not None:
+            return float(self._light_output())
+        return self._level if self._on else 0.0
+
+    # -- rendering ------------------------------------------------------------------------------
+    def _camera_rays(self) -> np.ndarray:
+        if self._rays is None:
+            c = self.calibration
+            v, u = np.mgrid[0:c.height, 0:c.width].astype(np.float64)
+            self._rays = c.rays(u, v)
+        return self._rays
+
+    def _board_texture(self):
+        if self._texture is None:
+            spec = self.scene.layout.charuco
+            w, h = spec.size
+            size = (int(round(w / self.scene.texel)), int(round(h / self.scene.texel)))
+            img = spec.board().generateImage(size, marginSize=0, borderBits=1)
+            s = self.scene
+            self._texture = (s.board_black + (s.board_white - s.board_black) * (img / 255.0)).astype(np.float32)
+        return self._texture
+
+    def electron_rate(self) -> np.ndarray:
+        """Noiseless electrons per second per pixel at light output 1, shape (H, W, 3), float32 (cached)."""
+        key = self._pose.R.tobytes() + self._pose.t.tobytes() + self._light_pos.tobytes()
+        if key != self._cache_key:
+            self._rate = self._render()
+            self._cache_key = key
+        return self._rate
+
+    def _render(self) -> np.ndarray:
+        """Radiance L = f(wi, wo) · I · cos θi / r² per pixel (point source; lecture notes 004,
+        "point light": E = I cos θ / r²; reflected radiance L = f E), times the responsivity."""
+        import cv2
+
+        s, c = self.scene, self.calibration
+        C = self._pose.centre
+        d = self._camera_rays() @ self._pose.R  # world-frame ray directions (Rᵀ d_cam, row-wise)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(d[..., 2] < -1e-12, -C[2] / d[..., 2], np.inf)
+        hit = np.isfinite(t) & (t > 0)
+        p = C + np.where(hit, t, 0.0)[..., None] * d
+        # Board / background albedo: bilinear lookup in a texture prefiltered to the pixel footprint.
+        tex = self._board_texture()
+        spec = s.layout.charuco
+        w, h = spec.size
+        footprint = np.linalg.norm(C) / c.K[0, 0] / s.texel  # texels per pixel at the board centre
+        if footprint > 1.0:
+            tex = cv2.GaussianBlur(tex, (0, 0), 0.5 * footprint)
+        mx = ((p[..., 0] + w / 2) / s.texel - 0.5).astype(np.float32)
+        my = ((h / 2 - p[..., 1]) / s.texel - 0.5).astype(np.float32)
+        albedo = cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=s.background)
+        albedo = np.where(hit, albedo, 0.0)
+        lay = s.layout
+        white = lay.white.contains(p[..., 0], p[..., 1])
+        to_light = self._light_pos - p
+        r2 = dot(to_light, to_light)
+        wi = to_light / np.sqrt(r2)[..., None]
+        irr = s.light_intensity * np.maximum(wi[..., 2], 0.0) / r2  # E = I cos θ / r²
+        L = (albedo / np.pi * irr)[..., None] * np.ones(3)
+        L[white] = (np.asarray(lay.white_albedo) / np.pi) * irr[white][:, None]
+        L[~hit] = 0.0
+        self._shade_sample(L, d, C, hit)
+        return (L * np.asarray(self.sensor.responsivity)).astype(np.float32)
+
+    def _shade_sample(self, L: np.ndarray, d: np.ndarray, C: np.ndarray, hit: np.ndarray) -> None:
+        """Overwrite ``L`` where rays hit the (possibly transformed) sample patch."""
+        s = self.scene
+        M = np.eye(4) if s.sample_transform is None else np.asarray(s.sample_transform, dtype=np.float64)
+        n = transform_normals(M, [0.0, 0.0, 1.0])  # inverse-transpose (lecture notes 000)
+        frame = frame_from_normal(n, M[:3, :3] @ np.array([1.0, 0.0, 0.0]))
+        origin = M[:3, 3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = dot(origin - C, n) / dot(d, n)
+        ok = np.isfinite(t) & (t > 0) & (dot(d, n) < 0)
+        p = C + np.where(ok, t, 0.0)[..., None] * d
+        Minv = np.linalg.inv(M)
+        q = p @ Minv[:3, :3].T + Minv[:3, 3]  # back to the patch's own coordinates
+        inside = ok & s.layout.sample.contains(q[..., 0], q[..., 1])
+        if not inside.any():
+            return
+        pi = p[inside]
+        to_light = self._light_pos - pi
+        r2 = dot(to_light, to_light)
+        wi_w = to_light / np.sqrt(r2)[:, None]
+        wo_w = normalize(C - pi)
+        wi, wo = to_local(wi_w, frame), to_local(wo_w, frame)
+        f = s.material.eval(wi, wo)
+        irr = s.light_intensity * np.maximum(wi[:, 2], 0.0) / r2
+        L[inside] = f * irr[:, None]
+
+    # -- the Camera protocol --------------------------------------------------------------------
+    def capture(self, exposure: float, gain: float = 1.0, *, timeout: float = 10.0) -> Frame:
+        """Render one noisy frame (EMVA 1288 sensor model, see :class:`SensorModel`)."""
+        if self._closed:
+            raise HardwareError("sim camera: capture after close", device="sim-camera")
+        sn = self.sensor
+        if not (sn.min_exposure <= exposure <= sn.max_exposure):
+            raise ConfigError.field(None, "camera.exposure", exposure,
+                                    f"must be in [{sn.min_exposure:g}, {sn.max_exposure:g}] s")
+        if not (1.0 <= gain <= 64.0):
+            raise ConfigError.field(None, "camera.gain", gain, "must be in [1, 64]")
+        level = self.light_level()
+        t0 = self.clock.now() if self.clock is not None else 0.0
+        rate = self.electron_rate()
+        mean_e = rate * np.float32(level * exposure) + np.float32(sn.dark_current_e * exposure)
+        e = self._shot_and_read(mean_e)
+        np.minimum(e, np.float32(sn.full_well), out=e)
+        if sn.linear:
+            dn = e * np.float32(sn.dn_per_electron * gain) + np.float32(sn.black_level)
+        else:
+            x = np.clip(e * np.float32(gain / sn.full_well), 0.0, 1.0)
+            dn = 255.0 * x ** np.float32(1.0 / sn.gamma)
+        np.rint(dn, out=dn)
+        np.clip(dn, 0, sn.saturation, out=dn)
+        pixels = dn.astype(np.uint8 if sn.bit_depth == 8 else np.uint16)
+        if self.clock is not None:
+            self.clock.sleep(exposure)
+        return Frame(pixels=pixels, exposure=float(exposure), gain=float(gain), bit_depth=sn.bit_depth,
+                     black_level=float(sn.black_level), timestamp=t0, linear=sn.linear,
+                     meta={"device": "sim", "light_output": level})
+
+    def _shot_and_read(self, mean_e: np.ndarray) -> np.ndarray:
+        """Electrons after shot noise (Poisson; its normal approximation above
+        :data:`POISSON_EXACT_BELOW`) plus Gaussian read noise, in one normal draw where possible."""
+        z = self._rng.standard_normal(mean_e.shape, dtype=np.float32)
+        var = mean_e + np.float32(self.sensor.read_noise_e ** 2)
+        e = mean_e + np.sqrt(var) * z
+        low = mean_e < POISSON_EXACT_BELOW
+        if low.any():
+            m = mean_e[low]
+            e[low] = self._rng.poisson(np.maximum(m, 0.0)) + self.sensor.read_noise_e * z[low]
+        return e
+
+    def close(self) -> None:
+        self._closed = True
