@@ -20,7 +20,9 @@ class OrenNayar(BRDF):
     Evaluated without angles: cos(φ_i − φ_o) sin θ_i sin θ_o = wi_x wo_x + wi_y wo_y and
     sin α tan β / (sin θ_i sin θ_o) = 1 / cos β = 1 / max(cos θ_i, cos θ_o), so
     the term is max(0, wi_x wo_x + wi_y wo_y) / max(cos θ_i, cos θ_o): defined at the pole, no
-    0·∞ at grazing. σ = 0 is Lambert. Reciprocal.
+    0·∞ at grazing. σ = 0 is Lambert. Reciprocal. The qualitative model is not exactly energy
+    conserving: its directional albedo reaches ~1.007 ρ at θ_i = 80° (tests/brdf/test_energy.py),
+    so it is not marked energy conserving.
 
     Parameters
     ----------
@@ -35,6 +37,7 @@ class OrenNayar(BRDF):
         "albedo": Param("rgb", 0.0, 1.0, 0.8, doc="albedo rho, per RGB channel"),
         "sigma": Param("scalar", 0.0, np.pi / 2, 0.3, doc="facet slope angle std. deviation, radians"),
     }
+    energy_conserving = False
 
     def _eval(self, wi, wo):
         s2 = self.sigma * self.sigma
