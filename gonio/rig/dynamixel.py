@@ -1,0 +1,504 @@
+"""Dynamixel servos (Protocol 2.0) through the real ``dynamixel-sdk``: a guarded bus and the rig's axes.
+
+:class:`DynamixelBus` wraps one port: ``PortHandler`` / ``PacketHandler(2.0)`` / ``GroupSyncWrite`` /
+``GroupSyncRead`` / ``GroupBulkRead``, with
+
+* a lock around every transaction (the SDK's ``is_using`` flag is not a lock, FIELD-NOTES.md);
+* bounded retries of timeouts and corrupted replies; after each failure it waits for a late reply
+  (up to ``late_reply_window_s``) and clears the port, because the SDK takes a late reply as the
+  answer to the next request when the IDs match (FIELD-NOTES.md);
+* the packet timeout's latency term set per port (``latency_timer_ms``, the SDK's module-global
+  ``LATENCY_TIMER`` is left alone), so a loaded CI machine can use a generous value;
+* typed errors: :class:`~gonio.errors.HardwareTimeout`, :class:`~gonio.errors.ChecksumError`,
+  :class:`~gonio.errors.ServoAlarm` (Hardware Error Status bits decoded), :class:`~gonio.errors.HardwareError`.
+
+:class:`DynamixelAxes` implements :class:`gonio.rig.interfaces.Axes` on such a bus: joint radians ↔
+ticks (``ticks = zero_offset/360·4096 + direction · gear_ratio · θ · 4096/2π``), configuration written
+before torque-on (operating mode, homing offset, position limits, profile velocity/acceleration from
+the joint's speed limits), one ``GroupSyncWrite`` per move, settling polled with ``GroupSyncRead``
+on the given :class:`~gonio.rig.interfaces.Clock`, the *measured* angles returned, and the final
+approach to every target from one side (backlash). Alarms raise :class:`ServoAlarm` unless
+``auto_recover`` allows a reboot; a servo found with torque off and no alarm (power cycle, brown-out)
+gets its RAM settings written again and the move is re-issued, once per move.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable, Iterable, Mapping, Sequence
+
+import dynamixel_sdk as sdk
+
+from gonio.errors import ChecksumError, ConfigError, HardwareError, HardwareTimeout, ServoAlarm
+from gonio.rig.control_table import ControlTable, load_control_table, table_for_model_number
+from gonio.rig.kinematics import trapezoid_time
+
+__all__ = ["DynamixelBus", "DynamixelAxes", "AxisConfig", "describe_hardware_error", "BAUD_RATES"]
+
+#: Baud rates the SDK's PortHandler accepts.
+BAUD_RATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600, 1000000, 1152000,
+              2000000, 2500000, 3000000, 3500000, 4000000)
+_HW_BITS = {0x01: "input voltage", 0x04: "overheating", 0x08: "motor encoder", 0x10: "electrical shock",
+            0x20: "overload"}
+_STATUS_ERRORS = {1: "result fail", 2: "instruction error", 3: "CRC error", 4: "data range error",
+                  5: "data length error", 6: "data limit error", 7: "access error"}
+_RETRYABLE = (sdk.COMM_RX_TIMEOUT, sdk.COMM_RX_CORRUPT, sdk.COMM_RX_FAIL, sdk.COMM_TX_FAIL, sdk.COMM_PORT_BUSY)
+
+
+def describe_hardware_error(bits: int) -> str:
+    """Names of the Hardware Error Status(70) bits set in ``bits`` (e-manual, "Shutdown(63)")."""
+    names = [name for bit, name in _HW_BITS.items() if bits & bit]
+    return ", ".join(names) or f"unknown (0x{bits:02X})"
+
+
+class _Port(sdk.PortHandler):
+    """``PortHandler`` whose packet timeout uses this port's latency timer instead of the module global."""
+
+    def __init__(self, name: str, latency_timer_ms: float):
+        super().__init__(name)
+        self.latency_timer_ms = float(latency_timer_ms)
+
+    def setPacketTimeout(self, packet_length):  # noqa: N802 - SDK name
+        self.packet_start_time = self.getCurrentTime()
+        self.packet_timeout = self.tx_time_per_byte * packet_length + self.latency_timer_ms * 2.0 + 2.0
+
+
+class DynamixelBus:
+    """One Protocol 2.0 bus on a serial port, guarded and retried (see the module docstring).
+
+    Parameters
+    ----------
+    port : serial device (``/dev/ttyUSB0``, or an emulator's ``/dev/pts/N``)
+    baud : one of :data:`BAUD_RATES`
+    latency_timer_ms : latency term of the SDK's reply timeout (USB adapters default to 16 ms; use
+        more on loaded machines)
+    retries : extra attempts after a timeout or corrupted reply
+    late_reply_window_s : after a failure, how long to wait for a late reply before clearing the port
+    """
+
+    def __init__(self, port: str, baud: int = 1_000_000, *, latency_timer_ms: float = 16.0, retries: int = 3,
+                 late_reply_window_s: float = 0.1):
+        if baud not in BAUD_RATES:
+            raise ConfigError.field("--baud", "baud", baud, f"not supported; use one of {', '.join(map(str, BAUD_RATES))}")
+        self.port_name = port
+        self.baud = baud
+        self.retries = int(retries)
+        self.late_reply_window_s = float(late_reply_window_s)
+        self._port = _Port(port, latency_timer_ms)
+        self._ph = sdk.PacketHandler(2.0)
+        self._lock = threading.RLock()
+        self._sync_reads: dict[tuple, sdk.GroupSyncRead] = {}
+        self.stats = {"transactions": 0, "retries": 0, "recoveries": 0}
+
+    # -- lifecycle ------------------------------------------------------------------------------
+    def open(self) -> "DynamixelBus":
+        try:
+            ok = self._port.setBaudRate(self.baud)
+        except Exception as exc:  # serial.SerialException, OSError
+            raise HardwareError(f"cannot open serial port {self.port_name}: {getattr(exc, 'strerror', None) or exc}",
+                                device=self.port_name) from None
+        if not ok:
+            raise HardwareError(f"cannot open serial port {self.port_name} at {self.baud} baud", device=self.port_name)
+        return self
+
+    def close(self) -> None:
+        with self._lock:
+            if self._port.is_open:
+                self._port.closePort()
+
+    def __enter__(self):
+        return self.open()
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # -- the guarded transaction ----------------------------------------------------------------
+    def _recover(self) -> None:
+        """Wait for a late reply (real time: it is the serial link), then drop whatever arrived."""
+        self.stats["recoveries"] += 1
+        deadline = time.monotonic() + self.late_reply_window_s
+        while time.monotonic() < deadline:
+            if self._port.getBytesAvailable():
+                time.sleep(0.002 + 2 * self._port.latency_timer_ms / 1000.0)  # let the rest of it arrive
+                break
+            time.sleep(0.001)
+        self._port.clearPort()
+        self._port.is_using = False
+
+    def transact(self, what: str, dxl_id: int | None, fn: Callable[[], tuple], *, alarm_ok: bool = False):
+        """Run ``fn`` (an SDK call returning ``(..., result, error)`` or ``(..., result)``) under the
+        lock with retries; returns ``fn``'s output. Alarms raise :class:`ServoAlarm` unless ``alarm_ok``."""
+        last = sdk.COMM_RX_TIMEOUT
+        for attempt in range(self.retries + 1):
+            with self._lock:
+                if not self._port.is_open:
+                    raise HardwareError(f"{self.port_name}: port is not open", device=self.port_name)
+                out = fn()
+                self.stats["transactions"] += 1
+                result, error = self._result(out)
+                if result in _RETRYABLE:
+                    last = result
+                    self.stats["retries"] += attempt < self.retries
+                    self._recover()
+                    continue
+            if result != sdk.COMM_SUCCESS:
+                raise HardwareError(f"{self._who(dxl_id)}: {what}: {self._ph.getTxRxResult(result)}",
+                                    device=self.port_name, code=result)
+            if error & 0x7F == 3:  # the servo saw a corrupted instruction: retry
+                last = sdk.COMM_RX_CORRUPT
+                self.stats["retries"] += attempt < self.retries
+                continue
+            if error & 0x7F:
+                raise HardwareError(f"{self._who(dxl_id)}: {what}: {_STATUS_ERRORS.get(error & 0x7F, error)}",
+                                    device=self.port_name, code=error & 0x7F)
+            if error & 0x80 and not alarm_ok:
+                self.raise_alarm(dxl_id)
+            return out
+        cls = ChecksumError if last == sdk.COMM_RX_CORRUPT else HardwareTimeout
+        why = "corrupted replies" if cls is ChecksumError else "no answer"
+        raise cls(f"{self._who(dxl_id)}: {what}: {why} after {self.retries + 1} attempts",
+                  device=self.port_name, code=last)
+
+    @staticmethod
+    def _result(out) -> tuple[int, int]:
+        if isinstance(out, int):
+            return out, 0  # group txPacket / txRxPacket
+        return out[-2], out[-1]  # (result, error) or (value, result, error)
+
+    def _who(self, dxl_id) -> str:
+        return f"{self.port_name}: servo {dxl_id}" if dxl_id is not None else self.port_name
+
+    def raise_alarm(self, dxl_id: int, bits: int | None = None):
+        if bits is None:
+            bits, _, _ = self.transact("read Hardware Error Status", dxl_id,
+                                       lambda: self._ph.read1ByteTxRx(self._port, dxl_id, 70), alarm_ok=True)
+        raise ServoAlarm(f"{self._who(dxl_id)}: hardware error: {describe_hardware_error(bits)} "
+                         f"(Hardware Error Status 0x{bits:02X}); torque is off until reboot",
+                         device=f"dynamixel:{dxl_id}", code=bits)
+
+    # -- instructions ---------------------------------------------------------------------------
+    def ping(self, dxl_id: int) -> int:
+        """Model number of servo ``dxl_id``; HardwareTimeout if it does not answer."""
+        model, _, _ = self.transact("ping", dxl_id, lambda: self._ph.ping(self._port, dxl_id), alarm_ok=True)
+        return model
+
+    def scan(self, ids: Iterable[int] | None = None) -> dict[int, int]:
+        """``{id: model number}`` of the servos that answer: broadcast ping (waits its full window,
+        about a second) when ``ids`` is None, else one ping per ID (no retries)."""
+        if ids is None:
+            data, _, _ = self.transact("broadcast ping", None, lambda: self._broadcast(), alarm_ok=True)
+            return {i: v[0] for i, v in sorted(data.items())}
+        found = {}
+        for i in ids:
+            with self._lock:
+                model, result, _ = self._ph.ping(self._port, i)
+                self.stats["transactions"] += 1
+                if result == sdk.COMM_SUCCESS:
+                    found[i] = model
+                elif result != sdk.COMM_RX_TIMEOUT:
+                    self._recover()
+        return found
+
+    def _broadcast(self):
+        data, result = self._ph.broadcastPing(self._port)
+        if result == sdk.COMM_RX_TIMEOUT:  # nobody there is an answer, not a failure
+            return {}, sdk.COMM_SUCCESS, 0
+        return data, result, 0
+
+    def read(self, dxl_id: int, table: ControlTable, name: str, *, alarm_ok: bool = False) -> int:
+        f = table[name]
+        fn = {1: self._ph.read1ByteTxRx, 2: self._ph.read2ByteTxRx, 4: self._ph.read4ByteTxRx}[f.size]
+        value, _, _ = self.transact(f"read {name}", dxl_id, lambda: fn(self._port, dxl_id, f.address), alarm_ok=alarm_ok)
+        return f.from_unsigned(value)
+
+    def write(self, dxl_id: int, table: ControlTable, name: str, value: int, *, alarm_ok: bool = False) -> None:
+        f = table[name]
+        if not f.writable:
+            raise ConfigError.field(table.model, name, value, "read-only field")
+        fn = {1: self._ph.write1ByteTxRx, 2: self._ph.write2ByteTxRx, 4: self._ph.write4ByteTxRx}[f.size]
+        self.transact(f"write {name} = {value}", dxl_id, lambda: fn(self._port, dxl_id, f.address, f.to_unsigned(value)),
+                      alarm_ok=alarm_ok)
+
+    def sync_write(self, table: ControlTable, name: str, values: Mapping[int, int]) -> None:
+        """One ``GroupSyncWrite`` of field ``name`` to several servos (no replies)."""
+        f = table[name]
+        group = sdk.GroupSyncWrite(self._port, self._ph, f.address, f.size)
+        for i, v in values.items():
+            group.addParam(i, list(f.to_unsigned(v).to_bytes(f.size, "little")))
+        self.transact(f"sync write {name}", None, lambda: group.txPacket())
+
+    def sync_read(self, table: ControlTable, first: str, last: str, ids: Sequence[int]) -> dict[int, dict[str, int]]:
+        """One ``GroupSyncRead`` of the fields ``first`` … ``last`` (one contiguous block) of ``ids``."""
+        address, length = table.span(first, last)
+        key = (address, length, tuple(ids))
+        group = self._sync_reads.get(key)
+        if group is None:
+            group = sdk.GroupSyncRead(self._port, self._ph, address, length)
+            for i in ids:
+                group.addParam(i)
+            self._sync_reads[key] = group
+        self.transact(f"sync read {first}..{last}", None, lambda: group.txRxPacket())
+        fields = [f for f in table.fields.values() if address <= f.address and f.address + f.size <= address + length]
+        return {i: {f.name: f.from_unsigned(group.getData(i, f.address, f.size)) for f in fields} for i in ids}
+
+    def bulk_read(self, requests: Mapping[int, tuple[ControlTable, str]]) -> dict[int, int]:
+        """One ``GroupBulkRead`` of one field per servo: ``{id: (table, field)}`` → ``{id: value}``."""
+        group = sdk.GroupBulkRead(self._port, self._ph)
+        for i, (table, name) in requests.items():
+            group.addParam(i, table[name].address, table[name].size)
+        self.transact("bulk read", None, lambda: group.txRxPacket())
+        return {i: t[n].from_unsigned(group.getData(i, t[n].address, t[n].size)) for i, (t, n) in requests.items()}
+
+    def reboot(self, dxl_id: int) -> None:
+        self.transact("reboot", dxl_id, lambda: self._ph.reboot(self._port, dxl_id), alarm_ok=True)
+
+    def factory_reset(self, dxl_id: int, option: int = 0x02) -> None:
+        """Factory reset (0xFF all, 0x01 all but ID, 0x02 all but ID and baud rate)."""
+        self.transact("factory reset", dxl_id, lambda: self._ph.factoryReset(self._port, dxl_id, option), alarm_ok=True)
+
+
+@dataclass(frozen=True)
+class AxisConfig:
+    """How one joint maps onto one servo. Angles in radians (joint side), speeds rad/s and rad/s².
+
+    ``approach`` (rad, joint side): 0 disables backlash compensation; otherwise every move ends with a
+    stretch of at least ``|approach|`` travelled in the direction of its sign.
+    """
+
+    name: str
+    servo_id: int
+    model: str = "XM430-W350"
+    gear_ratio: float = 1.0
+    zero_offset_deg: float = 180.0
+    direction: int = 1
+    lower: float = -math.pi * 0.9
+    upper: float = math.pi * 0.9
+    max_speed: float = 1.0
+    max_accel: float = 2.0
+    homing_offset_ticks: int = 0
+    approach: float = 0.0
+
+    @classmethod
+    def from_joint(cls, joint, *, approach: float = 0.0) -> "AxisConfig":
+        """From a :class:`gonio.rig.kinematics.Joint`."""
+        return cls(joint.name, joint.servo_id, joint.model, joint.gear_ratio, joint.zero_offset_deg, joint.direction,
+                   joint.lower, joint.upper, joint.max_speed, joint.max_accel, 0, approach)
+
+
+class DynamixelAxes:
+    """The rig's joints on one Dynamixel bus (implements :class:`gonio.rig.interfaces.Axes`).
+
+    Parameters
+    ----------
+    bus : an open :class:`DynamixelBus`
+    axes : one :class:`AxisConfig` per joint
+    clock : Clock for settling and timeouts (``SimClock`` shared with the emulator in tests)
+    tolerance_ticks : settled when every servo is within this many ticks of its goal and not moving
+    poll_s : polling period while settling
+    max_blind_s : longest wait between polls during a long move (alarms are seen this late at worst)
+    auto_recover : reboots allowed per move to clear an alarm (0 = raise :class:`ServoAlarm`)
+    configure : write the configuration and enable torque now
+    torque_off_on_close : by default the joints keep holding on :meth:`close` (arms do not drop)
+    """
+
+    def __init__(self, bus: DynamixelBus, axes: Sequence[AxisConfig], clock, *, tolerance_ticks: int = 3,
+                 poll_s: float = 0.02, max_blind_s: float = 0.5, auto_recover: int = 0, configure: bool = True,
+                 torque_off_on_close: bool = False):
+        if len({a.name for a in axes}) != len(axes) or len({a.servo_id for a in axes}) != len(axes):
+            raise ConfigError.field(None, "axes", [a.name for a in axes], "joint names and servo IDs must be unique")
+        self.bus = bus
+        self.axes = {a.name: a for a in axes}
+        self.names = tuple(a.name for a in axes)
+        self.clock = clock
+        self.tolerance_ticks = int(tolerance_ticks)
+        self.poll_s = float(poll_s)
+        self.max_blind_s = float(max_blind_s)
+        self.auto_recover = int(auto_recover)
+        self.torque_off_on_close = torque_off_on_close
+        self._tables = {a.name: load_control_table(a.model) for a in axes}
+        self._ids = [a.servo_id for a in axes]
+        self._table = self._tables[axes[0].name]  # sync reads/writes need one layout (all X series share it)
+        layout = lambda t: {n: (f.address, f.size, f.signed) for n, f in t.fields.items()}  # noqa: E731
+        if any(layout(t) != layout(self._table) for t in self._tables.values()):
+            raise ConfigError.field(None, "axes.model", sorted({a.model for a in axes}),
+                                    "all servos on one bus must share a control-table layout")
+        self._goals: dict[str, int] = {}
+        self.last_move: dict[str, object] = {}
+        if configure:
+            self.configure()
+
+    @classmethod
+    def from_rig(cls, rig, bus: DynamixelBus, clock, *, approach: float = 0.0, **kw) -> "DynamixelAxes":
+        """Axes for every joint of a :class:`gonio.rig.kinematics.Rig`."""
+        return cls(bus, [AxisConfig.from_joint(j, approach=approach) for j in rig.joints], clock, **kw)
+
+    # -- units ----------------------------------------------------------------------------------
+    def to_ticks(self, name: str, angle: float) -> int:
+        a, t = self.axes[name], self._tables[name]
+        return int(round(a.zero_offset_deg / 360.0 * t.ticks_per_rev
+                         + a.direction * a.gear_ratio * angle * t.ticks_per_rev / (2.0 * math.pi)))
+
+    def to_angle(self, name: str, ticks: float) -> float:
+        a, t = self.axes[name], self._tables[name]
+        return (ticks - a.zero_offset_deg / 360.0 * t.ticks_per_rev) * 2.0 * math.pi / t.ticks_per_rev / (a.direction * a.gear_ratio)
+
+    # -- configuration --------------------------------------------------------------------------
+    def configure(self) -> None:
+        """Check models; with torque off write mode, homing offset, limits; then RAM settings, torque on."""
+        for name, a in self.axes.items():
+            t = self._tables[name]
+            model = self.bus.ping(a.servo_id)
+            if model != t.model_number:
+                known = table_for_model_number(model)
+                raise ConfigError.field(None, f"{name}.model", a.model,
+                                        f"servo {a.servo_id} reports model number {model} "
+                                        f"({known.model if known else 'unknown'}), expected {t.model_number}")
+            if self.bus.read(a.servo_id, t, "hardware_error_status", alarm_ok=True):
+                self.bus.raise_alarm(a.servo_id)
+            self.bus.write(a.servo_id, t, "torque_enable", 0)
+            lo, hi = sorted((self.to_ticks(name, a.lower), self.to_ticks(name, a.upper)))
+            mode = 3 if 0 <= lo and hi <= t.position_max else 4
+            if self.bus.read(a.servo_id, t, "operating_mode") != mode:
+                self.bus.write(a.servo_id, t, "operating_mode", mode)
+            self.bus.write(a.servo_id, t, "homing_offset", a.homing_offset_ticks)
+            if mode == 3:
+                self.bus.write(a.servo_id, t, "max_position_limit", hi)
+                self.bus.write(a.servo_id, t, "min_position_limit", lo)
+            self._configure_ram(name)
+
+    def _configure_ram(self, name: str) -> None:
+        a, t = self.axes[name], self._tables[name]
+        self.bus.write(a.servo_id, t, "profile_velocity", t.rad_s_to_velocity(a.max_speed * a.gear_ratio))
+        self.bus.write(a.servo_id, t, "profile_acceleration", t.rad_s2_to_acceleration(a.max_accel * a.gear_ratio))
+        self.bus.write(a.servo_id, t, "torque_enable", 1)
+
+    def recover(self) -> dict[str, int]:
+        """Reboot every servo with a hardware error, write its RAM settings again, re-enable torque.
+
+        Returns ``{joint: cleared Hardware Error Status bits}``. Call it only when the cause is gone
+        (an overload means something blocked the arm)."""
+        cleared = {}
+        for name, a in self.axes.items():
+            bits = self.bus.read(a.servo_id, self._tables[name], "hardware_error_status", alarm_ok=True)
+            if bits:
+                self.bus.reboot(a.servo_id)
+                self.clock.sleep(0.1)  # the servo restarts (e-manual: status first, then reboot)
+                cleared[name] = bits
+                self._configure_ram(name)
+        return cleared
+
+    # -- state ----------------------------------------------------------------------------------
+    def _state(self) -> dict[int, dict[str, int]]:
+        state = self.bus.sync_read(self._table, "torque_enable", "hardware_error_status", self._ids)
+        motion = self.bus.sync_read(self._table, "moving", "present_position", self._ids)
+        for i in self._ids:
+            state[i].update(motion[i])
+        return state
+
+    def positions(self) -> dict[str, float]:
+        """Measured joint angles (radians) now."""
+        data = self.bus.sync_read(self._table, "present_position", "present_position", self._ids)
+        return {n: self.to_angle(n, data[a.servo_id]["present_position"]) for n, a in self.axes.items()}
+
+    # -- motion ---------------------------------------------------------------------------------
+    def _check_targets(self, targets: Mapping[str, float]) -> None:
+        for name, value in targets.items():
+            if name not in self.axes:
+                raise ConfigError.field(None, "targets", name, f"unknown joint; joints: {', '.join(self.names)}")
+            a = self.axes[name]
+            if not (a.lower - 1e-9 <= value <= a.upper + 1e-9) or not math.isfinite(value):
+                raise ConfigError.field(None, f"targets.{name}", math.degrees(value),
+                                        f"outside the joint limits [{math.degrees(a.lower):g}, {math.degrees(a.upper):g}] deg")
+
+    def move_to(self, targets: Mapping[str, float], *, timeout: float = 60.0) -> dict[str, float]:
+        """Move the named joints together (others hold), wait until settled, return measured angles."""
+        self._check_targets(targets)
+        start = self.clock.now()
+        current = self.positions()
+        for name, angle in current.items():
+            self._goals.setdefault(name, self.to_ticks(name, angle))
+        stages = []
+        pre = {}
+        for name, goal in targets.items():
+            a = self.axes[name]
+            if a.approach:
+                d, dist = math.copysign(1.0, a.approach), abs(a.approach)
+                if (goal - current[name]) * d < dist - 1e-12:  # would not end with a long-enough stretch in d
+                    via = min(max(goal - d * dist, a.lower), a.upper)
+                    if (goal - via) * d > 0:
+                        pre[name] = via
+        if pre:
+            stages.append({**targets, **pre})
+        stages.append(dict(targets))
+        for stage in stages:
+            measured = self._move_stage(stage, start + timeout)
+        self.last_move = {"stages": len(stages), "lab_time": self.clock.now() - start}
+        return measured
+
+    def _move_stage(self, targets: Mapping[str, float], deadline: float) -> dict[str, float]:
+        goals = {self.axes[n].servo_id: self.to_ticks(n, v) for n, v in targets.items()}
+        recoveries = 0
+        reissued = False
+        self.bus.sync_write(self._table, "goal_position", goals)
+        predicted_end = self.clock.now() + self._predict(goals)
+        while True:
+            state = self._state()
+            alarms = {i: s["hardware_error_status"] for i, s in state.items() if s["hardware_error_status"]}
+            if alarms:
+                if recoveries >= self.auto_recover:
+                    i, bits = next(iter(alarms.items()))
+                    self.bus.raise_alarm(i, bits)
+                recoveries += 1
+                self.recover()
+                self.bus.sync_write(self._table, "goal_position", goals)
+                predicted_end = self.clock.now() + self._predict(goals)
+                continue
+            off = [n for n, a in self.axes.items() if not state[a.servo_id]["torque_enable"]]
+            if off:
+                if reissued:
+                    raise HardwareError(f"{self.bus.port_name}: joints {', '.join(off)}: torque is off again "
+                                        f"after re-enabling it (power supply?)", device=self.bus.port_name)
+                reissued = True  # power cycle / brown-out: RAM lost, no alarm; restore and re-issue once
+                for n in off:
+                    self._configure_ram(n)
+                self.bus.sync_write(self._table, "goal_position", goals)
+                predicted_end = self.clock.now() + self._predict(goals)
+                continue
+            settled = all(not state[i]["moving"] and abs(state[i]["present_position"] - g) <= self.tolerance_ticks
+                          for i, g in goals.items())
+            if settled:
+                return {n: self.to_angle(n, state[a.servo_id]["present_position"]) for n, a in self.axes.items()}
+            now = self.clock.now()
+            if now >= deadline:
+                late = [n for n, a in self.axes.items() if a.servo_id in goals and
+                        abs(state[a.servo_id]["present_position"] - goals[a.servo_id]) > self.tolerance_ticks]
+                raise HardwareTimeout(f"{self.bus.port_name}: joints {', '.join(late) or 'still moving'} did not settle "
+                                      f"within the move timeout", device=self.bus.port_name)
+            wait = min(max(predicted_end - now, self.poll_s), self.max_blind_s, max(deadline - now, 0.0) + 1e-6)
+            self.clock.sleep(wait)
+
+    def _predict(self, goals: Mapping[int, int]) -> float:
+        """Lab time the servos' trapezoidal profiles need for the move just commanded."""
+        worst = 0.0
+        by_id = {a.servo_id: n for n, a in self.axes.items()}
+        for i, g in goals.items():
+            name = by_id[i]
+            a, t = self.axes[name], self._tables[name]
+            v = t.velocity_to_rad_s(t.rad_s_to_velocity(a.max_speed * a.gear_ratio)) / t.rad_per_tick()
+            acc = t.acceleration_to_rad_s2(t.rad_s2_to_acceleration(a.max_accel * a.gear_ratio)) / t.rad_per_tick()
+            last = self._goals.get(name, g)
+            worst = max(worst, float(trapezoid_time(g - last, v, acc)))
+            self._goals[name] = g
+        return worst
+
+    def close(self) -> None:
+        """Keep holding (default) or switch torque off, then release the bus."""
+        try:
+            if self.torque_off_on_close:
+                for n, a in self.axes.items():
+                    self.bus.write(a.servo_id, self._tables[n], "torque_enable", 0, alarm_ok=True)
+        finally:
+            self.bus.close()

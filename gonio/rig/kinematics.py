@@ -1,0 +1,371 @@
+"""Rig kinematics: BRDF angles (θi, φi, θo, φo) ↔ joint angles, reachability, poses, move times.
+
+Pure code, vectorized over many poses (plans have thousands). The rig is described by a TOML file
+(``gonio/rig/rigs/default.toml`` is the default; see its header for the layout):
+
+* the sample lies flat at the origin of its local frame (DESIGN.md §2: z = normal, x = reference
+  direction); it does not move;
+* a *light arm* and a *camera arm* are concentric arcs (radii ``light_arm_radius_m`` >
+  ``camera_arm_radius_m``) that each turn about z (joint ``<arm>_az``) and carry a carriage along
+  the arc (joint ``<arm>_el``, the *signed* zenith angle). The direction of an arm is
+  ``d = R_z(az) · (sin el, 0, cos el)``, so ``(el, az)`` and ``(−el, az + π)`` (and ``az + 2πk``)
+  give the same direction: :meth:`Rig.solve` picks, per arm, the solution within the joint limits
+  that the trapezoidal profile reaches soonest from the current pose;
+* a pose is refused (:class:`gonio.errors.UnreachablePose`, ``reason`` = ``"limits"``,
+  ``"collision"`` or ``"shadow"``) when no solution is within the joint limits, when the two carriages
+  are closer than ``min_arm_separation_deg``, or when the camera body (a sphere) cuts the light's beam
+  (a cylinder around the light → sample segment). The light (outer arc) can never sit between the
+  camera and the sample.
+
+Move time: each joint follows a trapezoidal velocity profile (accelerate at ``a``, cruise at ``v``,
+decelerate), joints move concurrently, so a move costs its slowest joint (:func:`trapezoid_time`,
+:meth:`Rig.move_time`). The same profile is what Dynamixel servos run in their velocity-based profile
+mode (ROBOTIS e-manual, "Profile Velocity(112)"), which the servo emulator uses too.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from gonio.errors import ConfigError, UnreachablePose
+from gonio.geometry import dirs_from_angles, dot, from_spherical
+
+try:  # Python >= 3.11
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+__all__ = ["Joint", "Rig", "load_rig", "trapezoid_time", "trapezoid_progress", "JOINT_NAMES", "REASONS"]
+
+#: Joint order of every joint-angle array, last axis.
+JOINT_NAMES = ("light_az", "light_el", "camera_az", "camera_el")
+#: Reason codes of refused poses (index 0 = reachable).
+REASONS = ("ok", "limits", "collision", "shadow")
+_TWO_PI = 2.0 * math.pi
+
+
+# -- trapezoidal profile ------------------------------------------------------------------------------
+def trapezoid_time(distance, v_max, a_max) -> np.ndarray:
+    """Duration of a rest-to-rest move of ``distance`` under a trapezoidal velocity profile.
+
+    With ``d = |distance|``: if ``d ≥ v²/a`` the profile reaches ``v`` and ``t = d/v + v/a``
+    (accelerate for ``v/a``, cruise, decelerate for ``v/a``); otherwise it is triangular and
+    ``t = 2·√(d/a)``. ``a = inf`` gives ``d/v`` (rectangular profile); ``v = inf`` gives the
+    triangular form. Same profile as the Dynamixel velocity-based profile (ROBOTIS e-manual, X series,
+    "Profile Velocity(112)": trapezoidal, triangular or rectangular by the move and the two registers).
+    """
+    d = np.abs(np.asarray(distance, dtype=np.float64))
+    v = np.asarray(v_max, dtype=np.float64)
+    a = np.asarray(a_max, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v_a = np.where(np.isinf(a), 0.0, v / a)  # time to reach v
+        trap = d / v + v_a
+        tri = 2.0 * np.sqrt(d / a)
+        t = np.where(np.isinf(v), tri, np.where(d >= v * v_a, trap, tri))
+    return np.where(d == 0.0, 0.0, t)
+
+
+def trapezoid_progress(t, distance, v_max, a_max) -> tuple[np.ndarray, np.ndarray]:
+    """Position and velocity ``(s, ds/dt)`` at time ``t`` of the move of :func:`trapezoid_time`.
+
+    Signed along ``distance``; ``s`` goes from 0 at ``t ≤ 0`` to ``distance`` at the end. The cruise
+    speed is ``v`` if reached, else the triangular peak ``√(a·d)``.
+    """
+    d = np.asarray(distance, dtype=np.float64)
+    sign, dist = np.sign(d), np.abs(d)
+    t = np.asarray(t, dtype=np.float64)
+    v = np.asarray(v_max, dtype=np.float64)
+    a = np.asarray(a_max, dtype=np.float64)
+    total = trapezoid_time(dist, v, a)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        peak = np.minimum(v, np.sqrt(a * dist))
+        t_acc = np.where(np.isinf(a), 0.0, peak / a)
+    tc = np.clip(t, 0.0, total)
+    t_dec0 = total - t_acc  # deceleration starts
+    s_acc = 0.5 * np.where(np.isinf(a), 0.0, a) * np.minimum(tc, t_acc) ** 2
+    s_cruise = peak * np.clip(np.minimum(tc, t_dec0) - t_acc, 0.0, None)
+    td = np.clip(tc - t_dec0, 0.0, None)
+    s_dec = peak * td - 0.5 * np.where(np.isinf(a), 0.0, a) * td ** 2
+    s = np.where(tc >= total, dist, s_acc + s_cruise + s_dec)
+    vel = np.where(tc >= total, 0.0, np.where(tc < t_acc, np.where(np.isinf(a), peak, a * tc),
+                                              np.where(tc < t_dec0, peak, peak - np.where(np.isinf(a), peak, a * td))))
+    return sign * s, sign * vel
+
+
+# -- rig description ----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Joint:
+    """One joint of the rig (angles in radians; speeds in rad/s and rad/s²)."""
+
+    name: str
+    servo_id: int
+    model: str
+    gear_ratio: float
+    zero_offset_deg: float
+    direction: int
+    lower: float
+    upper: float
+    max_speed: float
+    max_accel: float
+
+
+def _num(src, where, table, key, lo=-math.inf, hi=math.inf):
+    if key not in table:
+        raise ConfigError.field(src, f"{where}.{key}", None, "missing")
+    value = table[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= value <= hi:
+        raise ConfigError.field(src, f"{where}.{key}", value, f"must be a number in [{lo}, {hi}]")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class Rig:
+    """A light arm + camera arm rig (see the module docstring); load with :func:`load_rig`."""
+
+    name: str
+    joints: tuple[Joint, ...]
+    light_radius: float
+    camera_radius: float
+    camera_body_radius: float
+    light_beam_radius: float
+    min_separation: float
+    baud: int = 1_000_000
+    source: str = "<rig>"
+
+    # -- joint arrays ------------------------------------------------------------------------------
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(j.name for j in self.joints)
+
+    @property
+    def lower(self) -> np.ndarray:
+        return np.array([j.lower for j in self.joints])
+
+    @property
+    def upper(self) -> np.ndarray:
+        return np.array([j.upper for j in self.joints])
+
+    @property
+    def max_speed(self) -> np.ndarray:
+        """Per-joint speed limits, rad/s, in :data:`JOINT_NAMES` order."""
+        return np.array([j.max_speed for j in self.joints])
+
+    @property
+    def max_accel(self) -> np.ndarray:
+        """Per-joint acceleration limits, rad/s², in :data:`JOINT_NAMES` order."""
+        return np.array([j.max_accel for j in self.joints])
+
+    def as_array(self, joints) -> np.ndarray:
+        """Joint angles as an array ``(..., 4)``; accepts a mapping name → angle too."""
+        if isinstance(joints, Mapping):
+            try:
+                return np.array([float(joints[n]) for n in self.names])
+            except KeyError as exc:
+                raise ConfigError.field(None, "joints", sorted(joints), f"missing joint {exc.args[0]!r}") from None
+        return np.asarray(joints, dtype=np.float64)
+
+    def as_dict(self, joints) -> dict[str, float]:
+        j = np.asarray(joints, dtype=np.float64)
+        return {n: float(j[i]) for i, n in enumerate(self.names)}
+
+    # -- timing ------------------------------------------------------------------------------------
+    def move_time(self, start, end) -> np.ndarray:
+        """Seconds to move from joints ``start`` to ``end`` (``(..., 4)``, broadcast): the slowest
+        joint's :func:`trapezoid_time`, all joints moving concurrently."""
+        delta = self.as_array(end) - self.as_array(start)
+        return np.max(trapezoid_time(delta, self.max_speed, self.max_accel), axis=-1)
+
+    # -- forward -----------------------------------------------------------------------------------
+    @staticmethod
+    def _arm_dir(az, el) -> np.ndarray:
+        s = np.sin(el)
+        return np.stack(np.broadcast_arrays(s * np.cos(az), s * np.sin(az), np.cos(el)), axis=-1)
+
+    def directions(self, joints) -> tuple[np.ndarray, np.ndarray]:
+        """Unit directions ``(wi, wo)`` (toward light, toward camera) for joints ``(..., 4)``."""
+        j = self.as_array(joints)
+        return self._arm_dir(j[..., 0], j[..., 1]), self._arm_dir(j[..., 2], j[..., 3])
+
+    def forward(self, joints) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """BRDF angles ``(θi, φi, θo, φo)`` of joints ``(..., 4)``: θ = |el|, φ = az (+π if el < 0),
+        φ wrapped to [0, 2π). At the pole (el = 0) φ is the azimuth stage's angle."""
+        j = self.as_array(joints)
+
+        def arm(az, el):
+            return np.abs(el), np.mod(az + np.where(el < 0, math.pi, 0.0), _TWO_PI)
+
+        ti, pi_ = arm(j[..., 0], j[..., 1])
+        to, po = arm(j[..., 2], j[..., 3])
+        return ti, pi_, to, po
+
+    def light_position(self, joints) -> np.ndarray:
+        """Light position in the sample frame, metres, ``(..., 3)``; it points at the origin."""
+        return self.light_radius * self.directions(joints)[0]
+
+    def camera_pose(self, joints) -> tuple[np.ndarray, np.ndarray]:
+        """Camera position (metres) and orientation in the sample frame.
+
+        Returns ``(position (..., 3), R (..., 3, 3))``; the rows of ``R`` are the camera's x (right),
+        y (down) and z (optical axis, toward the sample origin) axes in sample coordinates (OpenCV
+        convention), so a sample-frame point ``p`` is ``R @ (p - position)`` in camera coordinates.
+        x is the camera arm's azimuth tangent, defined everywhere including the pole.
+        """
+        j = self.as_array(joints)
+        az = j[..., 2]
+        wo = self._arm_dir(az, j[..., 3])
+        z = -wo
+        x = np.stack(np.broadcast_arrays(-np.sin(az), np.cos(az), np.zeros_like(az)), axis=-1)
+        y = np.cross(z, x)
+        return self.camera_radius * wo, np.stack([x, y, z], axis=-2)
+
+    # -- reachability ------------------------------------------------------------------------------
+    def check_directions(self, wi, wo) -> np.ndarray:
+        """Reason codes (index into :data:`REASONS`) of the collision and shadow tests, ``(...)``."""
+        wi, wo = np.broadcast_arrays(np.asarray(wi, float), np.asarray(wo, float))
+        code = np.zeros(wi.shape[:-1], dtype=np.int8)
+        sep = np.arccos(np.clip(dot(wi, wo), -1.0, 1.0))
+        code[sep < self.min_separation] = 2
+        # Shadow: distance from the camera centre c to the segment origin -> light position L.
+        c, L = self.camera_radius * wo, self.light_radius * wi
+        t = np.clip(dot(c, L) / (self.light_radius ** 2), 0.0, 1.0)
+        dist = np.linalg.norm(c - t[..., None] * L, axis=-1)
+        code[(code == 0) & (dist < self.camera_body_radius + self.light_beam_radius)] = 3
+        return code
+
+    def _solve_arm(self, theta, phi, cur_az, cur_el, jaz: int, jel: int):
+        """Per arm: best (az, el) within limits nearest (in profile time) to the current (az, el)."""
+        az_lo, az_hi = self.joints[jaz].lower, self.joints[jaz].upper
+        el_lo, el_hi = self.joints[jel].lower, self.joints[jel].upper
+        theta = np.asarray(theta, float)[..., None, None]
+        pole = theta < 1e-12
+        sgn = np.array([1.0, -1.0])[:, None]
+        k = np.arange(-2, 3)[None, :]
+        el = sgn * theta
+        az = np.asarray(phi, float)[..., None, None] + np.where(sgn > 0, 0.0, math.pi) + _TWO_PI * k
+        az = np.where(pole, np.asarray(cur_az, float)[..., None, None], az)  # at the pole, keep the azimuth
+        el, az = np.broadcast_arrays(el, az)
+        inside = (az >= az_lo - 1e-12) & (az <= az_hi + 1e-12) & (el >= el_lo - 1e-12) & (el <= el_hi + 1e-12)
+        cost = np.maximum(
+            trapezoid_time(az - np.asarray(cur_az, float)[..., None, None], self.joints[jaz].max_speed,
+                           self.joints[jaz].max_accel),
+            trapezoid_time(el - np.asarray(cur_el, float)[..., None, None], self.joints[jel].max_speed,
+                           self.joints[jel].max_accel))
+        cost = np.where(inside, cost, np.inf).reshape(cost.shape[:-2] + (-1,))
+        best = np.argmin(cost, axis=-1)
+        pick = lambda a: np.take_along_axis(a.reshape(a.shape[:-2] + (-1,)), best[..., None], axis=-1)[..., 0]
+        ok = np.isfinite(np.take_along_axis(cost, best[..., None], axis=-1)[..., 0])
+        return pick(az), pick(el), ok
+
+    def solve_many(self, theta_i, phi_i, theta_o, phi_o, current=None, *, isotropic: bool = False):
+        """Vectorized :meth:`solve`: returns ``(joints (..., 4), reason codes (...))``.
+
+        Poses that cannot be reached get joints NaN and a non-zero code (index into :data:`REASONS`).
+        ``current`` is one pose ``(4,)`` or one per input ``(..., 4)`` (default: all joints at 0).
+        With ``isotropic=True`` the pose may be rotated about z (only φo − φi matters for an isotropic
+        material): among keeping the light's azimuth, keeping the camera's azimuth, or the given φi,
+        the reachable one with the shortest move time is chosen.
+        """
+        ti, pi_, to, po = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (theta_i, phi_i, theta_o, phi_o)))
+        cur = np.zeros(4) if current is None else self.as_array(current)
+        cur = np.broadcast_to(cur, ti.shape + (4,))
+        if isotropic:
+            cur_ti, cur_pi, cur_to, cur_po = self.forward(cur)
+            dphi = po - pi_
+            options = [pi_, np.where(cur_ti > 1e-9, cur_pi, pi_), np.where(cur_to > 1e-9, cur_po - dphi, pi_)]
+            sols = [self.solve_many(ti, psi, to, psi + dphi, cur) for psi in options]
+            times = np.stack([np.where(c == 0, self.move_time(cur, np.nan_to_num(j)), np.inf) for j, c in sols])
+            best = np.argmin(times, axis=0)
+            joints = np.choose(best[..., None], [j for j, _ in sols])
+            code = np.choose(best, [c for _, c in sols])
+            return joints, code
+        laz, lel, lok = self._solve_arm(ti, pi_, cur[..., 0], cur[..., 1], 0, 1)
+        caz, cel, cok = self._solve_arm(to, po, cur[..., 2], cur[..., 3], 2, 3)
+        joints = np.stack([laz, lel, caz, cel], axis=-1)
+        wi, wo = dirs_from_angles(ti, pi_, to, po)
+        code = np.where(lok & cok, self.check_directions(wi, wo), np.int8(1)).astype(np.int8)
+        joints = np.where((code == 0)[..., None], joints, np.nan)
+        return joints, code
+
+    def solve(self, theta_i, phi_i, theta_o, phi_o, current=None, *, isotropic: bool = False) -> dict[str, float]:
+        """Joint angles (radians, by name) that put the light at (θi, φi) and the camera at (θo, φo).
+
+        Among the equivalent solutions the one nearest ``current`` (mapping or ``(4,)`` array) in
+        move time is chosen. Raises :class:`UnreachablePose` with ``reason`` ``"limits"``,
+        ``"collision"`` or ``"shadow"``.
+        """
+        joints, code = self.solve_many(theta_i, phi_i, theta_o, phi_o, current, isotropic=isotropic)
+        if joints.ndim != 1:
+            raise ConfigError.field(None, "pose", np.shape(theta_i), "solve() takes one pose; use solve_many()")
+        if code != 0:
+            reason = REASONS[int(code)]
+            why = {"limits": "no joint solution within the joint limits",
+                   "collision": f"the arms would be closer than {math.degrees(self.min_separation):g} deg",
+                   "shadow": "the camera would shadow the light's path to the sample"}[reason]
+            pose = ", ".join(f"{math.degrees(float(a)):.2f}" for a in (theta_i, phi_i, theta_o, phi_o))
+            raise UnreachablePose(f"{self.name}: pose (theta_i, phi_i, theta_o, phi_o) = ({pose}) deg: {why}",
+                                  reason=reason)
+        return self.as_dict(joints)
+
+
+# -- loading -----------------------------------------------------------------------------------------
+def load_rig(path: str | Path | None = None) -> Rig:
+    """Load a rig TOML file (a path, or a name of a shipped rig such as ``"default"``)."""
+    if path is None or (isinstance(path, str) and "/" not in path and not path.endswith(".toml")):
+        name = path or "default"
+        res = resources.files("gonio.rig") / "rigs" / f"{name}.toml"
+        if not res.is_file():
+            raise ConfigError.field(None, "rig", name, "no such shipped rig (see gonio/rig/rigs/)")
+        text, src = res.read_text(encoding="utf-8"), f"rigs/{name}.toml"
+    else:
+        p = Path(path)
+        try:
+            text = p.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ConfigError(f"{p}: cannot read rig file: {exc.strerror}") from None
+        src = str(p)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{src}: not valid TOML: {exc}") from None
+    geo = data.get("geometry", {})
+    joints_t = data.get("joints", [])
+    by_name = {j.get("name"): (i, j) for i, j in enumerate(joints_t)}
+    if sorted(n for n in by_name if n) != sorted(JOINT_NAMES) or len(joints_t) != 4:
+        raise ConfigError.field(src, "joints.name", [j.get("name") for j in joints_t],
+                                f"need exactly the joints {', '.join(JOINT_NAMES)}")
+    joints = []
+    ids = set()
+    for name in JOINT_NAMES:
+        i, jt = by_name[name]
+        where = f"joints[{i}]"
+        lo, hi = _num(src, where, jt, "min_deg", -360, 360), _num(src, where, jt, "max_deg", -360, 360)
+        if lo >= hi:
+            raise ConfigError.field(src, f"{where}.max_deg", hi, f"must be greater than min_deg = {lo}")
+        sid = int(_num(src, where, jt, "servo_id", 0, 252))
+        if sid in ids:
+            raise ConfigError.field(src, f"{where}.servo_id", sid, "used by another joint")
+        ids.add(sid)
+        direction = int(jt.get("direction", 1))
+        if direction not in (1, -1):
+            raise ConfigError.field(src, f"{where}.direction", direction, "must be 1 or -1")
+        joints.append(Joint(name=name, servo_id=sid, model=str(jt.get("model", "XM430-W350")),
+                            gear_ratio=_num(src, where, jt, "gear_ratio", 1e-3, 1e3),
+                            zero_offset_deg=_num(src, where, jt, "zero_offset_deg", 0, 360),
+                            direction=direction, lower=math.radians(lo), upper=math.radians(hi),
+                            max_speed=math.radians(_num(src, where, jt, "max_speed_deg_s", 1e-3, 1e4)),
+                            max_accel=math.radians(_num(src, where, jt, "max_accel_deg_s2", 1e-3, 1e6))))
+    rl = _num(src, "geometry", geo, "light_arm_radius_m", 1e-3, 100)
+    rc = _num(src, "geometry", geo, "camera_arm_radius_m", 1e-3, 100)
+    if rc >= rl:
+        raise ConfigError.field(src, "geometry.camera_arm_radius_m", rc, f"must be less than light_arm_radius_m = {rl}")
+    return Rig(name=str(data.get("name", Path(src).stem)), joints=tuple(joints), light_radius=rl, camera_radius=rc,
+               camera_body_radius=_num(src, "geometry", geo, "camera_body_radius_m", 0, 10),
+               light_beam_radius=_num(src, "geometry", geo, "light_beam_radius_m", 0, 10),
+               min_separation=math.radians(_num(src, "geometry", geo, "min_arm_separation_deg", 0, 180)),
+               baud=int(data.get("bus", {}).get("baud", 1_000_000)), source=src)
