@@ -1,0 +1,154 @@
+"""Fitting data: measured samples reduced to what a fit uses, with the geometry computed once.
+
+:func:`prepare` takes a :class:`gonio.samples.SampleSet` (or plain arrays), drops what a fit must not
+see (flagged samples, non-finite or negative values — MERL marks unmeasured cells negative —, directions
+below the horizon, and by default grazing directions beyond 80°) and says how many it dropped and why.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from gonio.errors import DataError
+from gonio.geometry import half_vector
+from gonio.samples import SampleSet
+
+#: Default grazing cutoff: samples with θi or θo above it are excluded (Ngan et al. 2005 fit θ < 80°).
+DEFAULT_MAX_THETA_DEG = 80.0
+
+
+@dataclass(frozen=True)
+class FitData:
+    """Samples a fit uses: directions, values, optional uncertainties and cached geometry.
+
+    Attributes
+    ----------
+    wi, wo : ndarray (N, 3)
+        Unit directions toward the light and the camera, local frame.
+    y : ndarray (N, 3)
+        Measured BRDF values, 1/sr.
+    sigma : ndarray (N, 3) or None
+        Standard uncertainties of ``y``; ``None`` when the source has none (or not all are > 0).
+    source : str
+        Where the data came from (named in error messages).
+    dropped : dict
+        Reason -> number of samples excluded by :func:`prepare`.
+    """
+
+    wi: np.ndarray
+    wo: np.ndarray
+    y: np.ndarray
+    sigma: np.ndarray | None
+    source: str = "samples"
+    dropped: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return self.y.shape[0]
+
+    @cached_property
+    def cos_i(self) -> np.ndarray:
+        """cos θi, shape (N,)."""
+        return self.wi[:, 2].copy()
+
+    @cached_property
+    def cos_o(self) -> np.ndarray:
+        """cos θo, shape (N,)."""
+        return self.wo[:, 2].copy()
+
+    @cached_property
+    def half(self) -> np.ndarray:
+        """Half vectors h = normalize(wi + wo), shape (N, 3) (:func:`gonio.geometry.half_vector`)."""
+        return half_vector(self.wi, self.wo)
+
+    @cached_property
+    def cos_h(self) -> np.ndarray:
+        """cos θh = n·h, shape (N,)."""
+        return self.half[:, 2].copy()
+
+    @cached_property
+    def cos_d(self) -> np.ndarray:
+        """cos θd = wi·h (the Fresnel angle), shape (N,)."""
+        return np.einsum("ij,ij->i", self.wi, self.half)
+
+    def subset(self, index) -> "FitData":
+        """The samples selected by a mask or index array (geometry is recomputed lazily)."""
+        return FitData(self.wi[index], self.wo[index], self.y[index],
+                       None if self.sigma is None else self.sigma[index], self.source, dict(self.dropped))
+
+
+def prepare(data, *, max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG, use_flagged: bool = False,
+            source: str | None = None) -> FitData:
+    """Reduce ``data`` to the samples a fit may use.
+
+    Parameters
+    ----------
+    data : SampleSet, FitData, or tuple ``(wi, wo, f[, sigma])``
+        Directions (N, 3), BRDF values (N, 3) in 1/sr, optional standard uncertainties (N, 3).
+    max_theta_deg : float or None
+        Grazing cutoff in degrees for θi and θo; ``None`` keeps everything above the horizon.
+    use_flagged : bool
+        Keep samples with quality flags set (excluded by default, see :mod:`gonio.samples`).
+    source : str
+        Name used in error messages.
+
+    Raises
+    ------
+    DataError
+        Malformed arrays, or no usable sample left (the message says how many were dropped and why).
+    """
+    if isinstance(data, FitData):
+        return data
+    flags = None
+    if isinstance(data, SampleSet):
+        wi, wo, f, sigma, flags = data.wi, data.wo, data.f, data.sigma, data.flags
+        source = source or "samples"
+    else:
+        try:
+            wi, wo, f, *rest = data
+        except (TypeError, ValueError):
+            raise DataError(f"{source or 'data'}: expected a SampleSet or (wi, wo, f[, sigma])") from None
+        sigma = rest[0] if rest else None
+        source = source or "arrays"
+    wi = np.asarray(wi, dtype=np.float64)
+    wo = np.asarray(wo, dtype=np.float64)
+    f = np.asarray(f, dtype=np.float64)
+    n = f.shape[0] if f.ndim == 2 else -1
+    if f.ndim != 2 or f.shape[1] != 3 or wi.shape != (n, 3) or wo.shape != (n, 3):
+        raise DataError(f"{source}: wi, wo, f must have shapes (N, 3); got {wi.shape}, {wo.shape}, {f.shape}")
+    if sigma is not None:
+        sigma = np.asarray(sigma, dtype=np.float64)
+        if sigma.shape != f.shape:
+            raise DataError(f"{source}: sigma has shape {sigma.shape}, expected {f.shape}")
+    keep = np.ones(n, dtype=bool)
+    dropped: dict[str, int] = {}
+
+    def drop(reason: str, bad: np.ndarray) -> None:
+        count = int(np.count_nonzero(bad & keep))
+        if count:
+            dropped[reason] = count
+            keep[bad] = False
+
+    if flags is not None and not use_flagged:
+        drop("flagged", flags != 0)
+    drop("non-finite", ~(np.isfinite(f).all(1) & np.isfinite(wi).all(1) & np.isfinite(wo).all(1)))
+    with np.errstate(invalid="ignore"):
+        drop("negative (unmeasured)", (f < 0).any(1))
+        drop("below horizon", (wi[:, 2] <= 0) | (wo[:, 2] <= 0))
+        if max_theta_deg is not None:
+            c = np.cos(np.radians(max_theta_deg))
+            drop(f"beyond {max_theta_deg:g} deg", (wi[:, 2] < c) | (wo[:, 2] < c))
+    if not keep.any():
+        why = ", ".join(f"{v} {k}" for k, v in dropped.items()) or "the input is empty"
+        raise DataError(f"{source}: no usable sample out of {n} ({why})")
+    wi, wo, f = wi[keep], wo[keep], f[keep]
+    # Directions must be unit vectors; renormalize quietly (stored data is rounded).
+    wi = wi / np.linalg.norm(wi, axis=1, keepdims=True)
+    wo = wo / np.linalg.norm(wo, axis=1, keepdims=True)
+    if sigma is not None:
+        sigma = sigma[keep]
+        if not (np.isfinite(sigma).all() and (sigma > 0).all()):
+            sigma = None  # uncertainties unknown for some samples: χ² is not available
+    return FitData(wi, wo, f, sigma, source, dropped)

@@ -1,0 +1,371 @@
+"""Fit one analytic BRDF model to measured samples.
+
+Two solvers, same optimum:
+
+* ``varpro`` (default when the model is affine in its colour parameters and the loss is linear):
+  variable projection (Golub & Pereyra 1973, :mod:`gonio.fit.solve`) — the colours are solved in
+  closed form (bounded least squares per channel) for each value of the shape parameters, and only
+  the shape parameters are searched: a seeded coarse scan, then Brent's method (one shape parameter)
+  or L-BFGS-B (several) from the best starts. Non-linear losses (log, cube root) are then polished
+  from that start by ``plain``.
+* ``plain``: :func:`scipy.optimize.least_squares` (trust-region reflective, bounds from the model's
+  ``PARAMS``) over every parameter, from a heuristic start and seeded random starts.
+
+Standard uncertainties come from the Gauss–Newton covariance s² (JᵀJ)⁻¹ (Press et al., *Numerical
+Recipes*, 3rd ed., §15.5), with s² = 2·cost/(m − k) unless the loss is χ² with known σ (s² = 1).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from gonio.errors import ConfigError, DataError, GonioError
+from gonio.fit.data import DEFAULT_MAX_THETA_DEG, FitData, prepare
+from gonio.fit.layout import CHANNELS, Layout, make_basis, auto_fixed, model_class
+from gonio.fit.losses import LOSSES, Loss, get_loss
+from gonio.fit.result import FitResult
+from gonio.fit.solve import Projection
+
+METHODS = ("auto", "varpro", "plain")
+
+
+def resolve_loss(loss: str, data: FitData) -> Loss:
+    """``auto`` is χ² when every sample has an uncertainty, else cosine-weighted L2."""
+    if loss == "auto":
+        return LOSSES["chi2" if data.sigma is not None else "cosine"]
+    obj = get_loss(loss, source="--loss")
+    if obj.needs_sigma and data.sigma is None:
+        raise ConfigError.field("--loss", "loss", loss,
+                                f"{data.source} has no (positive, finite) uncertainty for every sample")
+    return obj
+
+
+def heuristics(data: FitData) -> dict[str, Any]:
+    """Data summaries used to start and to sanity-check a fit: diffuse floor, peak height, lobe width.
+
+    floor = 10th percentile of f per channel (× π: the albedo of a Lambertian floor); peak = maximum of
+    f minus the floor; width = largest θh where the mean-channel value exceeds floor + peak/2 (the
+    half-width at half maximum of the specular lobe in the half-angle, Ngan et al. 2005 plot lobes this way).
+    """
+    y = data.y
+    floor = np.percentile(y, 10, axis=0)
+    peak = y.max(axis=0) - floor
+    m = y.mean(axis=1)
+    thr = floor.mean() + 0.5 * peak.mean()
+    th = np.degrees(np.arccos(np.clip(data.cos_h, -1, 1)))
+    above = m > thr
+    width = float(th[above].max()) if above.any() and peak.mean() > 0 else float("nan")
+    return {"floor_albedo": (np.pi * floor).tolist(), "peak": peak.tolist(), "width_deg": width}
+
+
+class _Problem:
+    """A model, a loss and the data; evaluates model values and residuals for packed parameters."""
+
+    def __init__(self, data: FitData, layout: Layout, loss: Loss, basis: Basis | None):
+        self.d, self.L, self.loss, self.basis = data, layout, loss, basis
+        self._cache: dict[tuple, Any] = {}
+        self.n_evals = 0
+
+    def _basis_at(self, shape):
+        key = tuple(np.asarray(shape, dtype=np.float64).tolist())
+        if key not in self._cache:
+            if len(self._cache) > 8:
+                self._cache.clear()
+            self._cache[key] = self.basis(np.asarray(shape))
+        return self._cache[key]
+
+    def values(self, p, index=slice(None)) -> np.ndarray:
+        """Model values f_m (N, 3) at packed parameters ``p``."""
+        self.n_evals += 1
+        colour, shape = self.L.unpack(p)
+        if self.basis is not None and self.basis.separable:
+            f0, cols = self._basis_at(shape)
+            m = f0[index].copy()
+            for k, B in enumerate(cols):
+                Bi = B[index]
+                m += (colour[k] - self.basis.ref[k]) * (Bi[:, None] if Bi.ndim == 1 else Bi)
+            return m
+        return self.L.eval(colour, shape, self.d.wi[index], self.d.wo[index])
+
+    def residuals(self, p, index=slice(None)) -> np.ndarray:
+        d = self.d
+        sigma = None if d.sigma is None else d.sigma[index]
+        return self.loss.residual(self.values(p, index), d.y[index], d.cos_i[index], sigma)
+
+    def cost(self, p) -> float:
+        r = self.residuals(p)
+        return 0.5 * float(np.sum(r * r))
+
+    def jtj(self, p, chunk: int = 200_000) -> np.ndarray:
+        """JᵀJ of the residual vector at ``p``, by central differences, accumulated in row chunks."""
+        P = p.size
+        lo, hi = self.L.bounds()
+        h = 1e-6 * np.maximum(np.abs(p), 1e-3)
+        out = np.zeros((P, P))
+        n = len(self.d)
+        for start in range(0, n, chunk):
+            idx = slice(start, min(n, start + chunk))
+            cols = []
+            for j in range(P):
+                up, dn = p.copy(), p.copy()
+                up[j] = min(p[j] + h[j], hi[j])
+                dn[j] = max(p[j] - h[j], lo[j])
+                cols.append(((self.residuals(up, idx) - self.residuals(dn, idx)) / (up[j] - dn[j])).ravel())
+            J = np.stack(cols, axis=1)
+            out += J.T @ J
+        return out
+
+
+def _search_shape(proj: Projection, L: Layout, rng, n_starts: int):
+    """Global-then-local search of the projected cost over the shape parameters."""
+    from scipy.optimize import minimize, minimize_scalar
+
+    if L.S == 0:
+        cost, colour = proj(np.empty(0))
+        return np.empty(0), colour, cost
+    u_lo, u_hi, _ = L.search_space()
+
+    def f(u):
+        return proj(L.to_shape(np.atleast_1d(u)))[0]
+
+    results = []
+    if L.S == 1:
+        grid = np.linspace(u_lo[0], u_hi[0], 17)
+        costs = np.array([f(u) for u in grid])
+        order = [j for j in np.argsort(costs)
+                 if (j == 0 or costs[j] <= costs[j - 1]) and (j == len(grid) - 1 or costs[j] <= costs[j + 1])]
+        for j in order[:max(1, n_starts)]:
+            a, b = grid[max(j - 1, 0)], grid[min(j + 1, len(grid) - 1)]
+            res = minimize_scalar(f, bounds=(a, b), method="bounded", options={"xatol": 1e-7})
+            results.append((float(res.fun), np.array([res.x])))
+            results.append((float(costs[j]), np.array([grid[j]])))
+    else:
+        cand = [L.to_u(L.default_shape())] + list(rng.uniform(u_lo, u_hi, (8 * L.S + 4 * n_starts, L.S)))
+        costs = np.array([f(u) for u in cand])
+        for j in np.argsort(costs)[:max(1, n_starts)]:
+            res = minimize(f, cand[j], method="L-BFGS-B", bounds=list(zip(u_lo, u_hi)),
+                           options={"eps": 1e-7, "ftol": 1e-13, "gtol": 1e-10, "maxiter": 200})
+            results.append((float(res.fun), np.asarray(res.x)))
+            results.append((float(costs[j]), np.asarray(cand[j])))
+    cost, u = min(results, key=lambda t: t[0])
+    shape = L.to_shape(u)
+    cost, colour = proj(shape)
+    return shape, colour, cost
+
+
+def _plain(prob: _Problem, starts: list[np.ndarray], max_nfev: int | None = None):
+    """scipy least_squares (TRF, bounds) from each start; the best result."""
+    from scipy.optimize import least_squares
+
+    L = prob.L
+    lo, hi = L.bounds()
+    m = 3 * len(prob.d)
+
+    def fun(p):
+        try:
+            return prob.residuals(p).ravel()
+        except ConfigError:  # a combination the model rejects (e.g. kd + ks > 1): steer away
+            return np.full(m, 1e6)
+
+    best = None
+    for p0 in starts:
+        span = np.where(np.isfinite(hi - lo), hi - lo, np.maximum(np.abs(p0), 1.0))
+        p0 = np.clip(p0, lo + 1e-9 * span, hi - 1e-9 * span)
+        res = least_squares(fun, p0, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=max_nfev)
+        if best is None or res.cost < best.cost:
+            best = res
+    return best.x, float(best.cost)
+
+
+def _starts(prob: _Problem, rng, n_starts: int, heur: dict) -> list[np.ndarray]:
+    """Heuristic start (model defaults for shapes; colours from the projection if separable, else from
+    the diffuse floor) plus ``n_starts − 1`` seeded random starts."""
+    L = prob.L
+    shape0 = L.default_shape()
+    colour0 = np.empty((L.K, 3))
+    floor = np.asarray(heur["floor_albedo"])
+    for k, name in enumerate(L.colour):
+        d = L.cls.PARAMS[name].default
+        colour0[k] = np.clip(floor if d is None else d, L.colour_lo[k], L.colour_hi[k])
+    starts = [L.pack(colour0, shape0)]
+    u_lo, u_hi, _ = L.search_space()
+    for _ in range(max(0, n_starts - 1)):
+        c = rng.uniform(np.maximum(L.colour_lo, 0)[:, None], np.minimum(L.colour_hi, 1.0)[:, None], (L.K, 3))
+        starts.append(L.pack(c, L.to_shape(rng.uniform(u_lo, u_hi))))
+    return starts
+
+
+def canonical_order(L: Layout, p: np.ndarray) -> np.ndarray:
+    """Order repeated lobes of a sum (``lambert+2ggx``) by their shape parameters, sharpest first, so a
+    fit reports one answer instead of one of its label-switched twins (the sum is symmetric in them)."""
+    parts = getattr(L.cls, "PARTS", ())
+    groups: dict[tuple, list[str]] = {}
+    for slot, cls, fixed in parts:
+        groups.setdefault((cls, tuple(sorted(dict(fixed).items()))), []).append(slot)
+    colour, shape = L.unpack(p)
+    colour, shape = colour.copy(), shape.copy()
+    for slots in groups.values():
+        if len(slots) < 2:
+            continue
+
+        def idx(names, slot):
+            return [i for i, n in enumerate(names) if n.split(".", 1)[0] == slot]
+
+        keys = [tuple(shape[idx(L.shape, s)]) for s in slots]
+        order = sorted(range(len(slots)), key=lambda j: keys[j])
+        src_c = [idx(L.colour, slots[j]) for j in order]
+        src_s = [idx(L.shape, slots[j]) for j in order]
+        old_c, old_s = colour.copy(), shape.copy()
+        for dst, (sc, ss) in zip(slots, zip(src_c, src_s)):
+            dc, ds = idx(L.colour, dst), idx(L.shape, dst)
+            if len(dc) != len(sc) or len(ds) != len(ss):
+                break
+            colour[dc], shape[ds] = old_c[sc], old_s[ss]
+    return L.pack(colour, shape)
+
+
+def _uncertainty(prob: _Problem, p: np.ndarray, cost: float, notes: list[str]):
+    """Standard uncertainties from s²(JᵀJ)⁻¹ over the parameters that are off their bounds and
+    identifiable; ``nan`` on a bound, ``inf`` when not identifiable."""
+    L = prob.L
+    lo, hi = L.bounds()
+    labels = L.labels()
+    P = p.size
+    m = 3 * len(prob.d)
+    err = np.full(P, np.nan)
+    span = np.where(np.isfinite(hi - lo), hi - lo, np.maximum(np.abs(p), 1.0))
+    on_bound = (p - lo <= 1e-7 * span) | (hi - p <= 1e-7 * span)
+    A = prob.jtj(p)
+    free = ~on_bound
+    ident = free.copy()
+    diag = np.sqrt(np.clip(np.diag(A), 0, None))
+    ident &= diag > 1e-12 * max(diag.max(), 1e-300)
+    idx = np.flatnonzero(ident)
+    if idx.size:
+        D = diag[idx]
+        C = A[np.ix_(idx, idx)] / np.outer(D, D)
+        evals, evecs = np.linalg.eigh(C)
+        weak = evals < 1e-10 * max(evals.max(), 1e-300)
+        if weak.any():
+            bad = np.abs(evecs[:, weak]).max(axis=1) > 0.3
+            ident[idx[bad]] = False
+            idx = np.flatnonzero(ident)
+    unident = free & ~ident
+    err[unident] = np.inf
+    if idx.size:
+        s2 = 1.0 if prob.loss.name == "chi2" else 2.0 * cost / max(m - P, 1)
+        cov = s2 * np.linalg.pinv(A[np.ix_(idx, idx)])
+        err[idx] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    if unident.any():
+        names = sorted({labels[j].split(".")[0] for j in np.flatnonzero(unident)})
+        notes.append(f"not identifiable from these data: {', '.join(names)}")
+    bound_names = sorted({labels[j].split(".")[0] for j in np.flatnonzero(on_bound)})
+    if bound_names:
+        notes.append(f"at a bound (no uncertainty): {', '.join(bound_names)}")
+    return err, not unident.any()
+
+
+def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = None,
+        free: tuple[str, ...] = (), max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG, n_starts: int = 3, seed: int = 0,
+        method: str = "auto", kernel: str | None = "auto", use_flagged: bool = False,
+        max_nfev: int | None = None) -> FitResult:
+    """Fit the model ``model`` to ``data``.
+
+    Parameters
+    ----------
+    data : SampleSet, FitData or ``(wi, wo, f[, sigma])``
+        Measured samples (see :func:`gonio.fit.data.prepare` for what is dropped).
+    model : str or BRDF subclass
+        Registry name (``gonio models`` lists them) or class.
+    loss : str
+        ``auto`` (χ² with uncertainties, else cosine), ``cosine``, ``chi2``, ``log``, ``cbrt``.
+    fixed : dict
+        Parameters held fixed (choice parameters are always fixed, at their default unless given).
+    free : sequence of str
+        Parameters fitted although fixed by default (the Fresnel ``f0``, see
+        :data:`gonio.fit.layout.AUTO_FIXED`).
+    max_theta_deg : float or None
+        Grazing cutoff for θi and θo (default 80°); None keeps all samples above the horizon.
+    n_starts : int
+        Number of local refinements (multi-start); the starts are seeded by ``seed``.
+    method : {"auto", "varpro", "plain"}
+        Solver (see the module docstring).
+    kernel : "auto" or None
+        Use a precomputed-geometry kernel of :mod:`gonio.fit.kernels` when one exists for the model.
+
+    Returns
+    -------
+    FitResult
+
+    Raises
+    ------
+    DataError
+        No usable sample, or fewer residuals than parameters + 1.
+    ConfigError
+        Unknown model, loss, method or parameter.
+    """
+    t0 = time.perf_counter()
+    if method not in METHODS:
+        raise ConfigError.field("--method", "method", method, f"must be one of {', '.join(METHODS)}")
+    d = prepare(data, max_theta_deg=max_theta_deg, use_flagged=use_flagged)
+    cls = model_class(model) if isinstance(model, str) else model
+    L = Layout(cls, auto_fixed(cls, fixed or {}, free))
+    lossobj = resolve_loss(loss, d)
+    if 3 * len(d) <= L.n_params:
+        raise DataError(f"{d.source}: {len(d)} usable samples ({3 * len(d)} values) cannot determine "
+                        f"{L.n_params} parameters of {L.name}; need at least {L.n_params // 3 + 1} samples")
+    rng = np.random.default_rng(seed)
+    heur = heuristics(d)
+    basis = make_basis(L, d, use_kernels=kernel == "auto", seed=seed)
+    separable = basis is not None and basis.separable
+    if method == "varpro" and not separable:
+        raise ConfigError.field("--method", "method", method, f"{L.name} is not affine in its colour parameters")
+    if method == "auto":
+        method = "varpro" if separable else "plain"
+    prob = _Problem(d, L, lossobj, basis if separable else None)
+    notes: list[str] = []
+    if np.all(d.y == 0):
+        notes.append("all values are zero")
+    if method == "varpro":
+        w = (lossobj.weight or LOSSES["cosine"].weight)(d.y, d.cos_i, d.sigma)
+        proj = Projection(basis, np.ascontiguousarray(w), d.y, L.colour_lo, L.colour_hi)
+        shape, colour, cost = _search_shape(proj, L, rng, n_starts)
+        p = L.pack(colour, shape)
+        prob.n_evals += proj.n_evals
+        if not lossobj.linear:
+            p, cost = _plain(prob, [p], max_nfev)
+            method = "varpro+plain"
+        else:
+            cost = prob.cost(p)
+    else:
+        p, cost = _plain(prob, _starts(prob, rng, n_starts, heur), max_nfev)
+    p = canonical_order(L, p)
+    err, ident = _uncertainty(prob, p, cost, notes)
+    colour, shape = L.unpack(p)
+    ecolour, eshape = L.unpack(err)
+    params = L.params(colour, shape)
+    params = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in params.items()}
+    unc = {name: ecolour[k].tolist() for k, name in enumerate(L.colour)}
+    unc.update({name: float(eshape[j]) for j, name in enumerate(L.shape)})
+    m = prob.values(p)
+    c = d.cos_i[:, None]
+    rms_rel = float(np.sqrt(np.sum((c * (m - d.y)) ** 2) / max(np.sum((c * d.y) ** 2), 1e-300)))
+    chi2_red = None
+    if d.sigma is not None:
+        chi2_red = float(np.sum(((m - d.y) / d.sigma) ** 2) / max(3 * len(d) - L.n_params, 1))
+    try:
+        L.build(colour, shape)
+    except GonioError as exc:
+        notes.append(f"the fitted parameters violate a model constraint: {exc}")
+    return FitResult(
+        model=L.name, params=params, uncertainty=unc, loss=lossobj.name, cost=float(cost), rms_rel=rms_rel,
+        n_used=len(d), n_params=L.n_params, chi2_red=chi2_red, identifiable=ident, method=method,
+        n_evals=prob.n_evals, seconds=time.perf_counter() - t0, notes=notes, heuristics=heur,
+        dropped=dict(d.dropped),
+    )
+
+
+__all__ = ["fit", "resolve_loss", "heuristics", "METHODS", "CHANNELS"]

@@ -1,0 +1,67 @@
+"""Precomputed-geometry kernels: the colour basis of a model computed from geometry cached on the data.
+
+A kernel returns exactly what :class:`gonio.fit.layout.Basis` would get from ``model.eval`` — the
+offset f₀ and the basis functions Bₖ of the colour parameters — but from cosines cached once per
+dataset on :class:`gonio.fit.data.FitData`, which makes each shape-parameter evaluation a handful of
+array operations. Tests check every kernel against its model's ``eval``.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+#: Registry: model name -> kernel(data, fixed, shape) -> (offset or None, [basis per colour parameter]).
+KERNELS: dict[str, Callable] = {}
+
+
+def kernel_for(layout) -> Callable | None:
+    """The kernel of ``layout``'s model, if one exists and supports its free/fixed parameters."""
+    k = KERNELS.get(layout.name)
+    return k if k is not None and getattr(k, "supports", lambda L: True)(layout) else None
+
+
+def _lambert(data, layout, shape):
+    """Lambert: f = albedo/π (:class:`gonio.brdf.lambert.Lambert`); basis 1/π."""
+    import numpy as np
+
+    return None, [np.full(len(data), 1.0 / np.pi)]
+
+
+def _microfacet(data, layout, shape):
+    """Walter et al. 2007 microfacet + Lambert (:class:`gonio.brdf.microfacet.Microfacet`) with f0 fixed:
+    bases kd → 1/π, ks → D(h) G2 F(wo·h) / (4 cos θi cos θo), from the shared pieces of
+    :mod:`gonio.brdf.microfacet` on the half vectors and cosines cached on the data."""
+    import numpy as np
+
+    from gonio.brdf.fresnel import schlick
+    from gonio.brdf.microfacet import distribution_d, smith_g2
+
+    fixed = layout.fixed
+    name, alpha = fixed["distribution"], shape["alpha"]
+    h = data.half
+    spec = distribution_d(name, h, alpha) * smith_g2(name, data.wi, data.wo, h, alpha)
+    spec /= 4.0 * data.cos_i * data.cos_o
+    f0 = np.asarray(fixed["f0"])
+    if not np.all(f0 == 1.0):  # Schlick F = 1 exactly when f0 = 1
+        spec = spec[:, None] * _fresnel_cache(data, f0, schlick)
+    basis = {"kd": np.full(len(data), 1.0 / np.pi), "ks": spec}
+    offset = None
+    for k in ("kd", "ks"):
+        if k in fixed and np.any(np.asarray(fixed[k]) != 0):
+            b = basis[k] if basis[k].ndim == 2 else basis[k][:, None]
+            offset = (0.0 if offset is None else offset) + np.asarray(fixed[k]) * b
+    return offset, [basis[k] for k in layout.colour]
+
+
+def _fresnel_cache(data, f0, schlick):
+    """Schlick F(wo·h) for fixed f0 depends only on the geometry: computed once per dataset."""
+    key = ("fresnel", tuple(f0.tolist()))
+    cache = data.__dict__.setdefault("_kernel_cache", {})
+    if key not in cache:
+        cache[key] = schlick(f0, data.cos_d)
+    return cache[key]
+
+
+_microfacet.supports = lambda L: "f0" in L.fixed and L.shape == ["alpha"]
+_lambert.supports = lambda L: L.colour == ["albedo"]
+KERNELS.update({"lambert": _lambert, "microfacet": _microfacet})

@@ -1,0 +1,301 @@
+"""Parameter layout of a model for fitting, and the linear structure of its colour parameters.
+
+Every :class:`gonio.brdf.BRDF` declares ``PARAMS``. For fitting: ``rgb`` parameters are fitted per
+channel (3 values), ``scalar`` (shape) parameters are shared across R, G, B, ``choice`` parameters are
+fixed. Most models are *affine in their colour parameters*: f = f₀(s) + Σₖ aₖ Bₖ(s), with the shape
+parameters s. :class:`Basis` checks that numerically and evaluates f₀ and Bₖ, so the colours can be
+solved in closed form for each shape (variable projection, Golub & Pereyra 1973).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+
+from gonio.brdf import MODELS, BRDF
+from gonio.errors import ConfigError, GonioError
+
+CHANNELS = ("r", "g", "b")
+
+
+def model_class(name: str) -> type[BRDF]:
+    """The model class registered as ``name``, or the lobe sum it names (``"lambert+2ggx"``)."""
+    from gonio.brdf.lobes import is_sum_name, lobe_sum
+
+    if name in MODELS:
+        return MODELS[name]
+    if is_sum_name(name):
+        try:
+            return lobe_sum(name)
+        except ConfigError as exc:
+            raise ConfigError(f"--model: {exc}") from None
+    raise ConfigError.field("--model", "model", name, f"unknown model; known: {', '.join(sorted(MODELS))}")
+
+
+#: Colour parameters held at their default unless freed: the Fresnel reflectance f0 multiplies the
+#: specular weight ks (ks·F(f0)), so fitting both from reflectance alone is nearly degenerate.
+AUTO_FIXED = ("f0",)
+
+
+def auto_fixed(cls: type[BRDF], fixed: dict, free=()) -> dict:
+    """``fixed`` plus the :data:`AUTO_FIXED` parameters of ``cls`` not in ``free``, at their defaults."""
+    out = dict(fixed)
+    for key, spec in cls.PARAMS.items():
+        if key.split(".")[-1] in AUTO_FIXED and key not in out and key not in free and spec.default is not None:
+            out[key] = spec.default
+    return out
+
+
+class Layout:
+    """Free parameters of a model class, packed into one vector ``p = [colours (K×3, per channel), shapes (S)]``.
+
+    Parameters
+    ----------
+    model : str or BRDF subclass
+        Registry name (:data:`gonio.brdf.MODELS`) or class.
+    fixed : dict
+        Parameters held at a value (choices default to their default).
+    """
+
+    def __init__(self, model: str | type[BRDF], fixed: dict[str, Any] | None = None):
+        if isinstance(model, str):
+            model = model_class(model)
+        self.cls = model
+        self.name = model.name
+        fixed = dict(fixed or {})
+        unknown = sorted(set(fixed) - set(model.PARAMS))
+        if unknown:
+            raise ConfigError.field("--fix", f"{model.name}.{unknown[0]}", fixed[unknown[0]], "unknown parameter")
+        self.fixed: dict[str, Any] = {}
+        self.colour: list[str] = []
+        self.shape: list[str] = []
+        for name, spec in model.PARAMS.items():
+            if name in fixed:
+                self.fixed[name] = spec.coerce(model.name, name, fixed[name], "--fix")
+            elif spec.kind == "choice":
+                if spec.default is None:
+                    raise ConfigError(f"{model.name}.{name}: a choice parameter must be fixed ({', '.join(spec.choices)})")
+                self.fixed[name] = spec.default
+            elif spec.kind == "rgb":
+                self.colour.append(name)
+            else:
+                self.shape.append(name)
+        self.K, self.S = len(self.colour), len(self.shape)
+        self.n_params = 3 * self.K + self.S
+        b = model.bounds()
+        self.colour_lo = np.array([b[k][0] for k in self.colour], dtype=np.float64)
+        self.colour_hi = np.array([b[k][1] for k in self.colour], dtype=np.float64)
+        self.shape_lo = np.array([b[k][0] for k in self.shape], dtype=np.float64)
+        self.shape_hi = np.array([b[k][1] for k in self.shape], dtype=np.float64)
+
+    # -- packing ----------------------------------------------------------------------------
+    def labels(self) -> list[str]:
+        """Names of the entries of ``p``: ``kd.r, kd.g, kd.b, ..., alpha``."""
+        return [f"{k}.{c}" for k in self.colour for c in CHANNELS] + list(self.shape)
+
+    def pack(self, colour: np.ndarray, shape: np.ndarray) -> np.ndarray:
+        return np.concatenate([np.asarray(colour, dtype=np.float64).reshape(-1), np.asarray(shape, dtype=np.float64)])
+
+    def unpack(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(colour (K, 3), shape (S,))`` of a packed vector."""
+        p = np.asarray(p, dtype=np.float64)
+        return p[: 3 * self.K].reshape(self.K, 3), p[3 * self.K:]
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds of ``p`` from the model's ``PARAMS``."""
+        lo = np.concatenate([np.repeat(self.colour_lo, 3), self.shape_lo])
+        hi = np.concatenate([np.repeat(self.colour_hi, 3), self.shape_hi])
+        return lo, hi
+
+    def params(self, colour: np.ndarray, shape: np.ndarray) -> dict[str, Any]:
+        """Model constructor arguments (fixed ones included)."""
+        out: dict[str, Any] = dict(self.fixed)
+        for k, name in enumerate(self.colour):
+            out[name] = np.asarray(colour[k], dtype=np.float64)
+        for j, name in enumerate(self.shape):
+            out[name] = float(shape[j])
+        return out
+
+    def build(self, colour: np.ndarray, shape: np.ndarray) -> BRDF:
+        """The model instance (raises :class:`ConfigError` if the model rejects the combination)."""
+        return self.cls(**self.params(colour, shape))
+
+    def eval(self, colour, shape, wi, wo) -> np.ndarray:
+        return self.build(colour, shape).eval(wi, wo)
+
+    # -- search space of the shape parameters -------------------------------------------------
+    def search_space(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(u_lo, u_hi, is_log)``: bounded search box of the shape parameters.
+
+        Wide positive ranges (hi/lo > 100) are searched in log space (roughness, exponents); an
+        infinite upper bound is capped at 10⁴ × max(default, 1).
+        """
+        u_lo, u_hi, is_log = [], [], []
+        for j, name in enumerate(self.shape):
+            spec = self.cls.PARAMS[name]
+            lo, hi = float(self.shape_lo[j]), float(self.shape_hi[j])
+            if not np.isfinite(hi):
+                hi = 1e4 * max(abs(float(spec.default or 1.0)), 1.0)
+            if not np.isfinite(lo):
+                lo = -hi
+            log = lo >= 0 and hi > 0 and hi / max(lo, 1e-300) > 100
+            if log:
+                lo = max(lo, hi * 1e-6)
+                u_lo.append(np.log(lo)), u_hi.append(np.log(hi))
+            else:
+                u_lo.append(lo), u_hi.append(hi)
+            is_log.append(log)
+        return np.array(u_lo), np.array(u_hi), np.array(is_log, dtype=bool)
+
+    def to_shape(self, u: np.ndarray) -> np.ndarray:
+        """Shape parameters of a point of the search space (clipped to the model bounds)."""
+        _, _, is_log = self.search_space()
+        s = np.where(is_log, np.exp(u), u)
+        return np.clip(s, self.shape_lo, self.shape_hi)
+
+    def to_u(self, s: np.ndarray) -> np.ndarray:
+        u_lo, u_hi, is_log = self.search_space()
+        with np.errstate(divide="ignore"):
+            u = np.where(is_log, np.log(np.maximum(s, 1e-300)), s)
+        return np.clip(u, u_lo, u_hi)
+
+    def default_shape(self) -> np.ndarray:
+        out = []
+        for j, name in enumerate(self.shape):
+            d = self.cls.PARAMS[name].default
+            out.append(float(d) if d is not None else 0.5 * (self.shape_lo[j] + min(self.shape_hi[j], 1.0)))
+        return np.clip(np.array(out, dtype=np.float64), self.shape_lo, self.shape_hi)
+
+
+class Basis:
+    """Evaluates f = f₀(s) + Σₖ aₖ Bₖ(s) for the colour parameters aₖ of a :class:`Layout`.
+
+    The basis comes from the model itself: f₀ with every colour at its reference value (0 when allowed),
+    Bₖ from a unit step of colour k. :attr:`separable` is False when the model is not affine in its
+    colours (checked on a probe of the data at random colours); fits then use plain least squares.
+    Basis functions that do not depend on the shape parameters (a Lambert term) are computed once.
+
+    A *kernel* ``kernel(data, fixed, shape) -> (offset (N,3) or None, [B_k (N,) or (N,3)])`` may replace
+    the model evaluation: it computes the same functions from the geometry cached on the data
+    (:class:`gonio.fit.data.FitData`), which is what makes large fits fast (see :mod:`gonio.fit.kernels`).
+    """
+
+    def __init__(self, layout: Layout, data, kernel: Callable | None = None, seed: int = 0):
+        self.layout = layout
+        self.data = data
+        self.kernel = kernel
+        self.ref = np.where((layout.colour_lo <= 0) & (layout.colour_hi >= 0), 0.0, layout.colour_lo)
+        self.step = np.where(self.ref + 1.0 <= layout.colour_hi, 1.0, layout.colour_hi - self.ref)
+        self._static: dict[int, np.ndarray] = {}
+        self._offset_static: np.ndarray | None = None
+        self._last: tuple | None = None
+        self.separable = layout.K > 0 and self._check(np.random.default_rng(seed))
+
+    def _model_basis(self, shape, wi, wo):
+        L = self.layout
+        base = np.repeat(self.ref[:, None], 3, axis=1)
+        f0 = L.eval(base, shape, wi, wo)
+        cols = []
+        for k in range(L.K):
+            c = base.copy()
+            c[k] += self.step[k]
+            cols.append((L.eval(c, shape, wi, wo) - f0) / self.step[k])
+        return f0, cols
+
+    def _check(self, rng) -> bool:
+        """Affine in the colours, and which basis functions are shape-independent."""
+        L, d = self.layout, self.data
+        idx = rng.choice(len(d), size=min(len(d), 256), replace=False)
+        wi, wo = d.wi[idx], d.wo[idx]
+        u_lo, u_hi, _ = L.search_space()
+        shapes = [L.to_shape(rng.uniform(u_lo, u_hi)) for _ in range(2)]
+        try:
+            bases = [self._model_basis(s, wi, wo) for s in shapes]
+            for s, (f0, cols) in zip(shapes, bases):
+                a = self.ref[:, None] + rng.uniform(0.05, 0.3, (L.K, 3)) * self.step[:, None]
+                want = L.eval(a, s, wi, wo)
+                got = f0 + sum((a[k] - self.ref[k]) * cols[k] for k in range(L.K))
+                scale = max(np.abs(want).max(), 1e-300)
+                if not np.allclose(got, want, rtol=1e-7, atol=1e-9 * scale):
+                    return False
+        except GonioError:
+            return False
+        if self.kernel is None:
+            (f0a, ca), (f0b, cb) = bases
+            for k in range(L.K):
+                if L.S == 0 or np.array_equal(ca[k], cb[k]):
+                    self._static[k] = np.empty(0)  # placeholder; filled on first full evaluation
+            if L.S == 0 or np.array_equal(f0a, f0b):
+                self._offset_static = np.empty(0)
+        return True
+
+    def __call__(self, shape: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+        """``(f₀ (N, 3), [B_k (N, 3) or (N,)])`` at shape parameters ``shape`` on the full data."""
+        key = tuple(np.asarray(shape, dtype=np.float64).tolist())
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        out = self._compute(np.asarray(shape, dtype=np.float64))
+        self._last = (key, out)
+        return out
+
+    def _compute(self, shape):
+        L, d = self.layout, self.data
+        if self.kernel is not None:
+            f0, cols = self.kernel(d, L, dict(zip(L.shape, map(float, shape))))
+            return (np.zeros_like(d.y) if f0 is None else f0), cols
+        need_model = (self._offset_static is None or self._offset_static.size == 0
+                      or any(k not in self._static or self._static[k].size == 0 for k in range(L.K)))
+        if need_model:
+            f0, cols = self._model_basis(shape, d.wi, d.wo)
+            if self._offset_static is not None:
+                self._offset_static = f0
+            for k in list(self._static):
+                self._static[k] = cols[k]
+            return f0, cols
+        return self._offset_static, [self._static[k] for k in range(L.K)]
+
+
+class SumBasis:
+    """The :class:`Basis` of a sum of lobes (:mod:`gonio.brdf.lobes`), assembled from one basis per
+    term: f₀ = Σ f₀,term and the colour bases of each term. A term's basis is recomputed only when its
+    own shape parameters change, and each term may use a kernel (:mod:`gonio.fit.kernels`)."""
+
+    def __init__(self, layout: Layout, data, use_kernels: bool = True, seed: int = 0):
+        from gonio.fit.kernels import kernel_for
+
+        self.layout, self.data = layout, data
+        self.parts = []
+        for slot, cls, fixed in layout.cls.PARTS:
+            own_fixed = dict(fixed)
+            own_fixed.update({k.split(".", 1)[1]: v for k, v in layout.fixed.items() if k.split(".", 1)[0] == slot})
+            sub = Layout(cls, own_fixed)
+            kern = kernel_for(sub) if use_kernels else None
+            b = Basis(sub, data, kern, seed) if sub.K else None
+            shape_idx = [layout.shape.index(f"{slot}.{n}") for n in sub.shape]
+            colour_names = [f"{slot}.{n}" for n in sub.colour]
+            self.parts.append((sub, b, shape_idx, colour_names))
+        self.ref = np.where((layout.colour_lo <= 0) & (layout.colour_hi >= 0), 0.0, layout.colour_lo)
+        self.separable = layout.K > 0 and all(b is not None and b.separable for _, b, _, _ in self.parts)
+
+    def __call__(self, shape):
+        shape = np.asarray(shape, dtype=np.float64)
+        f0 = np.zeros_like(self.data.y)
+        cols: dict[str, np.ndarray] = {}
+        for sub, b, shape_idx, names in self.parts:
+            pf0, pcols = b(shape[shape_idx])
+            f0 = f0 + pf0
+            cols.update(zip(names, pcols))
+        return f0, [cols[n] for n in self.layout.colour]
+
+
+def make_basis(layout: Layout, data, use_kernels: bool = True, seed: int = 0):
+    """The colour basis of ``layout`` on ``data`` (:class:`SumBasis` for sums, else :class:`Basis`,
+    with a kernel of :mod:`gonio.fit.kernels` where one applies)."""
+    from gonio.fit.kernels import kernel_for
+
+    if layout.K == 0:
+        return None
+    if getattr(layout.cls, "PARTS", None):
+        return SumBasis(layout, data, use_kernels, seed)
+    return Basis(layout, data, kernel_for(layout) if use_kernels else None, seed)

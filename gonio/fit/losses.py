@@ -1,0 +1,111 @@
+"""Fitting losses as per-sample residual transforms (so any of them can be minimized by least squares).
+
+Each loss maps a model value ``m`` and a measured value ``y`` (both BRDF values in 1/sr, shape
+``(N, 3)``), the cosine of the incidence angle and the standard uncertainty ``sigma`` to residuals
+``r`` of the same shape; the fit minimizes ``½ Σ r²``. A loss is *linear* when ``r`` is an affine
+function of ``m`` (``r = √w · (m − y)``): then the colour parameters, which enter the models linearly,
+can be solved in closed form (variable projection, :mod:`gonio.fit.fit`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from gonio.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Loss:
+    """One fitting loss.
+
+    Attributes
+    ----------
+    name : str
+        Registry name (CLI ``--loss``, JSON reports).
+    residual : callable ``(m, y, cos_i, sigma) -> r``
+        Residuals, shape ``(N, 3)``.
+    weight : callable ``(y, cos_i, sigma) -> w`` or None
+        For linear losses, the weights with ``r = √w (m − y)``; ``None`` for non-linear losses.
+    needs_sigma : bool
+        The loss divides by the per-sample uncertainties.
+    doc : str
+        One line with the formula and its source.
+    """
+
+    name: str
+    residual: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+    weight: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None
+    needs_sigma: bool
+    doc: str
+
+    @property
+    def linear(self) -> bool:
+        """Residuals are affine in the model value (variable projection applies)."""
+        return self.weight is not None
+
+
+def _cos_weight(y, cos_i, sigma):
+    """Cosine-weighted L2 weights ``w = cos²θi``.
+
+    E = Σ (f_m cos θi − f cos θi)²: the cosine-weighted error of Lafortune et al. (1997) used by
+    Ngan, Durand & Matusik, "Experimental Analysis of BRDF Models", EGSR 2005 (their Eq. 3, without
+    the square root and normalization, which do not move the minimum).
+    """
+    return np.broadcast_to((cos_i * cos_i)[:, None], y.shape)
+
+
+def _cos_residual(m, y, cos_i, sigma):
+    return (m - y) * cos_i[:, None]
+
+
+def _chi2_weight(y, cos_i, sigma):
+    """χ² weights ``w = 1/σ²`` (per sample and channel): the maximum-likelihood fit under Gaussian noise
+    of known standard uncertainty σ (e.g. Press et al., *Numerical Recipes*, 3rd ed., §15.1)."""
+    return 1.0 / (sigma * sigma)
+
+
+def _chi2_residual(m, y, cos_i, sigma):
+    return (m - y) / sigma
+
+
+def _log_residual(m, y, cos_i, sigma):
+    """``r = ln(1 + m cos θi) − ln(1 + y cos θi)``: the log-based metric of Löw, Kronander, Ynnerman &
+    Unger, "BRDF Models for Accurate and Efficient Rendering of Glossy Surfaces", ACM TOG 31(1), 2012
+    (Eq. 16). Compresses the dynamic range of sharp specular peaks."""
+    c = cos_i[:, None]
+    return np.log1p(np.maximum(m * c, -0.999999)) - np.log1p(np.maximum(y * c, -0.999999))
+
+
+def _cbrt_residual(m, y, cos_i, sigma):
+    """``r = ∛(m cos θi) − ∛(y cos θi)``: the cube-root metric found perceptually best by Forés,
+    Ferwerda & Gu, "Toward a Perceptually Based Metric for BRDF Modeling", CIC 2012."""
+    c = cos_i[:, None]
+    return np.cbrt(m * c) - np.cbrt(y * c)
+
+
+#: Registry: loss name -> :class:`Loss`.
+LOSSES: dict[str, Loss] = {
+    loss.name: loss
+    for loss in (
+        Loss("cosine", _cos_residual, _cos_weight, False,
+             "cosine-weighted L2: (f_m cos θi − f cos θi)² (Ngan, Durand & Matusik 2005)"),
+        Loss("chi2", _chi2_residual, _chi2_weight, True,
+             "χ²: ((f_m − f)/σ)² with the per-sample standard uncertainties"),
+        Loss("log", _log_residual, None, False,
+             "log: (ln(1 + f_m cos θi) − ln(1 + f cos θi))² (Löw et al. 2012)"),
+        Loss("cbrt", _cbrt_residual, None, False,
+             "cube root: (∛(f_m cos θi) − ∛(f cos θi))² (Forés, Ferwerda & Gu 2012)"),
+    )
+}
+
+
+def get_loss(name: str, *, source: str | None = "loss") -> Loss:
+    """The :class:`Loss` registered as ``name``; :class:`ConfigError` naming the known ones otherwise."""
+    try:
+        return LOSSES[name]
+    except KeyError:
+        raise ConfigError.field(None, source or "loss", name,
+                                f"unknown loss; known: {', '.join(LOSSES)}") from None
