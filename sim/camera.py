@@ -203,7 +203,7 @@ class SimCamera:
         if self._rays is None:
             c = self.calibration
             v, u = np.mgrid[0:c.height, 0:c.width].astype(np.float64)
-            self._rays = c.rays(u, v)
+            self._rays = c.rays(u, v).astype(np.float32)
         return self._rays
 
     def _board_texture(self):
@@ -226,49 +226,79 @@ class SimCamera:
 
     def _render(self) -> np.ndarray:
         """Radiance L = f(wi, wo) · I · cos θi / r² per pixel (point source; lecture notes 004,
-        "point light": E = I cos θ / r²; reflected radiance L = f E), times the responsivity."""
+        "point light": E = I cos θ / r²; reflected radiance L = f E), times the responsivity.
+
+        The board (Lambertian, textured) is shaded over the whole frame in float32; the white patch
+        and the sample only inside the bounding boxes of their projections, in float64.
+        """
         import cv2
 
         s, c = self.scene, self.calibration
         C = self._pose.centre
-        d = self._camera_rays() @ self._pose.R  # world-frame ray directions (Rᵀ d_cam, row-wise)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(d[..., 2] < -1e-12, -C[2] / d[..., 2], np.inf)
-        hit = np.isfinite(t) & (t > 0)
-        p = C + np.where(hit, t, 0.0)[..., None] * d
+        d = self._camera_rays() @ self._pose.R.astype(np.float32)  # world rays (Rᵀ d_cam, row-wise)
+        dz = d[..., 2]
+        hit = dz < -1e-9
+        t = np.where(hit, np.float32(-C[2]) / np.where(hit, dz, np.float32(-1.0)), np.float32(0.0))
+        px = np.float32(C[0]) + t * d[..., 0]
+        py = np.float32(C[1]) + t * d[..., 1]
         # Board / background albedo: bilinear lookup in a texture prefiltered to the pixel footprint.
         tex = self._board_texture()
-        spec = s.layout.charuco
-        w, h = spec.size
+        w, h = s.layout.charuco.size
         footprint = np.linalg.norm(C) / c.K[0, 0] / s.texel  # texels per pixel at the board centre
         if footprint > 1.0:
             tex = cv2.GaussianBlur(tex, (0, 0), 0.5 * footprint)
-        mx = ((p[..., 0] + w / 2) / s.texel - 0.5).astype(np.float32)
-        my = ((h / 2 - p[..., 1]) / s.texel - 0.5).astype(np.float32)
+        inv = np.float32(1.0 / s.texel)
+        mx = (px + np.float32(w / 2)) * inv - np.float32(0.5)
+        my = (np.float32(h / 2) - py) * inv - np.float32(0.5)
         albedo = cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=s.background)
-        albedo = np.where(hit, albedo, 0.0)
+        S_ = self._light_pos.astype(np.float32)
+        lx, ly, lz = S_[0] - px, S_[1] - py, S_[2]
+        r2 = lx * lx + ly * ly + lz * lz
+        irr = np.float32(s.light_intensity) * np.maximum(lz, 0) / (r2 * np.sqrt(r2))  # I cos θ / r²
+        gray = albedo * irr * np.float32(1 / np.pi)
+        gray[~hit] = 0.0
+        rate = gray[..., None] * np.asarray(self.sensor.responsivity, dtype=np.float32)
         lay = s.layout
-        white = lay.white.contains(p[..., 0], p[..., 1])
-        to_light = self._light_pos - p
-        r2 = dot(to_light, to_light)
-        wi = to_light / np.sqrt(r2)[..., None]
-        irr = s.light_intensity * np.maximum(wi[..., 2], 0.0) / r2  # E = I cos θ / r²
-        L = (albedo / np.pi * irr)[..., None] * np.ones(3)
-        L[white] = (np.asarray(lay.white_albedo) / np.pi) * irr[white][:, None]
-        L[~hit] = 0.0
-        self._shade_sample(L, d, C, hit)
-        return (L * np.asarray(self.sensor.responsivity)).astype(np.float32)
+        box = self._bbox(lay.white.corners())
+        if box is not None:
+            sub = (px[box], py[box])
+            m = lay.white.contains(*sub) & hit[box]
+            wrate = (np.asarray(lay.white_albedo) / np.pi * np.asarray(self.sensor.responsivity)).astype(np.float32)
+            rate[box][m] = irr[box][m][:, None] * wrate
+        self._shade_sample(rate, d, C)
+        return rate
 
-    def _shade_sample(self, L: np.ndarray, d: np.ndarray, C: np.ndarray, hit: np.ndarray) -> None:
-        """Overwrite ``L`` where rays hit the (possibly transformed) sample patch."""
+    def _bbox(self, corners: np.ndarray) -> tuple[slice, slice] | None:
+        """Pixel box (rows, cols) of the projection of world points, padded by 2 px; None if not in view."""
+        c = self.calibration
+        pc = corners @ self._pose.R.T + self._pose.t
+        if (pc[:, 2] <= 0).any():
+            return (slice(0, c.height), slice(0, c.width))
+        uv = self._pose.project(corners, c)
+        c0, r0 = np.floor(uv.min(axis=0)).astype(int) - 2
+        c1, r1 = np.ceil(uv.max(axis=0)).astype(int) + 3
+        rows = slice(int(np.clip(r0, 0, c.height)), int(np.clip(r1, 0, c.height)))
+        cols = slice(int(np.clip(c0, 0, c.width)), int(np.clip(c1, 0, c.width)))
+        if rows.stop <= rows.start or cols.stop <= cols.start:
+            return None
+        return rows, cols
+
+    def _shade_sample(self, rate: np.ndarray, d: np.ndarray, C: np.ndarray) -> None:
+        """Overwrite ``rate`` where rays hit the (possibly transformed) sample patch."""
         s = self.scene
         M = np.eye(4) if s.sample_transform is None else np.asarray(s.sample_transform, dtype=np.float64)
+        corners = s.layout.sample.corners() @ M[:3, :3].T + M[:3, 3]
+        box = self._bbox(corners)
+        if box is None:
+            return
+        d = d[box].astype(np.float64)
         n = transform_normals(M, [0.0, 0.0, 1.0])  # inverse-transpose (lecture notes 000)
         frame = frame_from_normal(n, M[:3, :3] @ np.array([1.0, 0.0, 0.0]))
         origin = M[:3, 3]
+        dn = d @ n
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = dot(origin - C, n) / dot(d, n)
-        ok = np.isfinite(t) & (t > 0) & (dot(d, n) < 0)
+            t = np.dot(origin - C, n) / dn
+        ok = np.isfinite(t) & (t > 0) & (dn < 0)
         p = C + np.where(ok, t, 0.0)[..., None] * d
         Minv = np.linalg.inv(M)
         q = p @ Minv[:3, :3].T + Minv[:3, 3]  # back to the patch's own coordinates
@@ -283,7 +313,7 @@ class SimCamera:
         wi, wo = to_local(wi_w, frame), to_local(wo_w, frame)
         f = s.material.eval(wi, wo)
         irr = s.light_intensity * np.maximum(wi[:, 2], 0.0) / r2
-        L[inside] = f * irr[:, None]
+        rate[box][inside] = (f * irr[:, None] * np.asarray(self.sensor.responsivity)).astype(np.float32)
 
     # -- the Camera protocol --------------------------------------------------------------------
     def capture(self, exposure: float, gain: float = 1.0, *, timeout: float = 10.0) -> Frame:
@@ -320,8 +350,10 @@ class SimCamera:
         """Electrons after shot noise (Poisson; its normal approximation above
         :data:`POISSON_EXACT_BELOW`) plus Gaussian read noise, in one normal draw where possible."""
         z = self._rng.standard_normal(mean_e.shape, dtype=np.float32)
-        var = mean_e + np.float32(self.sensor.read_noise_e ** 2)
-        e = mean_e + np.sqrt(var) * z
+        e = mean_e + np.float32(self.sensor.read_noise_e ** 2)
+        np.sqrt(e, out=e)
+        e *= z
+        e += mean_e
         low = mean_e < POISSON_EXACT_BELOW
         if low.any():
             m = mean_e[low]

@@ -127,7 +127,23 @@ class Pipeline:
         t = self._next_exposure
         # 1. meter (and locate the board on the metering frame)
         frame, px, level = self._grab(t, gain)
-        board, cam_pose = self._locate(frame, px, camera_pose_hint)
+        board = None
+        for k in range(st.meter_tries):
+            board, cam_pose = self._locate(frame, px, None if k < st.meter_tries - 1 else camera_pose_hint)
+            if board is not None:
+                break
+            # not found: bring the whole frame's 99th percentile to mid-range and look again
+            rng = self._limit(frame) - frame.black_level
+            hi = float(np.percentile(px[::4, ::4], 99.0)) - frame.black_level
+            factor = float(np.clip(0.5 * rng / max(hi, 1.0), 1 / 64, 64))
+            if hi >= (1 - SATURATION_MARGIN) * rng:
+                factor = 1 / 8
+            t_new = float(np.clip(t * factor, st.exposure.min_exposure, st.exposure.max_exposure))
+            if abs(t_new - t) <= 1e-3 * t:
+                board, cam_pose = self._locate(frame, px, camera_pose_hint)
+                break
+            t = t_new
+            frame, px, level = self._grab(t, gain)
         if board is None:
             flags |= S.NO_BOARD
         roi = build_roi(cam_pose, self.calib, self.layout, light_position, margin_px=st.margin_px,
@@ -155,7 +171,7 @@ class Pipeline:
             raise HardwareError(f"light: photodiode reads {lv.min():g}: the light is off or failed", device="light")
         samples = reflectance_samples(hdr, roi, cam_pose, light_position, self.layout, absolute_scale=self.absolute_scale,
                                       min_snr=st.min_snr, pose_index=pose_index, flags=flags)
-        self._next_exposure = plan.exposures[len(plan.exposures) // 2]
+        self._next_exposure = plan.exposures[0]
         return PoseResult(samples, plan, board, cam_pose, lights)
 
     def _meter(self, frame: Frame, px: np.ndarray, level: float, roi, gain: float) -> CapturePlan:
