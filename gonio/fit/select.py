@@ -1,0 +1,127 @@
+"""Model selection: fit candidates from simple to complex and keep the one the data require.
+
+Criteria
+--------
+``bic`` / ``aic``
+    Schwarz (1978) / Akaike (1974) information criteria from each fit's likelihood
+    (:attr:`gonio.fit.result.FitResult.bic`); lowest wins. With known uncertainties (χ² loss) the
+    likelihood is exact; otherwise Gaussian with unknown variance.
+``cv``
+    Seeded k-fold cross-validation: mean held-out squared residual of the loss. The winner is the
+    simplest candidate within one standard error of the best (the one-standard-error rule, Hastie,
+    Tibshirani & Friedman, *The Elements of Statistical Learning*, 2nd ed., §7.10).
+``auto``
+    ``bic`` when every sample has an uncertainty (χ² loss), else ``cv``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from gonio.errors import ConfigError, GonioError
+from gonio.fit.data import DEFAULT_MAX_THETA_DEG, prepare
+from gonio.fit.fit import fit, resolve_loss
+from gonio.fit.result import FitResult, _clean
+
+#: Default candidates, simple to complex: diffuse; diffuse + Blinn-Phong; diffuse + one GGX lobe;
+#: diffuse + two GGX lobes.
+DEFAULT_CANDIDATES = ("lambert", "blinn-phong", "microfacet", "lambert+2ggx")
+CRITERIA = ("auto", "bic", "aic", "cv")
+
+
+@dataclass
+class Selection:
+    """Result of :func:`select`: the winning fit and a row per candidate saying why it won or lost."""
+
+    winner: FitResult
+    criterion: str
+    candidates: list[dict[str, Any]] = field(default_factory=list)
+    fits: dict[str, FitResult] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        out = self.winner.to_dict()
+        out["criterion"] = self.criterion
+        out["candidates"] = _clean(self.candidates)
+        return out
+
+
+def _cv_score(d, model, loss, k, seed, fit_kw) -> tuple[float, float]:
+    """Mean held-out ½·mean(r²) over k folds and its standard error."""
+    rng = np.random.default_rng(seed)
+    folds = np.array_split(rng.permutation(len(d)), k)
+    scores = []
+    for j in range(k):
+        test = folds[j]
+        train = np.concatenate([folds[i] for i in range(k) if i != j])
+        r = fit(d.subset(train), model, loss=loss.name, seed=seed, **fit_kw)
+        m = r.build().eval(d.wi[test], d.wo[test])
+        sigma = None if d.sigma is None else d.sigma[test]
+        res = loss.residual(m, d.y[test], d.cos_i[test], sigma)
+        scores.append(float(np.mean(res * res)))
+    scores = np.array(scores)
+    return float(scores.mean()), float(scores.std(ddof=1) / np.sqrt(k)) if k > 1 else 0.0
+
+
+def select(data, candidates: Sequence[str] = DEFAULT_CANDIDATES, *, criterion: str = "auto", loss: str = "auto",
+           folds: int = 5, seed: int = 0, max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG,
+           **fit_kw) -> Selection:
+    """Fit every candidate model and choose one (criteria in the module docstring).
+
+    Candidates that cannot be fitted (e.g. too few samples for their parameters) are listed with
+    status ``failed`` and the reason; if none can be fitted the first error is raised.
+    """
+    if criterion not in CRITERIA:
+        raise ConfigError.field("--criterion", "criterion", criterion, f"must be one of {', '.join(CRITERIA)}")
+    d = prepare(data, max_theta_deg=max_theta_deg)
+    lossobj = resolve_loss(loss, d)
+    if criterion == "auto":
+        criterion = "bic" if lossobj.name == "chi2" else "cv"
+    rows, fits, first_error = [], {}, None
+    for name in candidates:
+        try:
+            r = fit(d, name, loss=lossobj.name, seed=seed, **fit_kw)
+        except GonioError as exc:
+            first_error = first_error or exc
+            rows.append({"model": name, "status": "failed", "reason": str(exc)})
+            continue
+        row = {"model": name, "n_params": r.n_params, "loss": r.loss, "cost": r.cost, "rms_rel": r.rms_rel,
+               "chi2_red": r.chi2_red, "aic": r.aic, "bic": r.bic, "identifiable": r.identifiable}
+        if criterion == "cv":
+            if len(d) < 2 * folds:
+                raise ConfigError.field("--folds", "folds", folds, f"{len(d)} samples are too few for {folds}-fold CV")
+            row["cv"], row["cv_se"] = _cv_score(d, name, lossobj, folds, seed, fit_kw)
+        row["score"] = row[criterion]
+        rows.append(row)
+        fits[name] = r
+    ok = [r for r in rows if "score" in r]
+    if not ok:
+        raise first_error
+    best = min(ok, key=lambda r: r["score"])
+    if criterion == "cv":
+        limit = best["score"] + best["cv_se"]
+        within = [r for r in ok if r["score"] <= limit]
+        win = min(within, key=lambda r: (r["n_params"], r["score"]))
+        for r in ok:
+            if r is win:
+                r["reason"] = (f"simplest model whose held-out error {r['score']:.4g} is within one standard "
+                               f"error of the best ({best['score']:.4g} + {best['cv_se']:.2g})")
+            elif r["score"] <= limit:
+                r["reason"] = f"held-out error within one SE of the best but {r['n_params']} parameters > {win['n_params']}"
+            else:
+                r["reason"] = f"held-out error {r['score']:.4g} > {limit:.4g} (best + one SE)"
+    else:
+        win = best
+        for r in ok:
+            if r is win:
+                nxt = sorted(x["score"] for x in ok if x is not win)
+                gap = f"; next best is {nxt[0] - r['score']:.4g} higher" if nxt else ""
+                r["reason"] = f"lowest {criterion.upper()} ({r['score']:.6g}){gap}"
+            else:
+                r["reason"] = f"{criterion.upper()} {r['score'] - win['score']:+.4g} over {win['model']}"
+    for r in rows:
+        if "score" in r:
+            r["status"] = "chosen" if r is win else "rejected"
+    return Selection(fits[win["model"]], criterion, rows, fits)
