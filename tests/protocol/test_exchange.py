@@ -1,0 +1,154 @@
+"""Byte-exchange tests of the host client: (sent, reply) pairs copied from SPEC.md's worked examples,
+played by a scripted port; every pair must be used, in order. They read like the spec."""
+
+import time
+
+import pytest
+
+from gonio.errors import ConfigError, ControllerError, EmergencyStop, HardwareTimeout
+from gonio.rig.controller import RigController
+from gonio.rig.interfaces import RigController as RigControllerProtocol
+from sim.clock import SimClock
+
+
+def h(s: str) -> bytes:
+    return bytes.fromhex(s)
+
+
+class ScriptedPort:
+    """A transport that expects exactly the listed writes and answers each with its reply bytes."""
+
+    def __init__(self, pairs):
+        self.pairs = list(pairs)
+        self.used = 0
+        self.timeout = 0.0
+        self.closed = False
+        self._rx = bytearray()
+        self.flushes = 0
+
+    def write(self, data):
+        assert self.used < len(self.pairs), f"unexpected write {bytes(data).hex(' ')}"
+        sent, reply = self.pairs[self.used]
+        assert bytes(data) == sent, f"pair {self.used}: sent {bytes(data).hex(' ')}, spec says {sent.hex(' ')}"
+        self.used += 1
+        self._rx += reply
+        return len(data)
+
+    @property
+    def in_waiting(self):
+        return len(self._rx)
+
+    def read(self, n=1):
+        if not self._rx:
+            time.sleep(0.001)
+            return b""
+        out = bytes(self._rx[:n])
+        del self._rx[:n]
+        return out
+
+    def reset_input_buffer(self):
+        self.flushes += 1
+        self._rx.clear()
+
+    def close(self):
+        self.closed = True
+
+    def assert_all_used(self):
+        assert self.used == len(self.pairs), f"only {self.used} of {len(self.pairs)} exchanges happened"
+
+
+HELLO = h("00 05 01 01 02 01 03 B8 90 00")
+HELLO_REPLY = h("00 05 81 01 0B 01 02 1F 01 05 01 40 10 27 01 03 FB 81 00")
+SET_WATCHDOG_10S = h("00 06 07 02 04 10 27 01 03 3D F2 00")
+SET_WATCHDOG_REPLY = h("00 06 87 02 04 10 27 01 03 C4 59 00")
+HANDSHAKE = [(HELLO, HELLO_REPLY), (SET_WATCHDOG_10S, SET_WATCHDOG_REPLY)]
+
+
+def connected(pairs, **kw):
+    port = ScriptedPort(HANDSHAKE + pairs)
+    ctl = RigController(port, clock=SimClock(), timeout=0.05, **kw)
+    ctl.connect()
+    return ctl, port
+
+
+def test_session_reads_like_the_spec():
+    ctl, port = connected([
+        # SET_LIGHT seq 3: on=1, level=32768 (0.5)      -> SET_LIGHT_REPLY echoes it
+        (h("00 05 03 03 03 01 04 80 46 13 00"), h("00 05 83 03 03 01 04 80 66 C7 00")),
+        # STATUS seq 4                                   -> flags LIGHT_ON, level 32768, 25.37 °C, 123.456 s
+        (h("00 03 06 04 03 F8 B2 00"), h("00 05 86 04 0E 04 01 07 80 E9 09 40 E2 01 03 10 27 01 03 2B CB 00")),
+        # TRIGGER seq 5: 20000 µs                        -> TRIGGER_REPLY count 1
+        (h("00 06 05 05 04 20 4E 01 03 8C 73 00"), h("00 06 85 05 08 20 4E 01 02 01 01 01 03 9C DD 00")),
+        # READ_PHOTODIODE seq 6: 16 samples              -> mean 0.987654, sem 0.0005
+        (h("00 07 04 06 01 10 91 DD 00"), h("00 08 84 06 09 10 06 12 0F 03 F4 01 01 03 54 D4 00")),
+        # HEARTBEAT seq 7                                -> HEARTBEAT_REPLY
+        (h("00 03 02 07 03 6B 3B 00"), h("00 03 82 07 02 31 01 00")),
+    ])
+    assert isinstance(ctl, RigControllerProtocol)
+    assert ctl.info.capabilities == 0x1F and ctl.info.watchdog_s == 10.0
+    ctl.set_light(True, 0.5)
+    st = ctl.status()
+    assert (st.light_on, st.estop, st.interlock_open) == (True, False, False)
+    assert st.light_level == pytest.approx(32768 / 65535) and st.temperature_c == 25.37 and st.uptime_s == 123.456
+    ctl.trigger_camera(0.02)
+    assert ctl.read_photodiode(16) == pytest.approx((0.987654, 0.0005))
+    ctl.heartbeat()
+    port.assert_all_used()
+    assert ctl.retry_count == 0 and ctl.stale_replies == 0
+
+
+def test_error_reply_becomes_emergency_stop_with_code():
+    ctl, port = connected([
+        # SET_LIGHT seq 3 -> ERROR seq 3 code ESTOP (4) for request 0x03
+        (h("00 05 03 03 03 01 04 80 46 13 00"), h("00 08 FF 03 02 04 03 B8 42 00")),
+    ])
+    with pytest.raises(EmergencyStop, match="SET_LIGHT refused: ESTOP") as e:
+        ctl.set_light(True, 0.5)
+    assert e.value.code == 4
+    port.assert_all_used()
+
+
+def test_late_reply_with_old_seq_is_discarded():
+    """A reply whose seq is not the request's is never taken as its answer."""
+    stale = h("00 05 83 03 03 01 04 80 66 C7 00")  # SET_LIGHT_REPLY seq 3, arriving late
+    ctl, port = connected([
+        (h("00 03 02 03 03 AF F7 00"), b""),  # HEARTBEAT seq 3: no answer (times out)
+        # HEARTBEAT seq 3 retried: the late stale reply is flushed; then a proper HEARTBEAT_REPLY
+        (h("00 03 02 03 03 AF F7 00"), stale + h("00 03 82 03 03 F5 CC 00")),
+    ], retries=1)
+    ctl.heartbeat()
+    port.assert_all_used()
+    assert ctl.retry_count == 1 and ctl.stale_replies == 1 and port.flushes == 1
+
+
+def test_no_reply_raises_timeout_after_bounded_retries():
+    hb = h("00 03 02 03 03 AF F7 00")
+    ctl, port = connected([(hb, b"")] * 3, retries=2)
+    with pytest.raises(HardwareTimeout, match="no reply to HEARTBEAT .seq 3. after 3 attempts"):
+        ctl.heartbeat()
+    port.assert_all_used()
+
+
+def test_version_and_capabilities_are_checked():
+    port = ScriptedPort([(HELLO, h("00 08 FF 01 02 07 01 C1 DA 00"))])  # ERROR VERSION for HELLO
+    with pytest.raises(ControllerError, match="VERSION") as e:
+        RigController(port, clock=SimClock(), timeout=0.05).connect()
+    assert e.value.code == 7
+    from firmware_protocol import codec as fp
+    no_trigger = fp.encode_message("HELLO_REPLY", 1, major=1, minor=0, capabilities=0x1B, firmware=1,
+                                   max_payload=64, watchdog_ms=10000)
+    port = ScriptedPort([(HELLO, no_trigger)])
+    with pytest.raises(ControllerError, match="lacks capabilities: trigger"):
+        RigController(port, clock=SimClock(), timeout=0.05).connect()
+    port.assert_all_used()
+
+
+def test_values_are_validated_before_any_byte_leaves():
+    ctl, port = connected([])
+    for call, match in ((lambda: ctl.set_light(True, 1.5), "light level = 1.5"),
+                        (lambda: ctl.read_photodiode(0), "photodiode samples = 0"),
+                        (lambda: ctl.trigger_camera(-1.0), "trigger exposure = -1.0"),
+                        (lambda: ctl.set_watchdog(0.01), "watchdog = 0.01")):
+        with pytest.raises(ConfigError, match=match):
+            call()
+    port.assert_all_used()
