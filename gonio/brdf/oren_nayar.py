@@ -21,7 +21,7 @@ class OrenNayar(BRDF):
     sin α tan β / (sin θ_i sin θ_o) = 1 / cos β = 1 / max(cos θ_i, cos θ_o), so
     the term is max(0, wi_x wo_x + wi_y wo_y) / max(cos θ_i, cos θ_o): defined at the pole, no
     0·∞ at grazing. σ = 0 is Lambert. Reciprocal. The qualitative model is not exactly energy
-    conserving: its directional albedo reaches ~1.007 ρ at θ_i = 80° (tests/brdf/test_energy.py),
+    conserving: its directional albedo reaches ~1.007 ρ near σ = 0.15, θ_i = 80° (tests/brdf/test_energy.py),
     so it is not marked energy conserving.
 
     Parameters
