@@ -237,7 +237,7 @@ class SimCamera:
         C = self._pose.centre
         d = self._camera_rays() @ self._pose.R.astype(np.float32)  # world rays (Rᵀ d_cam, row-wise)
         dz = d[..., 2]
-        hit = dz < -1e-9
+        hit = (dz < -1e-9) & (C[2] > 0)  # a camera below the board plane sees its back: nothing
         t = np.where(hit, np.float32(-C[2]) / np.where(hit, dz, np.float32(-1.0)), np.float32(0.0))
         px = np.float32(C[0]) + t * d[..., 0]
         py = np.float32(C[1]) + t * d[..., 1]

@@ -107,14 +107,11 @@ class Pipeline:
     def _limit(self, frame: Frame) -> float:
         return self.calib.noise.linear_limit(frame.saturation_level, frame.black_level, frame.gain)
 
-    def _locate(self, frame: Frame, px: np.ndarray, hint: CameraPose | None) -> tuple[BoardPose | None, CameraPose]:
+    def _locate(self, frame: Frame, px: np.ndarray, hint: CameraPose | None) -> tuple[BoardPose | None, CameraPose | None]:
         gray = to_gray8(px, frame.bit_depth if frame.linear else 8, frame.black_level if frame.linear else 0.0)
         bp = detect_board_pose(gray, self.calib, self.layout.charuco, self._board)
         if bp is not None:
             return bp, bp.pose
-        if hint is None:
-            raise BoardNotFound("camera frame: ChArUco board not found (fewer than 6 corners) and no kinematic "
-                                "camera pose given", device="camera")
         return None, hint
 
     # -- the pose -----------------------------------------------------------------------------
@@ -127,9 +124,9 @@ class Pipeline:
         t = self._next_exposure
         # 1. meter (and locate the board on the metering frame)
         frame, px, level = self._grab(t, gain)
-        board = None
-        for k in range(st.meter_tries):
-            board, cam_pose = self._locate(frame, px, None if k < st.meter_tries - 1 else camera_pose_hint)
+        board = cam_pose = None
+        for _ in range(st.meter_tries):
+            board, cam_pose = self._locate(frame, px, camera_pose_hint)
             if board is not None:
                 break
             # not found: bring the whole frame's 99th percentile to mid-range and look again
@@ -144,6 +141,9 @@ class Pipeline:
                 break
             t = t_new
             frame, px, level = self._grab(t, gain)
+        if cam_pose is None:
+            raise BoardNotFound("camera frame: ChArUco board not found (fewer than 6 corners) and no kinematic "
+                                "camera pose given", device="camera")
         if board is None:
             flags |= S.NO_BOARD
         roi = build_roi(cam_pose, self.calib, self.layout, light_position, margin_px=st.margin_px,
