@@ -86,15 +86,17 @@ def trapezoid_progress(t, distance, v_max, a_max) -> tuple[np.ndarray, np.ndarra
     with np.errstate(divide="ignore", invalid="ignore"):
         peak = np.minimum(v, np.sqrt(a * dist))
         t_acc = np.where(np.isinf(a), 0.0, peak / a)
+    af = np.where(np.isinf(a), 0.0, a)  # infinite acceleration: velocity jumps, no ramp
     tc = np.clip(t, 0.0, total)
     t_dec0 = total - t_acc  # deceleration starts
-    s_acc = 0.5 * np.where(np.isinf(a), 0.0, a) * np.minimum(tc, t_acc) ** 2
+    s_acc = 0.5 * af * np.minimum(tc, t_acc) ** 2
     s_cruise = peak * np.clip(np.minimum(tc, t_dec0) - t_acc, 0.0, None)
     td = np.clip(tc - t_dec0, 0.0, None)
-    s_dec = peak * td - 0.5 * np.where(np.isinf(a), 0.0, a) * td ** 2
+    s_dec = peak * td - 0.5 * af * td ** 2
     s = np.where(tc >= total, dist, s_acc + s_cruise + s_dec)
-    vel = np.where(tc >= total, 0.0, np.where(tc < t_acc, np.where(np.isinf(a), peak, a * tc),
-                                              np.where(tc < t_dec0, peak, peak - np.where(np.isinf(a), peak, a * td))))
+    ramp_up = np.where(np.isinf(a), peak, af * tc)
+    ramp_down = peak - af * td
+    vel = np.where(tc >= total, 0.0, np.where(tc < t_acc, ramp_up, np.where(tc < t_dec0, peak, ramp_down)))
     return sign * s, sign * vel
 
 

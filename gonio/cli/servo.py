@@ -1,0 +1,123 @@
+"""``gonio servo scan|read|move``: the lab-bench servo tools (what people otherwise do in Dynamixel Wizard).
+
+Raw angles: 0–360° ↔ 0–4095 ticks (Present/Goal Position, Position Control Mode).
+"""
+
+from __future__ import annotations
+
+DEFAULT_BAUD = 57600  # the factory default of X-series servos (Baud Rate(8) = 1)
+
+
+def register(sub) -> None:
+    p = sub.add_parser("servo", help="scan, read and move Dynamixel servos on a bus",
+                       description="Lab-bench tools for Dynamixel (Protocol 2.0) servos.")
+    ssub = p.add_subparsers(dest="servo_command", metavar="ACTION", required=True)
+
+    def common(sp):
+        sp.add_argument("--port", required=True, help="serial port, e.g. /dev/ttyUSB0")
+        sp.add_argument("--baud", type=int, default=DEFAULT_BAUD, help=f"baud rate (default {DEFAULT_BAUD})")
+        sp.add_argument("--latency-ms", type=float, default=16.0, help="USB latency timer used in reply timeouts")
+        sp.set_defaults(func=run)
+
+    s = ssub.add_parser("scan", help="list the IDs and models that answer")
+    common(s)
+    s.add_argument("--ids", help="ping these IDs (e.g. 1-10 or 1,3,5) instead of one broadcast ping")
+    r = ssub.add_parser("read", help="print the raw angle of every servo (or --ids)")
+    common(r)
+    r.add_argument("--ids", help="IDs to read (default: broadcast ping to find them)")
+    m = ssub.add_parser("move", help="move one servo to a raw angle and wait until it arrives")
+    common(m)
+    m.add_argument("--id", type=int, required=True, help="servo ID")
+    m.add_argument("--deg", type=float, required=True, help="raw angle, 0-360 deg")
+    m.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for arrival")
+    m.add_argument("--tolerance", type=int, default=3, help="arrived when within this many ticks")
+
+
+def _parse_ids(text: str | None):
+    from gonio.errors import ConfigError
+
+    if text is None:
+        return None
+    ids = []
+    try:
+        for part in text.split(","):
+            if "-" in part:
+                a, b = part.split("-", 1)
+                ids.extend(range(int(a), int(b) + 1))
+            elif part.strip():
+                ids.append(int(part))
+    except ValueError:
+        raise ConfigError.field("--ids", "ids", text, "expected IDs like 1-10 or 1,3,5") from None
+    if not ids or any(not 0 <= i <= 252 for i in ids):
+        raise ConfigError.field("--ids", "ids", text, "IDs must be in 0..252")
+    return ids
+
+
+def _model_name(number: int) -> str:
+    from gonio.rig.control_table import table_for_model_number
+
+    t = table_for_model_number(number)
+    return t.model if t else f"model {number}"
+
+
+def run(args) -> int:
+    import os
+
+    from gonio.errors import ConfigError, HardwareTimeout
+    from gonio.rig.clock import RealClock
+    from gonio.rig.control_table import load_control_table, table_for_model_number
+    from gonio.rig.dynamixel import DynamixelBus
+
+    if not os.path.exists(args.port):
+        raise ConfigError.field("--port", "port", args.port, "no such serial device")
+    ids = _parse_ids(getattr(args, "ids", None))
+    with DynamixelBus(args.port, args.baud, latency_timer_ms=args.latency_ms) as bus:
+        if args.servo_command in ("scan", "read"):
+            found = bus.scan(ids)
+            if not found:
+                raise HardwareTimeout(f"{args.port}: no servo answered at {args.baud} baud"
+                                      + (f" (IDs {getattr(args, 'ids')})" if ids else ""), device=args.port)
+            if args.servo_command == "scan":
+                print(f"{'id':>3}  {'model':<12} model_number")
+                for i, model in found.items():
+                    print(f"{i:>3}  {_model_name(model):<12} {model}")
+                return 0
+            print(f"{'id':>3}  {'model':<12} {'ticks':>6} {'deg':>8}  torque  error")
+            for i, model in found.items():
+                table = table_for_model_number(model) or load_control_table("XM430-W350")
+                ticks = bus.read(i, table, "present_position", alarm_ok=True)
+                torque = bus.read(i, table, "torque_enable", alarm_ok=True)
+                err = bus.read(i, table, "hardware_error_status", alarm_ok=True)
+                print(f"{i:>3}  {_model_name(model):<12} {ticks:>6} {ticks * 360.0 / table.ticks_per_rev:>8.2f}  "
+                      f"{'on' if torque else 'off':<6}  {'0x%02X' % err if err else '-'}")
+            return 0
+        # move
+        if not 0.0 <= args.deg <= 360.0:
+            raise ConfigError.field("--deg", "deg", args.deg, "raw angle must be in [0, 360]")
+        model = bus.ping(args.id)
+        table = table_for_model_number(model)
+        if table is None:
+            raise ConfigError.field("--id", "id", args.id, f"servo reports model number {model}, which has no control table")
+        goal = min(int(round(args.deg / 360.0 * table.ticks_per_rev)), table.position_max)
+        if bus.read(args.id, table, "hardware_error_status", alarm_ok=True):
+            bus.raise_alarm(args.id)
+        if not bus.read(args.id, table, "torque_enable"):
+            if bus.read(args.id, table, "operating_mode") != 3:
+                bus.write(args.id, table, "operating_mode", 3)
+            bus.write(args.id, table, "torque_enable", 1)
+        bus.write(args.id, table, "goal_position", goal)
+        clock = RealClock()
+        deadline = clock.now() + args.timeout
+        while True:
+            state = bus.sync_read(table, "moving", "present_position", [args.id])[args.id]
+            if bus.read(args.id, table, "hardware_error_status", alarm_ok=True):
+                bus.raise_alarm(args.id)
+            if not state["moving"] and abs(state["present_position"] - goal) <= args.tolerance:
+                break
+            if clock.now() > deadline:
+                raise HardwareTimeout(f"{args.port}: servo {args.id} did not arrive within {args.timeout:g} s "
+                                      f"(at {state['present_position']} ticks, goal {goal})", device=args.port)
+            clock.sleep(0.02)
+        ticks = state["present_position"]
+        print(f"servo {args.id}: at {ticks} ticks = {ticks * 360.0 / table.ticks_per_rev:.2f} deg (goal {goal})")
+    return 0
