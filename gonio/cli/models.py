@@ -40,6 +40,10 @@ def run(args) -> int:
             for pname, spec in cls.PARAMS.items():
                 default = "required" if spec.default is None else f"default {spec.default}"
                 print(f"    {pname:<14} {spec.kind:<7} {default:<22} {spec.doc}")
+        from gonio.brdf.lobes import TERMS
+
+        print(f"\nSums of lobes: any name like 'lambert+2ggx' (a digit repeats a term); terms: {', '.join(TERMS)}.")
+        print("Lafortune: lobe2.*, lobe3.* ... add lobes (or lobes=N).")
         return 0
     params = dict(_parse_param(p) for p in args.param)
     model = make(args.eval, source="--param", **params)
