@@ -1,0 +1,151 @@
+"""Rig kinematics: round trips (property-based), nearest solution, refusals, poses, move times."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from gonio.errors import ConfigError, UnreachablePose
+from gonio.geometry import dirs_from_angles
+from gonio.rig.kinematics import REASONS, load_rig, trapezoid_progress, trapezoid_time
+
+RIG = load_rig()
+angle = st.floats(0.0, math.radians(84.9))
+azim = st.floats(0.0, 2 * math.pi, exclude_max=True)
+joints_st = st.tuples(st.floats(-2.9, 2.9), st.floats(-1.45, 1.45), st.floats(-2.9, 2.9), st.floats(-1.45, 1.45))
+
+
+@given(angle, azim, angle, azim, joints_st)
+def test_solve_then_forward_gives_the_same_directions(ti, pi_, to, po, current):
+    try:
+        j = RIG.solve(ti, pi_, to, po, current=np.array(current))
+    except UnreachablePose as exc:
+        assert exc.reason in ("collision", "shadow")  # every direction above 85 deg... is within limits
+        return
+    wi, wo = RIG.directions(RIG.as_array(j))
+    wi0, wo0 = dirs_from_angles(ti, pi_, to, po)
+    assert np.allclose(wi, wi0, atol=1e-9) and np.allclose(wo, wo0, atol=1e-9)
+    arr = RIG.as_array(j)
+    assert np.all(arr >= RIG.lower - 1e-9) and np.all(arr <= RIG.upper + 1e-9)
+
+
+@given(joints_st)
+def test_forward_then_solve_returns_the_same_joints_when_starting_there(joints):
+    j = np.array(joints)
+    ti, pi_, to, po = RIG.forward(j)
+    sol, code = RIG.solve_many(ti, pi_, to, po, current=j)
+    if code == 0:  # from the pose itself the nearest solution is the pose (no move needed)
+        assert float(RIG.move_time(j, sol)) == pytest.approx(0.0, abs=1e-6)
+
+
+@given(angle, azim, angle, azim, joints_st)
+def test_chosen_solution_is_the_nearest_of_the_equivalent_ones(ti, pi_, to, po, current):
+    cur = np.array(current)
+    sol, code = RIG.solve_many(ti, pi_, to, po, current=cur)
+    if code != 0:
+        return
+    # every other equivalent light solution within limits is no faster to reach
+    best = trapezoid_time(sol[:2] - cur[:2], RIG.max_speed[:2], RIG.max_accel[:2]).max()
+    for s in (1, -1):
+        for k in range(-2, 3):
+            az = pi_ + (0 if s > 0 else math.pi) + 2 * math.pi * k
+            el = s * ti
+            if RIG.lower[0] <= az <= RIG.upper[0] and ti > 1e-12:
+                t = trapezoid_time(np.array([az, el]) - cur[:2], RIG.max_speed[:2], RIG.max_accel[:2]).max()
+                assert best <= t + 1e-9
+
+
+def test_vectorized_solve_matches_scalar_and_reports_reasons():
+    rng = np.random.default_rng(4)
+    n = 2000
+    args = (rng.uniform(0, 1.6, n), rng.uniform(0, 6.3, n), rng.uniform(0, 1.6, n), rng.uniform(0, 6.3, n))
+    joints, code = RIG.solve_many(*args)
+    assert joints.shape == (n, 4) and code.shape == (n,)
+    assert set(np.unique(code)) == {0, 1, 2, 3}  # all reasons occur over random poses
+    for k in range(0, n, 97):
+        a = [x[k] for x in args]
+        if code[k] == 0:
+            assert np.allclose(RIG.as_array(RIG.solve(*a)), joints[k])
+        else:
+            with pytest.raises(UnreachablePose) as exc:
+                RIG.solve(*a)
+            assert exc.value.reason == REASONS[code[k]]
+            assert np.all(np.isnan(joints[k]))
+
+
+def test_refusals_name_the_reason():
+    with pytest.raises(UnreachablePose, match="joint limits") as exc:
+        RIG.solve(math.radians(88), 0, math.radians(30), math.pi)
+    assert exc.value.reason == "limits"
+    with pytest.raises(UnreachablePose, match="closer than 6 deg") as exc:
+        RIG.solve(math.radians(30), 0, math.radians(30), math.radians(3))  # retro-reflection
+    assert exc.value.reason == "collision"
+    # camera 8 deg from the light, nearer the sample: inside the beam cylinder (0.4 sin 8° < 0.065 m)
+    with pytest.raises(UnreachablePose, match="shadow") as exc:
+        RIG.solve(math.radians(40), 0, math.radians(32), 0)
+    assert exc.value.reason == "shadow"
+    # the same separation with the camera farther out along the arc is fine once it clears the beam
+    RIG.solve(math.radians(40), 0, math.radians(20), 0)
+
+
+def test_pole_keeps_the_current_azimuth():
+    j = RIG.solve(0.0, 0.0, math.radians(45), 1.0, current=[1.2, 0.3, 0.0, 0.0])
+    assert j["light_az"] == pytest.approx(1.2) and j["light_el"] == 0.0
+
+
+def test_isotropic_reduction_keeps_an_arm_still_and_the_relative_azimuth():
+    cur = RIG.as_array(RIG.solve(math.radians(30), 0.0, math.radians(50), math.pi))
+    ti, pi_, to, po = math.radians(30), math.radians(120), math.radians(50), math.radians(120 + 150)
+    plain, _ = RIG.solve_many(ti, pi_, to, po, cur)
+    iso, code = RIG.solve_many(ti, pi_, to, po, cur, isotropic=True)
+    assert code == 0
+    assert float(RIG.move_time(cur, iso)) < float(RIG.move_time(cur, plain))
+    fi = RIG.forward(iso)
+    assert math.remainder(fi[3] - fi[1] - math.radians(150), 2 * math.pi) == pytest.approx(0, abs=1e-9)
+    assert fi[0] == pytest.approx(ti) and fi[2] == pytest.approx(to)
+
+
+def test_camera_pose_looks_at_the_sample_and_is_a_rotation():
+    j = RIG.as_array(RIG.solve(math.radians(30), 0.3, math.radians(60), 2.0))
+    pos, R = RIG.camera_pose(j)
+    assert np.linalg.norm(pos) == pytest.approx(RIG.camera_radius)
+    assert np.allclose(R @ R.T, np.eye(3)) and np.linalg.det(R) == pytest.approx(1.0)
+    assert np.allclose(R @ (np.zeros(3) - pos), [0, 0, RIG.camera_radius])  # origin on the optical axis
+    L = RIG.light_position(j)
+    assert np.linalg.norm(L) == pytest.approx(RIG.light_radius)
+    # vectorized
+    many = np.tile(j, (5, 1))
+    assert RIG.camera_pose(many)[1].shape == (5, 3, 3) and RIG.light_position(many).shape == (5, 3)
+
+
+def test_trapezoid_profile_formulas_and_move_time():
+    # triangular / trapezoidal / rectangular cases
+    assert trapezoid_time(1.0, 2.0, 1.0) == pytest.approx(2.0)           # d < v²/a: 2√(d/a)
+    assert trapezoid_time(10.0, 2.0, 1.0) == pytest.approx(10 / 2 + 2)  # d/v + v/a
+    assert trapezoid_time(3.0, 2.0, np.inf) == pytest.approx(1.5)
+    t = np.linspace(0, 7, 71)
+    s, v = trapezoid_progress(t, 10.0, 2.0, 1.0)
+    assert s[0] == 0 and s[-1] == pytest.approx(10.0) and np.all(np.diff(s) >= -1e-12)
+    assert np.max(v) == pytest.approx(2.0) and np.allclose(np.gradient(s, t)[5:-5], v[5:-5], atol=0.11)
+    a = np.zeros(4)
+    b = np.array([1.0, 0.1, -0.5, 0.0])
+    expect = max(trapezoid_time(d, vm, am) for d, vm, am in zip(b - a, RIG.max_speed, RIG.max_accel))
+    assert RIG.move_time(a, b) == pytest.approx(expect)
+    assert RIG.move_time(np.zeros((3, 4)), np.tile(b, (3, 1))).shape == (3,)
+
+
+def test_rig_file_errors_name_file_and_field(tmp_path):
+    text = (__import__("importlib.resources").resources.files("gonio.rig") / "rigs" / "default.toml").read_text()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace("min_deg = -85.0", "min_deg = 95.0", 1))
+    with pytest.raises(ConfigError, match=r"bad.toml: joints\[1\].max_deg = 85.0"):
+        load_rig(bad)
+    bad.write_text(text.replace("servo_id = 2", "servo_id = 1"))
+    with pytest.raises(ConfigError, match="servo_id = 1: used by another joint"):
+        load_rig(bad)
+    with pytest.raises(ConfigError, match="no such shipped rig"):
+        load_rig("nope")
