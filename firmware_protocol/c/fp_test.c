@@ -9,11 +9,13 @@
  *                             deleted and random bytes, arbitrary noise); checks that the decoder never
  *                             accepts an inconsistent frame, that a frame with 1..3 flipped bits is never
  *                             accepted, and that the next valid frame is always decoded (resync).
+ *   fp_test bench N           decode N frames (benchmarks/bench_protocol.py), print frames, bytes, seconds.
  * Prints "PASS <n>" and exits 0, or prints each failure and exits 1.
  */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "fp_codec.h"
 
@@ -259,10 +261,41 @@ static int run_fuzz(unsigned long seed, long iterations)
     return 0;
 }
 
+/* decode n frames (a buffer of 64 mixed frames, fed repeatedly) and report the time */
+static int run_bench(long n)
+{
+    static uint8_t wire[64 * FP_MAX_WIRE];
+    size_t len = 0, i;
+    long done = 0, k;
+    fp_decoder d;
+    fp_frame f;
+    clock_t t0;
+    double secs;
+    for (k = 0; k < 64; ++k) {
+        fp_frame g;
+        g.type = (uint8_t)(0x81 + k % 7);
+        g.seq = (uint8_t)k;
+        g.len = (uint8_t)(k % 15);
+        for (i = 0; i < g.len; ++i) g.payload[i] = (uint8_t)(i * 37u + (size_t)k);
+        len += fp_encode(&g, wire + len, sizeof wire - len);
+    }
+    fp_decoder_init(&d);
+    t0 = clock();
+    while (done < n) {
+        for (i = 0; i < len; ++i) {
+            if (fp_decoder_feed(&d, wire[i], &f) == FP_OK) ++done;
+        }
+    }
+    secs = (double)(clock() - t0) / CLOCKS_PER_SEC;
+    printf("frames=%ld bytes=%ld seconds=%.6f\n", done, (long)(len * (size_t)(done / 64)), secs);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
+    if (argc == 3 && strcmp(argv[1], "bench") == 0) return run_bench(atol(argv[2]));
     if (argc == 3 && strcmp(argv[1], "vectors") == 0) return run_vectors(argv[2]);
     if (argc == 4 && strcmp(argv[1], "fuzz") == 0) return run_fuzz(strtoul(argv[2], NULL, 10), atol(argv[3]));
-    fprintf(stderr, "usage: %s vectors FILE | fuzz SEED N\n", argv[0]);
+    fprintf(stderr, "usage: %s vectors FILE | fuzz SEED N | bench N\n", argv[0]);
     return 2;
 }
