@@ -97,16 +97,16 @@ class ControlTable:
         return units * self.velocity_unit_rpm * 2.0 * math.pi / 60.0
 
     def rad_s_to_velocity(self, rad_s: float) -> int:
-        """rad/s of the horn → velocity register units (rounded up, at least 1)."""
-        return max(1, math.ceil(rad_s * 60.0 / (2.0 * math.pi) / self.velocity_unit_rpm - 1e-9))
+        """rad/s of the horn → velocity register units (rounded down, so a speed limit holds; at least 1)."""
+        return max(1, math.floor(rad_s * 60.0 / (2.0 * math.pi) / self.velocity_unit_rpm + 1e-9))
 
     def acceleration_to_rad_s2(self, units: float) -> float:
         """Acceleration register units (214.577 rev/min²) → rad/s² of the horn."""
         return units * self.acceleration_unit_rpm2 * 2.0 * math.pi / 3600.0
 
     def rad_s2_to_acceleration(self, rad_s2: float) -> int:
-        """rad/s² of the horn → acceleration register units (rounded up, at least 1)."""
-        return max(1, math.ceil(rad_s2 * 3600.0 / (2.0 * math.pi) / self.acceleration_unit_rpm2 - 1e-9))
+        """rad/s² of the horn → acceleration register units (rounded down; at least 1)."""
+        return max(1, math.floor(rad_s2 * 3600.0 / (2.0 * math.pi) / self.acceleration_unit_rpm2 + 1e-9))
 
 
 def _parse(model: str, text: str, source: str) -> ControlTable:

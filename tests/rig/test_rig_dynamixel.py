@@ -27,8 +27,8 @@ def test_axes_satisfy_the_protocol_and_configure_the_servos(axes, servo_bus, rig
     assert el.peek("torque_enable") == 1 and el.peek("operating_mode") == 3
     assert el.peek("min_position_limit") == round(2048 - 170 / 360 * 4096)
     assert el.peek("max_position_limit") == round(2048 + 170 / 360 * 4096)
-    # 45 deg/s joint * 2 = 90 deg/s horn = 15 rev/min -> ceil(15 / 0.229) = 66 units
-    assert el.peek("profile_velocity") == 66
+    # 45 deg/s joint * 2 = 90 deg/s horn = 15 rev/min -> floor(15 / 0.229) = 65 units (never faster)
+    assert el.peek("profile_velocity") == 65
     assert all(abs(v) < 2 * TICK for v in axes.positions().values())
 
 
@@ -83,7 +83,7 @@ def test_power_cycle_restores_ram_settings_and_the_move_completes(axes, servo_bu
     assert servo_bus.servo(2).peek("torque_enable") == 0
     got = axes.move_to({"light_el": -0.2})
     assert got["light_el"] == pytest.approx(-0.2, abs=3 * TICK)
-    assert servo_bus.servo(2).peek("profile_velocity") == 66
+    assert servo_bus.servo(2).peek("profile_velocity") == 65
 
 
 def test_dropped_and_corrupted_replies_are_retried(axes, bus, servo_bus):
