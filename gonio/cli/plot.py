@@ -1,0 +1,74 @@
+"""``gonio plot DIR --kind polar|inplane|coverage|residual -o FILE.png``: plot a session (or an NPZ
+export, or a MERL binary), optionally with a fitted model (``--model FIT.json`` from ``gonio fit --json``)."""
+
+from __future__ import annotations
+
+KINDS = ("polar", "inplane", "coverage", "residual")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("plot", help="plot a session or a MERL table as PNG",
+                       description="Polar slice at fixed incidence, in-plane curve with error bars and a fitted "
+                                   "model, coverage of the sampled directions, or residuals after a fit. "
+                                   "Needs matplotlib (pip install 'gonio[plots]').")
+    p.add_argument("source", metavar="DIR", help="session directory, .npz export, or MERL .binary")
+    p.add_argument("--kind", required=True, choices=KINDS, help="what to plot")
+    p.add_argument("-o", "--output", required=True, metavar="FILE.png", help="output image")
+    p.add_argument("--theta-i", type=float, default=None, metavar="DEG",
+                   help="incidence angle of polar/inplane plots (default: the most measured one; 45 for tables)")
+    p.add_argument("--tol", type=float, default=2.5, metavar="DEG",
+                   help="angular tolerance selecting the incidence and the plane (default 2.5)")
+    p.add_argument("--model", metavar="FIT.json", help="fitted model to overlay (JSON of `gonio fit --json`)")
+    p.add_argument("--linear", action="store_true", help="linear instead of log BRDF axis (inplane)")
+    p.set_defaults(func=run)
+
+
+def load_model(path):
+    """Build the model of a ``gonio fit --json`` report: ``{"model": name, "params": {...}}``."""
+    import json
+
+    from gonio.brdf import make
+    from gonio.errors import ConfigError
+
+    try:
+        with open(path, encoding="utf-8") as fh:
+            report = json.load(fh)
+    except OSError as exc:
+        raise ConfigError.field("--model", "model", path, f"cannot read ({exc.strerror or exc})") from None
+    except ValueError as exc:
+        raise ConfigError(f"{path}: not valid JSON ({exc})") from None
+    if isinstance(report, dict) and "model" not in report and isinstance(report.get("winner"), dict):
+        report = report["winner"]
+    if not isinstance(report, dict) or not isinstance(report.get("model"), str) \
+            or not isinstance(report.get("params", {}), dict):
+        raise ConfigError(f"{path}: expected a JSON object with \"model\" (a name) and \"params\" (an object)")
+    return make(report["model"], source=str(path), **report.get("params", {}))
+
+
+def run(args) -> int:
+    from gonio import plots
+    from gonio.errors import ConfigError
+    from gonio.io.source import load_source
+
+    plots.figure(1, 1)  # fail early, with the install hint, when matplotlib is missing
+    model = load_model(args.model) if args.model else None
+    src = load_source(args.source)
+    title = src.path.name
+    samples, table = src.samples, src.table
+    if args.kind == "polar":
+        fig = plots.polar_slice(samples=samples, table=table if samples is None else None,
+                                theta_i_deg=args.theta_i, tol_deg=args.tol, title=title)
+    elif args.kind == "inplane":
+        fig = plots.inplane(samples=samples, table=table, model=model, theta_i_deg=args.theta_i,
+                            tol_deg=args.tol, log=not args.linear, title=title)
+    elif args.kind == "coverage":
+        fig = plots.coverage(samples=samples, table=table if samples is None else None, title=title)
+    else:
+        if model is None:
+            raise ConfigError.field("--model", "model", None, "--kind residual needs --model FIT.json")
+        if samples is None:
+            raise ConfigError.field(None, "DIR", str(src.path), "--kind residual needs samples, not a MERL table")
+        fig = plots.residual(samples=samples, model=model, title=title)
+    plots.save(fig, args.output)
+    print(f"wrote {args.output}")
+    return 0

@@ -1,0 +1,70 @@
+"""Per-sample CSV export: one row per sample, a header row, BRDF in 1/sr (not × cos θ), angles in degrees.
+
+Columns: ``theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg, r, g, b, sigma_r, sigma_g, sigma_b,
+flags, n_pixels, pose`` (flags: the bit mask of :mod:`gonio.samples`; n_pixels: pixels averaged;
+pose: the plan pose index). Floats are written with 17 significant digits, so values read back
+exactly.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from gonio.errors import DataError
+from gonio.samples import SampleSet
+
+__all__ = ["COLUMNS", "write_csv", "read_csv"]
+
+COLUMNS = ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg", "r", "g", "b",
+           "sigma_r", "sigma_g", "sigma_b", "flags", "n_pixels", "pose")
+
+
+def write_csv(path, samples: SampleSet) -> Path:
+    """Write ``samples`` as CSV (columns in :data:`COLUMNS`); returns the path."""
+    path = Path(path)
+    ti, pi_, to, po = (np.degrees(a) for a in samples.angles())
+    table = np.column_stack([ti, pi_, to, po, samples.f, samples.sigma,
+                             samples.flags, samples.n_pixels, samples.pose])
+    try:
+        with open(path, "w", encoding="utf-8", newline="") as fh:
+            np.savetxt(fh, table, fmt=["%.17g"] * 10 + ["%d"] * 3, delimiter=",",
+                       header=",".join(COLUMNS), comments="")
+    except OSError as exc:
+        raise DataError(f"{path}: cannot write CSV ({exc.strerror or exc})") from None
+    return path
+
+
+def read_csv(path) -> SampleSet:
+    """Read a CSV written by :func:`write_csv` back into a :class:`SampleSet`.
+
+    Raises :class:`DataError` naming the file (and the column or line) when the header or a row is bad.
+    """
+    path = Path(path)
+    try:
+        with open(path, encoding="utf-8") as fh:
+            header = fh.readline().strip().split(",")
+            missing = [c for c in COLUMNS if c not in header]
+            if missing:
+                raise DataError(f"{path}: CSV header lacks column {missing[0]!r}")
+            data = np.loadtxt(fh, delimiter=",", ndmin=2, usecols=[header.index(c) for c in COLUMNS])
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read CSV ({exc.strerror or exc})") from None
+    except ValueError as exc:
+        raise DataError(f"{path}: bad CSV row ({str(exc).splitlines()[0]})") from None
+    if data.size == 0:
+        data = np.zeros((0, len(COLUMNS)))
+    t = np.radians(data[:, :4])
+    return SampleSet.from_dict(
+        {**dict(zip(("wi", "wo"), _dirs(t))), "f": data[:, 4:7], "sigma": data[:, 7:10],
+         "flags": data[:, 10].astype(np.int64), "n_pixels": data[:, 11].astype(np.int64),
+         "pose": data[:, 12].astype(np.int64)},
+        source=str(path),
+    )
+
+
+def _dirs(t):
+    from gonio.geometry import dirs_from_angles
+
+    return dirs_from_angles(t[:, 0], t[:, 1], t[:, 2], t[:, 3])

@@ -1,0 +1,142 @@
+"""Self-describing NPZ archive of a session: samples, the MERL-grid table, and metadata (no pickle).
+
+Keys: ``samples/<column>`` for every :class:`gonio.samples.SampleSet` column; ``table/values``,
+``table/sigma``, ``table/count`` (the tabulation, when the data are isotropic); ``metadata``: a
+one-element unicode array holding a JSON object (units, cosine convention "BRDF, not BRDF·cos",
+detector solid angle, material label, rig, software version, ...). Loads with
+``np.load(path)`` — ``allow_pickle`` is never needed.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from gonio.errors import DataError
+from gonio.io.merl import MerlTable
+from gonio.samples import SampleSet
+
+__all__ = ["COSINE_CONVENTION", "NpzContent", "build_metadata", "write_npz", "read_npz"]
+
+#: What the stored values are.
+COSINE_CONVENTION = "BRDF, not BRDF·cos"
+UNITS = {
+    "f": "1/sr", "sigma": "1/sr (standard uncertainty)", "wi": "unit vector, local frame",
+    "wo": "unit vector, local frame", "angles": "rad", "table/values": "1/sr",
+    "table/sigma": "1/sr (standard uncertainty)", "table/count": "samples per cell",
+}
+
+
+def _find(d: Any, *names: str) -> Any:
+    """First value stored under any of ``names`` anywhere in nested dicts (breadth first)."""
+    queue = [d]
+    while queue:
+        cur = queue.pop(0)
+        if isinstance(cur, Mapping):
+            for n in names:
+                if n in cur and cur[n] is not None:
+                    return cur[n]
+            queue.extend(v for v in cur.values() if isinstance(v, Mapping))
+    return None
+
+
+def build_metadata(manifest: Mapping[str, Any] | None, **extra: Any) -> dict[str, Any]:
+    """Metadata of an export from a session manifest (whatever of it is known) plus ``extra``."""
+    from gonio import __version__
+
+    manifest = dict(manifest or {})
+    material = manifest.get("material")
+    label = _find(manifest, "material_label", "label")
+    if label is None and isinstance(material, Mapping):
+        label = material.get("name") or material.get("model")
+    elif label is None and isinstance(material, str):
+        label = material
+    software = manifest.get("software")
+    meta = {
+        "format": "gonio-npz/1",
+        "quantity": "BRDF",
+        "cosine_convention": COSINE_CONVENTION,
+        "session_cosine_convention": _find(manifest, "cosine_convention"),
+        "units": UNITS,
+        "frame": "z = surface normal, x = sample reference direction, y = z × x; wi toward the light, "
+                 "wo toward the camera",
+        "detector_solid_angle_sr": _find(manifest, "detector_solid_angle_sr", "detector_solid_angle"),
+        "material_label": label,
+        "rig": manifest.get("rig"),
+        "software_version": _find(manifest, "software_version") or (
+            software.get("version") if isinstance(software, Mapping) else software),
+        "exported_by": f"gonio {__version__}",
+        "table_grid": "MERL 90x90x180 (theta_h sqrt-mapped, theta_d, phi_d folded to [0, pi)); "
+                      "axes (theta_h, theta_d, phi_d, rgb); NaN = not measured",
+        "manifest": manifest,
+    }
+    meta.update(extra)
+    return meta
+
+
+@dataclass(frozen=True)
+class NpzContent:
+    """What :func:`read_npz` returns."""
+
+    metadata: dict
+    samples: SampleSet
+    table: MerlTable | None
+
+
+def write_npz(path, samples: SampleSet, metadata: Mapping[str, Any], table: MerlTable | None = None) -> Path:
+    """Write samples, an optional table and JSON metadata to a compressed NPZ; returns the path."""
+    path = Path(path)
+    arrays = {f"samples/{k}": v for k, v in samples.to_dict().items()}
+    if table is not None:
+        arrays["table/values"] = table.values
+        for name in ("sigma", "count"):
+            if getattr(table, name) is not None:
+                arrays[f"table/{name}"] = getattr(table, name)
+    try:
+        text = json.dumps(dict(metadata), default=_json_default, ensure_ascii=False)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"{path}: metadata cannot be written as JSON ({exc})") from None
+    arrays["metadata"] = np.array([text])
+    try:
+        with open(path, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+    except OSError as exc:
+        raise DataError(f"{path}: cannot write NPZ ({exc.strerror or exc})") from None
+    return path
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serializable: {type(o).__name__}")
+
+
+def read_npz(path) -> NpzContent:
+    """Read an archive written by :func:`write_npz` (without pickle); :class:`DataError` on bad files."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            files = set(z.files)
+            if "metadata" not in files:
+                raise DataError(f"{path}: not a gonio NPZ export (no 'metadata' entry)")
+            metadata = json.loads(str(z["metadata"][0]))
+            samples = SampleSet.from_dict(
+                {k.split("/", 1)[1]: z[k] for k in files if k.startswith("samples/")}, source=str(path))
+            table = None
+            if "table/values" in files:
+                table = MerlTable(z["table/values"], z["table/sigma"] if "table/sigma" in files else None,
+                                  z["table/count"] if "table/count" in files else None)
+    except DataError:
+        raise
+    except (OSError, ValueError, KeyError, IndexError, zipfile.BadZipFile) as exc:
+        raise DataError(f"{path}: cannot read NPZ ({exc})") from None
+    return NpzContent(metadata, samples, table)
