@@ -1,0 +1,445 @@
+"""Order the poses of a plan for lab time, and estimate that time with a lower bound.
+
+Lab-time model
+--------------
+A pose costs a fixed time (settle + capture, :meth:`gonio.plan.plan.CaptureSettings.pose_time`) plus
+the move that reaches it. Joints move concurrently, each under a trapezoidal velocity profile with its
+own speed and acceleration limits, so a move lasts as long as its slowest joint:
+
+    t_j(d) = 2 √(d / a_j)              if d ≤ v_j² / a_j   (triangular profile, v_j never reached)
+    t_j(d) = d / v_j + v_j / a_j       otherwise           (accelerate, cruise, decelerate)
+    t_move = max_j t_j(|Δq_j|)
+
+(Biagiotti & Melchiorri, *Trajectory Planning for Automatic Machines and Robots*, Springer 2008,
+§3.2.2, trapezoidal velocity profile with zero boundary velocities; the profile the Dynamixel servos
+run, :func:`gonio.rig.kinematics.trapezoid_time`; :class:`MotionModel` evaluates the same formula in
+fewer NumPy passes, and a test checks they agree.) For a continuous-rotation joint
+(``wrap``) Δq is the shorter way round the circle.
+
+Ordering
+--------
+Finding the cheapest order is an open travelling-salesman path problem. :func:`optimize_order` builds a
+nearest-neighbour tour, keeps the cheaper of it and the raster order, and improves it with 2-opt and
+Or-opt moves (Croes 1958; Or 1976; see Johnson & McGeoch, "The traveling salesman problem: a case study
+in local optimization", 1997), each move vectorized over all candidate positions.
+
+Lower bound
+-----------
+Every visiting order is a Hamiltonian path through the poses (plus the start position, if fixed), and
+a Hamiltonian path is a spanning tree, so its move time is at least the weight of the minimum spanning
+tree under the same move-time metric (no triangle inequality needed, only non-negative symmetric
+costs). Hence ``lower bound = N · pose_time + MST`` is a true lower bound of every order's lab time.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+
+__all__ = [
+    "MotionModel",
+    "LabTimeEstimate",
+    "path_move_time",
+    "raster_order",
+    "nearest_neighbour_order",
+    "optimize_order",
+    "mst_move_time",
+    "estimate",
+]
+
+_TWO_PI = 2.0 * math.pi
+
+
+@dataclass(frozen=True)
+class MotionModel:
+    """Per-joint speed and acceleration limits of a rig.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Joint names (J of them).
+    vmax : ndarray (J,)
+        Maximum joint speed, rad/s.
+    amax : ndarray (J,)
+        Maximum joint acceleration, rad/s².
+    wrap : ndarray (J,) bool
+        True for continuous-rotation joints (moves take the shorter way round).
+    """
+
+    names: tuple[str, ...]
+    vmax: np.ndarray
+    amax: np.ndarray
+    wrap: np.ndarray | None = None
+
+    def __post_init__(self):
+        j = len(self.names)
+        for key in ("vmax", "amax"):
+            arr = np.asarray(getattr(self, key), dtype=np.float64).reshape(-1)
+            if arr.shape != (j,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+                raise ValueError(f"MotionModel.{key} = {arr.tolist()}: need {j} positive numbers")
+            object.__setattr__(self, key, arr)
+        wrap = np.zeros(j, bool) if self.wrap is None else np.asarray(self.wrap, dtype=bool).reshape(-1)
+        if wrap.shape != (j,):
+            raise ValueError(f"MotionModel.wrap has {wrap.size} entries, expected {j}")
+        object.__setattr__(self, "wrap", wrap)
+        object.__setattr__(self, "_knee", self.vmax * self.vmax / self.amax)
+
+    @classmethod
+    def from_rig(cls, rig) -> "MotionModel":
+        """The speed/acceleration limits of a :class:`gonio.rig.kinematics.Rig` (no wrap joints)."""
+        return cls(tuple(rig.names), rig.max_speed, rig.max_accel)
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.names)
+
+    def deltas(self, a, b) -> np.ndarray:
+        """|Δq| per joint between joint vectors ``a`` and ``b`` (broadcast), shorter way for wrap joints."""
+        d = np.abs(np.asarray(b, dtype=np.float64) - np.asarray(a, dtype=np.float64))
+        if self.wrap.any():
+            w = d[..., self.wrap] % _TWO_PI
+            d[..., self.wrap] = np.minimum(w, _TWO_PI - w)
+        return d
+
+    def joint_times(self, a, b) -> np.ndarray:
+        """Per-joint trapezoidal move times ``t_j(|Δq_j|)``, shape ``(..., J)``."""
+        # Same values as gonio.rig.kinematics.trapezoid_time for finite limits (tested), in fewer
+        # NumPy passes: this is the inner loop of nearest-neighbour, neighbour lists and Prim.
+        d = self.deltas(a, b)
+        tri = np.sqrt(d * (4.0 / self.amax))
+        return np.where(d >= self._knee, d / self.vmax + self.vmax / self.amax, tri)
+
+    def move_time(self, a, b) -> np.ndarray:
+        """Concurrent move time ``max_j t_j(|Δq_j|)`` between ``a`` and ``b`` (shape ``(..., J)``)."""
+        return self.joint_times(a, b).max(axis=-1)
+
+    def sequential_move_time(self, a, b) -> np.ndarray:
+        """Move time when joints move one at a time: ``Σ_j t_j`` over the joints that move."""
+        return self.joint_times(a, b).sum(axis=-1)
+
+
+@dataclass(frozen=True)
+class LabTimeEstimate:
+    """Lab time of a plan under a motion model, seconds.
+
+    ``optimized``: the order the plan uses; ``lower_bound``: N·pose_time + MST (no order is faster);
+    ``raster``: raster order moving one axis at a time (the naive baseline); ``raster_concurrent``:
+    raster order with concurrent joints.
+    """
+
+    n_poses: int
+    pose_time: float
+    optimized: float
+    lower_bound: float
+    raster: float
+    raster_concurrent: float
+
+    @property
+    def ratio_to_raster(self) -> float:
+        """optimized / raster baseline (< 1 is a saving)."""
+        return self.optimized / self.raster if self.raster > 0 else 1.0
+
+    @property
+    def ratio_to_bound(self) -> float:
+        """optimized / lower bound (≥ 1; how far from optimal at most)."""
+        return self.optimized / self.lower_bound if self.lower_bound > 0 else 1.0
+
+    def to_dict(self) -> dict[str, float]:
+        return {"n_poses": self.n_poses, "pose_time": self.pose_time, "optimized": self.optimized,
+                "lower_bound": self.lower_bound, "raster": self.raster,
+                "raster_concurrent": self.raster_concurrent, "ratio_to_raster": self.ratio_to_raster,
+                "ratio_to_bound": self.ratio_to_bound}
+
+
+def _check(joints, model: MotionModel) -> np.ndarray:
+    q = np.asarray(joints, dtype=np.float64)
+    if q.ndim != 2 or q.shape[1] != model.n_joints:
+        raise ValueError(f"joints have shape {q.shape}, expected (N, {model.n_joints})")
+    return q
+
+
+def path_move_time(joints, order, model: MotionModel, *, start=None, sequential: bool = False) -> float:
+    """Total move time visiting ``joints[order]`` in order (from ``start`` if given)."""
+    q = _check(joints, model)[np.asarray(order, dtype=np.int64)]
+    if start is not None:
+        q = np.vstack([np.asarray(start, dtype=np.float64)[None, :], q])
+    if q.shape[0] < 2:
+        return 0.0
+    fn = model.sequential_move_time if sequential else model.move_time
+    return float(fn(q[:-1], q[1:]).sum())
+
+
+def raster_order(poses) -> np.ndarray:
+    """Lexicographic order of the rows of ``poses`` (first column outermost), as a raster scan does."""
+    p = np.asarray(poses, dtype=np.float64)
+    if p.shape[0] == 0:
+        return np.zeros(0, np.int64)
+    return np.lexsort(p.T[::-1]).astype(np.int64)
+
+
+class _Graph:
+    """Poses + a start node + a free end node; costs are concurrent move times.
+
+    Node N is the start (a real joint vector, or a *virtual* node at zero cost from everything when the
+    start is free); node N+1 is a virtual end at zero cost, so an open path is a cycle through both
+    fixed nodes and 2-opt / Or-opt need no special cases at the ends.
+    """
+
+    def __init__(self, q: np.ndarray, model: MotionModel, start):
+        n, j = q.shape
+        self.x = np.vstack([q, np.zeros((2, j)) if start is None else
+                            np.vstack([np.asarray(start, dtype=np.float64).reshape(1, j), np.zeros((1, j))])])
+        self.virtual = np.zeros(n + 2, bool)
+        self.virtual[n + 1] = True
+        self.virtual[n] = start is None
+        self.model = model
+
+    def cost(self, a, b) -> np.ndarray:
+        a = np.asarray(a)
+        b = np.asarray(b)
+        t = self.model.move_time(self.x[a], self.x[b])
+        return np.where(self.virtual[a] | self.virtual[b], 0.0, t)
+
+
+def nearest_neighbour_order(joints, model: MotionModel, *, start=None, seed: int = 0) -> np.ndarray:
+    """Greedy nearest-neighbour order (by concurrent move time).
+
+    Starts at the pose nearest ``start`` if given, else at a pose chosen by ``seed``.
+    """
+    q = _check(joints, model)
+    n = q.shape[0]
+    if n == 0:
+        return np.zeros(0, np.int64)
+    unvisited = np.ones(n, bool)
+    order = np.empty(n, np.int64)
+    if start is None:
+        cur = int(np.random.default_rng(seed).integers(n))
+    else:
+        cur = int(np.argmin(model.move_time(np.asarray(start, dtype=np.float64)[None, :], q)))
+    for k in range(n):
+        order[k] = cur
+        unvisited[cur] = False
+        if k == n - 1:
+            break
+        d = model.move_time(q[cur][None, :], q)
+        d[~unvisited] = np.inf
+        cur = int(np.argmin(d))
+    return order
+
+
+class _Scalar:
+    """Scalar move time between two graph nodes, in plain Python (the local search evaluates a few
+    costs per candidate move; NumPy call overhead would dominate). Same formula as
+    :meth:`MotionModel.move_time`."""
+
+    def __init__(self, g: _Graph):
+        m = g.model
+        self.x = g.x.tolist()
+        self.virtual = g.virtual.tolist()
+        self.joints = [(float(v), float(a), float(v * v / a), bool(w), j)
+                       for j, (v, a, w) in enumerate(zip(m.vmax, m.amax, m.wrap))]
+        self.m = len(self.x)
+        self.cache: dict[int, float] = {}
+
+    def __call__(self, a: int, b: int) -> float:
+        key = a * self.m + b if a < b else b * self.m + a
+        got = self.cache.get(key)
+        if got is None:
+            got = self.cache[key] = self._eval(a, b)
+        return got
+
+    def _eval(self, a: int, b: int) -> float:
+        if self.virtual[a] or self.virtual[b]:
+            return 0.0
+        xa, xb = self.x[a], self.x[b]
+        worst = 0.0
+        for v, acc, knee, wrap, j in self.joints:
+            d = abs(xa[j] - xb[j])
+            if wrap:
+                d = math.fmod(d, _TWO_PI)
+                d = min(d, _TWO_PI - d)
+            t = 2.0 * math.sqrt(d / acc) if d < knee else d / v + v / acc
+            if t > worst:
+                worst = t
+        return worst
+
+
+def _neighbours(q: np.ndarray, model: MotionModel, k: int) -> list[list[int]]:
+    """The ``k`` poses nearest each pose by move time, nearest first."""
+    n = q.shape[0]
+    k = min(k, n - 1)
+    out = []
+    for i in range(n):
+        d = model.move_time(q[i][None, :], q)
+        d[i] = np.inf
+        idx = np.argpartition(d, k - 1)[:k] if k < n - 1 else np.arange(n)[np.arange(n) != i]
+        out.append(idx[np.argsort(d[idx], kind="stable")].tolist())
+    return out
+
+
+def _local_search(cost: _Scalar, tour: np.ndarray, nbrs: list[list[int]], deadline: float,
+                  max_passes: int) -> None:
+    """2-opt and Or-opt (segments of 1-3) over neighbour lists, in place; ends fixed.
+
+    ``tour[0]`` is the start node and ``tour[-1]`` the free end; both stay in place.
+    """
+    m = tour.size
+    pos = np.empty(m, np.int64)
+    pos[tour] = np.arange(m)
+    t = tour.tolist()
+    p = pos.tolist()
+
+    def two_opt(i: int, j: int) -> bool:
+        # edges (t[i], t[i+1]) and (t[j], t[j+1]) -> (t[i], t[j]) and (t[i+1], t[j+1]); reverse t[i+1..j]
+        if i < 0 or j > m - 2 or j <= i + 1:
+            return False
+        a, b, c, d = t[i], t[i + 1], t[j], t[j + 1]
+        if cost(a, b) + cost(c, d) - cost(a, c) - cost(b, d) <= 1e-9:
+            return False
+        t[i + 1:j + 1] = t[i + 1:j + 1][::-1]
+        for k in range(i + 1, j + 1):
+            p[t[k]] = k
+        return True
+
+    def or_opt(i: int, seg_len: int) -> bool:
+        # move t[i .. i+seg_len-1] between two poses next to a neighbour of one of its ends
+        if i < 1 or i + seg_len > m - 1:
+            return False
+        s0, s1, prv, nxt = t[i], t[i + seg_len - 1], t[i - 1], t[i + seg_len]
+        removal = cost(prv, s0) + cost(s1, nxt) - cost(prv, nxt)
+        if removal <= 1e-9:
+            return False
+        best, best_k, best_rev = 1e-9, -1, False
+        for end, other in ((s0, s1), (s1, s0)):
+            for c in nbrs[end]:
+                dce = cost(c, end)
+                if dce >= removal:
+                    break  # neighbours are sorted: no closer one left
+                pc = p[c]
+                # `end` right after c (edge k = pc), or right before c (edge k = pc - 1)
+                for k, u_is_c in ((pc, True), (pc - 1, False)):
+                    if k < 0 or k > m - 2 or i - 1 <= k <= i + seg_len - 1:
+                        continue
+                    u, v = t[k], t[k + 1]
+                    if u_is_c:
+                        add = dce + cost(other, v) - cost(u, v)
+                    else:
+                        add = cost(u, other) + dce - cost(u, v)
+                    if removal - add > best:
+                        # u_is_c and end == s0 -> forward; u_is_c and end == s1 -> reversed, etc.
+                        best, best_k, best_rev = removal - add, k, (end == s0) != u_is_c
+                if seg_len == 1:
+                    pass
+            if seg_len == 1:
+                break
+        if best_k < 0:
+            return False
+        seg = t[i:i + seg_len]
+        if best_rev:
+            seg.reverse()
+        del t[i:i + seg_len]
+        k = best_k if best_k < i else best_k - seg_len
+        t[k + 1:k + 1] = seg
+        lo, hi = min(i, k + 1), max(i + seg_len, k + 1 + seg_len)
+        for kk in range(lo, hi):
+            p[t[kk]] = kk
+        return True
+
+    n_real = m - 2
+    for _ in range(max_passes):
+        improved = False
+        for node in range(n_real):
+            if time.perf_counter() > deadline:
+                break
+            for c in nbrs[node]:
+                pa, pc = p[node], p[c]
+                d_ac = cost(node, c)
+                if d_ac >= max(cost(node, t[pa + 1]), cost(t[pa - 1], node) if pa > 0 else 0.0):
+                    break  # a 2-opt gain needs a new edge shorter than one it removes at `node`
+                lo, hi = min(pa, pc), max(pa, pc)
+                if two_opt(lo, hi) or two_opt(lo - 1, hi - 1):
+                    improved = True
+            pa = p[node]
+            improved = two_opt(0, pa - 1) | two_opt(pa, m - 2) | improved
+            for seg_len in (1, 2, 3):
+                if or_opt(p[node], seg_len):
+                    improved = True
+        if not improved or time.perf_counter() > deadline:
+            break
+    tour[:] = t
+
+
+def optimize_order(joints, model: MotionModel, *, start=None, seed: int = 0, time_budget: float | None = 2.0,
+                   max_passes: int = 30, neighbours: int = 10,
+                   initial: Sequence[int] | None = None) -> np.ndarray:
+    """An order of the poses with small total move time.
+
+    Builds the nearest-neighbour order, keeps it or ``initial`` (default: the raster order of the
+    joint vectors) whichever moves less, then alternates 2-opt and Or-opt passes until no move
+    improves, ``max_passes`` is reached, or ``time_budget`` wall seconds have elapsed (``None``: no
+    limit). The result is therefore never slower than the raster order. Deterministic for a given
+    ``seed`` when the time budget is not hit.
+    """
+    q = _check(joints, model)
+    n = q.shape[0]
+    if n <= 1:
+        return np.arange(n, dtype=np.int64)
+    deadline = np.inf if time_budget is None else time.perf_counter() + float(time_budget)
+    cands = [nearest_neighbour_order(q, model, start=start, seed=seed),
+             raster_order(q) if initial is None else np.asarray(initial, dtype=np.int64)]
+    costs = [path_move_time(q, c, model, start=start) for c in cands]
+    best = cands[int(np.argmin(costs))]
+    g = _Graph(q, model, start)
+    tour = np.concatenate([[n], best, [n + 1]]).astype(np.int64)
+    _local_search(_Scalar(g), tour, _neighbours(q, model, neighbours), deadline, max_passes)
+    return tour[1:-1].copy()
+
+
+def mst_move_time(joints, model: MotionModel, *, start=None) -> float:
+    """Weight of the minimum spanning tree of the poses (and ``start``) under concurrent move time.
+
+    Prim's algorithm with dense rows computed on the fly: O(N²·J) time, O(N) memory (Prim 1957).
+    """
+    q = _check(joints, model)
+    if start is not None:
+        q = np.vstack([np.asarray(start, dtype=np.float64)[None, :], q])
+    n = q.shape[0]
+    if n < 2:
+        return 0.0
+    in_tree = np.zeros(n, bool)
+    in_tree[0] = True
+    best = model.move_time(q[0][None, :], q)
+    best[0] = np.inf
+    total = 0.0
+    for _ in range(n - 1):
+        k = int(np.argmin(best))
+        total += float(best[k])
+        in_tree[k] = True
+        best = np.minimum(best, model.move_time(q[k][None, :], q))
+        best[in_tree] = np.inf
+    return total
+
+
+def estimate(poses, joints, order, model: MotionModel, pose_time: float, *, start=None) -> LabTimeEstimate:
+    """Lab time of visiting ``joints[order]``, its lower bound, and the raster baselines.
+
+    ``poses`` (N, 4) define the raster order (θi outermost, as a nested-loop script scans);
+    ``joints`` (N, J) the moves; ``pose_time`` the fixed settle + capture seconds per pose.
+    """
+    q = _check(joints, model)
+    n = q.shape[0]
+    fixed = n * float(pose_time)
+    raster = raster_order(poses)
+    return LabTimeEstimate(
+        n_poses=n,
+        pose_time=float(pose_time),
+        optimized=fixed + path_move_time(q, order, model, start=start),
+        lower_bound=fixed + mst_move_time(q, model, start=start),
+        raster=fixed + path_move_time(q, raster, model, start=start, sequential=True),
+        raster_concurrent=fixed + path_move_time(q, raster, model, start=start),
+    )
