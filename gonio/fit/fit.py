@@ -83,7 +83,7 @@ class _Problem:
         colour, shape = self.L.unpack(p)
         if self.basis is not None and self.basis.separable:
             f0, cols = self._basis_at(shape)
-            m = f0[index].copy()
+            m = np.array(f0[index])  # plain ndarray (the offset may be a ZeroOffset)
             for k, B in enumerate(cols):
                 Bi = B[index]
                 m += (colour[k] - self.basis.ref[k]) * (Bi[:, None] if Bi.ndim == 1 else Bi)
@@ -100,7 +100,12 @@ class _Problem:
         return 0.5 * float(np.sum(r * r))
 
     def jtj(self, p, chunk: int = 200_000) -> np.ndarray:
-        """JᵀJ of the residual vector at ``p``, by central differences, accumulated in row chunks."""
+        """JᵀJ of the residual vector at ``p``, by central differences, accumulated in row chunks.
+
+        For a linear loss on a separable model the colour columns are exact (√w Bₖ) and only the
+        shape columns need differences of the basis (:meth:`_jtj_linear`)."""
+        if self.loss.linear and self.basis is not None and self.basis.separable:
+            return self._jtj_linear(p)
         P = p.size
         lo, hi = self.L.bounds()
         h = 1e-6 * np.maximum(np.abs(p), 1e-3)
@@ -119,6 +124,36 @@ class _Problem:
         return out
 
 
+    def _jtj_linear(self, p) -> np.ndarray:
+        L, d = self.L, self.d
+        colour, shape = L.unpack(p)
+        w = self.loss.weight(d.y, d.cos_i, d.sigma)
+        _, cols = self._basis_at(shape)
+        Bs = [np.broadcast_to(B[:, None] if B.ndim == 1 else B, d.y.shape) for B in cols]
+        dm = []
+        lo, hi = L.shape_lo, L.shape_hi
+        for j in range(L.S):
+            h = 1e-6 * max(abs(shape[j]), 1e-3)
+            up, dn = shape.copy(), shape.copy()
+            up[j], dn[j] = min(shape[j] + h, hi[j]), max(shape[j] - h, lo[j])
+            mu = self.values(L.pack(colour, up))
+            md = self.values(L.pack(colour, dn))
+            dm.append((mu - md) / (up[j] - dn[j]))
+        K, S = L.K, L.S
+        A = np.zeros((3 * K + S, 3 * K + S))
+        for c in range(3):
+            for k in range(K):
+                wb = w[:, c] * Bs[k][:, c]
+                for l in range(k, K):
+                    A[3 * k + c, 3 * l + c] = A[3 * l + c, 3 * k + c] = wb @ Bs[l][:, c]
+                for j in range(S):
+                    A[3 * k + c, 3 * K + j] = A[3 * K + j, 3 * k + c] = wb @ dm[j][:, c]
+        for i in range(S):
+            for j in range(i, S):
+                A[3 * K + i, 3 * K + j] = A[3 * K + j, 3 * K + i] = float(np.sum(w * dm[i] * dm[j]))
+        return A
+
+
 def _search_shape(proj: Projection, L: Layout, rng, n_starts: int):
     """Global-then-local search of the projected cost over the shape parameters."""
     from scipy.optimize import minimize, minimize_scalar
@@ -133,13 +168,13 @@ def _search_shape(proj: Projection, L: Layout, rng, n_starts: int):
 
     results = []
     if L.S == 1:
-        grid = np.linspace(u_lo[0], u_hi[0], 17)
+        grid = np.linspace(u_lo[0], u_hi[0], 11)
         costs = np.array([f(u) for u in grid])
         order = [j for j in np.argsort(costs)
                  if (j == 0 or costs[j] <= costs[j - 1]) and (j == len(grid) - 1 or costs[j] <= costs[j + 1])]
         for j in order[:max(1, n_starts)]:
             a, b = grid[max(j - 1, 0)], grid[min(j + 1, len(grid) - 1)]
-            res = minimize_scalar(f, bounds=(a, b), method="bounded", options={"xatol": 1e-7})
+            res = minimize_scalar(f, bounds=(a, b), method="bounded", options={"xatol": 1e-6})
             results.append((float(res.fun), np.array([res.x])))
             results.append((float(costs[j]), np.array([grid[j]])))
     else:

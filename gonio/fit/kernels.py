@@ -38,9 +38,12 @@ def _microfacet(data, layout, shape):
 
     fixed = layout.fixed
     name, alpha = fixed["distribution"], shape["alpha"]
-    h = data.half
-    spec = distribution_d(name, h, alpha) * smith_g2(name, data.wi, data.wo, h, alpha)
-    spec /= 4.0 * data.cos_i * data.cos_o
+    if name == "ggx":
+        spec = _ggx_spec(data, alpha)
+    else:
+        h = data.half
+        spec = distribution_d(name, h, alpha) * smith_g2(name, data.wi, data.wo, h, alpha)
+        spec /= 4.0 * data.cos_i * data.cos_o
     f0 = np.asarray(fixed["f0"])
     if not np.all(f0 == 1.0):  # Schlick F = 1 exactly when f0 = 1
         spec = spec[:, None] * _fresnel_cache(data, f0, schlick)
@@ -51,6 +54,49 @@ def _microfacet(data, layout, shape):
             b = basis[k] if basis[k].ndim == 2 else basis[k][:, None]
             offset = (0.0 if offset is None else offset) + np.asarray(fixed[k]) * b
     return offset, [basis[k] for k in layout.colour]
+
+
+def _geometry(data):
+    """Cached per dataset: cos²θh, sin²θh, tan²θi, tan²θo and 1/(4 cos θi cos θo)."""
+    cache = data.__dict__.setdefault("_kernel_cache", {})
+    if "ggx" not in cache:
+        c2h = data.cos_h ** 2
+        ci2, co2 = data.cos_i ** 2, data.cos_o ** 2
+        cache["ggx"] = (c2h, 1.0 - c2h, (1.0 - ci2) / ci2, (1.0 - co2) / co2, 0.25 / (data.cos_i * data.cos_o))
+    return cache["ggx"]
+
+
+def _ggx_spec(data, alpha):
+    """D G2 / (4 cos θi cos θo) of GGX on cached geometry, for directions above the horizon.
+
+    The formulas of :func:`gonio.brdf.microfacet.ggx_d` and :func:`~gonio.brdf.microfacet.smith_g1`
+    (Walter et al. 2007, eqs. 33-34) written in θ instead of vector components:
+    D = 1/(π α² (sin²θh/α² + cos²θh)²), G1(v) = 2/(1 + √(1 + α² tan²θv)). For reflection above the
+    horizon wi·h > 0 always, so the visibility test of smith_g1 never applies. Equality with the
+    model is a test (tests/fit/test_fit.py::test_kernels_match_model_eval).
+    """
+    import numpy as np
+
+    from gonio.brdf.microfacet import clamp_alpha
+
+    c2h, s2h, t2i, t2o, inv4 = _geometry(data)
+    a2 = float(clamp_alpha(alpha)) ** 2
+    q = s2h / a2
+    q += c2h
+    q *= q
+    spec = inv4 / (np.pi * a2) / q
+    gi = t2i * a2
+    gi += 1.0
+    np.sqrt(gi, out=gi)
+    gi += 1.0
+    go = t2o * a2
+    go += 1.0
+    np.sqrt(go, out=go)
+    go += 1.0
+    gi *= go
+    spec *= 4.0
+    spec /= gi
+    return spec
 
 
 def _fresnel_cache(data, f0, schlick):

@@ -239,11 +239,16 @@ class Basis:
         self._last = (key, out)
         return out
 
+    def _zeros(self):
+        if getattr(self, "_zero", None) is None:
+            self._zero = _zero_offset(self.data.y.shape)
+        return self._zero
+
     def _compute(self, shape):
         L, d = self.layout, self.data
         if self.kernel is not None:
             f0, cols = self.kernel(d, L, dict(zip(L.shape, map(float, shape))))
-            return (np.zeros_like(d.y) if f0 is None else f0), cols
+            return (self._zeros() if f0 is None else f0), cols
         need_model = (self._offset_static is None or self._offset_static.size == 0
                       or any(k not in self._static or self._static[k].size == 0 for k in range(L.K)))
         if need_model:
@@ -254,6 +259,18 @@ class Basis:
                 self._static[k] = cols[k]
             return f0, cols
         return self._offset_static, [self._static[k] for k in range(L.K)]
+
+
+class ZeroOffset(np.ndarray):
+    """A read-only array of zeros that says so (``is_zero``): consumers skip arithmetic with it."""
+
+    is_zero = True
+
+
+def _zero_offset(shape) -> np.ndarray:
+    z = np.zeros(shape).view(ZeroOffset)
+    z.setflags(write=False)
+    return z
 
 
 class SumBasis:
@@ -280,12 +297,17 @@ class SumBasis:
 
     def __call__(self, shape):
         shape = np.asarray(shape, dtype=np.float64)
-        f0 = np.zeros_like(self.data.y)
+        f0 = None
         cols: dict[str, np.ndarray] = {}
         for sub, b, shape_idx, names in self.parts:
             pf0, pcols = b(shape[shape_idx])
-            f0 = f0 + pf0
+            if not getattr(pf0, "is_zero", False):
+                f0 = pf0 if f0 is None else f0 + pf0
             cols.update(zip(names, pcols))
+        if f0 is None:
+            if getattr(self, "_zero", None) is None:
+                self._zero = _zero_offset(self.data.y.shape)
+            f0 = self._zero
         return f0, [cols[n] for n in self.layout.colour]
 
 

@@ -64,9 +64,29 @@ class Projection:
     def __init__(self, basis, w: np.ndarray, y: np.ndarray, lo: np.ndarray, hi: np.ndarray):
         self.basis, self.w, self.y, self.lo, self.hi = basis, w, y, lo, hi
         self.n_evals = 0
+        # Weights equal across channels (cosine loss): one Gram matrix serves R, G and B.
+        self.w1 = w[:, 0].copy() if np.array_equal(w[:, 0], w[:, 1]) and np.array_equal(w[:, 0], w[:, 2]) else None
+        self._c0 = np.einsum("nc,nc,nc->c", y, w, y)
+        self._wb_cache: dict[int, tuple] = {}
 
     def normal_equations(self, shape):
         f0, cols = self.basis(shape)
+        if self.w1 is not None and all(B.ndim == 1 for B in cols) and getattr(f0, "is_zero", False):
+            # Shared Gram matrix; w·Bₖ is cached for bases that did not change (a Lambert term).
+            wb = []
+            for k, B in enumerate(cols):
+                hit = self._wb_cache.get(k)
+                if hit is None or hit[0] is not B:
+                    hit = (B, B * self.w1)
+                    self._wb_cache[k] = hit
+                wb.append(hit[1])
+            K = len(cols)
+            G1 = np.empty((K, K))
+            for k in range(K):
+                for l in range(k, K):
+                    G1[k, l] = G1[l, k] = wb[k] @ cols[l]
+            b = np.stack([x @ self.y for x in wb])
+            return np.broadcast_to(G1, (3, K, K)), b.T, self._c0
         t = self.y - f0
         K = len(cols)
         G = np.empty((3, K, K))

@@ -1,0 +1,108 @@
+"""``gonio fit SOURCE [--model NAME | --select] [--loss NAME] [--json OUT]``: fit analytic BRDF models to a
+session directory or a MERL ``.binary`` and print a table."""
+
+from __future__ import annotations
+
+
+def register(sub) -> None:
+    p = sub.add_parser("fit", help="fit a BRDF model (or choose one) to a session or a MERL file",
+                       description="Fit an analytic BRDF model to measured samples (a session directory or a "
+                                   "MERL .binary file), or choose among candidates with --select.")
+    p.add_argument("source", metavar="SOURCE", help="session directory or MERL .binary file")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--model", default="microfacet", help="model to fit (see `gonio models`; sums such as "
+                                                          "lambert+2ggx); default microfacet")
+    g.add_argument("--select", action="store_true", help="fit the candidates and choose one")
+    p.add_argument("--candidates", default=None, help="comma-separated candidates for --select "
+                                                      "(default lambert,blinn-phong,microfacet,lambert+2ggx)")
+    p.add_argument("--criterion", default="auto", help="selection criterion: auto, bic, aic, cv")
+    p.add_argument("--loss", default="auto", help="auto, cosine, chi2, log, cbrt (auto: chi2 with uncertainties)")
+    p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
+                   help="hold a parameter fixed (repeatable), e.g. distribution=beckmann or f0=0.9,0.6,0.5")
+    p.add_argument("--max-theta", type=float, default=80.0, help="grazing cutoff for θi, θo in degrees (default 80)")
+    p.add_argument("--all-angles", action="store_true", help="no grazing cutoff")
+    p.add_argument("--seed", type=int, default=0, help="seed of the multi-start (default 0)")
+    p.add_argument("--json", metavar="OUT", help="write the result as JSON")
+    p.set_defaults(func=run)
+
+
+def load_source(path_text: str):
+    """SampleSet of a session directory or a MERL file (MERL has no uncertainties: sigma is dropped)."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from gonio.errors import ConfigError, DataError
+    from gonio.samples import SampleSet
+
+    path = Path(path_text)
+    if path.is_dir():
+        try:
+            from gonio.session.store import load_session
+        except ImportError:
+            raise ConfigError.field("SOURCE", "source", path_text, "session directories are not supported yet") from None
+        _, samples = load_session(path)
+        return samples
+    if path.suffix == ".binary":
+        from gonio.io.merl import read_merl
+
+        s = read_merl(path).to_samples()
+        return SampleSet(s.wi, s.wo, s.f, np.full_like(s.f, np.nan), n_pixels=s.n_pixels)
+    if not path.exists():
+        raise DataError(f"{path_text}: no such file or directory")
+    raise ConfigError.field("SOURCE", "source", path_text, "expected a session directory or a MERL .binary file")
+
+
+def _fmt(v) -> str:
+    import math
+
+    if isinstance(v, list):
+        return ", ".join(_fmt(x) for x in v)
+    if isinstance(v, float):
+        return "inf" if math.isinf(v) else ("-" if math.isnan(v) else f"{v:.5g}")
+    return str(v)
+
+
+def run(args) -> int:
+    import json
+    from pathlib import Path
+
+    from gonio.cli.models import _parse_param
+    from gonio.errors import ConfigError
+    from gonio.fit import fit
+    from gonio.fit.select import DEFAULT_CANDIDATES, select
+
+    samples = load_source(args.source)
+    fixed = dict(_parse_param(t) for t in args.fix)
+    max_theta = None if args.all_angles else args.max_theta
+    if args.select:
+        cands = tuple(c.strip() for c in args.candidates.split(",")) if args.candidates else DEFAULT_CANDIDATES
+        if fixed:
+            raise ConfigError.field("--fix", "fix", args.fix, "not supported with --select")
+        sel = select(samples, cands, criterion=args.criterion, loss=args.loss, seed=args.seed, max_theta_deg=max_theta)
+        result, report = sel.winner, sel.to_dict()
+        print(f"{'model':<16} {'k':>3} {sel.criterion:>12} {'rms_rel':>9}  status    reason")
+        for r in sel.candidates:
+            if r["status"] == "failed":
+                print(f"{r['model']:<16} {'':>3} {'':>12} {'':>9}  failed    {r['reason']}")
+            else:
+                print(f"{r['model']:<16} {r['n_params']:>3} {r['score']:>12.6g} {r['rms_rel']:>9.4f}  "
+                      f"{r['status']:<9} {r['reason']}")
+        print()
+    else:
+        result = fit(samples, args.model, loss=args.loss, fixed=fixed, seed=args.seed, max_theta_deg=max_theta)
+        report = {**result.to_dict(), "candidates": []}
+    print(f"model {result.model}  loss {result.loss}  samples {result.n_used}  rms_rel {result.rms_rel:.4g}"
+          + (f"  chi2_red {result.chi2_red:.4g}" if result.chi2_red is not None else "")
+          + f"  ({result.method}, {result.seconds:.2f} s)")
+    print(f"{'parameter':<18} {'value':<36} uncertainty")
+    for k, v in result.params.items():
+        print(f"{k:<18} {_fmt(v):<36} {_fmt(result.uncertainty[k]) if k in result.uncertainty else '(fixed)'}")
+    for note in result.notes:
+        print(f"note: {note}")
+    if args.json:
+        try:
+            Path(args.json).write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
+        except OSError as exc:
+            raise ConfigError.field("--json", "json", args.json, f"cannot write ({exc.strerror or exc})") from None
+    return 0
