@@ -27,30 +27,23 @@ def register(sub) -> None:
 
 
 def load_source(path_text: str):
-    """SampleSet of a session directory or a MERL file (MERL has no uncertainties: sigma is dropped)."""
-    from pathlib import Path
+    """SampleSet of a session directory, an NPZ export or a MERL file (:func:`gonio.io.source.load_source`).
 
+    Tables (MERL) become samples at the measured cell centres; a MERL file has no uncertainties, so
+    sigma is dropped there (the ``auto`` loss is then cosine-weighted L2, not χ² on invented sigmas).
+    """
     import numpy as np
 
-    from gonio.errors import ConfigError, DataError
+    from gonio.io.source import load_source as load
     from gonio.samples import SampleSet
 
-    path = Path(path_text)
-    if path.is_dir():
-        try:
-            from gonio.session.store import load_session
-        except ImportError:
-            raise ConfigError.field("SOURCE", "source", path_text, "session directories are not supported yet") from None
-        _, samples = load_session(path)
-        return samples
-    if path.suffix == ".binary":
-        from gonio.io.merl import read_merl
-
-        s = read_merl(path).to_samples()
-        return SampleSet(s.wi, s.wo, s.f, np.full_like(s.f, np.nan), n_pixels=s.n_pixels)
-    if not path.exists():
-        raise DataError(f"{path_text}: no such file or directory")
-    raise ConfigError.field("SOURCE", "source", path_text, "expected a session directory or a MERL .binary file")
+    src = load(path_text)
+    if src.samples is not None:
+        return src.samples
+    s = src.table.to_samples()
+    if src.table.sigma is None:
+        s = SampleSet(s.wi, s.wo, s.f, np.full_like(s.f, np.nan), n_pixels=s.n_pixels)
+    return s
 
 
 def _fmt(v) -> str:
