@@ -43,9 +43,10 @@ def test_move_returns_measured_angles_and_costs_lab_time_not_wall_time(axes, ser
     for name, value in measured.items():
         gear = rig.joints[rig.names.index(name)].gear_ratio
         assert abs(value - target[name]) <= 3 * TICK / gear + 1e-12
-    # measured, not commanded: noise makes some differ from the exact target
+    # measured, not commanded: the returned angles are the servos' reported positions (quantized,
+    # noisy), within the settle tolerance of the true horn angle, and not the exact targets
     truth = {n: servo_bus.servo(rig.joints[k].servo_id).horn for k, n in enumerate(rig.names)}
-    assert any(axes.to_ticks(n, measured[n]) != round(truth[n]) for n in rig.names) or True
+    assert all(abs(axes.to_ticks(n, measured[n]) - truth[n]) <= 3 for n in rig.names)
     assert measured != target
 
 
