@@ -95,6 +95,9 @@ class Pipeline:
         last: Exception | None = None
         for _ in range(self.settings.retries + 1):
             frame = self.camera.capture(exposure, gain)
+            if not getattr(frame, "linear", True):
+                raise BadFrame("camera frame: linear = False: Pipeline merges linear frames only; linearize "
+                               "8-bit frames with gonio.pipeline.hdr.calibrate_response first", device="camera")
             try:
                 px = check_frame(frame, self.calib)
             except BadFrame as exc:

@@ -42,6 +42,7 @@ def rewire(bench, camera):
     (lambda f: dataclasses.replace(f, pixels=f.pixels[..., :2]), "pixels.shape"),
     (lambda f: dataclasses.replace(f, bit_depth=10), "bit_depth"),
     (lambda f: dataclasses.replace(f, exposure=float("nan")), "exposure"),
+    (lambda f: dataclasses.replace(f, linear=False), "linear"),
 ])
 def test_malformed_frames_raise_a_named_error(bench_factory, lambert, how, field):
     bench = bench_factory(lambert)
