@@ -41,6 +41,8 @@ __all__ = ["IsotropyCheck", "Tabulation", "check_isotropy", "tabulate", "DEFAULT
 DEFAULT_FILL_DEG = 2.0
 _K_NEIGHBOURS = 8
 _N_SECTORS = 8
+_MAX_FRACTION = 0.1
+_MIN_CELLS = 10
 
 
 @dataclass(frozen=True)
@@ -96,8 +98,8 @@ def _weights(f: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     return 1.0 / np.maximum(sigma, floor) ** 2
 
 
-def check_isotropy(samples: SampleSet, *, tol: float = 0.1, max_fraction: float = 0.1,
-                   min_cells: int = 10, include_flagged: bool = False) -> IsotropyCheck:
+def check_isotropy(samples: SampleSet, *, tol: float = 0.1, max_fraction: float = _MAX_FRACTION,
+                   min_cells: int = _MIN_CELLS, include_flagged: bool = False) -> IsotropyCheck:
     """Test whether the samples depend on φh (the azimuth of the half vector), cell by cell.
 
     Each sample's channel-averaged BRDF is divided by the isotropic estimate at its own position (the
@@ -114,15 +116,22 @@ def check_isotropy(samples: SampleSet, *, tol: float = 0.1, max_fraction: float 
     """
     keep, _, _ = _usable(samples, include_flagged)
     s = samples.subset(keep)
-    empty = IsotropyCheck(False, 0, 0.0, 0.0, tol, max_fraction)
     if len(s) < 2:
-        return empty
+        return IsotropyCheck(False, 0, 0.0, 0.0, tol, max_fraction)
     th, ph, td, pd = half_diff_from_dirs(s.wi, s.wo)
     i_h, i_d, i_p = grid_index(th, td, pd)
-    cell = i_p + N_PHI_D * (i_d + N_THETA_D * i_h)
+    return _check_isotropy(s, i_p + N_PHI_D * (i_d + N_THETA_D * i_h), ph, tol, max_fraction, min_cells)
+
+
+def _check_isotropy(s: SampleSet, cell: np.ndarray, ph: np.ndarray, tol: float, max_fraction: float,
+                    min_cells: int) -> IsotropyCheck:
+    """:func:`check_isotropy` on usable samples whose cells and φh are already known."""
+    empty = IsotropyCheck(False, 0, 0.0, 0.0, tol, max_fraction)
     sector = np.minimum((ph / (2 * np.pi) * _N_SECTORS).astype(np.intp), _N_SECTORS - 1)
-    key = cell.astype(np.int64) * _N_SECTORS + sector
-    sectors_per_cell = np.bincount(np.unique(key) // _N_SECTORS, minlength=N_CELLS)
+    key = cell * _N_SECTORS + sector
+    present = np.zeros(N_CELLS * _N_SECTORS, dtype=bool)
+    present[key] = True
+    sectors_per_cell = present.reshape(N_CELLS, _N_SECTORS).sum(axis=1)
     sel = sectors_per_cell[cell] >= 2
     if not sel.any():
         return empty
@@ -139,7 +148,10 @@ def check_isotropy(samples: SampleSet, *, tol: float = 0.1, max_fraction: float 
     scale = np.where(np.abs(iso) > 1e-300, iso, 1.0)
     y, sy = y[sel] / scale, sy[sel] / np.abs(scale)
     w = _weights(y, sy)
-    keys, inv = np.unique(key[sel], return_inverse=True)
+    present[:] = False
+    present[key[sel]] = True
+    keys = np.flatnonzero(present)  # sorted (cell, sector) groups, without a sort
+    inv = (np.cumsum(present) - 1)[key[sel]]
     wg = np.bincount(inv, w)
     mg = np.bincount(inv, w * y) / wg
     sg = 1.0 / np.sqrt(wg)
@@ -201,11 +213,11 @@ class Tabulation:
 
 def _fill_holes(values, sigma, measured, above, fill_deg, wi, wo):
     """Shepard (p = 2) interpolation of holes from measured cells within ``fill_deg``; in place."""
-    from scipy.spatial import cKDTree
-
     holes = above & ~measured
     if fill_deg <= 0 or not measured.any() or not holes.any():
         return np.zeros(SHAPE, dtype=bool)
+    from scipy.spatial import cKDTree
+
     emb = np.concatenate([wi, wo], axis=-1) / np.sqrt(2.0)
     twin = np.concatenate([wo, wi], axis=-1) / np.sqrt(2.0)
     m_idx = np.flatnonzero(measured)
@@ -267,15 +279,15 @@ def tabulate(samples: SampleSet, *, fill_deg: float = DEFAULT_FILL_DEG, include_
     s = samples.subset(keep)
     if len(s) == 0:
         raise DataError(f"{source}: no usable samples to tabulate ({n_flagged} flagged, {n_invalid} invalid)")
-    iso = check_isotropy(s, tol=isotropy_tol, include_flagged=True)
+    th, ph, td, pd = half_diff_from_dirs(s.wi, s.wo)
+    i_h, i_d, i_p = grid_index(th, td, pd)
+    cell = i_p + N_PHI_D * (i_d + N_THETA_D * i_h)
+    iso = _check_isotropy(s, cell, ph, isotropy_tol, _MAX_FRACTION, _MIN_CELLS)
     if iso.anisotropic and not force_isotropic:
         raise DataError(
             f"{source}: the samples are anisotropic ({iso.describe()}); a MERL table holds isotropic BRDFs "
             "only. Export the full 4-D samples with --format npz or csv, or pass --force-isotropic to "
             "average over the half-vector azimuth")
-    th, _, td, pd = half_diff_from_dirs(s.wi, s.wo)
-    i_h, i_d, i_p = grid_index(th, td, pd)
-    cell = i_p + N_PHI_D * (i_d + N_THETA_D * i_h)
     w = _weights(s.f, s.sigma)
     count = np.bincount(cell, minlength=N_CELLS)
     values = np.full((N_CELLS, 3), np.nan)
