@@ -1,0 +1,427 @@
+"""The session runner: executes a :class:`gonio.plan.Plan` against the rig's interfaces, one pose at a
+time, appending each result to the session store. It never decides *what* to measure (DESIGN.md §1).
+
+Per session: check the devices (controller status: E-stop and interlock clear; the servos were scanned
+and configured when the axes were opened, :func:`open_devices`), warm the light up (photodiode read on
+the :class:`~gonio.rig.interfaces.Clock` until two readings one step apart differ by less than the
+tolerance), then for each remaining pose in plan order:
+
+1. solve the kinematics nearest the current joints (:meth:`gonio.rig.kinematics.Rig.solve`);
+2. synchronized move (:meth:`Axes.move_to`), settle (``plan.capture.settle``, the controller's
+   watchdog fed meanwhile), verify the *measured* joint angles against the target (re-issue the move a
+   bounded number of times, then :class:`~gonio.errors.HardwareError`);
+3. capture through the pipeline with the light position and camera-pose hint from the forward
+   kinematics of the *measured* joints, the plan's bracket (``plan.capture``), photodiode normalization
+   inside the pipeline; dark frames are re-measured on a schedule (``dark_max_age`` of lab time, before
+   the pose so the light can settle again) and the white reference is in every frame;
+4. append the samples with per-pose meta (measured joints, exposures, photodiode, lab time, timings).
+
+Faults: a hardware error during a pose is recovered from (servo alarm: reboot; controller reset or
+watchdog trip: light back on and warmed up) and the pose retried, at most ``pose_retries`` times; then
+the session ends cleanly with the error in the manifest's exit status. A pose is appended only once,
+whole, after it succeeded, so nothing measured is lost and nothing is duplicated. SIGINT (Ctrl-C)
+finishes the pose in flight, marks the session ``interrupted`` and prints the command to resume.
+
+Progress goes to stderr as one line with the ETA in *lab* time (the own small line instead of tqdm:
+one line of logic, no extra dependency, and it has to show lab time, not tqdm's wall-clock rate).
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable, TextIO
+
+import numpy as np
+
+from gonio.errors import ConfigError, EmergencyStop, GonioError, HardwareError, ServoAlarm, UnreachablePose
+from gonio.rig.interfaces import Frame
+
+__all__ = ["RunnerSettings", "Devices", "RunResult", "SessionRunner", "open_devices", "format_lab_time"]
+
+
+@dataclass(frozen=True)
+class RunnerSettings:
+    """Knobs of the runner (lab-time values in seconds, angles in degrees at this boundary)."""
+
+    joint_tolerance_deg: float = 0.5  #: measured joint vs target, after settling
+    move_retries: int = 2  #: re-issued moves when a joint is off target
+    pose_retries: int = 3  #: recover-and-retry rounds per pose after a hardware error
+    move_timeout: float = 60.0
+    warmup_step: float = 15.0  #: lab seconds between photodiode readings while warming up
+    warmup_samples: int = 64  #: photodiode samples averaged per reading
+    warmup_tolerance: float = 1e-3  #: relative change between readings that counts as stable
+    warmup_max: float = 1800.0  #: give up (HardwareError) after this much warm-up
+    dark_max_age: float = 900.0  #: re-measure dark frames when older than this (lab seconds)
+    light_level: float = 1.0
+
+
+@dataclass
+class Devices:
+    """The opened hardware (real or simulated) a runner drives."""
+
+    rig: object  #: gonio.rig.kinematics.Rig
+    axes: object  #: gonio.rig.interfaces.Axes (DynamixelAxes)
+    controller: object  #: gonio.rig.controller.RigController
+    camera: object  #: gonio.rig.interfaces.Camera
+    clock: object  #: gonio.rig.interfaces.Clock
+
+    def close(self) -> None:
+        """Switch the light off and release every device (each attempted, errors ignored)."""
+        for dev in (self.controller, self.axes, self.camera):
+            try:
+                dev.close()
+            except Exception:  # noqa: BLE001 - closing must release the rest whatever one device does
+                pass
+
+
+def open_devices(rig, servo_port: str, controller_port: str, camera, clock, *, latency_timer_ms: float = 50.0,
+                 watchdog: float = 30.0, auto_recover: int = 1) -> Devices:
+    """Open the servo bus (scan: every joint's servo must answer; then configure) and the controller
+    (handshake, watchdog period). ``watchdog`` must exceed the longest move plus settle, in lab seconds."""
+    from gonio.rig.controller import RigController
+    from gonio.rig.dynamixel import DynamixelAxes, DynamixelBus
+
+    bus = DynamixelBus(servo_port, rig.baud, latency_timer_ms=latency_timer_ms).open()
+    try:
+        ids = [j.servo_id for j in rig.joints]
+        found = bus.scan(ids)
+        missing = [f"{j.name} (ID {j.servo_id})" for j in rig.joints if j.servo_id not in found]
+        if missing:
+            raise HardwareError(f"{servo_port}: servos not answering: {', '.join(missing)}", device=servo_port)
+        axes = DynamixelAxes.from_rig(rig, bus, clock, auto_recover=auto_recover)
+    except BaseException:
+        bus.close()
+        raise
+    try:
+        controller = RigController.open(controller_port, clock=clock, watchdog=watchdog)
+    except BaseException:
+        axes.close()
+        raise
+    return Devices(rig=rig, axes=axes, controller=controller, camera=camera, clock=clock)
+
+
+def format_lab_time(seconds: float) -> str:
+    """``h:mm:ss`` (or ``m:ss``) of a lab-time duration."""
+    s = int(round(max(seconds, 0.0)))
+    h, rem = divmod(s, 3600)
+    m, s = divmod(rem, 60)
+    return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
+
+
+@dataclass
+class RunResult:
+    """How a run ended and what it did."""
+
+    status: str  #: "completed", "interrupted", "error: ..." (the store's exit-status vocabulary)
+    measured: int = 0  #: poses appended in this run
+    samples: int = 0  #: samples appended in this run
+    skipped: list = field(default_factory=list)  #: (pose index, reason) of poses that could not be measured
+    lab_time: float = 0.0
+    wall_time: float = 0.0
+    timings: list = field(default_factory=list)  #: per-pose dicts of lab and wall seconds
+    retries: int = 0
+    error: GonioError | None = None
+
+    def summary(self) -> dict:
+        """JSON-able summary for the manifest."""
+        return {"status": self.status, "poses": self.measured, "samples": self.samples, "retries": self.retries,
+                "lab_time_s": self.lab_time, "wall_time_s": self.wall_time,
+                "skipped": [{"pose": k, "reason": r} for k, r in self.skipped]}
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "completed"
+
+
+class _TimedCamera:
+    """Camera proxy that adds up wall and lab time spent in ``capture`` (for the per-pose breakdown)."""
+
+    def __init__(self, camera, clock):
+        self._camera, self._clock = camera, clock
+        self.wall = self.lab = 0.0
+        self.frames = 0
+
+    def capture(self, exposure: float, gain: float = 1.0, *, timeout: float = 10.0) -> Frame:
+        w, t = time.perf_counter(), self._clock.now()
+        try:
+            return self._camera.capture(exposure, gain, timeout=timeout)
+        finally:
+            self.wall += time.perf_counter() - w
+            self.lab += self._clock.now() - t
+            self.frames += 1
+
+    def close(self) -> None:
+        self._camera.close()
+
+
+class _Progress:
+    """One status line on stderr: poses done, lab time, ETA in lab time."""
+
+    def __init__(self, stream: TextIO | None, total: int):
+        self.stream, self.total = stream, max(total, 1)
+        self.tty = bool(stream is not None and getattr(stream, "isatty", lambda: False)())
+        self.every = 1 if self.tty else max(1, total // 10)
+
+    def update(self, done: int, lab: float, eta: float, note: str = "") -> None:
+        if self.stream is None or (not self.tty and done % self.every and done != self.total):
+            return
+        line = (f"[{done:>{len(str(self.total))}}/{self.total}] {100 * done / self.total:3.0f}%  "
+                f"lab {format_lab_time(lab)}  ETA {format_lab_time(eta)} lab{('  ' + note) if note else ''}")
+        self.stream.write(("\r" + line + "\033[K") if self.tty else line + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.stream is not None and self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+class SessionRunner:
+    """Run ``plan`` into ``store`` on ``devices``; see the module docstring.
+
+    Parameters
+    ----------
+    plan : gonio.plan.Plan
+    store : gonio.session.store.SessionStore (``append``, ``done_poses``, ``remaining``, ``finish``)
+    devices : Devices
+    calibration, layout : what the pipeline needs (gonio.pipeline.target)
+    settings : RunnerSettings
+    before_pose : callable(pose index), optional
+        Called right before a pose is captured (logging; the simulator reseeds its camera noise here).
+    resume_command : str
+        Printed when the session is interrupted or ends on a fault.
+    stream : where progress and messages go (stderr; None = silent)
+    """
+
+    def __init__(self, plan, store, devices: Devices, calibration, layout, *, settings: RunnerSettings | None = None,
+                 before_pose: Callable[[int], None] | None = None, resume_command: str = "",
+                 stream: TextIO | None = sys.stderr, pipeline_settings=None):
+        from gonio.pipeline.acquire import Pipeline, PipelineSettings
+        from gonio.pipeline.exposure import CapturePlan
+
+        self.plan, self.store, self.dev = plan, store, devices
+        self.settings = st = settings or RunnerSettings()
+        self.before_pose = before_pose
+        self.resume_command = resume_command
+        self.stream = stream
+        self.clock = devices.clock
+        self.camera = _TimedCamera(devices.camera, self.clock)
+        ps = pipeline_settings or PipelineSettings(dark_max_age=st.dark_max_age, light_level=st.light_level)
+        self.pipeline = Pipeline(self.camera, calibration, layout, light=devices.controller, clock=self.clock,
+                                 settings=ps)
+        cap = plan.capture
+        self.bracket = CapturePlan(tuple(cap.exposures), (cap.frames,) * len(cap.exposures), cap.gain)
+        self._stop = threading.Event()
+        self._interrupts = 0
+
+    # -- messages -------------------------------------------------------------------------------
+    def _say(self, msg: str) -> None:
+        if self.stream is not None:
+            self.stream.write(msg + "\n")
+            self.stream.flush()
+
+    # -- device checks and warm-up --------------------------------------------------------------
+    def check_devices(self) -> None:
+        """E-stop and interlock must be clear (:class:`EmergencyStop` otherwise)."""
+        st = self.dev.controller.status()
+        if st.estop or st.interlock_open:
+            what = "E-stop is pressed" if st.estop else "enclosure interlock is open"
+            raise EmergencyStop(f"rig controller: {what}: release it and run the command again",
+                                device="rig controller")
+
+    def warm_up(self) -> float:
+        """Switch the light on and wait (lab time, watchdog fed) until the photodiode is stable.
+
+        Stable: ``|p_k − p_{k−1}| ≤ tol · p_k`` for two readings ``warmup_step`` apart, and both above
+        4 standard uncertainties of a reading. Returns the lab seconds spent."""
+        st, ctl = self.settings, self.dev.controller
+        t0 = self.clock.now()
+        ctl.set_light(True, st.light_level)
+        prev = None
+        for _ in range(int(math.ceil(st.warmup_max / st.warmup_step)) + 1):  # bounded
+            p, u = ctl.read_photodiode(st.warmup_samples)
+            if p <= 4 * u:
+                raise HardwareError(f"light: photodiode reads {p:g} ± {u:g} after switching on: the light is off "
+                                    "or failed", device="light")
+            if prev is not None and abs(p - prev) <= max(st.warmup_tolerance * p, 2 * u):
+                return self.clock.now() - t0
+            prev = p
+            if self.clock.now() - t0 >= st.warmup_max:
+                break
+            ctl.wait(st.warmup_step)
+        raise HardwareError(f"light: not stable after {st.warmup_max:g} s of warm-up (photodiode {prev:g})",
+                            device="light")
+
+    # -- one pose -------------------------------------------------------------------------------
+    def _move(self, index: int) -> tuple[dict, dict]:
+        """Solve nearest the current joints, move, settle, verify; returns (target, measured)."""
+        rig, axes, ctl, st = self.dev.rig, self.dev.axes, self.dev.controller, self.settings
+        current = axes.positions()
+        target = rig.solve(*self.plan.poses[index], current=current)
+        tol = math.radians(st.joint_tolerance_deg)
+        for attempt in range(st.move_retries + 1):
+            ctl.heartbeat()
+            axes.move_to(target, timeout=st.move_timeout)
+            ctl.wait(self.plan.capture.settle)  # settle with the watchdog fed
+            measured = axes.positions()
+            off = {n: measured[n] - target[n] for n in target if abs(measured[n] - target[n]) > tol}
+            if not off:
+                return target, measured
+        worst = max(off, key=lambda n: abs(off[n]))
+        raise HardwareError(f"joint {worst}: at {math.degrees(measured[worst]):.2f} deg after "
+                            f"{st.move_retries + 1} moves, target {math.degrees(target[worst]):.2f} deg "
+                            f"(tolerance {st.joint_tolerance_deg:g} deg)", device=worst)
+
+    def _refresh_darks(self) -> bool:
+        """Re-measure the bracket's dark frames if due; then let the light settle again."""
+        darks = self.pipeline.darks
+        before = darks.captures
+        for t in self.bracket.exposures:
+            darks.get(t, self.bracket.gain)
+        if darks.captures != before:
+            self.warm_up()  # switching the light off and on restarts its warm-up
+            return True
+        return False
+
+    def _measure(self, index: int) -> tuple:
+        from gonio.pipeline.target import CameraPose
+
+        rig = self.dev.rig
+        w0, l0 = time.perf_counter(), self.clock.now()
+        target, measured = self._move(index)
+        w1, l1 = time.perf_counter(), self.clock.now()
+        darks = self._refresh_darks()
+        w2, l2 = time.perf_counter(), self.clock.now()
+        if self.before_pose is not None:
+            self.before_pose(index)
+        joints = rig.as_array(measured)
+        position, R = rig.camera_pose(joints)
+        cam_w, cam_l, frames = self.camera.wall, self.camera.lab, self.camera.frames
+        res = self.pipeline.measure(rig.light_position(joints), pose_index=index,
+                                    camera_pose_hint=CameraPose(R, -R @ position), plan=self.bracket)
+        w3, l3 = time.perf_counter(), self.clock.now()
+        capture_wall = self.camera.wall - cam_w
+        timing = {"move_lab": l1 - l0, "move_wall": w1 - w0, "dark_lab": l2 - l1, "dark_wall": w2 - w1,
+                  "capture_lab": l3 - l2, "capture_wall": capture_wall, "pipeline_wall": (w3 - w2) - capture_wall,
+                  "frames": self.camera.frames - frames, "camera_lab": self.camera.lab - cam_l}
+        pd = np.asarray(res.light, dtype=np.float64)
+        meta = {
+            "pose_rad": [float(a) for a in self.plan.poses[index]],
+            "target_joints_rad": {k: float(v) for k, v in target.items()},
+            "joints_rad": {k: float(v) for k, v in measured.items()},
+            "exposures_s": [float(t) for t in res.plan.exposures],
+            "frames": [int(n) for n in res.plan.frames],
+            "gain": float(res.plan.gain),
+            "photodiode": {"mean": float(pd.mean()) if pd.size else None,
+                           "min": float(pd.min()) if pd.size else None, "max": float(pd.max()) if pd.size else None},
+            "board_found": res.board is not None,
+            "darks_refreshed": darks,
+            "lab_time_s": float(self.clock.now()),
+            "timing": timing,
+        }
+        return res.samples, meta, timing
+
+    def _recover(self, exc: HardwareError) -> None:
+        """Best effort before retrying a pose: clear servo alarms, light back on and warm."""
+        ctl = self.dev.controller
+        if isinstance(exc, ServoAlarm) or "torque is off" in str(exc):
+            self.dev.axes.recover()
+        status = ctl.status()  # re-handshakes if the controller reset (NOT_READY)
+        if not status.light_on:
+            self.warm_up()
+
+    # -- the session ----------------------------------------------------------------------------
+    def _on_sigint(self, signum, frame) -> None:
+        self._interrupts += 1
+        if self._interrupts > 1:
+            raise KeyboardInterrupt  # second Ctrl-C: stop now (the store holds every finished pose)
+        self._stop.set()
+        self._say("\ninterrupt: finishing the pose in flight (Ctrl-C again to stop at once)")
+
+    def request_stop(self) -> None:
+        """Stop after the pose in flight (what SIGINT does)."""
+        self._stop.set()
+
+    def run(self) -> RunResult:
+        """Measure every remaining pose; always ends with ``store.finish(status)``."""
+        wall0, lab0 = time.perf_counter(), self.clock.now()
+        remaining = [int(k) for k in self.store.remaining(self.plan)]
+        done = set(int(k) for k in self.store.done_poses())
+        result = RunResult(status="completed")
+        total = len(self.plan)
+        progress = _Progress(self.stream, total)
+        old_handler = None
+        if threading.current_thread() is threading.main_thread():
+            old_handler = signal.signal(signal.SIGINT, self._on_sigint)
+        try:
+            try:
+                self.check_devices()
+                warm = self.warm_up()
+                self._say(f"light stable after {format_lab_time(warm)} lab")
+                est_pose = self.plan.capture.pose_time() + 2.0
+                for n, k in enumerate(remaining):
+                    if self._stop.is_set():
+                        result.status = "interrupted"
+                        break
+                    if k in done:
+                        continue
+                    samples, meta, timing = self._pose_with_retries(k, result)
+                    if samples is None:
+                        continue
+                    self.store.append(k, samples, meta)
+                    done.add(k)
+                    result.measured += 1
+                    result.samples += len(samples)
+                    result.timings.append(timing)
+                    lab = self.clock.now() - lab0
+                    per_pose = lab / (n + 1) if n + 1 else est_pose
+                    progress.update(len(done), lab, per_pose * (len(remaining) - n - 1))
+                else:
+                    if self._stop.is_set():
+                        result.status = "interrupted"
+            except EmergencyStop as exc:
+                result.status, result.error = f"error: {exc}", exc
+            except HardwareError as exc:
+                result.status, result.error = f"error: {exc}", exc
+            except KeyboardInterrupt:
+                result.status = "interrupted"
+        finally:
+            progress.close()
+            if old_handler is not None:
+                signal.signal(signal.SIGINT, old_handler)
+            result.lab_time = self.clock.now() - lab0
+            result.wall_time = time.perf_counter() - wall0
+            self.store.finish(result.status, last_run=result.summary())
+        if result.status != "completed" and self.resume_command:
+            self._say(f"session {result.status.split(':')[0]}: {result.measured} poses measured in this run; "
+                      f"resume with:\n  {self.resume_command}")
+        return result
+
+    def _pose_with_retries(self, k: int, result: RunResult):
+        """``(samples, meta, timing)`` of pose ``k`` or ``(None, None, None)`` if it cannot be measured."""
+        from gonio.pipeline.acquire import BoardNotFound
+
+        last: HardwareError | None = None
+        for attempt in range(self.settings.pose_retries + 1):
+            try:
+                if attempt:
+                    result.retries += 1
+                    self._recover(last)
+                samples, meta, timing = self._measure(k)
+                meta["attempts"] = attempt + 1
+                return samples, meta, timing
+            except EmergencyStop:
+                raise
+            except (UnreachablePose, BoardNotFound, ConfigError) as exc:
+                result.skipped.append((k, str(exc)))
+                self._say(f"pose {k}: skipped: {exc}")
+                return None, None, None
+            except HardwareError as exc:
+                last = exc
+                self._say(f"pose {k}: {exc} (attempt {attempt + 1} of {self.settings.pose_retries + 1})")
+        raise last  # type: ignore[misc]

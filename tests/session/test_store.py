@@ -1,0 +1,256 @@
+"""The session store: append/reopen, exact floats, torn and corrupted records, refusals, SIGKILL."""
+
+import json
+import os
+import random
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from gonio.errors import ConfigError, DataError
+from gonio.samples import SampleSet
+from gonio.session.store import MANIFEST, SAMPLES, SessionStore, load_session, scan_samples
+
+
+def samples_for(pose: int, n: int = 2) -> SampleSet:
+    """Deterministic samples of one pose, with awkward float64 values."""
+    rng = np.random.default_rng(pose)
+    f = rng.uniform(0, 3, (n, 3))
+    f[0, 0] = 1 / 3
+    sigma = rng.uniform(0, 0.1, (n, 3))
+    sigma[-1, -1] = 5e-324  # subnormal
+    return SampleSet(rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), f, sigma,
+                     n_pixels=rng.integers(1, 1000, n), flags=rng.integers(0, 64, n))
+
+
+def same(a: SampleSet, b: SampleSet) -> bool:
+    return all(a.to_dict()[k].tobytes() == b.to_dict()[k].tobytes() and a.to_dict()[k].dtype == b.to_dict()[k].dtype
+               for k in SampleSet.columns())
+
+
+def expected(poses) -> SampleSet:
+    sets = []
+    for p in sorted(poses):
+        s = samples_for(p)
+        sets.append(SampleSet(**{**s.to_dict(), "pose": np.full(len(s), p)}))
+    return SampleSet.concat(sets)
+
+
+def make(tmp_path, poses=(0, 1, 2), name="s"):
+    d = tmp_path / name
+    store = SessionStore.create(d, {"material": "test", "plan": {"n_poses": 6}})
+    for p in poses:
+        store.append(p, samples_for(p), {"joints": [0.1 * p, 0.2], "t_end": 1.5 * p, "exposures": [0.01, 0.04]})
+    store.close()
+    return d
+
+
+def test_manifest_is_self_describing(tmp_path):
+    d = make(tmp_path)
+    m = json.loads((d / MANIFEST).read_text())
+    assert m["values"] == "BRDF, not BRDF*cos" and m["units"]["angles"] == "rad"
+    assert m["software"]["name"] == "gonio" and m["software"]["version"]
+    assert m["material"] == "test" and m["exit_status"] is None and m["started"]
+
+
+def test_append_reopen_resume_finish(tmp_path):
+    d = make(tmp_path, poses=(0, 2))
+    store = SessionStore.open(d)
+    assert store.done_poses() == {0, 2} and store.torn is None
+    assert store.remaining().tolist() == [1, 3, 4, 5]
+    assert store.remaining(4).tolist() == [1, 3]
+    store.append(1, samples_for(1), {"t_end": 9.0})
+    store.finish("completed", lab_time=12.5)
+    manifest, got = load_session(d)
+    assert manifest["exit_status"] == "completed" and manifest["sample_count"] == 6 and manifest["lab_time"] == 12.5
+    assert manifest["resumes"][0]["previous_exit_status"] is None
+    assert same(got, expected([0, 1, 2]))
+
+
+def test_float64_round_trip_is_bit_exact(tmp_path):
+    rng = np.random.default_rng(7)
+    bits = rng.integers(0, 2**63, (50, 3), dtype=np.int64).view(np.float64)  # NaN payloads, subnormals, huge
+    special = np.array([[0.0, -0.0, np.inf], [-np.inf, np.nan, 5e-324], [1 / 3, 2.0**-1074, np.finfo(float).max]])
+    vals = np.vstack([bits, special])
+    s = SampleSet(vals, vals[::-1], vals * 1, vals[:, ::-1], pose=np.zeros(len(vals)))
+    store = SessionStore.create(tmp_path / "s", {})
+    store.append(0, s, {"photodiode": 0.1 + 0.2})
+    store.close()
+    _, got = load_session(tmp_path / "s")
+    assert same(got, s)
+    assert scan_samples(tmp_path / "s" / SAMPLES).records[0][1]["photodiode"] == 0.1 + 0.2
+
+
+def test_duplicate_pose_keeps_last_record_once(tmp_path):
+    d = make(tmp_path, poses=(0, 1))
+    store = SessionStore.open(d)
+    store.append(1, samples_for(1), {"t_end": 5.0})  # re-measured after a crash, same values
+    store.append(0, samples_for(10), {})  # re-measured with new values: the new one wins
+    assert store.sample_count == 4
+    store.close()
+    _, got = load_session(d)
+    assert len(got) == 4 and got.pose.tolist() == [0, 0, 1, 1]
+    assert got.f[:2].tobytes() == samples_for(10).f.tobytes()
+    scan = scan_samples(d / SAMPLES)
+    assert scan.n_records == 4 and scan.n_duplicates == 2
+
+
+@pytest.fixture
+def fast_dir(tmp_path):
+    """A directory on tmpfs when there is one: the torn-record test reopens (and fsyncs) ~1000 times,
+    which is about logic, not disk durability."""
+    import shutil
+    import tempfile
+
+    if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK):
+        d = tempfile.mkdtemp(prefix="gonio-test-", dir="/dev/shm")
+        yield __import__("pathlib").Path(d)
+        shutil.rmtree(d, ignore_errors=True)
+    else:
+        yield tmp_path
+
+
+def test_torn_last_record_at_every_byte_offset(fast_dir):
+    d = make(fast_dir, poses=(0, 1, 2))
+    path = d / SAMPLES
+    full = path.read_bytes()
+    start = full.rstrip(b"\n").rfind(b"\n") + 1  # first byte of the last record
+    manifest = (d / MANIFEST).read_bytes()
+    for cut in range(start, len(full)):
+        path.write_bytes(full[:cut])
+        (d / MANIFEST).write_bytes(manifest)
+        _, got = load_session(d)  # read-only: ignores the torn record
+        assert same(got, expected([0, 1]))
+        store = SessionStore.open(d)
+        assert store.done_poses() == {0, 1}
+        assert (store.torn is None) == (cut == start), cut
+        assert path.stat().st_size == start  # cut back to the last good record
+        store.close()
+    store = SessionStore.open(d)
+    store.append(2, samples_for(2), {"joints": [0.1 * 2, 0.2], "t_end": 1.5 * 2, "exposures": [0.01, 0.04]})
+    store.close()
+    assert path.read_bytes() == full
+    assert same(load_session(d)[1], expected([0, 1, 2]))
+
+
+def test_corrupted_last_record_is_dropped(tmp_path):
+    d = make(tmp_path, poses=(0, 1, 2))
+    data = bytearray((d / SAMPLES).read_bytes())
+    data[-40] ^= 0x04
+    (d / SAMPLES).write_bytes(bytes(data))
+    store = SessionStore.open(d)
+    assert store.done_poses() == {0, 1} and "corrupted last record" in store.torn and "line 3" in store.torn
+    store.close()
+
+
+@pytest.mark.parametrize("offset", [0, 5, 9, 60, -30])
+def test_bit_flip_in_the_middle_is_a_data_error(tmp_path, offset):
+    d = make(tmp_path, poses=(0, 1, 2))
+    data = bytearray((d / SAMPLES).read_bytes())
+    line2 = data.index(b"\n") + 1
+    end2 = data.index(b"\n", line2)
+    data[(line2 + offset) if offset >= 0 else (end2 + offset)] ^= 0x10
+    (d / SAMPLES).write_bytes(bytes(data))
+    for fn in (load_session, SessionStore.open):
+        with pytest.raises(DataError, match=rf"{SAMPLES}: line 2: corrupted record"):
+            fn(d)
+
+
+def test_refuses_a_directory_holding_a_session(tmp_path):
+    d = make(tmp_path)
+    before = {p.name: p.read_bytes() for p in d.iterdir()}
+    with pytest.raises(ConfigError, match="holds another session"):
+        SessionStore.create(d, {"material": "other"})
+    assert {p.name: p.read_bytes() for p in d.iterdir()} == before
+
+
+def test_refuses_unwritable_and_file_paths(tmp_path):
+    f = tmp_path / "file"
+    f.write_text("x")
+    with pytest.raises(ConfigError, match="not a directory"):
+        SessionStore.create(f, {})
+    with pytest.raises(ConfigError, match="not writable"):
+        SessionStore.create(f / "sub", {})
+    assert f.read_text() == "x"
+    if os.geteuid() != 0:
+        ro = tmp_path / "ro"
+        ro.mkdir(mode=0o500)
+        with pytest.raises(ConfigError, match="not writable"):
+            SessionStore.create(ro, {})
+        assert list(ro.iterdir()) == []
+
+
+def test_unjsonable_manifest_leaves_nothing(tmp_path):
+    with pytest.raises(ConfigError, match="JSON"):
+        SessionStore.create(tmp_path / "s", {"bad": object()})
+    assert list((tmp_path / "s").iterdir()) == []
+
+
+def test_one_writer_at_a_time(tmp_path):
+    d = make(tmp_path)
+    first = SessionStore.open(d)
+    with pytest.raises(ConfigError, match="in use"):
+        SessionStore.open(d)
+    first.close()
+    SessionStore.open(d).close()
+
+
+def test_load_errors_name_the_file(tmp_path):
+    with pytest.raises(DataError, match=r"nothere.*manifest\.json"):
+        load_session(tmp_path / "nothere")
+    d = make(tmp_path)
+    (d / MANIFEST).write_text("{not json")
+    with pytest.raises(DataError, match="manifest.json: unreadable"):
+        load_session(d)
+    d2 = make(tmp_path, name="t")
+    (d2 / SAMPLES).unlink()
+    with pytest.raises(DataError, match="samples.jsonl: samples file is missing"):
+        load_session(d2)
+
+
+WRITER = textwrap.dedent("""
+    import sys
+    sys.path.insert(0, {tests!r})
+    from test_store import samples_for
+    from gonio.session.store import SessionStore
+    store = SessionStore.create(sys.argv[1], {{"material": "kill"}})
+    for pose in range(10_000):
+        store.append(pose, samples_for(pose, n=int(sys.argv[2])), {{"t_end": float(pose)}})
+        print(pose, flush=True)
+""")
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_sigkill_keeps_exactly_the_completed_records(tmp_path, seed):
+    rng = random.Random(seed)
+    script = tmp_path / "writer.py"
+    script.write_text(WRITER.format(tests=os.path.dirname(__file__)))
+    d = tmp_path / "s"
+    n_rows = rng.choice([1, 3000])  # small records, and ~400 kB records (kills land mid-write)
+    proc = subprocess.Popen([sys.executable, str(script), str(d), str(n_rows)], stdout=subprocess.PIPE, text=True)
+    try:
+        target = rng.randint(1, 12)
+        acked = -1
+        while acked < target:
+            line = proc.stdout.readline()
+            assert line, "writer died early"
+            acked = int(line)
+        for _ in range(rng.randint(0, 3)):  # let it get somewhere inside the next write/fsync
+            proc.stdout.readline()
+            acked += 1
+        proc.kill()
+    finally:
+        proc.kill()
+        proc.wait(timeout=10)
+        proc.stdout.close()
+    store = SessionStore.open(d)
+    done = store.done_poses()
+    store.close()
+    assert set(range(acked + 1)) <= done <= set(range(acked + 2))
+    _, got = load_session(d)
+    want = SampleSet.concat([SampleSet(**{**samples_for(p, n_rows).to_dict(), "pose": np.full(n_rows, p)})
+                             for p in sorted(done)])
+    assert same(got, want)
