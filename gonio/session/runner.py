@@ -361,9 +361,11 @@ class SessionRunner:
         try:
             try:
                 self.check_devices()
-                warm = self.warm_up()
-                self._say(f"light stable after {format_lab_time(warm)} lab")
-                est_pose = self.plan.capture.pose_time() + 2.0
+                t_warm = self.clock.now()
+                if not self._refresh_darks():  # darks first (light off), then one warm-up serves both
+                    self.warm_up()
+                self._say(f"darks measured, light stable after {format_lab_time(self.clock.now() - t_warm)} lab")
+                lab_poses = self.clock.now()
                 for n, k in enumerate(remaining):
                     if self._stop.is_set():
                         result.status = "interrupted"
@@ -378,9 +380,8 @@ class SessionRunner:
                     result.measured += 1
                     result.samples += len(samples)
                     result.timings.append(timing)
-                    lab = self.clock.now() - lab0
-                    per_pose = lab / (n + 1) if n + 1 else est_pose
-                    progress.update(len(done), lab, per_pose * (len(remaining) - n - 1))
+                    per_pose = (self.clock.now() - lab_poses) / (n + 1)  # mean lab time of a pose so far
+                    progress.update(len(done), self.clock.now() - lab0, per_pose * (len(remaining) - n - 1))
                 else:
                     if self._stop.is_set():
                         result.status = "interrupted"

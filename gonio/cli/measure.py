@@ -1,0 +1,349 @@
+"""``gonio measure`` and ``gonio resume``: run a measurement session (simulated or on a rig).
+
+``gonio measure --sim`` builds the virtual rig (:mod:`sim.rig`: servo-bus and controller emulators on
+pseudo-terminals, driven through the real dynamixel-sdk and pyserial, a rendering camera, a simulated
+clock). This module is the *configuration boundary*: it is the only place in ``gonio`` that imports
+``sim``, lazily and only for ``--sim``/resuming a simulated session; everything below it (runner,
+drivers, pipeline) gets device paths, a camera and a clock and cannot tell simulation from hardware.
+
+The manifest records everything needed to rebuild the session (plan, rig, material, simulator
+configuration and seed, or the hardware ports), so ``gonio resume DIR`` restarts the same simulated
+rig and measures only the remaining poses.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+DEFAULT_PLAN = "in_plane"
+#: The default plan's parameters (degrees): a quick in-plane sweep.
+DEFAULT_PLAN_PARAMS = {"theta_i_step": 30.0, "theta_o_step": 30.0, "theta_max": 60.0}
+DEFAULT_SIM_RESOLUTION = "320x240"
+
+
+def _plan_params():
+    from gonio.plan.generators import GENERATORS
+
+    params = {}
+    for gen in GENERATORS.values():
+        for name, spec in gen.params.items():
+            params.setdefault(name, spec)
+    return params
+
+
+def register(sub) -> None:
+    p = sub.add_parser("measure", help="run a measurement session (--sim: on the simulated rig)",
+                       description="Measure a BRDF: move through a plan, capture, store every pose. "
+                                   "With --sim the whole rig is simulated (emulators on pseudo-terminals, "
+                                   "rendering camera, simulated clock).")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--sim", action="store_true", help="use the simulated rig")
+    where.add_argument("--rig", metavar="RIG.toml", help="rig geometry of the hardware (default rig with --sim)")
+    p.add_argument("--servo-port", help="servo bus serial port (hardware)")
+    p.add_argument("--controller-port", help="rig controller serial port (hardware)")
+    p.add_argument("--camera", help="camera index or path for OpenCV (hardware)")
+    p.add_argument("--calibration", metavar="CAMERA.toml",
+                   help="camera intrinsics and noise (hardware): width, height, focal_px, [dist], [noise]")
+    p.add_argument("--material", metavar="FILE.toml", help="material of the simulated sample (model + [params]); "
+                   "on hardware only its label is recorded")
+    p.add_argument("--plan", default=DEFAULT_PLAN, help=f"plan generator (default {DEFAULT_PLAN}); its parameters "
+                   "as options below, angles in degrees")
+    p.add_argument("--order", default="optimized", choices=("optimized", "raster"), help="pose order")
+    for name, spec in _plan_params().items():
+        unit = " (deg)" if spec.kind == "angle" else ""
+        p.add_argument("--" + name.replace("_", "-"), dest=f"plan_{name}", type=float, default=None,
+                       metavar="V", help=f"plan parameter: {spec.doc}{unit}")
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulation and of the plan ordering")
+    p.add_argument("--sim-resolution", default=DEFAULT_SIM_RESOLUTION, metavar="WxH",
+                   help=f"simulated camera resolution (default {DEFAULT_SIM_RESOLUTION})")
+    p.add_argument("--out", metavar="DIR", help="new session directory (default ./gonio-session-YYYYmmdd-HHMMSS)")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.set_defaults(func=run_measure)
+
+    r = sub.add_parser("resume", help="resume an interrupted session",
+                       description="Measure the remaining poses of a session directory (simulated sessions "
+                                   "restart the simulated rig with the same configuration and seed).")
+    r.add_argument("dir", metavar="DIR", help="session directory")
+    r.add_argument("--servo-port", help="override the recorded servo port (hardware)")
+    r.add_argument("--controller-port", help="override the recorded controller port (hardware)")
+    r.add_argument("--camera", help="override the recorded camera (hardware)")
+    r.add_argument("--quiet", action="store_true", help="no progress line")
+    r.set_defaults(func=run_resume)
+
+
+# -- building blocks ---------------------------------------------------------------------------
+def _resolution(text: str) -> tuple[int, int]:
+    from gonio.errors import ConfigError
+
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise ConfigError.field("--sim-resolution", "resolution", text, "expected WIDTHxHEIGHT, e.g. 320x240") from None
+    if not (64 <= w <= 4096 and 48 <= h <= 4096):
+        raise ConfigError.field("--sim-resolution", "resolution", text, "width in [64, 4096], height in [48, 4096]")
+    return w, h
+
+
+def _material(path: str | None):
+    from gonio.session.material import load_material
+
+    if path is None:
+        from importlib import resources
+
+        res = resources.files("sim") / "materials" / "default.toml"
+        with resources.as_file(res) as p:
+            return load_material(p)
+    return load_material(path)
+
+
+def _make_plan(args, rig):
+    from gonio.errors import ConfigError
+    from gonio.plan.generators import GENERATORS, make_plan
+
+    gen = GENERATORS.get(args.plan)
+    if gen is None:
+        raise ConfigError.field("--plan", "plan", args.plan, f"unknown plan; known: {', '.join(GENERATORS)}")
+    given = {k[5:]: v for k, v in vars(args).items() if k.startswith("plan_") and v is not None}
+    for k in given:
+        if k not in gen.params:
+            raise ConfigError.field(f"--{k.replace('_', '-')}", "plan parameter", given[k],
+                                    f"not a parameter of plan {args.plan!r} (it takes "
+                                    f"{', '.join('--' + n.replace('_', '-') for n in gen.params)})")
+    if args.plan == DEFAULT_PLAN and not given:
+        given = dict(DEFAULT_PLAN_PARAMS)
+    params = {k: (math.radians(v) if gen.params[k].kind == "angle" else v) for k, v in given.items()}
+    return make_plan(args.plan, rig=rig, order=args.order, seed=args.seed, time_budget=0.3,
+                     source="--plan", **params)
+
+
+def _calibration_from_toml(path: str):
+    """Camera intrinsics + noise for hardware sessions: ``width``, ``height``, ``focal_px`` (or ``K``),
+    optional ``dist`` and ``[noise]`` (dn_per_electron, read_noise_e, full_well_e)."""
+    from pathlib import Path
+
+    from gonio.errors import ConfigError
+    from gonio.pipeline.target import CameraCalibration, NoiseModel
+
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+        import tomli as tomllib
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError.field(None, "--calibration", path, f"cannot read: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    for key in ("width", "height"):
+        if key not in data:
+            raise ConfigError.field(path, key, None, "missing")
+    noise = NoiseModel(**data.get("noise", {}))
+    kw = {"noise": noise, **({"dist": data["dist"]} if "dist" in data else {})}
+    if "K" in data:
+        return CameraCalibration(K=data["K"], width=int(data["width"]), height=int(data["height"]), **kw)
+    if "focal_px" not in data:
+        raise ConfigError.field(path, "focal_px", None, "missing (or give K)")
+    return CameraCalibration.pinhole(int(data["width"]), int(data["height"]), float(data["focal_px"]), **kw)
+
+
+def _calibration_dict(calib) -> dict:
+    return {"width": calib.width, "height": calib.height, "K": calib.K.tolist(), "dist": calib.dist.tolist(),
+            "noise": dict(calib.noise.__dict__)}
+
+
+def _default_out() -> str:
+    return time.strftime("gonio-session-%Y%m%d-%H%M%S")
+
+
+def _check_out(out: str) -> None:
+    """Refuse, before anything starts, a directory holding a session or one that cannot be created."""
+    import os
+    from pathlib import Path
+
+    from gonio.errors import ConfigError
+    from gonio.session.store import MANIFEST, SAMPLES
+
+    d = Path(out)
+    if d.exists() and not d.is_dir():
+        raise ConfigError.field("--out", "session directory", out, "exists and is not a directory")
+    if any((d / n).exists() for n in (MANIFEST, SAMPLES)):
+        raise ConfigError.field("--out", "session directory", out,
+                                f"holds another session; choose a new directory or `gonio resume {out}`")
+    parent = d if d.exists() else next((p for p in d.absolute().parents if p.exists()), Path("/"))
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ConfigError.field("--out", "session directory", out, f"not writable ({parent} is read-only to you)")
+
+
+# -- running -------------------------------------------------------------------------------------
+def _run_session(store, plan, devices, calibration, layout, *, before_pose, quiet: bool, resume_cmd: str) -> int:
+    from gonio.session.runner import SessionRunner, format_lab_time
+
+    runner = SessionRunner(plan, store, devices, calibration, layout, before_pose=before_pose,
+                           resume_command=resume_cmd, stream=None if quiet else sys.stderr)
+    result = runner.run()
+    total = store.sample_count
+    print(f"{result.measured} poses, {result.samples} samples measured in this run "
+          f"({len(store.done_poses())}/{len(plan)} poses, {total} samples in {store.directory})")
+    print(f"lab time {format_lab_time(result.lab_time)} ({'simulated' if devices.clock.simulated else 'real'}), "
+          f"wall time {result.wall_time:.1f} s")
+    if result.skipped:
+        print(f"{len(result.skipped)} poses skipped: " + "; ".join(f"pose {k}: {r}" for k, r in result.skipped[:3]))
+    if result.ok:
+        return 0
+    if result.status == "interrupted":
+        return 130
+    print(f"gonio: session ended: {result.status}", file=sys.stderr)
+    return result.error.exit_code if result.error is not None else 3
+
+
+def _sim_session(store, plan, manifest, quiet: bool) -> int:
+    from gonio.session.material import material_from_dict
+    from gonio.session.runner import open_devices
+    from sim.rig import SimRig, SimRigConfig  # the configuration boundary: only here does gonio import sim
+
+    material = material_from_dict({k: v for k, v in manifest["material"].items() if k in ("model", "params", "label")},
+                                  source="manifest material")
+    config = SimRigConfig.from_dict(manifest["sim"])
+    with SimRig(manifest["rig"]["name"], material.brdf(), config=config) as sim:
+        devices = None
+        try:
+            devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+            return _run_session(store, plan, devices, sim.calibration, sim.layout, before_pose=sim.begin_pose,
+                                quiet=quiet, resume_cmd=f"gonio resume {store.directory}")
+        except BaseException as exc:
+            if devices is None:  # could not even open the devices: record why, keep the session resumable
+                store.finish(f"error: {exc}" if str(exc) else "interrupted")
+            raise
+        finally:
+            if devices is not None:
+                devices.close()
+
+
+def _hw_session(store, plan, manifest, rig, calibration, quiet: bool) -> int:
+    from gonio.pipeline.target import TargetLayout
+    from gonio.rig.camera import OpenCVCamera
+    from gonio.rig.clock import RealClock
+    from gonio.session.runner import open_devices
+
+    hw = manifest["hardware"]
+    clock = RealClock()
+    devices = camera = None
+    try:
+        camera = OpenCVCamera(hw["camera"], clock)
+        devices = open_devices(rig, hw["servo_port"], hw["controller_port"], camera, clock)
+        return _run_session(store, plan, devices, calibration, TargetLayout(), before_pose=None, quiet=quiet,
+                            resume_cmd=f"gonio resume {store.directory}")
+    except BaseException as exc:
+        if devices is None:
+            store.finish(f"error: {exc}")
+            if camera is not None:
+                camera.close()
+        raise
+    finally:
+        if devices is not None:
+            devices.close()
+
+
+def run_measure(args) -> int:
+    from gonio.errors import ConfigError
+    from gonio.rig.kinematics import load_rig
+    from gonio.session.store import SessionStore
+
+    out = args.out or _default_out()
+    if args.sim:
+        rig_src = "default"
+    else:
+        missing = [o for o, v in (("--rig", args.rig), ("--servo-port", args.servo_port),
+                                  ("--controller-port", args.controller_port), ("--camera", args.camera),
+                                  ("--calibration", args.calibration)) if not v]
+        if missing:
+            raise ConfigError.field(None, missing[0], None,
+                                    "required on hardware (or use --sim for the simulated rig)")
+        rig_src = args.rig
+    rig = load_rig(rig_src)
+    material = _material(args.material) if (args.sim or args.material) else None
+    plan = _make_plan(args, rig)
+    _check_out(out)
+    manifest = {
+        "mode": "sim" if args.sim else "hardware",
+        "command": ["gonio", *sys.argv[1:]] if sys.argv and sys.argv[0].endswith(("gonio", "main.py")) else None,
+        "seed": args.seed,
+        "plan": plan,
+        "rig": {"name": rig.name, "source": rig_src if args.sim else str(args.rig)},
+        "material": material.to_dict() if material is not None else {"label": ""},
+    }
+    if args.sim:
+        from sim.rig import SimRigConfig  # configuration boundary (see the module docstring)
+
+        w, h = _resolution(args.sim_resolution)
+        config = SimRigConfig(seed=args.seed, width=w, height=h, focal_px=380.0 * w / 320.0)
+        manifest["sim"] = config.to_dict()
+        store = SessionStore.create(out, manifest)
+        _say_plan(plan, store, args.quiet)
+        return _sim_session(store, plan, store.manifest, args.quiet)
+    calibration = _calibration_from_toml(args.calibration)
+    manifest["hardware"] = {"servo_port": args.servo_port, "controller_port": args.controller_port,
+                            "camera": args.camera}
+    manifest["calibration"] = _calibration_dict(calibration)
+    store = SessionStore.create(out, manifest)
+    _say_plan(plan, store, args.quiet)
+    return _hw_session(store, plan, store.manifest, rig, calibration, args.quiet)
+
+
+def _say_plan(plan, store, quiet: bool) -> None:
+    if quiet:
+        return
+    from gonio.plan import estimate_plan
+    from gonio.session.runner import format_lab_time
+
+    est = estimate_plan(plan, store.manifest["rig"]["name"] if store.manifest["mode"] == "sim" else None)
+    dropped = f", {plan.n_dropped} dropped as unreachable" if plan.n_dropped else ""
+    eta = f", estimated lab time {format_lab_time(est.optimized)} (lower bound {format_lab_time(est.lower_bound)})"
+    print(f"session {store.directory}: plan {plan.generator}, {len(plan)} poses{dropped}{eta}", file=sys.stderr)
+
+
+def run_resume(args) -> int:
+    from pathlib import Path
+
+    from gonio.errors import ConfigError, DataError
+    from gonio.plan.plan import Plan
+    from gonio.rig.kinematics import load_rig
+    from gonio.session.store import MANIFEST, SessionStore
+
+    d = Path(args.dir)
+    if not (d / MANIFEST).is_file():
+        raise ConfigError.field(None, "session directory", args.dir, "is not a gonio session (no manifest.json)")
+    store = SessionStore.open(d)
+    manifest = store.manifest
+    try:
+        plan = Plan.from_dict(manifest.get("plan"), source=str(d / MANIFEST))
+        remaining = store.remaining(plan)
+        if len(remaining) == 0:
+            store.finish("completed")
+            print(f"{d}: all {len(plan)} poses are measured; nothing to resume")
+            return 0
+        if not args.quiet:
+            print(f"resuming {d}: {len(remaining)} of {len(plan)} poses remaining", file=sys.stderr)
+        mode = manifest.get("mode")
+        if mode == "sim":
+            return _sim_session(store, plan, manifest, args.quiet)
+        if mode != "hardware":
+            raise DataError(f"{d / MANIFEST}: mode = {mode!r}: expected 'sim' or 'hardware'")
+        hw = dict(manifest["hardware"])
+        for key in ("servo_port", "controller_port", "camera"):
+            if getattr(args, key):
+                hw[key] = getattr(args, key)
+        manifest["hardware"] = hw
+        rig = load_rig(manifest["rig"]["source"])
+        from gonio.pipeline.target import CameraCalibration, NoiseModel
+
+        c = manifest["calibration"]
+        calib = CameraCalibration(K=c["K"], width=c["width"], height=c["height"], dist=c["dist"],
+                                  noise=NoiseModel(**c["noise"]))
+        return _hw_session(store, plan, manifest, rig, calib, args.quiet)
+    except BaseException:
+        store.close()
+        raise

@@ -1,0 +1,276 @@
+"""The whole simulated rig: servo bus and rig controller on pseudo-terminals, a rendering camera, one clock.
+
+:class:`SimRig` wires the emulators other modules provide, without changing them:
+
+* one :class:`sim.clock.SimClock` shared by the host code and every emulator;
+* :class:`sim.servo_bus.ServoBus` (one servo per joint of the rig TOML, IDs and models from it) on a
+  pty — the host drives it through the real ``dynamixel-sdk`` (:attr:`SimRig.servo_port`);
+* :class:`sim.controller.ControllerEmulator` on another pty — the host drives it through pyserial and
+  ``firmware_protocol`` (:attr:`SimRig.controller_port`);
+* a :class:`sim.camera.SimCamera` whose scene follows the emulators' *actual* state at capture time:
+  the camera pose and the light position come from the forward kinematics of the servos' load-side
+  positions (:attr:`sim.servo_bus.SimServo.joint_ticks`, i.e. after backlash, not what the encoders
+  report), and the light's output is the controller emulator's (warm-up drift, watchdog trips, resets:
+  the photodiode sees the same output). :class:`RigCamera` does that per frame and implements
+  :class:`gonio.rig.interfaces.Camera`.
+
+Configuration boundary: ``gonio`` never imports ``sim``; only ``gonio/cli/measure.py`` imports this
+module, lazily, for ``--sim``. The host code learns it is simulated only through the device paths and
+the :class:`SimClock` it is given.
+
+Camera noise is reproducible per pose: :meth:`SimRig.begin_pose` reseeds the camera's generator from
+``(seed, pose index)``, so a pose measured in a resumed session gives the same frames (up to the
+servo position noise and the exposure choice) as in an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from gonio.brdf import make
+from gonio.brdf.base import BRDF
+from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
+from gonio.rig.control_table import load_control_table
+from gonio.rig.interfaces import Frame
+from gonio.rig.kinematics import Rig, load_rig
+from sim.camera import SensorModel, SimCamera, SimScene
+from sim.clock import SimClock
+from sim.controller import ControllerEmulator
+from sim.faults import LinkFaults
+from sim.servo_bus import HW_OVERLOAD, ServoBus
+
+__all__ = ["SimRig", "SimRigConfig", "RigCamera", "RecordingServoBus", "DEFAULT_MATERIAL", "PARK_DEG"]
+
+#: Material of the sample when none is given (a plastic-like GGX microfacet).
+DEFAULT_MATERIAL = {"model": "microfacet",
+                    "params": {"kd": [0.3, 0.12, 0.06], "ks": 0.8, "alpha": 0.25, "f0": 0.04, "distribution": "ggx"}}
+#: Joint angles (degrees) the simulated rig is powered on at: arms apart, out of any collision zone.
+PARK_DEG = {"light_az": 0.0, "light_el": 30.0, "camera_az": 0.0, "camera_el": -20.0}
+
+
+@dataclass(frozen=True)
+class SimRigConfig:
+    """Everything that defines a simulated rig (JSON-able: the session manifest stores it so that
+    ``gonio resume`` rebuilds the same rig).
+
+    Camera: ``width`` × ``height`` pixels, focal length ``focal_px``. Servos: position noise and
+    backlash in ticks. Light: warm-up depth and time constant (s), photodiode noise.
+    """
+
+    seed: int = 0
+    width: int = 320
+    height: int = 240
+    focal_px: float = 380.0
+    bit_depth: int = 12
+    light_intensity: float = 1.0
+    servo_noise_ticks: float = 0.3
+    backlash_ticks: float = 1.0
+    warmup_depth: float = 0.05
+    warmup_tau: float = 120.0
+    pd_noise: float = 0.002
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+    @classmethod
+    def from_dict(cls, d) -> "SimRigConfig":
+        known = set(cls.__dataclass_fields__)
+        return cls(**{k: v for k, v in dict(d).items() if k in known})
+
+
+class RecordingServoBus(ServoBus):
+    """:class:`ServoBus` that records every Goal Position the host writes (for the safety tests).
+
+    :attr:`goal_log` holds one entry per instruction packet that wrote a goal: a dict servo ID → goal
+    in ticks (horn side, homing offset removed) of *every* servo, the ones not written keeping their
+    last goal (or the power-on position). A synchronized move is one packet, so one entry is one
+    commanded pose.
+    """
+
+    def __init__(self, servos, clock=None, **kw):
+        super().__init__(servos, clock, **kw)
+        self.goal_log: list[dict[int, float]] = []
+        self._goals = {i: s.horn for i, s in self.servos.items()}
+        self._written = False
+        for s in self.servos.values():
+            s.write = self._recorder(s, s.write)
+
+    def _recorder(self, servo, write):
+        field = servo.table["goal_position"]
+
+        def recorded(address: int, data: bytes) -> int:
+            if address <= field.address and field.address + field.size <= address + len(data):
+                off = field.address - address
+                raw = field.from_unsigned(int.from_bytes(data[off:off + field.size], "little"))
+                self._goals[servo.dxl_id] = float(raw - servo.peek("homing_offset"))
+                self._written = True
+            return write(address, data)
+
+        return recorded
+
+    def on_bytes(self, data: bytes) -> None:
+        with self._lock:
+            self._written = False
+            super().on_bytes(data)
+            if self._written:
+                self.goal_log.append(dict(self._goals))
+
+
+class RigCamera:
+    """The rig's camera as the host sees it (:class:`gonio.rig.interfaces.Camera`).
+
+    Before each frame it places the :class:`SimCamera` and the light where the servo emulator's
+    load-side joint positions put them (forward kinematics of the actual state, so backlash and
+    position noise show up as on a rig), then captures; the light output is read from the controller
+    emulator by the SimCamera itself (``light_output``).
+    """
+
+    def __init__(self, simrig: "SimRig"):
+        self._rig = simrig
+
+    def capture(self, exposure: float, gain: float = 1.0, *, timeout: float = 10.0) -> Frame:
+        r = self._rig
+        joints = r.actual_joints()
+        position, R = r.rig.camera_pose(joints)
+        r.sim_camera.set_pose(CameraPose(R, -R @ position))
+        r.sim_camera.set_light(r.rig.light_position(joints))
+        return r.sim_camera.capture(exposure, gain, timeout=timeout)
+
+    def close(self) -> None:
+        self._rig.sim_camera.close()
+
+
+class SimRig:
+    """A complete simulated gonioreflectometer; see the module docstring.
+
+    Parameters
+    ----------
+    rig : Rig, path or shipped rig name (default ``"default"``)
+    material : BRDF or ``{"model": ..., "params": {...}}`` (default :data:`DEFAULT_MATERIAL`)
+    config : SimRigConfig
+    layout : TargetLayout (board, sample and white patches)
+    servo_faults, controller_faults : LinkFaults on the two links (none by default)
+
+    Attributes
+    ----------
+    clock : SimClock shared by everything
+    servo_bus, controller : the emulators (fault-injection handles: ``servo_bus.faults``,
+        :meth:`trip`, :meth:`power_cycle_servos`, ``controller.faults``, :meth:`reset_controller`,
+        ``controller.set_estop``)
+    camera : :class:`RigCamera` to give the host; ``sim_camera`` is the renderer behind it
+    calibration, layout, sensor : what the host's pipeline should be configured with
+    """
+
+    def __init__(self, rig: Rig | str | None = None, material: BRDF | dict | None = None, *,
+                 config: SimRigConfig | None = None, layout: TargetLayout | None = None,
+                 servo_faults: LinkFaults | None = None, controller_faults: LinkFaults | None = None):
+        self.config = cfg = config or SimRigConfig()
+        self.rig = rig if isinstance(rig, Rig) else load_rig(rig)
+        if material is None or isinstance(material, dict):
+            m = material or DEFAULT_MATERIAL
+            material = make(m["model"], source="sim material", **m.get("params", {}))
+        self.material = material
+        self.clock = SimClock()
+        self._tables = {j.name: load_control_table(j.model) for j in self.rig.joints}
+        park = {j.servo_id: self._ticks(j, math.radians(PARK_DEG[j.name])) for j in self.rig.joints}
+        self.servo_bus = RecordingServoBus({j.servo_id: j.model for j in self.rig.joints}, self.clock, seed=cfg.seed,
+                                           noise_ticks=cfg.servo_noise_ticks, backlash_ticks=cfg.backlash_ticks,
+                                           faults=servo_faults, positions=park)
+        self.controller = ControllerEmulator(self.clock, faults=controller_faults, seed=cfg.seed + 1,
+                                             warmup_depth=cfg.warmup_depth, warmup_tau=cfg.warmup_tau,
+                                             pd_noise=cfg.pd_noise)
+        self.sensor = SensorModel(bit_depth=cfg.bit_depth)
+        self.layout = layout or TargetLayout()
+        self.calibration = CameraCalibration.pinhole(cfg.width, cfg.height, cfg.focal_px,
+                                                     noise=self.sensor.noise_model())
+        scene = SimScene(self.layout, self.material, light_intensity=cfg.light_intensity)
+        self.sim_camera = SimCamera(self.calibration, self.sensor, scene, seed=cfg.seed, clock=self.clock,
+                                    light_output=self.controller.light_output)
+        self.camera = RigCamera(self)
+        self._started = False
+        self._lock = threading.Lock()
+
+    # -- device paths ---------------------------------------------------------------------------
+    @property
+    def servo_port(self) -> str:
+        """The servo bus's pty (open it with the real dynamixel-sdk)."""
+        return self.servo_bus.path
+
+    @property
+    def controller_port(self) -> str:
+        """The rig controller's pty (open it with pyserial)."""
+        return self.controller.path
+
+    # -- lifecycle ------------------------------------------------------------------------------
+    def start(self) -> "SimRig":
+        if not self._started:
+            self.servo_bus.start()
+            self.controller.start()
+            self._started = True
+        return self
+
+    def stop(self) -> None:
+        """Stop both emulators and close their ptys (idempotent)."""
+        if self._started:
+            self._started = False
+            self.servo_bus.stop()
+            self.controller.stop()
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()
+
+    # -- state ----------------------------------------------------------------------------------
+    def _ticks(self, joint, angle: float) -> float:
+        """Joint angle (rad) → servo ticks, the rig TOML's formula
+        ``ticks = zero_offset/360·N + direction · gear_ratio · θ · N/2π`` (N ticks per revolution)."""
+        n = self._tables[joint.name].ticks_per_rev
+        return joint.zero_offset_deg / 360.0 * n + joint.direction * joint.gear_ratio * angle * n / (2.0 * math.pi)
+
+    def _angle(self, joint, ticks: float) -> float:
+        """Inverse of :meth:`_ticks`."""
+        n = self._tables[joint.name].ticks_per_rev
+        return (ticks - joint.zero_offset_deg / 360.0 * n) * 2.0 * math.pi / n / (joint.direction * joint.gear_ratio)
+
+    def actual_joints(self) -> np.ndarray:
+        """Joint angles (rad, :data:`gonio.rig.kinematics.JOINT_NAMES` order) of the arms *now*: the
+        load side of each servo after backlash, advanced to the current simulated time."""
+        out = []
+        with self.servo_bus._lock:  # the bus thread updates the servos under this lock
+            for j in self.rig.joints:
+                s = self.servo_bus.servo(j.servo_id)
+                s.read(0, 0)  # brings the motion up to clock.now() (same as a host read would)
+                out.append(self._angle(j, s.joint_ticks))
+        return np.array(out)
+
+    def commanded_joints(self) -> np.ndarray:
+        """Every pose the host commanded, as joint angles (rad), shape (M, 4), one row per goal packet."""
+        rows = [[self._angle(j, g[j.servo_id]) for j in self.rig.joints] for g in self.servo_bus.goal_log]
+        return np.array(rows, dtype=np.float64).reshape(-1, len(self.rig.joints))
+
+    # -- per-pose hook and faults ---------------------------------------------------------------
+    def begin_pose(self, index: int) -> None:
+        """Reseed the camera noise from ``(seed, index)`` so a pose's frames do not depend on what was
+        captured before it (reproducible across interrupted and resumed sessions)."""
+        # SimCamera has no public reseed; its generator is the one attribute its noise comes from.
+        self.sim_camera._rng = np.random.default_rng([int(self.config.seed), int(index)])
+
+    def trip(self, joint: str, bits: int = HW_OVERLOAD) -> None:
+        """Raise a hardware error (default overload) on the servo of ``joint``."""
+        sid = {j.name: j.servo_id for j in self.rig.joints}[joint]
+        with self.servo_bus._lock:
+            self.servo_bus.servo(sid).trip(bits)
+
+    def power_cycle_servos(self) -> None:
+        """Switch the servo bus's power off and on (RAM settings lost, torque off)."""
+        self.servo_bus.power_cycle()
+
+    def reset_controller(self) -> None:
+        """Brown-out of the rig controller at its next request (light off, handshake forgotten)."""
+        self.controller.inject_reset()
