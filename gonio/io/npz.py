@@ -61,7 +61,8 @@ def build_metadata(manifest: Mapping[str, Any] | None, **extra: Any) -> dict[str
         "format": "gonio-npz/1",
         "quantity": "BRDF",
         "cosine_convention": COSINE_CONVENTION,
-        "session_cosine_convention": _find(manifest, "cosine_convention"),
+        "session_cosine_convention": _find(manifest, "cosine_convention") or (
+            manifest["values"] if isinstance(manifest.get("values"), str) else None),
         "units": UNITS,
         "frame": "z = surface normal, x = sample reference direction, y = z × x; wi toward the light, "
                  "wo toward the camera",

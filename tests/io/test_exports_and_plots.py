@@ -190,3 +190,29 @@ def test_plot_without_matplotlib_says_how_to_install(npz_session, tmp_path, monk
         from gonio import plots
 
         plots.figure()
+
+
+def test_cli_on_a_session_written_through_the_store(tmp_path, capsys):
+    from gonio.session.store import SessionStore
+
+    s = session_samples(seed=4)
+    d = tmp_path / "session"
+    store = SessionStore.create(d, {"material": {"label": "store plastic", "model": "microfacet"},
+                                    "rig": {"name": "sim"}})
+    for pose in range(0, len(s), 200):  # one record per block of samples
+        store.append(pose // 200, s.subset(slice(pose, pose + 200)))
+    store.finish("completed")
+    store.close()
+    assert main(["export", str(d), "--format", "npz", "-o", str(tmp_path / "s.npz"), "--fill-deg", "0"]) == 0
+    content = read_npz(tmp_path / "s.npz")
+    assert len(content.samples) == len(s) and content.table is not None
+    np.testing.assert_array_equal(content.samples.f, s.f)
+    assert content.metadata["material_label"] == "store plastic"
+    assert content.metadata["session_cosine_convention"] and content.metadata["software_version"]
+    assert main(["export", str(d), "--format", "csv", "-o", str(tmp_path / "s.csv")]) == 0
+    assert len(read_csv(tmp_path / "s.csv")) == len(s)
+    assert main(["tabulate", str(d), "--fill-deg", "0"]) == 0
+    assert f"{len(s.good())} tabulated" in capsys.readouterr().out
+    pytest.importorskip("matplotlib", reason="matplotlib is the optional 'plots' extra")
+    assert main(["plot", str(d), "--kind", "inplane", "--theta-i", "30", "-o", str(tmp_path / "i.png")]) == 0
+    assert png_pixels(tmp_path / "i.png").std() > 10
