@@ -1,0 +1,63 @@
+"""``gonio status DIR``: what a session directory holds and how far it got."""
+
+from __future__ import annotations
+
+
+def register(sub) -> None:
+    p = sub.add_parser("status", help="summarize a session directory",
+                       description="Print a session's plan size, samples done, poses remaining, lab time so far, "
+                                   "exit status, and whether a torn last record will be dropped on resume.")
+    p.add_argument("dir", metavar="DIR", help="session directory")
+    p.set_defaults(func=run)
+
+
+def session_status(directory) -> dict:
+    """The facts ``gonio status`` prints, as a dict (read-only; nothing in DIR changes)."""
+    from pathlib import Path
+
+    from gonio.session.store import SAMPLES, _read_manifest, scan_samples
+
+    d = Path(directory)
+    manifest = _read_manifest(d)
+    scan = scan_samples(d / manifest.get("samples_file", SAMPLES))
+    plan = manifest.get("plan") or {}
+    n_plan = plan.get("n_poses", len(plan.get("poses", ()))) if isinstance(plan, dict) else None
+    done = set(scan.records)
+    # per-record lab clock (the runner writes meta["lab_time_s"]); a finished run also leaves its total
+    lab = [m.get("lab_time_s", m.get("lab_time")) for _, m in scan.records.values()]
+    lab = [t for t in lab if isinstance(t, (int, float))]
+    last_run = manifest.get("last_run") if isinstance(manifest.get("last_run"), dict) else {}
+    return {
+        "material": manifest.get("material"),
+        "plan": plan.get("generator") if isinstance(plan, dict) else None,
+        "plan_poses": n_plan,
+        "poses_done": len(done),
+        "samples": sum(len(s) for s, _ in scan.records.values()),
+        "remaining": None if n_plan is None else sum(1 for i in range(n_plan) if i not in done),
+        "lab_time": last_run.get("lab_time_s", manifest.get("lab_time")) if manifest.get("exit_status")
+        else (max(lab) if lab else None),
+        "exit_status": manifest.get("exit_status"),
+        "started": manifest.get("started"),
+        "stopped": manifest.get("stopped"),
+        "resumes": len(manifest.get("resumes", [])),
+        "duplicates": scan.n_duplicates,
+        "torn": scan.torn,
+    }
+
+
+def run(args) -> int:
+    s = session_status(args.dir)
+    print(f"session {args.dir}: material {s['material']!r}, plan {s['plan']!r}")
+    print(f"plan poses:   {s['plan_poses'] if s['plan_poses'] is not None else 'unknown'}")
+    print(f"poses done:   {s['poses_done']} ({s['samples']} samples)")
+    print(f"remaining:    {s['remaining'] if s['remaining'] is not None else 'unknown'}")
+    lab = s["lab_time"]
+    print(f"lab time:     {'unknown' if lab is None else f'{lab:.1f} s'}")
+    status = s["exit_status"] or "none (still running, or killed: resume with `gonio resume DIR`)"
+    print(f"exit status:  {status}")
+    print(f"started:      {s['started']}; stopped: {s['stopped'] or '-'}; resumed {s['resumes']} time(s)")
+    if s["duplicates"]:
+        print(f"note: {s['duplicates']} pose(s) recorded more than once; the last record of each is used")
+    if s["torn"]:
+        print(f"note: torn last record ({s['torn']}); it will be dropped on resume and the pose re-measured")
+    return 0
