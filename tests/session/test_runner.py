@@ -1,0 +1,153 @@
+"""The session runner on the simulated rig (real dynamixel-sdk and pyserial on ptys, SimCamera, SimClock)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gonio.errors import ConfigError
+from gonio.session.material import load_material
+from gonio.session.store import load_session
+from sim.rig import SimRig, SimRigConfig
+from tests.session.conftest import POSES_DEG, assert_one_record_per_pose, joint_tolerance_rad
+
+
+# -- material files -------------------------------------------------------------------------------
+@pytest.mark.parametrize("text, names", [
+    ('model = "nope"', ["model", "nope"]),
+    ('model = "microfacet"\n[params]\nkd = [1, 2]', ["microfacet.kd", "[1, 2]"]),
+    ('model = "lambert"\n[params]\nalbedo = -1', ["lambert.albedo", "-1"]),
+    ('model = "lambert"\ncolour = 1', ["colour"]),
+    ('label = "x"', ["model", "missing"]),
+    ('model = "lambert"\nparams = 3', ["params", "3"]),
+    ("model = ", ["not valid TOML"]),
+])
+def test_bad_material_files_name_file_field_and_value(tmp_path, text, names):
+    p = tmp_path / "m.toml"
+    p.write_text(text)
+    with pytest.raises(ConfigError) as err:
+        load_material(p)
+    msg = str(err.value)
+    assert "\n" not in msg and str(p) in msg
+    for n in names:
+        assert n in msg
+
+
+def test_default_material_file_loads_and_builds():
+    from importlib import resources
+
+    with resources.as_file(resources.files("sim") / "materials" / "default.toml") as p:
+        m = load_material(p)
+    assert m.model == "microfacet" and m.label
+    f = m.brdf().eval([0, 0, 1], [0, 0, 1])
+    assert f.shape == (3,) and np.all(f > 0)
+
+
+# -- the simulated rig ----------------------------------------------------------------------------
+def test_simrig_camera_follows_the_servo_emulators_actual_state():
+    from gonio.rig.dynamixel import DynamixelAxes, DynamixelBus
+
+    with SimRig(config=SimRigConfig(width=160, height=120, focal_px=190.0, backlash_ticks=8.0)) as sim:
+        bus = DynamixelBus(sim.servo_port, latency_timer_ms=50).open()
+        axes = DynamixelAxes.from_rig(sim.rig, bus, sim.clock)
+        try:
+            target = sim.rig.solve(*np.radians([40, 0, 30, 180]))
+            measured = axes.move_to(target)
+            actual = sim.actual_joints()
+            # encoder reading vs load side differ by at most the play (backlash/2 ticks) + noise
+            tick = 2 * math.pi / 4096
+            for i, name in enumerate(sim.rig.names):
+                gear = sim.rig.joints[i].gear_ratio
+                assert abs(actual[i] - measured[name]) <= (4.0 + 2.0) * tick / gear
+            sim.camera.capture(0.001)
+            position, _ = sim.rig.camera_pose(actual)
+            assert np.allclose(sim.sim_camera._pose.centre, position, atol=1e-9)
+            # the goal packet was recorded as one commanded pose
+            assert np.allclose(sim.commanded_joints()[-1], sim.rig.as_array(target), atol=2 * tick)
+        finally:
+            axes.close()
+
+
+def test_begin_pose_makes_camera_noise_depend_only_on_seed_and_pose():
+    with SimRig(config=SimRigConfig(seed=5, width=96, height=72, focal_px=114.0)) as sim:
+        sim.controller  # light off: dark frames, noise only
+        sim.begin_pose(3)
+        a = sim.camera.capture(0.01).pixels
+        sim.camera.capture(0.01)
+        sim.begin_pose(3)
+        b = sim.camera.capture(0.01).pixels
+        sim.begin_pose(4)
+        c = sim.camera.capture(0.01).pixels
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+
+
+# -- the runner -----------------------------------------------------------------------------------
+def test_session_measures_every_pose_with_meta_and_accurate_values(tmp_path, session_factory):
+    s = session_factory(tmp_path / "s")
+    result = s.run()
+    assert result.status == "completed" and result.measured == len(POSES_DEG)
+    manifest, samples = load_session(tmp_path / "s")
+    assert manifest["exit_status"] == "completed" and manifest["pose_count"] == len(POSES_DEG)
+    scan = assert_one_record_per_pose(tmp_path / "s", len(POSES_DEG))
+    for k, (_, meta) in scan.records.items():
+        for name, angle in meta["joints_rad"].items():
+            assert abs(angle - meta["target_joints_rad"][name]) <= joint_tolerance_rad()
+        assert meta["exposures_s"] == [0.004, 0.016, 0.064]
+        assert 0.9 < meta["photodiode"]["mean"] < 1.05
+        assert meta["lab_time_s"] > 0
+    good = samples.good()
+    assert len(good) > 0.8 * len(samples)
+    truth = s.sim.material.eval(good.wi, good.wo)
+    z = np.abs(good.f - truth) / np.maximum(good.sigma, 1e-12)
+    assert np.median(np.abs(good.f / truth - 1)) < 0.01
+    assert np.median(z) < 3.0
+    # the light was warmed up before the first pose and dark frames measured
+    assert s.runner.pipeline.darks.captures > 0
+    assert result.lab_time > 120.0  # warm-up (τ = 120 s) took lab time, not wall time
+
+
+def test_interrupt_finishes_pose_in_flight_and_resume_adds_only_the_rest(tmp_path, session_factory, capsys):
+    from gonio.session.store import SessionStore
+
+    d = tmp_path / "s"
+    first = session_factory(d, hooks={3: lambda sess: sess.runner.request_stop()})
+    first.runner.stream = __import__("sys").stderr
+    r1 = first.run()
+    assert r1.status == "interrupted" and r1.measured == 4  # pose 3 was in flight: finished and stored
+    assert f"gonio resume {d}" in capsys.readouterr().err
+    assert load_session(d)[0]["exit_status"] == "interrupted"
+    second = session_factory(d, store=SessionStore.open(d))
+    r2 = second.run()
+    assert r2.status == "completed" and r2.measured == len(POSES_DEG) - 4
+    assert_one_record_per_pose(d, len(POSES_DEG))
+
+
+def test_estop_ends_the_session_cleanly_before_anything_moves(tmp_path, session_factory):
+    s = session_factory(tmp_path / "s")
+    s.sim.controller.set_estop(True)
+    result = s.run()
+    assert result.status.startswith("error:") and "E-stop" in result.status
+    manifest, samples = load_session(tmp_path / "s")
+    assert manifest["exit_status"] == result.status and len(samples) == 0
+    assert len(s.sim.servo_bus.goal_log) == 0
+
+
+def test_servo_that_cannot_reach_its_target_ends_the_session_with_the_joint_named(tmp_path, session_factory):
+    def block(sess):  # an overload that comes back after every reboot: retries are bounded
+        sess.sim.trip("camera_el")
+        orig = sess.devices.axes.recover
+
+        def recover_and_trip():
+            out = orig()
+            sess.sim.trip("camera_el")
+            return out
+        sess.devices.axes.recover = recover_and_trip
+
+    s = session_factory(tmp_path / "s", hooks={2: block})
+    result = s.run()
+    assert result.status.startswith("error:")
+    manifest, samples = load_session(tmp_path / "s")
+    assert manifest["exit_status"].startswith("error:")
+    assert sorted(set(samples.pose.tolist())) == [0, 1, 2]  # nothing measured was lost (pose 2 finished first)
