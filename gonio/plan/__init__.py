@@ -3,7 +3,8 @@
 A :class:`Plan` is data (DESIGN.md §6): ordered poses ``(θi, φi, θo, φo)`` in radians, capture settings,
 the generator and its parameters, and the poses dropped as unreachable with their reasons. Build one
 with :func:`make_plan` (generators in :data:`GENERATORS`), estimate its lab time with
-:func:`estimate_plan`, or grow one adaptively with :func:`gonio.plan.adaptive.adaptive_plan`.
+:func:`estimate_plan`, or grow one adaptively with :func:`gonio.plan.adaptive.adaptive_plan` (measure, fit, add poses
+where the model is uncertain or fits worst, stop at a target error or a lab-time budget).
 """
 
 from __future__ import annotations
