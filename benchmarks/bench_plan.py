@@ -115,5 +115,6 @@ def _adaptive_table(rig, model, quick: bool) -> Table:
     t.notes.append("each budget's uniform row is the baseline of the adaptive row below it (last column); "
                    "adaptive starts with a farthest-point round of a third of the budget, then adds 12 poses a "
                    "round by model disagreement + residual; with very small budgets the coarse round leaves "
-                   "little to adapt and uniform can win.")
+                   "little to adapt and uniform can win. One noise seed per row: fits of the two-lobe model "
+                   "have local minima, so single rows are noisy (compare the trend across budgets).")
     return t

@@ -254,3 +254,14 @@ def test_sigkill_keeps_exactly_the_completed_records(tmp_path, seed):
     want = SampleSet.concat([SampleSet(**{**samples_for(p, n_rows).to_dict(), "pose": np.full(n_rows, p)})
                              for p in sorted(done)])
     assert same(got, want)
+
+
+def test_pose_without_samples_still_counts_as_done(tmp_path):
+    store = SessionStore.create(tmp_path / "s", {})
+    store.append(3, SampleSet.empty(), {"photodiode": float("nan")})  # e.g. every pixel flagged out
+    store.close()
+    store = SessionStore.open(tmp_path / "s")
+    assert store.done_poses() == {3} and store.sample_count == 0 and store.remaining(5).tolist() == [0, 1, 2, 4]
+    store.close()
+    assert len(load_session(tmp_path / "s")[1]) == 0
+    assert scan_samples(tmp_path / "s" / SAMPLES).records[3][1] == {"photodiode": "nan"}  # standard JSON
