@@ -42,7 +42,7 @@ def run(quick: bool = False) -> list[Table]:
     params = {k: np.radians(v) for k, v in DEFAULT_PLAN_PARAMS.items()}
     if quick:
         params = {"theta_i_step": np.radians(30), "theta_o_step": np.radians(30), "theta_max": np.radians(60)}
-    plan = make_plan(DEFAULT_PLAN, seed=0, time_budget=0.3, **params)
+    plan = make_plan(DEFAULT_PLAN, seed=0, **params)
     res = tuple(int(x) for x in DEFAULT_SIM_RESOLUTION.split("x"))
     configs = [
         ("1 exposure × 1 frame (baseline)", replace(plan, capture=CaptureSettings(exposures=(0.004,), frames=1)), res),

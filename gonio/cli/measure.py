@@ -25,17 +25,9 @@ DEFAULT_PLAN_PARAMS = {"theta_i_step": 20.0, "theta_o_step": 10.0, "theta_max": 
 DEFAULT_SIM_RESOLUTION = "320x240"
 
 
-def _plan_params():
-    from gonio.plan.generators import GENERATORS
-
-    params = {}
-    for gen in GENERATORS.values():
-        for name, spec in gen.params.items():
-            params.setdefault(name, spec)
-    return params
-
-
 def register(sub) -> None:
+    from gonio.cli.plan import add_plan_options
+
     p = sub.add_parser("measure", help="run a measurement session (--sim: on the simulated rig)",
                        description="Measure a BRDF: move through a plan, capture, store every pose. "
                                    "With --sim the whole rig is simulated (emulators on pseudo-terminals, "
@@ -50,13 +42,7 @@ def register(sub) -> None:
                    help="camera intrinsics and noise (hardware): width, height, focal_px, [dist], [noise]")
     p.add_argument("--material", metavar="FILE.toml", help="material of the simulated sample (model + [params]); "
                    "on hardware only its label is recorded")
-    p.add_argument("--plan", default=DEFAULT_PLAN, help=f"plan generator (default {DEFAULT_PLAN}); its parameters "
-                   "as options below, angles in degrees")
-    p.add_argument("--order", default="optimized", choices=("optimized", "raster"), help="pose order")
-    for name, spec in _plan_params().items():
-        unit = " (deg)" if spec.kind == "angle" else ""
-        p.add_argument("--" + name.replace("_", "-"), dest=f"plan_{name}", type=float, default=None,
-                       metavar="V", help=f"plan parameter: {spec.doc}{unit}")
+    add_plan_options(p, default_plan=DEFAULT_PLAN)
     p.add_argument("--seed", type=int, default=0, help="seed of the simulation and of the plan ordering")
     p.add_argument("--sim-resolution", default=DEFAULT_SIM_RESOLUTION, metavar="WxH",
                    help=f"simulated camera resolution (default {DEFAULT_SIM_RESOLUTION})")
@@ -101,23 +87,10 @@ def _material(path: str | None):
 
 
 def _make_plan(args, rig):
-    from gonio.errors import ConfigError
-    from gonio.plan.generators import GENERATORS, make_plan
+    from gonio.cli.plan import plan_from_args
 
-    gen = GENERATORS.get(args.plan)
-    if gen is None:
-        raise ConfigError.field("--plan", "plan", args.plan, f"unknown plan; known: {', '.join(GENERATORS)}")
-    given = {k[5:]: v for k, v in vars(args).items() if k.startswith("plan_") and v is not None}
-    for k in given:
-        if k not in gen.params:
-            raise ConfigError.field(f"--{k.replace('_', '-')}", "plan parameter", given[k],
-                                    f"not a parameter of plan {args.plan!r} (it takes "
-                                    f"{', '.join('--' + n.replace('_', '-') for n in gen.params)})")
-    if args.plan == DEFAULT_PLAN and not given:
-        given = dict(DEFAULT_PLAN_PARAMS)
-    params = {k: (math.radians(v) if gen.params[k].kind == "angle" else v) for k, v in given.items()}
-    return make_plan(args.plan, rig=rig, order=args.order, seed=args.seed, time_budget=0.3,
-                     source="--plan", **params)
+    defaults = DEFAULT_PLAN_PARAMS if args.plan == DEFAULT_PLAN else None
+    return plan_from_args(args, args.plan, rig, where="--plan", source="--plan", defaults=defaults)
 
 
 def _calibration_from_toml(path: str):

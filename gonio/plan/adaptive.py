@@ -140,7 +140,7 @@ def adaptive_plan(candidates: Plan, measure: Callable[[np.ndarray], SampleSet], 
     stop = "rounds"
     for rnd in range(max_rounds):
         # lab-time account: order the batch from where the rig is; cut it to the budget
-        order = pick[optimize_order(joints[pick], motion, start=current, seed=seed, time_budget=0.5)]
+        order = pick[optimize_order(joints[pick], motion, start=current, seed=seed)]
         steps = motion.move_time(np.vstack([joints[order[:1]] if current is None else current[None], joints[order[:-1]]]),
                                  joints[order]) + pose_time
         fits = int(np.searchsorted(np.cumsum(steps), lab_budget - lab, side="right"))

@@ -180,7 +180,7 @@ def solve_plan_joints(rig, poses: np.ndarray, current=None) -> tuple[np.ndarray,
 
 
 def make_plan(name: str, *, rig=None, capture: CaptureSettings | None = None, order: str = "optimized",
-              seed: int = 0, time_budget: float | None = 2.0, source: str | None = None, **params: Any) -> Plan:
+              seed: int = 0, time_budget: float | None = None, source: str | None = None, **params: Any) -> Plan:
     """Generate, filter and order a plan.
 
     Parameters

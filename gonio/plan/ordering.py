@@ -374,16 +374,17 @@ def _local_search(cost: _Scalar, tour: np.ndarray, nbrs: list[list[int]], deadli
     tour[:] = t
 
 
-def optimize_order(joints, model: MotionModel, *, start=None, seed: int = 0, time_budget: float | None = 2.0,
+def optimize_order(joints, model: MotionModel, *, start=None, seed: int = 0, time_budget: float | None = None,
                    max_passes: int = 30, neighbours: int = 10,
                    initial: Sequence[int] | None = None) -> np.ndarray:
     """An order of the poses with small total move time.
 
     Builds the nearest-neighbour order, keeps it or ``initial`` (default: the raster order of the
     joint vectors) whichever moves less, then alternates 2-opt and Or-opt passes until no move
-    improves, ``max_passes`` is reached, or ``time_budget`` wall seconds have elapsed (``None``: no
-    limit). The result is therefore never slower than the raster order. Deterministic for a given
-    ``seed`` when the time budget is not hit.
+    improves, ``max_passes`` is reached, or ``time_budget`` wall seconds have elapsed (default ``None``:
+    no wall-clock limit, so the order depends only on the poses and ``seed`` — a plan is data and must be
+    reproducible on any machine; a 1640-pose grid converges in under a second). The result is never
+    slower than the raster order.
     """
     q = _check(joints, model)
     n = q.shape[0]
