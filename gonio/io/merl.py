@@ -245,9 +245,10 @@ def read_merl(path) -> MerlTable:
     try:
         size = path.stat().st_size
         with open(path, "rb") as fh:
-            header = np.frombuffer(fh.read(12), dtype="<i4")
-            if header.size < 3:
+            raw = fh.read(12)
+            if len(raw) < 12:
                 raise _read_error(path, f"truncated header ({size} bytes, expected {FILE_SIZE})")
+            header = np.frombuffer(raw, dtype="<i4")
             if tuple(header) != SHAPE:
                 raise _read_error(path, f"header dims {tuple(int(x) for x in header)}, expected {SHAPE}")
             if size != FILE_SIZE:

@@ -181,6 +181,8 @@ def _sparse(path, size, header=(90, 90, 180), patch=None):
     [
         (12 + 800, (90, 90, 180), None, "truncated: 812 bytes"),
         (8, (90, 90, 180), None, "truncated header"),
+        (10, (90, 90, 180), None, "truncated header"),  # not a multiple of the int32 size
+        (0, (90, 90, 180), None, "truncated header"),
         (FILE_SIZE + 8, (90, 90, 180), None, "trailing data"),
         (FILE_SIZE, (90, 90, 360), None, r"header dims \(90, 90, 360\)"),
         (FILE_SIZE, (90, 90, 180), (12 + 8 * (N + 5), struct.pack("<d", float("nan"))), "NaN or inf.*channel G"),
