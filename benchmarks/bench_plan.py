@@ -34,7 +34,7 @@ def run(quick: bool = False) -> list[Table]:
         nn = nearest_neighbour_order(q, model)
         t_nn = time.perf_counter() - t0
         t0 = time.perf_counter()
-        opt = optimize_order(q, model, time_budget=2.0, initial=raster)
+        opt = optimize_order(q, model, initial=raster)
         t_opt = time.perf_counter() - t0
         t0 = time.perf_counter()
         mst = mst_move_time(q, model)
@@ -43,7 +43,7 @@ def run(quick: bool = False) -> list[Table]:
             ("raster, one axis at a time", fixed + path_move_time(q, raster, model, sequential=True), 0.0),
             ("raster, joints together", fixed + path_move_time(q, raster, model), 0.0),
             ("nearest neighbour", fixed + path_move_time(q, nn, model), t_nn),
-            ("optimized (NN + 2-opt/Or-opt, 2 s budget)", fixed + path_move_time(q, opt, model), t_opt),
+            ("optimized (NN + 2-opt/Or-opt)", fixed + path_move_time(q, opt, model), t_opt),
             ("lower bound: N*pose time + MST", fixed + mst, t_mst),
         ]
         base = rows[0][1]
@@ -93,7 +93,7 @@ def _adaptive_table(rig, model, quick: bool) -> Table:
         n = max(1, int(budget / pose_time))
         while n > 1:
             sel = fps[:n]
-            o = optimize_order(cand.joints[sel], model, time_budget=0.5)
+            o = optimize_order(cand.joints[sel], model)
             lab = path_move_time(cand.joints[sel], o, model) + n * pose_time
             if lab <= budget:
                 break

@@ -12,8 +12,7 @@ own speed and acceleration limits, so a move lasts as long as its slowest joint:
 
 (Biagiotti & Melchiorri, *Trajectory Planning for Automatic Machines and Robots*, Springer 2008,
 §3.2.2, trapezoidal velocity profile with zero boundary velocities; the profile the Dynamixel servos
-run, :func:`gonio.rig.kinematics.trapezoid_time`; :class:`MotionModel` evaluates the same formula in
-fewer NumPy passes, and a test checks they agree.) For a continuous-rotation joint
+run, :func:`gonio.rig.kinematics.trapezoid_time`, which :class:`MotionModel` calls.) For a continuous-rotation joint
 (``wrap``) Δq is the shorter way round the circle.
 
 Ordering
@@ -39,6 +38,8 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+
+from gonio.rig.kinematics import trapezoid_time
 
 
 __all__ = [
@@ -87,7 +88,6 @@ class MotionModel:
         if wrap.shape != (j,):
             raise ValueError(f"MotionModel.wrap has {wrap.size} entries, expected {j}")
         object.__setattr__(self, "wrap", wrap)
-        object.__setattr__(self, "_knee", self.vmax * self.vmax / self.amax)
 
     @classmethod
     def from_rig(cls, rig) -> "MotionModel":
@@ -108,11 +108,7 @@ class MotionModel:
 
     def joint_times(self, a, b) -> np.ndarray:
         """Per-joint trapezoidal move times ``t_j(|Δq_j|)``, shape ``(..., J)``."""
-        # Same values as gonio.rig.kinematics.trapezoid_time for finite limits (tested), in fewer
-        # NumPy passes: this is the inner loop of nearest-neighbour, neighbour lists and Prim.
-        d = self.deltas(a, b)
-        tri = np.sqrt(d * (4.0 / self.amax))
-        return np.where(d >= self._knee, d / self.vmax + self.vmax / self.amax, tri)
+        return trapezoid_time(self.deltas(a, b), self.vmax, self.amax)
 
     def move_time(self, a, b) -> np.ndarray:
         """Concurrent move time ``max_j t_j(|Δq_j|)`` between ``a`` and ``b`` (shape ``(..., J)``)."""

@@ -63,6 +63,10 @@ def trapezoid_time(distance, v_max, a_max) -> np.ndarray:
     d = np.abs(np.asarray(distance, dtype=np.float64))
     v = np.asarray(v_max, dtype=np.float64)
     a = np.asarray(a_max, dtype=np.float64)
+    if v.size <= 64 and np.isfinite(v).all() and np.isfinite(a).all():
+        # Finite per-joint limits (every real rig): two NumPy passes. This is the inner loop of plan
+        # ordering (nearest neighbour, neighbour lists, Prim), so it is kept lean; d = 0 gives 0.
+        return np.where(d >= v * v / a, d / v + v / a, np.sqrt(d * (4.0 / a)))
     with np.errstate(divide="ignore", invalid="ignore"):
         v_a = np.where(np.isinf(a), 0.0, v / a)  # time to reach v
         trap = d / v + v_a
