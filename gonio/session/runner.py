@@ -391,6 +391,9 @@ class SessionRunner:
                 result.status, result.error = f"error: {exc}", exc
             except KeyboardInterrupt:
                 result.status = "interrupted"
+            except BaseException as exc:  # a bug or a store error: never record such a session as completed
+                result.status, result.error = f"error: {type(exc).__name__}: {exc}", exc
+                raise
         finally:
             progress.close()
             if old_handler is not None:

@@ -151,3 +151,15 @@ def test_servo_that_cannot_reach_its_target_ends_the_session_with_the_joint_name
     manifest, samples = load_session(tmp_path / "s")
     assert manifest["exit_status"].startswith("error:")
     assert sorted(set(samples.pose.tolist())) == [0, 1, 2]  # nothing measured was lost (pose 2 finished first)
+
+
+def test_an_unexpected_error_is_recorded_as_error_and_keeps_what_was_measured(tmp_path, session_factory):
+    def crash(sess):  # a bug (or a full disk) between poses: not a HardwareError
+        raise RuntimeError("simulated bug")
+
+    s = session_factory(tmp_path / "s", hooks={3: crash})
+    with pytest.raises(RuntimeError, match="simulated bug"):
+        s.run()
+    manifest, samples = load_session(tmp_path / "s")
+    assert manifest["exit_status"] == "error: RuntimeError: simulated bug"  # never "completed"
+    assert sorted(set(samples.pose.tolist())) == [0, 1, 2]  # nothing measured before the error is lost
