@@ -175,6 +175,11 @@ class SimCamera:
         self._texture = None
         self._closed = False
 
+    def reseed(self, seed) -> None:
+        """Restart the noise generator from ``seed`` (anything ``numpy.random.default_rng`` takes, e.g.
+        ``[session seed, pose index]``): the frames that follow depend only on the seed and the calls."""
+        self._rng = np.random.default_rng(seed)
+
     # -- what the rig wiring sets per pose ------------------------------------------------------
     def set_pose(self, pose: CameraPose) -> None:
         """Place the camera (world = sample frame)."""

@@ -26,7 +26,6 @@ servo position noise and the exposure choice) as in an uninterrupted one.
 from __future__ import annotations
 
 import math
-import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -113,7 +112,7 @@ class RecordingServoBus(ServoBus):
         return recorded
 
     def on_bytes(self, data: bytes) -> None:
-        with self._lock:
+        with self.atomic():
             self._written = False
             super().on_bytes(data)
             if self._written:
@@ -192,7 +191,6 @@ class SimRig:
                                     light_output=self.controller.light_output)
         self.camera = RigCamera(self)
         self._started = False
-        self._lock = threading.Lock()
 
     # -- device paths ---------------------------------------------------------------------------
     @property
@@ -242,7 +240,7 @@ class SimRig:
         """Joint angles (rad, :data:`gonio.rig.kinematics.JOINT_NAMES` order) of the arms *now*: the
         load side of each servo after backlash, advanced to the current simulated time."""
         out = []
-        with self.servo_bus._lock:  # the bus thread updates the servos under this lock
+        with self.servo_bus.atomic():  # the bus thread updates the servos under this lock
             for j in self.rig.joints:
                 s = self.servo_bus.servo(j.servo_id)
                 s.read(0, 0)  # brings the motion up to clock.now() (same as a host read would)
@@ -258,13 +256,12 @@ class SimRig:
     def begin_pose(self, index: int) -> None:
         """Reseed the camera noise from ``(seed, index)`` so a pose's frames do not depend on what was
         captured before it (reproducible across interrupted and resumed sessions)."""
-        # SimCamera has no public reseed; its generator is the one attribute its noise comes from.
-        self.sim_camera._rng = np.random.default_rng([int(self.config.seed), int(index)])
+        self.sim_camera.reseed([int(self.config.seed), int(index)])
 
     def trip(self, joint: str, bits: int = HW_OVERLOAD) -> None:
         """Raise a hardware error (default overload) on the servo of ``joint``."""
         sid = {j.name: j.servo_id for j in self.rig.joints}[joint]
-        with self.servo_bus._lock:
+        with self.servo_bus.atomic():
             self.servo_bus.servo(sid).trip(bits)
 
     def power_cycle_servos(self) -> None:

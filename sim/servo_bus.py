@@ -29,6 +29,7 @@ Run ``python -m sim.servo_bus --ids 1,2,3,4`` to serve a bus on real time for th
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 from typing import Iterable
@@ -229,6 +230,13 @@ class ServoBus(PtyServer):
 
     def servo(self, dxl_id: int) -> SimServo:
         return self.servos[dxl_id]
+
+    @contextlib.contextmanager
+    def atomic(self):
+        """Hold the bus lock: no packet is handled while the block runs (read or change several servos
+        consistently from another thread, e.g. the rig wiring reading every joint at one instant)."""
+        with self._lock:
+            yield self
 
     def power_cycle(self) -> None:
         """Switch the bus power off and on: every servo's RAM back to defaults (EEPROM kept)."""

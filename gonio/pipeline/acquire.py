@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gonio import samples as S
-from gonio.errors import HardwareError
+from gonio.errors import ConfigError, HardwareError
 from gonio.pipeline.dark import DarkCache
 from gonio.pipeline.exposure import CapturePlan, ExposureSettings, plan_bracket
 from gonio.pipeline.hdr import BadFrame, SATURATION_MARGIN, average_frames, check_frame, merge_linear
@@ -88,6 +88,21 @@ class Pipeline:
                                max_age=self.settings.dark_max_age, level=self.settings.light_level)
         self._board = layout.charuco.board()
         self._next_exposure = self.settings.initial_exposure
+
+    def check_camera(self) -> tuple[int, int]:
+        """Capture one frame and check its size against the calibration (once, at session start).
+
+        Raises :class:`~gonio.errors.ConfigError` naming both shapes when they differ: every pose
+        would otherwise fail to find the board. Returns the frame's (height, width).
+        """
+        frame = self.camera.capture(self.settings.initial_exposure, self.settings.gain)
+        shape = tuple(int(n) for n in np.shape(getattr(frame, "pixels", ()))[:2])
+        want = (self.calib.height, self.calib.width)
+        if shape != want:
+            got = "x".join(str(n) for n in reversed(shape)) if len(shape) == 2 else repr(shape)
+            raise ConfigError(f"camera: frame size {got} (width x height) does not match the calibration's "
+                              f"{want[1]}x{want[0]}: recalibrate or set the camera's resolution")
+        return shape
 
     # -- capture helpers ----------------------------------------------------------------------
     def _grab(self, exposure: float, gain: float) -> tuple[Frame, np.ndarray, float]:

@@ -167,3 +167,16 @@ def test_real_camera_without_a_device_is_a_clear_error():
         OpenCVCamera("/dev/video-none", SimClock())
     with pytest.raises(ConfigError, match="camera.device"):
         OpenCVCamera(2.5, SimClock())
+
+
+def test_reseed_restarts_the_noise(bench_factory, lambert):
+    bench = bench_factory(lambert, seed=1)
+    bench.place(30, 20, 40, 200)
+    cam = bench.camera
+    cam.reseed([7, 3])
+    a = cam.capture(0.01).pixels
+    b = cam.capture(0.01).pixels  # the generator moved on: new noise
+    cam.reseed([7, 3])
+    c = cam.capture(0.01).pixels
+    assert not np.array_equal(a, b)
+    assert np.array_equal(a, c)
