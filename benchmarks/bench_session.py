@@ -13,14 +13,16 @@ import numpy as np
 from benchmarks.common import Table
 
 
-def _session(plan, resolution, out: Path):
+def _session(plan, resolution, out: Path, material=None):
+    """Run ``plan`` on a fresh simulated rig (camera ``resolution`` = (w, h), ``material``: BRDF or
+    material dict, default the simulator's) into a new store at ``out``: ``(RunResult, wall seconds)``."""
     from gonio.session.runner import SessionRunner, open_devices
     from gonio.session.store import SessionStore
     from sim.rig import SimRig, SimRigConfig
 
     w, h = resolution
     t0 = time.perf_counter()
-    with SimRig(config=SimRigConfig(width=w, height=h, focal_px=380.0 * w / 320.0)) as sim:
+    with SimRig(material=material, config=SimRigConfig(width=w, height=h, focal_px=380.0 * w / 320.0)) as sim:
         devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
         try:
             store = SessionStore.create(out, {"plan": plan, "mode": "bench"})
