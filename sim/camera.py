@@ -15,6 +15,7 @@ output the controller emulator's reference photodiode reports.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -26,12 +27,27 @@ from gonio.geometry import dot, frame_from_normal, normalize, to_local, transfor
 from gonio.pipeline.target import CameraCalibration, CameraPose, NoiseModel, TargetLayout
 from gonio.rig.interfaces import Clock, Frame
 
-__all__ = ["SensorModel", "SimScene", "SimCamera", "SceneLight"]
+__all__ = ["SensorModel", "SimScene", "SimCamera", "SceneLight", "normal_table"]
 
 #: Below this mean count (electrons) shot noise is drawn from the exact Poisson law; above it from
 #: its normal approximation N(μ, μ), whose CDF error is below 1 % of σ there (Berry–Esseen bound
 #: ~0.4/√μ on the CDF; the mean and variance are exact in both cases).
 POISSON_EXACT_BELOW = 30.0
+
+
+@functools.lru_cache(maxsize=1)
+def normal_table() -> np.ndarray:
+    """The 2¹⁶ standard-normal quantiles Φ⁻¹((k + ½)/2¹⁶), k = 0 … 2¹⁶ − 1, float32, rescaled to unit
+    variance (inverse transform sampling: Devroye, *Non-Uniform Random Variate Generation*, 1986,
+    §II.2). Indexing it with uniform 16-bit integers draws from a 2¹⁶-point distribution that matches
+    N(0, 1) in mean and variance, with values spaced < 4·10⁻⁵ σ apart near 0 and |z| ≤ 4.17."""
+    from scipy.special import ndtri
+
+    q = ndtri((np.arange(1 << 16, dtype=np.float64) + 0.5) / (1 << 16))
+    q /= np.sqrt(np.mean(q * q))
+    table = q.astype(np.float32)
+    table.flags.writeable = False
+    return table
 
 
 @dataclass(frozen=True)
@@ -204,12 +220,30 @@ class SimCamera:
         return self._level if self._on else 0.0
 
     # -- rendering ------------------------------------------------------------------------------
-    def _camera_rays(self) -> np.ndarray:
+    def _ray_maps(self) -> tuple[np.ndarray, np.ndarray]:
+        """Undistorted normalized image coordinates ``(x, y)`` of every pixel centre (cached): the camera
+        ray through a pixel is ``(x, y, 1)`` (unnormalized). For an ideal pinhole without skew ``x``
+        depends on the column only and ``y`` on the row only: shapes (1, W) and (H, 1), broadcasting."""
         if self._rays is None:
             c = self.calibration
-            v, u = np.mgrid[0:c.height, 0:c.width].astype(np.float64)
-            self._rays = c.rays(u, v).astype(np.float32)
+            if not np.any(c.dist) and c.K[0, 1] == 0.0:
+                x = ((np.arange(c.width) - c.K[0, 2]) / c.K[0, 0])[None, :]
+                y = ((np.arange(c.height) - c.K[1, 2]) / c.K[1, 1])[:, None]
+            else:
+                v, u = np.mgrid[0:c.height, 0:c.width].astype(np.float64)
+                r = c.rays(u, v)
+                x, y = r[..., 0] / r[..., 2], r[..., 1] / r[..., 2]
+            self._rays = (x, y)
         return self._rays
+
+    def _world_rays(self, box: tuple[slice, slice]) -> np.ndarray:
+        """World directions ``Rᵀ (x, y, 1)`` (unnormalized, float64) of the pixels in ``box``."""
+        x, y = self._ray_maps()
+        rows, cols = box
+        xb = x[:, cols] if x.shape[0] == 1 else x[rows, cols]
+        yb = y[rows, :] if y.shape[1] == 1 else y[rows, cols]
+        xb, yb = np.broadcast_arrays(xb, yb)
+        return np.stack([xb, yb, np.ones_like(xb)], axis=-1) @ self._pose.R
 
     def _board_texture(self):
         if self._texture is None:
@@ -233,36 +267,54 @@ class SimCamera:
         """Radiance L = f(wi, wo) · I · cos θi / r² per pixel (point source; lecture notes 004,
         "point light": E = I cos θ / r²; reflected radiance L = f E), times the responsivity.
 
-        The board (Lambertian, textured) is shaded over the whole frame in float32; the white patch
-        and the sample only inside the bounding boxes of their projections, in float64.
+        The board (Lambertian, textured) is shaded over the whole frame in float32 from separable
+        ray maps (a pixel's ray ``Rᵀ(x, y, 1)`` meets z = 0 at ``C − C_z d / d_z``: no normalization
+        needed); the white patch and the sample only inside the bounding boxes of their projections,
+        in float64.
         """
         import cv2
 
         s, c = self.scene, self.calibration
         C = self._pose.centre
-        d = self._camera_rays() @ self._pose.R.astype(np.float32)  # world rays (Rᵀ d_cam, row-wise)
-        dz = d[..., 2]
-        hit = (dz < -1e-9) & (C[2] > 0)  # a camera below the board plane sees its back: nothing
-        t = np.where(hit, np.float32(-C[2]) / np.where(hit, dz, np.float32(-1.0)), np.float32(0.0))
-        px = np.float32(C[0]) + t * d[..., 0]
-        py = np.float32(C[1]) + t * d[..., 1]
+        R = self._pose.R
+        f32 = np.float32
+        x, y = (a.astype(np.float32) for a in self._ray_maps())
+        dz = x * f32(R[0, 2]) + (y * f32(R[1, 2]) + f32(R[2, 2]))
+        hit = dz < -1e-6
+        if not C[2] > 0:  # a camera below the board plane sees its back: nothing
+            hit[...] = False
+        # t = −C_z / d_z on hits; elsewhere a huge finite t sends the lookup off the board
+        t = np.minimum(dz, f32(-1e-6), out=dz)
+        np.divide(f32(-C[2]), t, out=t)
+        px = x * f32(R[0, 0]) + (y * f32(R[1, 0]) + f32(R[2, 0]))
+        px *= t
+        px += f32(C[0])
+        py = x * f32(R[0, 1]) + (y * f32(R[1, 1]) + f32(R[2, 1]))
+        py *= t
+        py += f32(C[1])
         # Board / background albedo: bilinear lookup in a texture prefiltered to the pixel footprint.
         tex = self._board_texture()
         w, h = s.layout.charuco.size
         footprint = np.linalg.norm(C) / c.K[0, 0] / s.texel  # texels per pixel at the board centre
         if footprint > 1.0:
             tex = cv2.GaussianBlur(tex, (0, 0), 0.5 * footprint)
-        inv = np.float32(1.0 / s.texel)
-        mx = (px + np.float32(w / 2)) * inv - np.float32(0.5)
-        my = (np.float32(h / 2) - py) * inv - np.float32(0.5)
+        inv = 1.0 / s.texel
+        mx = px * f32(inv) + f32(w / 2 * inv - 0.5)
+        my = py * f32(-inv) + f32(h / 2 * inv - 0.5)
         albedo = cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=s.background)
-        S_ = self._light_pos.astype(np.float32)
-        lx, ly, lz = S_[0] - px, S_[1] - py, S_[2]
-        r2 = lx * lx + ly * ly + lz * lz
-        irr = np.float32(s.light_intensity) * np.maximum(lz, 0) / (r2 * np.sqrt(r2))  # I cos θ / r²
-        gray = albedo * irr * np.float32(1 / np.pi)
-        gray[~hit] = 0.0
-        rate = gray[..., None] * np.asarray(self.sensor.responsivity, dtype=np.float32)
+        S_ = self._light_pos
+        irr = np.subtract(f32(S_[0]), px, out=mx)  # reuse the lookup buffers
+        irr *= irr
+        ly = np.subtract(f32(S_[1]), py, out=my)
+        ly *= ly
+        irr += ly
+        irr += f32(S_[2] ** 2)  # r²
+        r = np.sqrt(irr, out=ly)
+        irr *= r  # r³
+        np.divide(f32(s.light_intensity * max(S_[2], 0.0)), irr, out=irr)  # I cos θ / r² = I z_S / r³
+        albedo *= irr
+        albedo *= hit
+        rate = np.multiply(albedo[..., None], np.asarray(self.sensor.responsivity, dtype=np.float32) / f32(np.pi))
         lay = s.layout
         box = self._bbox(lay.white.corners())
         if box is not None:
@@ -270,7 +322,7 @@ class SimCamera:
             m = lay.white.contains(*sub) & hit[box]
             wrate = (np.asarray(lay.white_albedo) / np.pi * np.asarray(self.sensor.responsivity)).astype(np.float32)
             rate[box][m] = irr[box][m][:, None] * wrate
-        self._shade_sample(rate, d, C)
+        self._shade_sample(rate, C)
         return rate
 
     def _bbox(self, corners: np.ndarray) -> tuple[slice, slice] | None:
@@ -288,7 +340,7 @@ class SimCamera:
             return None
         return rows, cols
 
-    def _shade_sample(self, rate: np.ndarray, d: np.ndarray, C: np.ndarray) -> None:
+    def _shade_sample(self, rate: np.ndarray, C: np.ndarray) -> None:
         """Overwrite ``rate`` where rays hit the (possibly transformed) sample patch."""
         s = self.scene
         M = np.eye(4) if s.sample_transform is None else np.asarray(s.sample_transform, dtype=np.float64)
@@ -296,7 +348,7 @@ class SimCamera:
         box = self._bbox(corners)
         if box is None:
             return
-        d = d[box].astype(np.float64)
+        d = self._world_rays(box)
         n = transform_normals(M, [0.0, 0.0, 1.0])  # inverse-transpose (lecture notes 000)
         frame = frame_from_normal(n, M[:3, :3] @ np.array([1.0, 0.0, 0.0]))
         origin = M[:3, 3]
@@ -354,7 +406,7 @@ class SimCamera:
     def _shot_and_read(self, mean_e: np.ndarray) -> np.ndarray:
         """Electrons after shot noise (Poisson; its normal approximation above
         :data:`POISSON_EXACT_BELOW`) plus Gaussian read noise, in one normal draw where possible."""
-        z = self._rng.standard_normal(mean_e.shape, dtype=np.float32)
+        z = self._standard_normal(mean_e.shape)
         e = mean_e + np.float32(self.sensor.read_noise_e ** 2)
         np.sqrt(e, out=e)
         e *= z
@@ -364,6 +416,13 @@ class SimCamera:
             m = mean_e[low]
             e[low] = self._rng.poisson(np.maximum(m, 0.0)) + self.sensor.read_noise_e * z[low]
         return e
+
+    def _standard_normal(self, shape) -> np.ndarray:
+        """Standard normal float32 deviates by inverse-CDF lookup of 16-bit uniform integers
+        (:func:`normal_table`): ~3× faster than NumPy's float32 ziggurat for a full frame, with the
+        same mean and variance; the tails are cut at ±4.17σ (probability 3·10⁻⁵ per value)."""
+        idx = self._rng.integers(0, 1 << 16, size=shape, dtype=np.uint16)
+        return np.take(normal_table(), idx)
 
     def close(self) -> None:
         self._closed = True
