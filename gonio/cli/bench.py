@@ -1,0 +1,43 @@
+"""``gonio bench``: the speed-versus-accuracy report.
+
+Runs every trade gonio offers between speed and accuracy (plan density and kind, exposure bracket and
+frames, Schlick vs pow and float32 vs float64, MERL interpolation, fit subsampling) on the simulated
+rig and on this machine, and writes ``DIR/REPORT.md`` with tables and PNG plots
+(:mod:`benchmarks.report`). Like ``gonio measure --sim`` this is a configuration boundary: the
+benchmark code (which drives the simulator) is imported lazily, only when the command runs.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+
+def register(sub) -> None:
+    p = sub.add_parser("bench", help="speed-versus-accuracy report (Markdown + PNG plots)",
+                       description="Measure each speed/accuracy trade against a baseline from the same run and "
+                                   "write DIR/REPORT.md with tables (default marked, with its reason), the date, "
+                                   "the machine and the run's duration, and one PNG plot per trade.")
+    p.add_argument("--quick", action="store_true", help="small sizes (for CI): well under two minutes")
+    p.add_argument("-o", "--out", default="gonio-bench", metavar="DIR",
+                   help="output directory (default ./gonio-bench; REPORT.md and the PNGs are overwritten)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from gonio.errors import ConfigError
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError.field("-o", "out", str(out), "exists and is not a directory")
+    from benchmarks.report import write_report
+
+    t0 = time.perf_counter()
+    path, failed = write_report(out, quick=args.quick, stream=sys.stderr)
+    print(f"{path} ({time.perf_counter() - t0:.0f} s)")
+    if failed:
+        print(f"gonio bench: error: {len(failed)} trade(s) failed: {', '.join(failed)} (see {path})", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,81 @@
+"""`gonio bench --quick -o DIR`: completes and writes the report's tables and plots (no timing asserted:
+speed targets live in the report itself)."""
+
+from __future__ import annotations
+
+import pytest
+
+from benchmarks.common import Table
+from benchmarks.report import Trade, write_report
+from gonio.cli.main import main
+
+TRADES = ["plans", "capture", "brdf", "merl", "fit"]
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    code = main(["bench", "--quick", "-o", str(out)])
+    return code, out
+
+
+def test_quick_report_completes_with_every_table(report):
+    code, out = report
+    assert code == 0
+    text = (out / "REPORT.md").read_text(encoding="utf-8")
+    assert "quick run" in text and "| cores |" in text and "| numpy |" in text
+    for heading in ("lab time vs BRDF error", "lab time vs noise", "evaluations/s vs error",
+                    "MERL lookup", "fit time vs parameter error"):
+        assert heading in text
+    # every trade produced at least one table with a marked default and its reason
+    assert text.count("**default**") >= len(TRADES)
+    assert text.count("\nDefault: ") >= len(TRADES)
+    assert "This trade failed" not in text
+
+
+def test_quick_report_writes_a_png_per_trade(report):
+    _, out = report
+    text = (out / "REPORT.md").read_text(encoding="utf-8")
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:  # without the plots extra the report must say so instead
+        assert "**No plots:**" in text
+        return
+    for name in TRADES:
+        png = out / f"{name}.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
+        assert f"({name}.png)" in (out / "REPORT.md").read_text(encoding="utf-8")
+
+
+def test_output_path_that_is_a_file_is_a_one_line_error(tmp_path, capsys):
+    f = tmp_path / "not-a-dir"
+    f.write_text("x")
+    assert main(["bench", "--quick", "-o", str(f)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("gonio bench: error: -o: out = ") and "not a directory" in err
+
+
+def _tiny(quick):
+    t = Table("tiny", ["x", "y"], baseline=0, default=0, why_default="because")
+    t.add(1.0, 2.0)
+    return [t]
+
+
+def _broken(quick):
+    raise RuntimeError("boom")
+
+
+def test_report_without_matplotlib_and_with_a_failing_trade(tmp_path, monkeypatch, capsys):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # as if the plots extra were not installed
+    trades = [Trade("tiny", "Tiny trade", _tiny, lambda ax, t: True), Trade("broken", "Broken", _broken, None)]
+    path, failed = write_report(tmp_path, quick=True, trades=trades, stream=sys.stderr)
+    text = path.read_text(encoding="utf-8")
+    assert failed == ["broken"]
+    assert "**No plots:**" in text and "| matplotlib | not installed" in text
+    assert "### tiny" in text and "Default: because" in text
+    assert "RuntimeError: boom" in text and "**Failed trades:** broken" in text
+    assert not list(tmp_path.glob("*.png"))
+    err = capsys.readouterr().err
+    assert "matplotlib is not installed" in err and "broken failed" in err
