@@ -74,12 +74,13 @@ def run(args) -> int:
             raise ConfigError.field("--fix", "fix", args.fix, "not supported with --select")
         sel = select(samples, cands, criterion=args.criterion, loss=args.loss, seed=args.seed, max_theta_deg=max_theta)
         result, report = sel.winner, sel.to_dict()
-        print(f"{'model':<16} {'k':>3} {sel.criterion:>12} {'rms_rel':>9}  status    reason")
+        print(f"{'model':<16} {'k':>3} {sel.criterion:>12} {'rms_rel':>9} {'chi2_red':>9}  status    reason")
         for r in sel.candidates:
             if r["status"] == "failed":
-                print(f"{r['model']:<16} {'':>3} {'':>12} {'':>9}  failed    {r['reason']}")
+                print(f"{r['model']:<16} {'':>3} {'':>12} {'':>9} {'':>9}  failed    {r['reason']}")
             else:
-                print(f"{r['model']:<16} {r['n_params']:>3} {r['score']:>12.6g} {r['rms_rel']:>9.4f}  "
+                c2 = "-" if r.get("chi2_red") is None else f"{r['chi2_red']:.4g}"
+                print(f"{r['model']:<16} {r['n_params']:>3} {r['score']:>12.6g} {r['rms_rel']:>9.4f} {c2:>9}  "
                       f"{r['status']:<9} {r['reason']}")
         print()
     else:

@@ -24,7 +24,7 @@ import numpy as np
 
 from gonio.errors import ConfigError, DataError, GonioError
 from gonio.fit.data import DEFAULT_MAX_THETA_DEG, FitData, prepare
-from gonio.fit.layout import CHANNELS, Layout, make_basis, auto_fixed, model_class
+from gonio.fit.layout import CHANNELS, Layout, auto_tied, make_basis, model_class
 from gonio.fit.losses import LOSSES, Loss, get_loss
 from gonio.fit.result import FitResult
 from gonio.fit.solve import Projection
@@ -262,9 +262,18 @@ def canonical_order(L: Layout, p: np.ndarray) -> np.ndarray:
     return L.pack(colour, shape)
 
 
-def _uncertainty(prob: _Problem, p: np.ndarray, cost: float, notes: list[str]):
+def _uncertainty(prob: _Problem, p: np.ndarray, cost: float, notes: list[str], A: np.ndarray | None = None):
     """Standard uncertainties from s²(JᵀJ)⁻¹ over the parameters that are off their bounds and
-    identifiable; ``nan`` on a bound, ``inf`` when not identifiable."""
+    identifiable; ``nan`` on a bound, ``inf`` when not identifiable.
+
+    s² = 2·cost/(m − k) for losses without known σ; for χ², s² = max(1, χ²_red): when the scatter
+    exceeds the stated σ the covariance is inflated by the reduced χ² (Birge ratio; Press et al.,
+    *Numerical Recipes*, 3rd ed., §15.1.1), else the stated σ are trusted.
+
+    Returns ``(err, identifiable, redundancy)``; for a sum of lobes ``redundancy`` is the largest
+    correlation between parameters of two different terms, ``(|ρ|, name_a, name_b)`` (``None`` otherwise):
+    |ρ| → 1 means the data cannot tell the terms apart.
+    """
     L = prob.L
     lo, hi = L.bounds()
     labels = L.labels()
@@ -273,7 +282,7 @@ def _uncertainty(prob: _Problem, p: np.ndarray, cost: float, notes: list[str]):
     err = np.full(P, np.nan)
     span = np.where(np.isfinite(hi - lo), hi - lo, np.maximum(np.abs(p), 1.0))
     on_bound = (p - lo <= 1e-7 * span) | (hi - p <= 1e-7 * span)
-    A = prob.jtj(p)
+    A = prob.jtj(p) if A is None else A
     free = ~on_bound
     ident = free.copy()
     diag = np.sqrt(np.clip(np.diag(A), 0, None))
@@ -291,16 +300,31 @@ def _uncertainty(prob: _Problem, p: np.ndarray, cost: float, notes: list[str]):
     unident = free & ~ident
     err[unident] = np.inf
     if idx.size:
-        s2 = 1.0 if prob.loss.name == "chi2" else 2.0 * cost / max(m - P, 1)
+        s2 = 2.0 * cost / max(m - P, 1)
+        if prob.loss.name == "chi2":
+            if s2 > 1.5:
+                notes.append(f"uncertainties scaled by sqrt(chi2_red) = {np.sqrt(s2):.3g}: the scatter exceeds "
+                             f"the stated sigma")
+            s2 = max(s2, 1.0)
         cov = s2 * np.linalg.pinv(A[np.ix_(idx, idx)])
         err[idx] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    redundancy = None
+    if idx.size and getattr(L.cls, "PARTS", None):
+        sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+        R = np.abs(cov / np.outer(sd, sd))
+        slot = np.array([labels[j].split(".", 1)[0] for j in idx])
+        R[slot[:, None] == slot[None, :]] = 0.0
+        if R.size:
+            i, j = np.unravel_index(np.argmax(R), R.shape)
+            if R[i, j] > 0:
+                redundancy = (float(R[i, j]), labels[idx[i]], labels[idx[j]])
     if unident.any():
         names = sorted({labels[j].split(".")[0] for j in np.flatnonzero(unident)})
         notes.append(f"not identifiable from these data: {', '.join(names)}")
     bound_names = sorted({labels[j].split(".")[0] for j in np.flatnonzero(on_bound)})
     if bound_names:
         notes.append(f"at a bound (no uncertainty): {', '.join(bound_names)}")
-    return err, not unident.any()
+    return err, not unident.any(), redundancy
 
 
 def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = None,
@@ -320,8 +344,11 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
     fixed : dict
         Parameters held fixed (choice parameters are always fixed, at their default unless given).
     free : sequence of str
-        Parameters fitted although fixed by default (the Fresnel ``f0``, see
-        :data:`gonio.fit.layout.AUTO_FIXED`).
+        Parameters fitted per channel although tied by default (the Fresnel ``f0``, see
+        :data:`gonio.fit.layout.AUTO_TIED`; e.g. ``("f0",)`` or ``("lobe1.f0",)``). A tied parameter
+        the data cannot determine (standard uncertainty above :data:`TIED_MAX_SE`, e.g. only
+        near-normal θd where Schlick's F ≈ f0 is indistinguishable from ks) is held at 1 instead — ks
+        is then the specular reflectance ks·F — and a note says so.
     max_theta_deg : float or None
         Grazing cutoff for θi and θo (default 80°); None keeps all samples above the horizon.
     n_starts : int
@@ -347,11 +374,37 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
         raise ConfigError.field("--method", "method", method, f"must be one of {', '.join(METHODS)}")
     d = prepare(data, max_theta_deg=max_theta_deg, use_flagged=use_flagged)
     cls = model_class(model) if isinstance(model, str) else model
-    L = Layout(cls, auto_fixed(cls, fixed or {}, free))
+    fixed = dict(fixed or {})
+    tied = auto_tied(cls, fixed, free)
+    L = Layout(cls, fixed, tied)
     lossobj = resolve_loss(loss, d)
     if 3 * len(d) <= L.n_params:
         raise DataError(f"{d.source}: {len(d)} usable samples ({3 * len(d)} values) cannot determine "
                         f"{L.n_params} parameters of {L.name}; need at least {L.n_params // 3 + 1} samples")
+    kw = dict(n_starts=n_starts, seed=seed, method=method, kernel=kernel, max_nfev=max_nfev)
+    r = _fit_layout(d, L, lossobj, **kw)
+    weak = [t for t in L.tied if not r.uncertainty[t] <= TIED_MAX_SE]  # inf, or too wide; nan = on a bound
+    if weak:
+        L2 = Layout(cls, {**fixed, **{t: 1.0 for t in weak}}, [t for t in tied if t not in weak])
+        r2 = _fit_layout(d, L2, lossobj, **kw)
+        why = ", ".join(f"{t} = {r.params[t]:.3g} ± {r.uncertainty[t]:.2g}" for t in weak)
+        r2.notes.insert(0, f"not identifiable from these data: {why} (the angular range does not separate the "
+                           f"Fresnel rise from ks); held at 1, so ks is the specular reflectance ks·F")
+        r2.n_evals += r.n_evals
+        r2.identifiable = False
+        r = r2
+    r.seconds = time.perf_counter() - t0
+    return r
+
+
+#: A tied parameter (f0) whose standard uncertainty exceeds this is reported as not identifiable and
+#: held at 1 (its whole range is [0, 1]).
+TIED_MAX_SE = 0.2
+
+
+def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method, kernel, max_nfev) -> FitResult:
+    """One fit of the layout ``L`` (free, tied and fixed parameters decided) to prepared data."""
+    t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
     heur = heuristics(d)
     basis = make_basis(L, d, use_kernels=kernel == "auto", seed=seed)
@@ -378,7 +431,7 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
     else:
         p, cost = _plain(prob, _starts(prob, rng, n_starts, heur), max_nfev)
     p = canonical_order(L, p)
-    err, ident = _uncertainty(prob, p, cost, notes)
+    err, ident, redundancy = _uncertainty(prob, p, cost, notes)
     colour, shape = L.unpack(p)
     ecolour, eshape = L.unpack(err)
     params = L.params(colour, shape)
@@ -399,7 +452,7 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
         model=L.name, params=params, uncertainty=unc, loss=lossobj.name, cost=float(cost), rms_rel=rms_rel,
         n_used=len(d), n_params=L.n_params, chi2_red=chi2_red, identifiable=ident, method=method,
         n_evals=prob.n_evals, seconds=time.perf_counter() - t0, notes=notes, heuristics=heur,
-        dropped=dict(d.dropped),
+        dropped=dict(d.dropped), redundancy=redundancy,
     )
 
 

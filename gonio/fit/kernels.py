@@ -28,9 +28,14 @@ def _lambert(data, layout, shape):
 
 
 def _microfacet(data, layout, shape):
-    """Walter et al. 2007 microfacet + Lambert (:class:`gonio.brdf.microfacet.Microfacet`) with f0 fixed:
-    bases kd → 1/π, ks → D(h) G2 F(wo·h) / (4 cos θi cos θo), from the shared pieces of
-    :mod:`gonio.brdf.microfacet` on the half vectors and cosines cached on the data."""
+    """Walter et al. 2007 microfacet + Lambert (:class:`gonio.brdf.microfacet.Microfacet`): bases
+    kd → 1/π, ks → D(h) G2 F(wo·h) / (4 cos θi cos θo), from the shared pieces of
+    :mod:`gonio.brdf.microfacet` on the half vectors and cosines cached on the data.
+
+    f0 is fixed (per channel) or tied (one value, a shape parameter). Schlick's
+    F = f0 + (1 − f0)(1 − cos θd)⁵ (Schlick 1994, eq. 15) is formed from the cached (1 − cos θd)⁵, and
+    D G2/(4 cos θi cos θo) is kept for the last α, so a step in f0 alone costs two array operations.
+    """
     import numpy as np
 
     from gonio.brdf.fresnel import schlick
@@ -38,15 +43,27 @@ def _microfacet(data, layout, shape):
 
     fixed = layout.fixed
     name, alpha = fixed["distribution"], shape["alpha"]
-    if name == "ggx":
-        spec = _ggx_spec(data, alpha)
+    specs = data.__dict__.setdefault("_kernel_cache", {}).setdefault("spec", {})
+    key = (name, float(alpha))
+    if key not in specs:
+        if len(specs) >= 4:  # two lobes of a sum alternate: keep a few
+            specs.clear()
+        if name == "ggx":
+            spec = _ggx_spec(data, alpha)
+        else:
+            h = data.half
+            spec = distribution_d(name, h, alpha) * smith_g2(name, data.wi, data.wo, h, alpha)
+            spec /= 4.0 * data.cos_i * data.cos_o
+        specs[key] = spec
+    spec = specs[key]
+    if "f0" in shape:
+        f0 = float(shape["f0"])
+        if f0 != 1.0:
+            spec = spec * (f0 + (1.0 - f0) * _schlick_m5(data))
     else:
-        h = data.half
-        spec = distribution_d(name, h, alpha) * smith_g2(name, data.wi, data.wo, h, alpha)
-        spec /= 4.0 * data.cos_i * data.cos_o
-    f0 = np.asarray(fixed["f0"])
-    if not np.all(f0 == 1.0):  # Schlick F = 1 exactly when f0 = 1
-        spec = spec[:, None] * _fresnel_cache(data, f0, schlick)
+        f0 = np.asarray(fixed["f0"])
+        if not np.all(f0 == 1.0):  # Schlick F = 1 exactly when f0 = 1
+            spec = spec[:, None] * _fresnel_cache(data, f0, schlick)
     basis = {"kd": np.full(len(data), 1.0 / np.pi), "ks": spec}
     offset = None
     for k in ("kd", "ks"):
@@ -54,6 +71,18 @@ def _microfacet(data, layout, shape):
             b = basis[k] if basis[k].ndim == 2 else basis[k][:, None]
             offset = (0.0 if offset is None else offset) + np.asarray(fixed[k]) * b
     return offset, [basis[k] for k in layout.colour]
+
+
+def _schlick_m5(data):
+    """(1 − cos θd)⁵ of Schlick's approximation, cached per dataset."""
+    import numpy as np
+
+    cache = data.__dict__.setdefault("_kernel_cache", {})
+    if "m5" not in cache:
+        m = 1.0 - np.clip(data.cos_d, 0.0, 1.0)
+        m2 = m * m
+        cache["m5"] = m2 * m2 * m
+    return cache["m5"]
 
 
 def _geometry(data):
@@ -108,6 +137,6 @@ def _fresnel_cache(data, f0, schlick):
     return cache[key]
 
 
-_microfacet.supports = lambda L: "f0" in L.fixed and L.shape == ["alpha"]
+_microfacet.supports = lambda L: L.shape in (["alpha"], ["alpha", "f0"]) and ("f0" in L.fixed or "f0" in L.shape)
 _lambert.supports = lambda L: L.colour == ["albedo"]
 KERNELS.update({"lambert": _lambert, "microfacet": _microfacet})

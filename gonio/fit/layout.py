@@ -33,18 +33,24 @@ def model_class(name: str) -> type[BRDF]:
     raise ConfigError.field("--model", "model", name, f"unknown model; known: {', '.join(sorted(MODELS))}")
 
 
-#: Colour parameters held at their default unless freed: the Fresnel reflectance f0 multiplies the
-#: specular weight ks (ks·F(f0)), so fitting both from reflectance alone is nearly degenerate.
-AUTO_FIXED = ("f0",)
+#: Colour parameters fitted *tied* by default: one value shared by R, G and B, searched as a shape
+#: parameter. The Fresnel reflectance f0 multiplies the specular weight (ks·F(f0), Schlick 1994), so per
+#: channel it would duplicate ks; the colour lives in ks, while a shared f0 sets how the specular
+#: reflectance rises towards grazing θd — what tells a dielectric (f0 ≈ 0.04) from a metal (f0 ≈ 1).
+AUTO_TIED = ("f0",)
 
 
-def auto_fixed(cls: type[BRDF], fixed: dict, free=()) -> dict:
-    """``fixed`` plus the :data:`AUTO_FIXED` parameters of ``cls`` not in ``free``, at their defaults."""
-    out = dict(fixed)
-    for key, spec in cls.PARAMS.items():
-        if key.split(".")[-1] in AUTO_FIXED and key not in out and key not in free and spec.default is not None:
-            out[key] = spec.default
-    return out
+def _base(key: str) -> str:
+    return key.split(".")[-1]
+
+
+def auto_tied(cls: type[BRDF], fixed: dict, free=()) -> tuple[str, ...]:
+    """The :data:`AUTO_TIED` parameters of ``cls`` (``f0``, ``lobe1.f0``, ...) that are neither fixed nor
+    freed per channel (``free`` lists parameters fitted per channel: ``f0`` or ``lobe1.f0``)."""
+    free = set(free)
+    return tuple(k for k, spec in cls.PARAMS.items()
+                 if _base(k) in AUTO_TIED and spec.kind == "rgb" and k not in fixed
+                 and k not in free and _base(k) not in free)
 
 
 class Layout:
@@ -56,9 +62,12 @@ class Layout:
         Registry name (:data:`gonio.brdf.MODELS`) or class.
     fixed : dict
         Parameters held at a value (choices default to their default).
+    tied : sequence of str
+        ``rgb`` parameters fitted as one value shared by R, G, B (a shape parameter; see
+        :data:`AUTO_TIED`).
     """
 
-    def __init__(self, model: str | type[BRDF], fixed: dict[str, Any] | None = None):
+    def __init__(self, model: str | type[BRDF], fixed: dict[str, Any] | None = None, tied=()):
         if isinstance(model, str):
             model = model_class(model)
         self.cls = model
@@ -67,6 +76,10 @@ class Layout:
         unknown = sorted(set(fixed) - set(model.PARAMS))
         if unknown:
             raise ConfigError.field("--fix", f"{model.name}.{unknown[0]}", fixed[unknown[0]], "unknown parameter")
+        self.tied = tuple(t for t in tied if t not in fixed)
+        bad = sorted(set(self.tied) - {k for k, v in model.PARAMS.items() if v.kind == "rgb"})
+        if bad:
+            raise ConfigError.field("--fix", f"{model.name}.{bad[0]}", "tied", "only RGB parameters can be tied")
         self.fixed: dict[str, Any] = {}
         self.colour: list[str] = []
         self.shape: list[str] = []
@@ -77,7 +90,7 @@ class Layout:
                 if spec.default is None:
                     raise ConfigError(f"{model.name}.{name}: a choice parameter must be fixed ({', '.join(spec.choices)})")
                 self.fixed[name] = spec.default
-            elif spec.kind == "rgb":
+            elif spec.kind == "rgb" and name not in self.tied:
                 self.colour.append(name)
             else:
                 self.shape.append(name)
@@ -129,8 +142,12 @@ class Layout:
         """``(u_lo, u_hi, is_log)``: bounded search box of the shape parameters.
 
         Wide positive ranges (hi/lo > 100) are searched in log space (roughness, exponents); an
-        infinite upper bound is capped at 10⁴ × max(default, 1).
+        infinite upper bound is capped at 10⁴ × max(default, 1). Tied reflectances (f0) are searched in
+        log space from 10⁻³ (below any real material: f0 ≥ 0.02 for refractive index ≥ 1.33).
         """
+        cached = self.__dict__.get("_space")
+        if cached is not None:
+            return cached
         u_lo, u_hi, is_log = [], [], []
         for j, name in enumerate(self.shape):
             spec = self.cls.PARAMS[name]
@@ -141,12 +158,13 @@ class Layout:
                 lo = -hi
             log = lo >= 0 and hi > 0 and hi / max(lo, 1e-300) > 100
             if log:
-                lo = max(lo, hi * 1e-6)
+                lo = max(lo, hi * (1e-3 if name in self.tied else 1e-6))
                 u_lo.append(np.log(lo)), u_hi.append(np.log(hi))
             else:
                 u_lo.append(lo), u_hi.append(hi)
             is_log.append(log)
-        return np.array(u_lo), np.array(u_hi), np.array(is_log, dtype=bool)
+        self._space = (np.array(u_lo), np.array(u_hi), np.array(is_log, dtype=bool))
+        return self._space
 
     def to_shape(self, u: np.ndarray) -> np.ndarray:
         """Shape parameters of a point of the search space (clipped to the model bounds)."""
@@ -286,7 +304,8 @@ class SumBasis:
         for slot, cls, fixed in layout.cls.PARTS:
             own_fixed = dict(fixed)
             own_fixed.update({k.split(".", 1)[1]: v for k, v in layout.fixed.items() if k.split(".", 1)[0] == slot})
-            sub = Layout(cls, own_fixed)
+            own_tied = [k.split(".", 1)[1] for k in layout.tied if k.split(".", 1)[0] == slot]
+            sub = Layout(cls, own_fixed, own_tied)
             kern = kernel_for(sub) if use_kernels else None
             b = Basis(sub, data, kern, seed) if sub.K else None
             shape_idx = [layout.shape.index(f"{slot}.{n}") for n in sub.shape]

@@ -45,6 +45,8 @@ class FitResult:
         Relative cosine-weighted RMS error √(Σ cos²θi (f_m − f)² / Σ cos²θi f²), whatever the loss.
     n_used, n_params : int
         Samples used (each has 3 channels) and free parameters.
+    chi2_red : float or None
+        χ²/(m − k) with the stated uncertainties (None without them).
     """
 
     model: str
@@ -63,6 +65,9 @@ class FitResult:
     notes: list[str] = field(default_factory=list)
     heuristics: dict[str, Any] = field(default_factory=dict)
     dropped: dict[str, int] = field(default_factory=dict)
+    #: For sums of lobes: largest |correlation| between parameters of two different terms and their
+    #: names, ``(|ρ|, a, b)``; near 1 the data cannot tell the terms apart (see :mod:`gonio.fit.select`).
+    redundancy: tuple | None = None
 
     @property
     def n_residuals(self) -> int:
@@ -108,4 +113,5 @@ class FitResult:
             "notes": self.notes,
             "heuristics": self.heuristics,
             "dropped": self.dropped,
+            "redundancy": list(self.redundancy) if self.redundancy else None,
         })

@@ -12,6 +12,21 @@ Criteria
     Tibshirani & Friedman, *The Elements of Statistical Learning*, 2nd ed., §7.10).
 ``auto``
     ``bic`` when every sample has an uncertainty (χ² loss), else ``cv``.
+
+Honesty guards
+--------------
+*Error inflation.* With χ² and stated uncertainties that are too small (or small systematic errors the
+models cannot represent), every candidate has χ²_red ≫ 1 and an information criterion on raw χ² rewards
+any extra parameter that absorbs a little of the misfit. When the most complex candidate still has
+χ²_red > :data:`INFLATE_ABOVE`, every χ² is divided by that χ²_red before AIC/BIC are compared — the
+standard rescaling of the σ by the Birge ratio √χ²_red of the most complete model (e.g. Burnham &
+Anderson, *Model Selection and Multimodel Inference*, 2nd ed., 2002, §2.5 "overdispersion", c-hat
+estimated from the global model). The table says so in every row (``chi2_scale``).
+
+*Redundant terms.* A sum of lobes whose terms the data cannot tell apart — the correlation between
+parameters of two different terms is above :data:`REDUNDANT_RHO` (e.g. two GGX lobes of equal width
+sharing the specular reflectance in an undetermined ratio) — is over-parameterized whatever its score:
+it is rejected with that reason unless no other candidate remains.
 """
 
 from __future__ import annotations
@@ -30,6 +45,10 @@ from gonio.fit.result import FitResult, _clean
 #: diffuse + two GGX lobes.
 DEFAULT_CANDIDATES = ("lambert", "blinn-phong", "microfacet", "lambert+2ggx")
 CRITERIA = ("auto", "bic", "aic", "cv")
+#: χ²_red of the most complex candidate above which χ² is rescaled before AIC/BIC (see module docstring).
+INFLATE_ABOVE = 1.5
+#: |correlation| between parameters of two terms of a sum above which the terms are redundant.
+REDUNDANT_RHO = 0.99
 
 
 @dataclass
@@ -40,10 +59,13 @@ class Selection:
     criterion: str
     candidates: list[dict[str, Any]] = field(default_factory=list)
     fits: dict[str, FitResult] = field(default_factory=dict)
+    #: How the scores were adjusted (χ² rescaling), empty if they were not.
+    adjustment: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         out = self.winner.to_dict()
         out["criterion"] = self.criterion
+        out["adjustment"] = self.adjustment
         out["candidates"] = _clean(self.candidates)
         return out
 
@@ -96,18 +118,40 @@ def select(data, candidates: Sequence[str] = DEFAULT_CANDIDATES, *, criterion: s
         row["score"] = row[criterion]
         rows.append(row)
         fits[name] = r
+    adjustment = ""
     ok = [r for r in rows if "score" in r]
+    if criterion in ("aic", "bic") and lossobj.name == "chi2" and ok:
+        top = max(ok, key=lambda r: r["n_params"])
+        scale = top["chi2_red"] if top["chi2_red"] and top["chi2_red"] > INFLATE_ABOVE else 1.0
+        if scale > 1.0:
+            adjustment = (f"chi2 divided by {scale:.4g} = chi2_red of {top['model']} (the most complex candidate): "
+                          f"the stated uncertainties are too small or the data have systematic errors")
+        for r in ok:
+            f = fits[r["model"]]
+            neg2 = 2.0 * f.cost / scale
+            k, m = f.n_params, f.n_residuals
+            r["chi2_scale"] = scale
+            r["aic"], r["bic"] = neg2 + 2.0 * k, neg2 + k * np.log(m)
+            r["score"] = r[criterion]
+    for r in ok:
+        red = fits[r["model"]].redundancy
+        r["redundancy"] = None if red is None else red[0]
+        if red is not None and red[0] > REDUNDANT_RHO:
+            r["redundant"] = f"terms not separable: corr({red[1]}, {red[2]}) = {red[0]:.4f} > {REDUNDANT_RHO}"
     if not ok:
         raise first_error
-    best = min(ok, key=lambda r: r["score"])
+    eligible = [r for r in ok if "redundant" not in r] or ok
+    best = min(eligible, key=lambda r: r["score"])
     if criterion == "cv":
         limit = best["score"] + best["cv_se"]
-        within = [r for r in ok if r["score"] <= limit]
+        within = [r for r in eligible if r["score"] <= limit]
         win = min(within, key=lambda r: (r["n_params"], r["score"]))
         for r in ok:
             if r is win:
                 r["reason"] = (f"simplest model whose held-out error {r['score']:.4g} is within one standard "
                                f"error of the best ({best['score']:.4g} + {best['cv_se']:.2g})")
+            elif r not in eligible:
+                r["reason"] = r["redundant"]
             elif r["score"] <= limit:
                 r["reason"] = f"held-out error within one SE of the best but {r['n_params']} parameters > {win['n_params']}"
             else:
@@ -116,12 +160,17 @@ def select(data, candidates: Sequence[str] = DEFAULT_CANDIDATES, *, criterion: s
         win = best
         for r in ok:
             if r is win:
-                nxt = sorted(x["score"] for x in ok if x is not win)
+                nxt = sorted(x["score"] for x in eligible if x is not win)
                 gap = f"; next best is {nxt[0] - r['score']:.4g} higher" if nxt else ""
                 r["reason"] = f"lowest {criterion.upper()} ({r['score']:.6g}){gap}"
+            elif r not in eligible:
+                r["reason"] = f"{r['redundant']} ({criterion.upper()} {r['score'] - win['score']:+.4g})"
             else:
                 r["reason"] = f"{criterion.upper()} {r['score'] - win['score']:+.4g} over {win['model']}"
+        if adjustment:
+            for r in ok:
+                r["reason"] += f"; {adjustment}" if r is win else ""
     for r in rows:
         if "score" in r:
             r["status"] = "chosen" if r is win else "rejected"
-    return Selection(fits[win["model"]], criterion, rows, fits)
+    return Selection(fits[win["model"]], criterion, rows, fits, adjustment)

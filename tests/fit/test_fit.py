@@ -35,6 +35,16 @@ def test_microfacet_alpha_within_2_percent(dist):
     assert r.rms_rel < 0.03 and r.n_params == 7
 
 
+def test_f0_is_fitted_shared_across_channels():
+    truth = {"kd": [0.3, 0.12, 0.06], "ks": [0.8, 0.7, 0.6], "alpha": 0.2, "f0": 0.04}
+    r = fit(synth("microfacet", truth, n=1500), "microfacet")
+    assert r.n_params == 8 and isinstance(r.params["f0"], float)
+    assert r.params["f0"] == pytest.approx(0.04, rel=0.1) and r.uncertainty["f0"] < 0.01
+    np.testing.assert_allclose(r.params["ks"], truth["ks"], rtol=0.02)
+    per_channel = fit(synth("microfacet", truth, n=1500), "microfacet", free=("f0",))
+    assert per_channel.n_params == 10 and len(per_channel.params["f0"]) == 3
+
+
 def test_varpro_and_plain_reach_the_same_optimum():
     s = synth("lambert+ggx", {"diffuse.albedo": 0.3, "lobe1.ks": [0.5, 0.4, 0.3], "lobe1.alpha": 0.2}, n=600)
     a = fit(s, "lambert+ggx", loss="cosine", method="varpro")
@@ -87,7 +97,7 @@ def test_kernels_match_model_eval():
 # -- degenerate inputs ------------------------------------------------------------------------------
 def test_too_few_samples_is_a_data_error():
     s = synth("microfacet", {"kd": 0.2, "ks": 0.5, "alpha": 0.3}, n=6).subset(slice(0, 2))
-    with pytest.raises(DataError, match="cannot determine 7 parameters"):
+    with pytest.raises(DataError, match="cannot determine 8 parameters"):
         fit(s, "microfacet")
 
 

@@ -36,6 +36,17 @@ def test_bic_chooses_two_lobes_for_a_two_lobe_material():
     assert sel.winner.params["lobe1.alpha"] == pytest.approx(0.06, rel=0.03)
 
 
+def test_too_small_sigmas_do_not_buy_extra_lobes():
+    s = synth("microfacet", {"kd": [0.3, 0.2, 0.1], "ks": 0.5, "alpha": 0.2, "f0": 0.05}, n=800)
+    s.sigma[...] = s.sigma / 5.0  # stated uncertainties 5x too small: chi2_red ~ 25 for every candidate
+    sel = select(s, CANDS)
+    assert _chosen(sel) == "microfacet"
+    rows = {r["model"]: r for r in sel.candidates}
+    assert rows["lambert+2ggx"]["chi2_red"] > 10 and rows["microfacet"]["chi2_scale"] > 10
+    assert "chi2 divided by" in rows["microfacet"]["reason"]
+    assert sel.adjustment and sel.to_dict()["adjustment"] == sel.adjustment
+
+
 def test_cv_without_uncertainties_uses_the_one_se_rule():
     s = synth("lambert", {"albedo": 0.4}, n=300)
     sel = select((s.wi, s.wo, s.f), ("lambert", "microfacet"), folds=3)
