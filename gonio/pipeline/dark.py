@@ -30,11 +30,16 @@ class DarkCache:
     the light is switched off for the dark frames and back on at ``level`` afterwards, even on error.
     Without a light, the dark frame is the frame's black level only (dark current unknown) and is
     marked ``measured=False``. Variance of the mean follows the noise model (EMVA 1288) over ``n`` frames.
+    A bad frame is re-captured up to ``retries`` times; ``frame_check(frame) -> pixels`` replaces
+    :func:`~gonio.pipeline.hdr.check_frame` (the pipeline passes its own, with the size check).
     """
 
     def __init__(self, camera: Camera, calib: CameraCalibration, *, light=None, clock: Clock | None = None,
-                 n_frames: int = 4, max_age: float = 900.0, level: float = 1.0):
+                 n_frames: int = 4, max_age: float = 900.0, level: float = 1.0, frame_check=None,
+                 retries: int = 2):
         self.camera = camera
+        self.retries = max(0, int(retries))
+        self._check = frame_check  # (frame) -> pixels; default gonio.pipeline.hdr.check_frame
         self.calib = calib
         self.light = light
         self.clock = clock
@@ -60,21 +65,40 @@ class DarkCache:
         """Forget every cached dark frame (e.g. after the camera's temperature changed)."""
         self._cache.clear()
 
-    def _capture(self, exposure: float, gain: float) -> DarkFrame:
+    def _checked(self, frame) -> np.ndarray:
+        """The owner's frame check if given (the pipeline's: size at session start), else check_frame."""
+        if self._check is not None:
+            return self._check(frame)
         from gonio.pipeline.hdr import check_frame
 
+        return check_frame(frame, self.calib)
+
+    def _grab(self, exposure: float, gain: float):
+        """One checked frame; a bad frame (:class:`~gonio.pipeline.hdr.BadFrame`) is re-captured up to
+        ``retries`` times."""
+        from gonio.pipeline.hdr import BadFrame
+
+        for attempt in range(self.retries + 1):
+            frame = self.camera.capture(exposure, gain)
+            try:
+                return frame, self._checked(frame)
+            except BadFrame:
+                if attempt == self.retries:
+                    raise
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def _capture(self, exposure: float, gain: float) -> DarkFrame:
         noise = self.calib.noise
         if self.light is None:
-            frame = self.camera.capture(exposure, gain)
-            px = check_frame(frame, self.calib)
+            frame, px = self._grab(exposure, gain)
             mean = np.full(px.shape, frame.black_level, dtype=np.float32)
             return DarkFrame(mean, np.zeros(px.shape, np.float32), 0, self._now(), measured=False)
         self.light.set_light(False)
         try:
             acc, black = None, 0.0
             for _ in range(self.n_frames):
-                frame = self.camera.capture(exposure, gain)
-                px = check_frame(frame, self.calib).astype(np.float32)
+                frame, px = self._grab(exposure, gain)
+                px = px.astype(np.float32)
                 acc = px if acc is None else acc + px
                 black = frame.black_level
                 self.captures += 1

@@ -67,31 +67,48 @@ class ExposureStack:
     light: float  # mean relative light output (photodiode) during the frames
     black_level: float
     linear_limit: float  # raw value where the response stops being linear
+    light_rel_var: float = 0.0  # relative variance of ``light`` (photodiode noise of the mean reading)
 
 
 def average_frames(pixels: Sequence[np.ndarray], frames: Sequence[Frame], light: Sequence[float],
-                   limit: float, region=(slice(None), slice(None))) -> ExposureStack:
-    """Average ``pixels`` (checked (H, W, C) arrays of ``frames``, same exposure) over ``region``."""
+                   limit: float, region=(slice(None), slice(None)), light_u: Sequence[float] | None = None
+                   ) -> ExposureStack:
+    """Average ``pixels`` (checked (H, W, C) arrays of ``frames``, same exposure) over ``region``.
+
+    ``light_u`` are the standard uncertainties of the photodiode readings ``light``; the mean
+    reading's relative variance is ``Σu² / n² / P̄²`` (independent readings).
+    """
     crop = [p[region] for p in pixels]
     stack = np.stack(crop).astype(np.float64)
     f0 = frames[0]
+    p = float(np.mean(light))
+    rel = 0.0
+    if light_u is not None and p > 0:
+        u = np.asarray(light_u, dtype=np.float64)
+        rel = float(np.sum(u**2)) / len(u) ** 2 / p**2
     return ExposureStack(exposure=f0.exposure, gain=f0.gain, n=len(crop), mean=stack.mean(axis=0),
-                         max=stack.max(axis=0), light=float(np.mean(light)), black_level=f0.black_level,
-                         linear_limit=limit)
+                         max=stack.max(axis=0), light=p, black_level=f0.black_level, linear_limit=limit,
+                         light_rel_var=rel)
 
 
 @dataclass
 class HdrImage:
     """Merged radiometric image: DN per second at gain 1 per unit light output, above dark.
 
-    ``var`` is its variance; ``saturated`` marks pixels saturated in every exposure (rate = NaN);
-    ``used`` counts the exposures that contributed to each pixel.
+    ``var`` is its variance from the frames' noise; ``saturated`` marks pixels saturated in every
+    exposure (rate = NaN); ``used`` counts the exposures that contributed to each pixel.
+    ``light_weight`` (K, h, w, C) is each exposure's share ``w_k x_k / Σ w x`` of the merged value —
+    the sensitivity ``−∂ ln x / ∂ ln P_k`` to exposure k's photodiode reading — and
+    ``light_rel_var`` (K,) those readings' relative variances: the photodiode noise is kept apart
+    because it is correlated across all pixels of an exposure (it partly cancels in f = sample/white).
     """
 
     rate: np.ndarray
     var: np.ndarray
     saturated: np.ndarray
     used: np.ndarray
+    light_weight: np.ndarray | None = None
+    light_rel_var: np.ndarray | None = None
 
 
 def merge_linear(stacks: Sequence[ExposureStack], darks: Sequence[tuple[np.ndarray, np.ndarray]],
@@ -134,10 +151,14 @@ def merge_linear(stacks: Sequence[ExposureStack], darks: Sequence[tuple[np.ndarr
     w2 = np.where(ok_arr, 1.0 / var_k, 0.0)
     sw2 = w2.sum(axis=0)
     sat = sw2 <= 0
+    wx = w2 * np.where(ok_arr, x, 0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        rate = np.where(sat, np.nan, (w2 * np.where(ok_arr, x, 0.0)).sum(axis=0) / np.where(sat, 1.0, sw2))
+        num = wx.sum(axis=0)
+        rate = np.where(sat, np.nan, num / np.where(sat, 1.0, sw2))
         var = np.where(sat, np.nan, 1.0 / np.where(sat, 1.0, sw2))
-    return HdrImage(rate=rate, var=var, saturated=sat, used=ok_arr.sum(axis=0))
+        share = np.where(num != 0, wx / np.where(num != 0, num, 1.0), w2 / np.where(sat, 1.0, sw2))
+    return HdrImage(rate=rate, var=var, saturated=sat, used=ok_arr.sum(axis=0), light_weight=share,
+                    light_rel_var=np.asarray([s.light_rel_var for s in stacks], dtype=np.float64))
 
 
 def calibrate_response(images: Sequence[np.ndarray], exposures: Sequence[float], samples: int = 70) -> np.ndarray:

@@ -19,6 +19,7 @@ from gonio import samples as S
 from gonio.geometry import dot, normalize
 from gonio.pipeline.hdr import HdrImage
 from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
+from gonio.pipeline.uncertainty import geometry_variance
 from gonio.samples import SampleSet
 
 __all__ = ["Roi", "build_roi", "reflectance_samples"]
@@ -97,12 +98,17 @@ def build_roi(pose: CameraPose, calib: CameraCalibration, layout: TargetLayout, 
 
 def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_position, layout: TargetLayout, *,
                         absolute_scale=None, min_snr: float = 10.0, pose_index: int = -1, flags: int = 0,
-                        light_rel_sigma: float = 0.0) -> SampleSet:
+                        light_rel_sigma: float = 0.0, pose_perturbations=(), light_sigma: float = 0.0) -> SampleSet:
     """BRDF samples (one per tile) from a merged image over ``roi`` (see the module docstring).
 
     Uncertainty: per pixel ``σ_f² = σ²_rate / (kI E)²``; per tile the mean's variance
     ``Σσ_f²/n²`` plus the white reference's relative variance (and ``light_rel_sigma``, the light
-    normalization's) times f², per RGB channel (GUM, JCGM 100:2008, eq. 10, uncorrelated inputs).
+    normalization's) times f², per RGB channel (GUM, JCGM 100:2008, eq. 10, uncorrelated inputs);
+    plus the photodiode readings' noise, correlated between sample and white: with ``α_k`` the share
+    of exposure k in a value (:attr:`HdrImage.light_weight`), ``f² Σ_k (α_k,tile − α_k,white)² ε_k²``
+    (ε_k the reading's relative uncertainty; it cancels where both come from the same exposures);
+    plus the geometry's (:func:`gonio.pipeline.uncertainty.geometry_variance`: the camera pose's
+    ``pose_perturbations`` and the light position's ``light_sigma``, metres per coordinate).
     Pixels saturated in every exposure are excluded and their tile flagged ``SATURATED``; a tile
     with no usable pixel gets f = σ = NaN (flagged). SNR below ``min_snr`` → ``LOW_SIGNAL``.
     ``flags`` (e.g. ``NO_BOARD``, ``DRIFT``) are set on every sample.
@@ -122,6 +128,8 @@ def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_positio
     # --- white reference: k·I per channel ------------------------------------------------------
     rho = np.asarray(layout.white_albedo) / np.pi
     white_flags = 0
+    p_white = None
+    alpha_w = 0.0
     if absolute_scale is None:
         wmask = roi.white & finite
         if (wmask & sat_px).any():
@@ -132,6 +140,9 @@ def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_positio
             kI_px = hdr.rate[wmask] / den
             kI = kI_px.mean(axis=0)
             kI_var = (hdr.var[wmask] / den**2).sum(axis=0) / wmask.sum() ** 2
+            p_white = p[wmask].mean(axis=0)
+            if hdr.light_weight is not None:  # (K, C): the white's share of each exposure
+                alpha_w = (hdr.light_weight[:, wmask] * kI_px).sum(axis=1) / kI_px.sum(axis=0)
         else:
             kI = np.full(3 if hdr.rate.shape[-1] == 3 else 1, np.nan)
             kI_var = kI.copy()
@@ -163,6 +174,24 @@ def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_positio
     with np.errstate(invalid="ignore", divide="ignore"):
         f = fsum / n[:, None]
         var = vsum / n[:, None] ** 2 + f**2 * (kI_var / kI**2 + light_rel_sigma**2)
+    if hdr.light_weight is not None and hdr.light_rel_var is not None and hdr.light_rel_var.any():
+        aw = hdr.light_weight[:, good] * f_px  # (K, Ngood, C)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            alpha_t = np.stack([np.stack([np.bincount(lg, aw[k, :, c], minlength=nt) for c in range(chans)], -1)
+                                for k in range(aw.shape[0])]) / fsum  # (K, nt, C)
+            alpha_w_ = np.asarray(alpha_w, dtype=np.float64)
+            d = alpha_t - (alpha_w_[:, None, :] if alpha_w_.ndim == 2 else alpha_w_)
+            var = var + f**2 * np.einsum("ktc,k->tc", d**2, hdr.light_rel_var)
+    if (pose_perturbations or light_sigma > 0) and chans == 3:
+        p_tile = np.stack([np.bincount(lab[in_s], p[in_s][:, k], minlength=nt) for k in range(3)], -1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            p_tile = p_tile / nany[:, None]
+        n_grid = int(round(np.sqrt(nt)))
+        okt = np.isfinite(p_tile).all(axis=1)
+        p_tile[~okt] = 0.0
+        gv = geometry_variance(np.where(np.isfinite(f), f, np.nan), p_tile, p_white, pose, S_, n_grid,
+                               pose_perturbations=pose_perturbations, light_sigma=light_sigma)
+        var = var + np.where(okt[:, None], gv, 0.0)
     if chans == 1:
         f, var = np.repeat(f, 3, axis=1), np.repeat(var, 3, axis=1)
     sigma = np.sqrt(var)

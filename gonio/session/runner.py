@@ -361,7 +361,6 @@ class SessionRunner:
         try:
             try:
                 self.check_devices()
-                self.pipeline.check_camera()  # a frame size the calibration does not expect: stop now
                 t_warm = self.clock.now()
                 if not self._refresh_darks():  # darks first (light off), then one warm-up serves both
                     self.warm_up()

@@ -36,8 +36,26 @@ def rewire(bench, camera):
     bench.pipeline = Pipeline(camera, bench.calib, bench.layout, light=bench.light, clock=bench.clock)
 
 
+def test_a_camera_of_another_size_is_a_config_error_naming_both_sizes(bench_factory, lambert):
+    from gonio.errors import ConfigError
+
+    bench = bench_factory(lambert)
+    bench.place(30, 20, 20, 200)
+    rewire(bench, Corrupting(bench.camera, lambda f: dataclasses.replace(f, pixels=f.pixels[:-1])))
+    with pytest.raises(ConfigError, match="frame size 640x479 .* calibration's 640x480"):
+        bench.pipeline.measure(bench.camera._light_pos)
+
+
+def test_wrong_size_frames_after_good_ones_are_bad_frames(bench_factory, lambert):
+    bench = bench_factory(lambert)
+    pose, light = bench.place(30, 20, 20, 200)
+    bench.pipeline.measure(light)  # frames of the calibrated size: the size check is done
+    bench.pipeline.camera = Corrupting(bench.camera, lambda f: dataclasses.replace(f, pixels=f.pixels[:-1]))
+    with pytest.raises(BadFrame, match=r"pixels\.shape"):
+        bench.pipeline.measure(light)
+
+
 @pytest.mark.parametrize("how, field", [
-    (lambda f: dataclasses.replace(f, pixels=f.pixels[:-1]), "pixels.shape"),
     (lambda f: dataclasses.replace(f, pixels=f.pixels.astype(np.float32)), "pixels.dtype"),
     (lambda f: dataclasses.replace(f, pixels=f.pixels[..., :2]), "pixels.shape"),
     (lambda f: dataclasses.replace(f, bit_depth=10), "bit_depth"),
