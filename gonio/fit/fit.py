@@ -191,6 +191,35 @@ def _search_shape(proj: Projection, L: Layout, rng, n_starts: int):
     return shape, colour, cost
 
 
+#: Above this many samples the global shape search runs on a seeded random subset of this size and only
+#: a local refinement runs on all samples (the optimum is the full-data one; see :func:`_refine`).
+COARSE_N = 20_000
+
+
+def _refine(proj: Projection, L: Layout, u0: np.ndarray, width: float = 0.1):
+    """Local minimization of the full-data projected cost from ``u0`` (the subset optimum): bounded
+    Brent's method in [u0 − width, u0 + width] for one shape parameter, else L-BFGS-B (Byrd et al.
+    1995, as :func:`scipy.optimize.minimize`) within the search box."""
+    from scipy.optimize import minimize, minimize_scalar
+
+    u_lo, u_hi, _ = L.search_space()
+
+    def f(u):
+        return proj(L.to_shape(np.atleast_1d(u)))[0]
+
+    if L.S == 1:
+        a, b = max(u0[0] - width, u_lo[0]), min(u0[0] + width, u_hi[0])
+        res = minimize_scalar(f, bounds=(a, b), method="bounded", options={"xatol": 1e-5})
+        u = np.array([res.x])
+    else:
+        res = minimize(f, u0, method="L-BFGS-B", bounds=list(zip(u_lo, u_hi)),
+                       options={"eps": 1e-6, "ftol": 1e-10, "gtol": 1e-6, "maxiter": 8})
+        u = np.asarray(res.x)
+    shape = L.to_shape(u)
+    cost, colour = proj(shape)
+    return shape, colour, cost
+
+
 def _plain(prob: _Problem, starts: list[np.ndarray], max_nfev: int | None = None):
     """scipy least_squares (TRF, bounds) from each start; the best result."""
     from scipy.optimize import least_squares
@@ -406,7 +435,7 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
     """One fit of the layout ``L`` (free, tied and fixed parameters decided) to prepared data."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
-    heur = heuristics(d)
+    heur = heuristics(d if len(d) <= COARSE_N else d.subset(rng.choice(len(d), COARSE_N, replace=False)))
     basis = make_basis(L, d, use_kernels=kernel == "auto", seed=seed)
     separable = basis is not None and basis.separable
     if method == "varpro" and not separable:
@@ -420,7 +449,16 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
     if method == "varpro":
         w = (lossobj.weight or LOSSES["cosine"].weight)(d.y, d.cos_i, d.sigma)
         proj = Projection(basis, np.ascontiguousarray(w), d.y, L.colour_lo, L.colour_hi)
-        shape, colour, cost = _search_shape(proj, L, rng, n_starts)
+        if len(d) > COARSE_N and L.S:
+            idx = np.sort(rng.choice(len(d), COARSE_N, replace=False))
+            ds = d.subset(idx)
+            proj_s = Projection(make_basis(L, ds, use_kernels=kernel == "auto", seed=seed),
+                                np.ascontiguousarray(w[idx]), ds.y, L.colour_lo, L.colour_hi)
+            shape_s, _, _ = _search_shape(proj_s, L, rng, n_starts)
+            shape, colour, cost = _refine(proj, L, L.to_u(shape_s))
+            prob.n_evals += proj_s.n_evals
+        else:
+            shape, colour, cost = _search_shape(proj, L, rng, n_starts)
         p = L.pack(colour, shape)
         prob.n_evals += proj.n_evals
         if not lossobj.linear:
