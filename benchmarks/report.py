@@ -83,6 +83,7 @@ def _plot_capture(ax, tables) -> bool:
     for xi, yi, label, fl in zip(x, y, _col(t, "capture"), flagged):
         ax.annotate(f"{label} ({fl:.0f} % flagged)", (xi, yi), textcoords="offset points", xytext=(6, 4), fontsize=7)
     _mark_default(ax, t, x, y)
+    ax.margins(x=0.45, y=0.1)  # room for the labels right of the points
     ax.set(xlabel="lab time per pose (s)", ylabel="median σ/f of usable samples",
            title="Exposure bracket and frames: lab time vs noise")
     return True
