@@ -78,6 +78,9 @@ class AdaptiveSettings:
         Weights of the three selection terms.
     seed : int
         Seeds the first pose of the coarse round and the ordering heuristic.
+    round_overhead : float
+        Lab seconds every round costs besides its poses (a session's runner checks the devices and the
+        light's stability at the start of each run: one photodiode step); counted against the budget.
     """
 
     n_initial: int = 24
@@ -87,6 +90,7 @@ class AdaptiveSettings:
     max_rounds: int = 20
     weights: tuple[float, float, float] = (1.0, 1.0, 0.05)
     seed: int = 0
+    round_overhead: float = 0.0
 
     def __post_init__(self):
         src = "adaptive"
@@ -95,6 +99,10 @@ class AdaptiveSettings:
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (0 if name == "seed" else 1):
                 raise ConfigError.field(src, name, v, "must be an integer >= " + ("0" if name == "seed" else "1"))
             object.__setattr__(self, name, int(v))
+        ro = float(self.round_overhead)
+        if not math.isfinite(ro) or ro < 0:
+            raise ConfigError.field(src, "round_overhead", self.round_overhead, "must be >= 0 seconds")
+        object.__setattr__(self, "round_overhead", ro)
         for name in ("target_error", "lab_budget"):
             v = getattr(self, name)
             v = math.inf if v is None and name == "lab_budget" else v
@@ -116,7 +124,8 @@ class AdaptiveSettings:
         """JSON-able (an infinite budget is ``None``)."""
         return {"n_initial": self.n_initial, "batch": self.batch, "target_error": self.target_error,
                 "lab_budget": None if math.isinf(self.lab_budget) else self.lab_budget,
-                "max_rounds": self.max_rounds, "weights": list(self.weights), "seed": self.seed}
+                "max_rounds": self.max_rounds, "weights": list(self.weights), "seed": self.seed,
+                "round_overhead": self.round_overhead}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], source: str = "adaptive") -> "AdaptiveSettings":
@@ -142,7 +151,8 @@ class Round:
     candidates : ndarray (k,) int
         Indices into the candidate plan, in measurement order.
     lab_time : float
-        Estimated lab seconds of the round: moves (from the previous round's last pose) + settle + capture.
+        Estimated lab seconds of the round: the round overhead + moves (from the previous round's last
+        pose) + settle + capture.
     lab_total : float
         Estimated lab seconds of this and every earlier round.
     cut : bool
@@ -245,8 +255,8 @@ class AdaptivePlanner:
         prev = joints[order[:1]] if current is None else np.asarray(current, dtype=np.float64)[None]
         steps = self.motion.move_time(np.vstack([prev, joints[order[:-1]]]), joints[order]) \
             + self.candidates.capture.pose_time()
-        fits = int(np.searchsorted(np.cumsum(steps), s.lab_budget - lab_before, side="right"))
-        lab = float(np.sum(steps[:fits]))
+        fits = int(np.searchsorted(np.cumsum(steps), s.lab_budget - lab_before - s.round_overhead, side="right"))
+        lab = float(np.sum(steps[:fits])) + (s.round_overhead if fits else 0.0)
         return Round(index, order[:fits], lab, lab_before + lab, cut=fits < len(order))
 
     def first_round(self) -> Round:
@@ -364,11 +374,12 @@ def _by_pose(samples: SampleSet, k: int) -> SampleSet:
 def adaptive_plan(candidates: Plan, measure: Callable[[np.ndarray], SampleSet], fit: Callable[[SampleSet], Any], *,
                   motion: MotionModel, n_initial: int = 24, batch: int = 16, target_error: float = 0.05,
                   lab_budget: float = np.inf, max_rounds: int = 20, weights=(1.0, 1.0, 0.05),
-                  seed: int = 0) -> AdaptiveResult:
+                  seed: int = 0, round_overhead: float = 0.0) -> AdaptiveResult:
     """Grow a plan from ``candidates`` adaptively, measuring through ``measure`` (see the module
     docstring; the parameters are those of :class:`AdaptiveSettings`)."""
     settings = AdaptiveSettings(n_initial=n_initial, batch=batch, target_error=target_error, lab_budget=lab_budget,
-                                max_rounds=max_rounds, weights=weights, seed=seed)
+                                max_rounds=max_rounds, weights=weights, seed=seed,
+                                round_overhead=round_overhead)
     planner = AdaptivePlanner(candidates, fit, motion=motion, settings=settings)
     rounds: list[Round] = []
     sets: list[SampleSet] = []
