@@ -155,9 +155,21 @@ def _check_out(out: str) -> None:
 def _run_session(store, plan, devices, calibration, layout, *, before_pose, quiet: bool, resume_cmd: str) -> int:
     from gonio.session.runner import SessionRunner, format_lab_time
 
-    runner = SessionRunner(plan, store, devices, calibration, layout, before_pose=before_pose,
-                           resume_command=resume_cmd, stream=None if quiet else sys.stderr)
-    result = runner.run()
+    if "adaptive" in store.manifest:  # a loop around the runner: rounds planned from the stored samples
+        from gonio.session.adaptive import AdaptiveSession, rounds_table
+
+        result = AdaptiveSession(store, devices, calibration, layout, before_pose=before_pose,
+                                 resume_command=resume_cmd, stream=None if quiet else sys.stderr).run()
+        plan = store.manifest["plan"]["poses"]
+        print(f"adaptive: {len(result.rounds)} rounds, "
+              + (f"stopped ({result.stop})" if result.stop else "not finished"))
+        print("\n".join(rounds_table(result.rounds)))
+        if result.model is not None:
+            print(f"fitted on every sample: {result.model!r}")
+    else:
+        runner = SessionRunner(plan, store, devices, calibration, layout, before_pose=before_pose,
+                               resume_command=resume_cmd, stream=None if quiet else sys.stderr)
+        result = runner.run()
     total = store.sample_count
     print(f"{result.measured} poses, {result.samples} samples measured in this run "
           f"({len(store.done_poses())}/{len(plan)} poses, {total} samples in {store.directory})")
@@ -239,7 +251,15 @@ def run_measure(args) -> int:
         rig_src = args.rig
     rig = load_rig(rig_src)
     material = _material(args.material) if (args.sim or args.material) else None
-    plan = _make_plan(args, rig)
+    adaptive = None
+    if args.plan == "adaptive":
+        from gonio.cli.plan import adaptive_from_args
+        from gonio.session.adaptive import new_adaptive_manifest
+
+        adaptive = new_adaptive_manifest(*adaptive_from_args(args, rig, source="--plan adaptive"), rig)
+        plan = adaptive["plan"]
+    else:
+        plan = _make_plan(args, rig)
     _check_out(out)
     manifest = {
         "mode": "sim" if args.sim else "hardware",
@@ -249,6 +269,8 @@ def run_measure(args) -> int:
         "rig": {"name": rig.name, "source": rig_src if args.sim else str(args.rig)},
         "material": material.to_dict() if material is not None else {"label": ""},
     }
+    if adaptive is not None:
+        manifest["adaptive"] = adaptive["adaptive"]
     if args.sim:
         from sim.rig import SimRigConfig  # configuration boundary (see the module docstring)
 
@@ -276,6 +298,12 @@ def _say_plan(plan, store, quiet: bool) -> None:
     est = estimate_plan(plan, store.manifest["rig"]["name"] if store.manifest["mode"] == "sim" else None)
     dropped = f", {plan.n_dropped} dropped as unreachable" if plan.n_dropped else ""
     eta = f", estimated lab time {format_lab_time(est.optimized)} (lower bound {format_lab_time(est.lower_bound)})"
+    if plan.generator == "adaptive":
+        p = plan.params
+        budget = f"at most the lab budget {format_lab_time(p['lab_budget'])}" if p["lab_budget"] else "no lab budget"
+        dropped = f" of {p['candidates']} candidates" + (f" ({plan.n_dropped} unreachable)" if plan.n_dropped else "")
+        eta = (f" in the coarse round, estimated {format_lab_time(est.optimized)}; later rounds are chosen while "
+               f"measuring: total lab time not known ahead ({budget}), target error {p['target_error']:g}")
     print(f"session {store.directory}: plan {plan.generator}, {len(plan)} poses{dropped}{eta}", file=sys.stderr)
 
 
@@ -295,12 +323,14 @@ def run_resume(args) -> int:
     try:
         plan = Plan.from_dict(manifest.get("plan"), source=str(d / MANIFEST))
         remaining = store.remaining(plan)
-        if len(remaining) == 0:
+        adapting = isinstance(manifest.get("adaptive"), dict) and manifest["adaptive"].get("stop") is None
+        if len(remaining) == 0 and not adapting:
             store.finish("completed")
             print(f"{d}: all {len(plan)} poses are measured; nothing to resume")
             return 0
         if not args.quiet:
-            print(f"resuming {d}: {len(remaining)} of {len(plan)} poses remaining", file=sys.stderr)
+            print(f"resuming {d}: {len(remaining)} of {len(plan)} poses remaining"
+                  + ("; then adapting from the stored samples" if adapting else ""), file=sys.stderr)
         mode = manifest.get("mode")
         if mode == "sim":
             return _sim_session(store, plan, manifest, args.quiet)

@@ -4,6 +4,13 @@ bound and the raster, one-axis-at-a-time baseline. Angles in degrees here, radia
 
 from __future__ import annotations
 
+#: Candidate poses of an adaptive plan when none are given (degrees).
+ADAPTIVE_CANDIDATES = "isotropic"
+ADAPTIVE_CANDIDATE_PARAMS = {"theta_step": 10.0, "phi_step": 30.0, "theta_max": 70.0}
+ADAPTIVE_MODEL = "microfacet"
+ADAPTIVE_TARGET = 0.02
+_ADAPTIVE_OPTS = ("candidates", "model", "select", "target_error", "lab_budget", "batch", "coarse", "max_rounds")
+
 
 def add_plan_options(p, *, default_plan: str | None = None) -> None:
     """Options shared by ``gonio plan`` and ``gonio measure``: every generator's parameters (degrees),
@@ -13,8 +20,8 @@ def add_plan_options(p, *, default_plan: str | None = None) -> None:
 
     if default_plan is not None:
         p.add_argument("--plan", default=default_plan, metavar="NAME",
-                       help=f"plan generator (default {default_plan}): {', '.join(GENERATORS)}; its parameters as "
-                            "options below, angles in degrees")
+                       help=f"plan generator (default {default_plan}): {', '.join(GENERATORS)}, or adaptive; its "
+                            "parameters as options below, angles in degrees")
     g = p.add_argument_group("plan parameters (each plan takes some; angles in degrees)")
     seen = set()
     for gen in GENERATORS.values():
@@ -31,6 +38,22 @@ def add_plan_options(p, *, default_plan: str | None = None) -> None:
     c.add_argument("--gain", type=float, default=None, help="analogue gain")
     c.add_argument("--settle", type=float, default=None, help="settle time after each move, seconds")
     p.add_argument("--order", choices=["optimized", "raster"], default="optimized", help="pose order")
+    a = p.add_argument_group("adaptive plan (plan adaptive: measure a coarse round, fit, add poses where the model is "
+                             "least certain or fits worst; the plan parameters above describe the candidate poses)")
+    a.add_argument("--candidates", default=None, metavar="NAME",
+                   help=f"generator of the candidate poses (default {ADAPTIVE_CANDIDATES} "
+                        + ", ".join(f"{k} {v:g}" for k, v in ADAPTIVE_CANDIDATE_PARAMS.items()) + ")")
+    a.add_argument("--model", default=None, metavar="NAME", help=f"model fitted each round (default {ADAPTIVE_MODEL})")
+    a.add_argument("--select", nargs="?", const="", default=None, metavar="M1,M2,...",
+                   help="choose the model each round among these (gonio fit's default candidates if none given)")
+    a.add_argument("--target-error", type=float, default=None, metavar="E",
+                   help=f"stop when a round is predicted with relative RMS error <= E (default {ADAPTIVE_TARGET:g})")
+    a.add_argument("--lab-budget", type=float, default=None, metavar="S",
+                   help="stop when the poses' lab time (moves + settle + capture + a light check per round) would "
+                        "exceed S seconds (default: none)")
+    a.add_argument("--batch", type=int, default=None, metavar="N", help="poses added per round (default 16)")
+    a.add_argument("--coarse", type=int, default=None, metavar="N", help="poses of the coarse first round (default 24)")
+    a.add_argument("--max-rounds", type=int, default=None, metavar="N", help="rounds at most (default 20)")
 
 
 def _capture(args):
@@ -66,9 +89,20 @@ def plan_from_args(args, name: str, rig, *, where: str, source: str, defaults=No
     from gonio.errors import ConfigError
     from gonio.plan.generators import GENERATORS, make_plan
 
+    if name == "adaptive":
+        from gonio.plan.adaptive import AdaptivePlanner
+        from gonio.plan.ordering import MotionModel
+
+        candidates, settings, spec = adaptive_from_args(args, rig, source=source)
+        planner = AdaptivePlanner(candidates, spec.callable(), motion=MotionModel.from_rig(rig), settings=settings)
+        return planner.plan([planner.first_round()], extra={"fit": spec.to_dict()})
     gen = GENERATORS.get(name)
     if gen is None:
-        raise ConfigError.field(where, "plan", name, f"unknown plan; known: {', '.join(GENERATORS)}")
+        raise ConfigError.field(where, "plan", name, f"unknown plan; known: {', '.join(GENERATORS)}, adaptive")
+    given_adaptive = [o for o in _ADAPTIVE_OPTS if getattr(args, o, None) is not None]
+    if given_adaptive and where != "--candidates":
+        o = given_adaptive[0]
+        raise ConfigError.field(f"--{o.replace('_', '-')}", "option", getattr(args, o), "only for plan adaptive")
     given = {k[5:]: v for k, v in vars(args).items() if k.startswith("plan_") and v is not None}
     for k in given:
         if k not in gen.params:
@@ -82,13 +116,62 @@ def plan_from_args(args, name: str, rig, *, where: str, source: str, defaults=No
                      time_budget=time_budget, source=source, **params)
 
 
+def adaptive_from_args(args, rig, *, source: str):
+    """``(candidates, AdaptiveSettings, FitSpec)`` of an adaptive plan from the options of
+    :func:`add_plan_options`: the candidates are the ``--candidates`` generator's poses (its parameters
+    as given, or :data:`ADAPTIVE_CANDIDATE_PARAMS` for the default generator), in raster order."""
+    import math
+
+    from gonio.errors import ConfigError
+    from gonio.plan.adaptive import AdaptiveSettings
+    from gonio.session.adaptive import FitSpec
+    from gonio.session.runner import RunnerSettings
+
+    name = args.candidates or ADAPTIVE_CANDIDATES
+    if name == "adaptive":
+        raise ConfigError.field("--candidates", "plan", name, "the candidates must come from a generator")
+    ns = _copy_args(args, order="raster")
+    defaults = ADAPTIVE_CANDIDATE_PARAMS if name == ADAPTIVE_CANDIDATES else None
+    candidates = plan_from_args(ns, name, rig, where="--candidates", source=source, defaults=defaults)
+    for opt, lo in (("batch", 1), ("coarse", 1), ("max_rounds", 1)):
+        v = getattr(args, opt)
+        if v is not None and v < lo:
+            raise ConfigError.field(f"--{opt.replace('_', '-')}", opt, v, f"must be >= {lo}")
+    for opt in ("target_error", "lab_budget"):
+        v = getattr(args, opt)
+        if v is not None and (not math.isfinite(v) or v < 0 or (opt == "lab_budget" and v == 0)):
+            raise ConfigError.field(f"--{opt.replace('_', '-')}", opt, v,
+                                    "must be positive seconds" if opt == "lab_budget" else "must be >= 0")
+    settings = AdaptiveSettings(
+        n_initial=24 if args.coarse is None else args.coarse, batch=16 if args.batch is None else args.batch,
+        target_error=ADAPTIVE_TARGET if args.target_error is None else args.target_error,
+        lab_budget=math.inf if args.lab_budget is None else args.lab_budget,
+        max_rounds=20 if args.max_rounds is None else args.max_rounds, seed=args.seed,
+        round_overhead=RunnerSettings().warmup_step)
+    if args.select is not None and args.model is not None:
+        raise ConfigError.field("--select", "option", args.select, "give --model or --select, not both")
+    select = None if args.select is None else tuple(m.strip() for m in args.select.split(",") if m.strip())
+    if select == ():
+        from gonio.fit.select import DEFAULT_CANDIDATES
+
+        select = tuple(DEFAULT_CANDIDATES)
+    return candidates, settings, FitSpec(model=args.model or ADAPTIVE_MODEL, select=select)
+
+
+def _copy_args(args, **changes):
+    import argparse
+
+    return argparse.Namespace(**{**vars(args), **changes})
+
+
 def register(sub) -> None:
     from gonio.plan.generators import GENERATORS
 
     p = sub.add_parser("plan", help="generate a measurement plan and estimate its lab time",
                        description="Generate a plan (poses the rig can reach, ordered for lab time). "
                                    "Plans: " + "; ".join(f"{g.name}: {g.doc}" for g in GENERATORS.values()))
-    p.add_argument("name", metavar="NAME", help=f"plan generator: {', '.join(GENERATORS)}")
+    p.add_argument("name", metavar="NAME", help=f"plan generator: {', '.join(GENERATORS)}, or adaptive (a coarse "
+                   "first round; later rounds are chosen while measuring)")
     add_plan_options(p)
     p.add_argument("--rig", default=None, metavar="RIG.toml", help="rig description (default: the shipped rig)")
     p.add_argument("--seed", type=int, default=0, help="seed of the ordering heuristic")
@@ -100,17 +183,15 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    import json
     import math
-    import os
-    from pathlib import Path
 
-    from gonio.errors import ConfigError
     from gonio.plan import GENERATORS, estimate_plan
     from gonio.rig.kinematics import load_rig
 
     rig = load_rig(args.rig)
     plan = plan_from_args(args, args.name, rig, where="NAME", source="gonio plan", time_budget=args.time_budget)
+    if args.name == "adaptive":
+        return _print_adaptive(args, plan, rig)
     gen = GENERATORS[args.name]
 
     shown = ", ".join(f"{k} = {math.degrees(v):g} deg" if gen.params[k].kind == "angle" else f"{k} = {v:g}"
@@ -132,6 +213,48 @@ def run(args) -> int:
         print(f"lower bound (N*pose time + MST of moves): {hms(e.lower_bound)}   this order / bound = {e.ratio_to_bound:.3f}")
         print(f"raster order, one axis at a time:         {hms(e.raster)}   this order / raster = {e.ratio_to_raster:.3f}")
         print(f"raster order, joints together:            {hms(e.raster_concurrent)}")
+    _write(args, plan)
+    return 0
+
+
+def _print_adaptive(args, plan, rig) -> int:
+    """``gonio plan adaptive``: the candidates, the coarse first round (estimated like any plan), and what
+    cannot be known before measuring."""
+    import math
+
+    from gonio.plan import GENERATORS, estimate_plan
+
+    p = plan.params
+    spec = GENERATORS[p["candidates"]].params
+    shown = ", ".join(f"{k} = {math.degrees(v):g} deg" if spec[k].kind == "angle" else f"{k} = {v:g}"
+                      for k, v in p["candidate_params"].items() if k in spec)
+    print(f"plan adaptive on rig {rig.name!r}: candidates {p['candidates']} ({shown}); fit "
+          f"{'select among ' + ', '.join(p['fit']['select']) if p['fit']['select'] else p['fit']['model']}")
+    print(f"coarse first round: {len(plan)} poses (farthest-point spread), then {p['batch']} poses a round, "
+          f"at most {p['max_rounds']} rounds; stop when a round is predicted within {p['target_error']:g} "
+          f"(relative RMS)" + (f" or at the lab budget of {p['lab_budget']:g} s" if p["lab_budget"] else ""))
+    if plan.n_dropped:
+        why = ", ".join(f"{n} {r}" for r, n in sorted(plan.dropped_reasons().items()))
+        print(f"candidates dropped: {plan.n_dropped} poses: {why}")
+    e = estimate_plan(plan, rig)
+    print(f"lab time of the coarse round: {e.optimized:.1f} s (lower bound {e.lower_bound:.1f} s)")
+    budget = (f"it is at most the lab budget, {p['lab_budget']:g} s (poses + {p['round_overhead']:g} s of light "
+              "check per round; the session's start-up, dark frames and warm-up come on top)"
+              if p["lab_budget"] else "no --lab-budget is set, so it is bounded only by the round limit "
+              f"({p['n_initial']} + {p['max_rounds'] - 1} x {p['batch']} poses at most)")
+    print("total lab time: cannot be estimated ahead of time — the later rounds are chosen from the "
+          f"measurements; {budget}")
+    _write(args, plan)
+    return 0
+
+
+def _write(args, plan) -> None:
+    import json
+    import os
+    from pathlib import Path
+
+    from gonio.errors import ConfigError
+
     if args.out:
         out = Path(args.out)
         data = json.dumps(plan.to_dict()) + "\n"
@@ -142,4 +265,3 @@ def run(args) -> int:
         except OSError as exc:
             raise ConfigError.field("--out", "file", str(out), f"cannot write: {exc.strerror}") from None
         print(f"wrote {out}")
-    return 0
