@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from gonio.brdf.base import BRDF, Param
-from gonio.brdf.fresnel import schlick
+from gonio.brdf.fresnel import one_minus_cos_d, schlick
 from gonio.brdf.microfacet import _tiny, half_vector
 from gonio.brdf.phong import EXPONENT_MAX
 
@@ -56,7 +56,7 @@ class AshikhminShirley(BRDF):
         kh = np.maximum(wi[..., 0] * h[..., 0] + wi[..., 1] * h[..., 1] + wi[..., 2] * h[..., 2], tiny)
         big = np.maximum(np.maximum(wi[..., 2], wo[..., 2]), tiny)
         spec = np.sqrt((nu + 1.0) * (nv + 1.0)) / (8.0 * np.pi) * power / (kh * big)
-        fs = spec[..., None] * schlick(self.rs, kh)
+        fs = spec[..., None] * schlick(self.rs, kh, one_minus_cos_d(wi, wo, h))
         ci = 1.0 - 0.5 * wi[..., 2]
         co = 1.0 - 0.5 * wo[..., 2]
         shape = (1.0 - ci ** 5) * (1.0 - co ** 5)

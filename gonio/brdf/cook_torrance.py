@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from gonio.brdf.base import BRDF, Param
-from gonio.brdf.fresnel import schlick
+from gonio.brdf.fresnel import one_minus_cos_d, schlick
 from gonio.brdf.microfacet import ALPHA_MIN, _tiny, beckmann_d, half_vector, vgroove_g
 
 __all__ = ["CookTorrance"]
@@ -52,5 +52,5 @@ class CookTorrance(BRDF):
         g = vgroove_g(wi, wo, h)
         oh = wo[..., 0] * h[..., 0] + wo[..., 1] * h[..., 1] + wo[..., 2] * h[..., 2]
         denom = np.maximum(wi[..., 2] * wo[..., 2], _tiny(wi))
-        spec = (d * g / denom)[..., None] * schlick(self.f0, oh)
+        spec = (d * g / denom)[..., None] * schlick(self.f0, oh, one_minus_cos_d(wi, wo, h))
         return self.kd / np.pi + self.ks / np.pi * spec

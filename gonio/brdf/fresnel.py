@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["schlick", "schlick_rational_power", "f0_from_eta", "dielectric", "conductor"]
+__all__ = ["schlick", "one_minus_cos_d", "schlick_rational_power", "f0_from_eta", "dielectric", "conductor"]
 
 
 def _prep(cos_theta, *consts):
@@ -29,16 +29,31 @@ def _prep(cos_theta, *consts):
     return c, out
 
 
-def schlick(f0, cos_theta) -> np.ndarray:
+def schlick(f0, cos_theta, one_minus_cos=None) -> np.ndarray:
     """Schlick's approximation F = f0 + (1 − f0)(1 − cos θ)⁵.
 
     C. Schlick, "An Inexpensive BRDF Model for Physically-based Rendering", Computer Graphics Forum
     13(3), 1994, eq. 15; lecture notes ``004_6b0fa14dcb48ed2f.txt`` ("Fresnel(F0, V·H)").
+
+    Near normal incidence ``1 − cos θ`` cancels catastrophically (relative error ε/θ², raised to the
+    5th power); callers that have the vectors pass ``one_minus_cos`` computed without the
+    cancellation (see :func:`one_minus_cos_d`), and ``cos_theta`` is then only used for its shape.
     """
-    c, (f0,) = _prep(cos_theta, f0)
-    m = 1.0 - c
+    c, (f0,) = _prep(cos_theta if one_minus_cos is None else one_minus_cos, f0)
+    m = 1.0 - c if one_minus_cos is None else c
     m2 = m * m
     return f0 + (1.0 - f0) * (m2 * m2 * m)
+
+
+def one_minus_cos_d(wi, wo, h) -> np.ndarray:
+    """1 − cos θ_d for unit wi, wo and their half vector h, without cancellation near θ_d = 0.
+
+    1 − cos θ = |w − h|²/2 for unit vectors (law of cosines); averaging the wi and wo forms makes the
+    result exactly symmetric in (wi, wo), so Fresnel-weighted models stay reciprocal to the last bit.
+    """
+    di = wi - h
+    do = wo - h
+    return 0.25 * (np.sum(di * di, axis=-1) + np.sum(do * do, axis=-1))
 
 
 def schlick_rational_power(t, s) -> np.ndarray:

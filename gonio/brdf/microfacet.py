@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from gonio.brdf.base import BRDF, Param
-from gonio.brdf.fresnel import schlick
+from gonio.brdf.fresnel import one_minus_cos_d, schlick
 
 __all__ = [
     "ALPHA_MIN",
@@ -206,5 +206,5 @@ class Microfacet(BRDF):
         g = smith_g2(self.distribution, wi, wo, h, self.alpha)
         oh = wo[..., 0] * h[..., 0] + wo[..., 1] * h[..., 1] + wo[..., 2] * h[..., 2]
         denom = 4.0 * np.maximum(wi[..., 2] * wo[..., 2], _tiny(wi))
-        spec = (d * g / denom)[..., None] * schlick(self.f0, oh)
+        spec = (d * g / denom)[..., None] * schlick(self.f0, oh, one_minus_cos_d(wi, wo, h))
         return self.kd / np.pi + self.ks * spec

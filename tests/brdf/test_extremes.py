@@ -113,3 +113,24 @@ def test_isotropic_models_invariant_under_azimuthal_rotation():
     a = w.eval(from_spherical(ti, pi_), from_spherical(to, po))
     b = w.eval(from_spherical(ti, pi_ + 0.7), from_spherical(to, po + 0.7))
     assert not np.allclose(a, b)
+
+
+@pytest.mark.parametrize("name", ["cook-torrance", "microfacet", "ashikhmin-shirley"])
+def test_schlick_near_normal_incidence_is_reciprocal_and_accurate(name):
+    # Found by hypothesis: with f0 ≈ 0 the Fresnel term is (1 − cos θd)⁵ and 1 − cos θd computed as
+    # 1 − wo·h cancels (relative error 1e-9 at θd = 1e-3 rad, so f(wi, wo) ≠ f(wo, wi)).
+    f0_key = "rs" if name == "ashikhmin-shirley" else "f0"
+    kd_key = "rd" if name == "ashikhmin-shirley" else "kd"
+    model = make(name, **{f0_key: 0.0, kd_key: 0.0})
+    theta = np.array([0.0, 1e-4, 2e-3, 0.3])
+    wi = from_spherical(np.zeros_like(theta), np.zeros_like(theta))
+    wo = from_spherical(theta, np.zeros_like(theta))
+    f, g = model.eval(wi, wo), model.eval(wo, wi)
+    np.testing.assert_allclose(f, g, rtol=1e-13, atol=0)
+    # and the Fresnel factor itself against the cancellation-free closed form (1 − cos(θ/2))⁵
+    from gonio.brdf.fresnel import one_minus_cos_d, schlick
+    from gonio.brdf.microfacet import half_vector
+
+    h = half_vector(wi, wo)
+    exact = (2.0 * np.sin(theta / 4.0) ** 2) ** 5
+    np.testing.assert_allclose(schlick(0.0, 1.0, one_minus_cos_d(wi, wo, h)), exact, rtol=1e-12)
