@@ -268,3 +268,29 @@ class ControllerEmulator(PtyServer):
 def _u32(x: float) -> int:
     """Round and clamp to the u32 wire range."""
     return int(min(max(round(x), 0), 0xFFFFFFFF))
+
+
+def main(argv=None) -> int:  # pragma: no cover - interactive tool
+    """Serve the emulator on a pty in real time and print its path (try ``gonio controller`` on it)."""
+    import argparse
+    import time
+
+    from gonio.rig.clock import RealClock
+
+    ap = argparse.ArgumentParser(prog="python -m sim.controller",
+                                 description="Serve the emulated rig controller on a pty (real time).")
+    ap.add_argument("--seconds", type=float, default=3600.0, help="serve this long, then exit")
+    ap.add_argument("--estop", action="store_true", help="start with the E-stop pressed")
+    ap.add_argument("--seed", type=int, default=0, help="photodiode noise seed")
+    args = ap.parse_args(argv)
+    with ControllerEmulator(RealClock(), seed=args.seed) as emu:
+        emu.set_estop(args.estop)
+        print(emu.path, flush=True)
+        deadline = time.monotonic() + args.seconds
+        while time.monotonic() < deadline:
+            time.sleep(0.2)
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

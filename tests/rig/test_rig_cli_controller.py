@@ -1,0 +1,58 @@
+"""``gonio controller status|light|photodiode|trigger`` against the emulator on a real pty (real time)."""
+
+from __future__ import annotations
+
+import pytest
+
+from gonio.cli.main import main
+from gonio.rig.clock import RealClock
+from sim.controller import ControllerEmulator
+
+
+@pytest.fixture
+def bench():
+    with ControllerEmulator(RealClock(), pd_noise=0.0, warmup_depth=0.0) as emu:
+        yield emu
+
+
+def test_status_reports_protocol_capabilities_and_inputs(bench, capsys):
+    assert main(["controller", "status", "--port", bench.path]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith(f"{bench.path}: protocol 1.") and "watchdog 10 s" in out[0]
+    assert out[1] == "capabilities dimming, photodiode, trigger, temperature, interlock"
+    assert out[2].split() == ["E-stop", "released"] and out[4].split()[:2] == ["light", "off"]
+    bench.set_estop(True)
+    assert main(["controller", "status", "--port", bench.path]) == 0
+    assert "E-stop      PRESSED" in capsys.readouterr().out
+
+
+def test_light_follows_level_on_the_photodiode_and_is_switched_off(bench, capsys):
+    assert main(["controller", "light", "--port", bench.path, "--level", "0.5", "--seconds", "0.3",
+                 "--every", "0.1"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    readings = [float(line.split()[1]) for line in out[1:-1]]
+    assert len(readings) >= 3 and out[-1] == "light off"
+    assert readings == pytest.approx([0.5] * len(readings), rel=1e-3)  # gain 1, no warm-up, no noise
+    assert bench.executed["SET_LIGHT"] >= 2
+    assert main(["controller", "photodiode", "--port", bench.path, "--samples", "4"]) == 0
+    assert capsys.readouterr().out.startswith("photodiode 0.000000")  # left off
+
+
+def test_trigger_fires_one_pulse(bench, capsys):
+    assert main(["controller", "trigger", "--port", bench.path, "--exposure", "0.002"]) == 0
+    assert "trigger pulse of 0.002 s started" in capsys.readouterr().out
+    assert len(bench.trigger_times) == 1
+
+
+def test_one_line_errors(bench, capsys):
+    assert main(["controller", "status", "--port", "/dev/does-not-exist"]) == 2
+    assert capsys.readouterr().err.strip() == ("gonio controller: error: --port: port = '/dev/does-not-exist': "
+                                               "no such serial device")
+    assert main(["controller", "light", "--port", bench.path, "--level", "1.5"]) == 2
+    assert "--level: level = 1.5: must be in [0, 1]" in capsys.readouterr().err
+    bench.set_estop(True)
+    code = main(["controller", "light", "--port", bench.path, "--seconds", "0.1"])
+    err = capsys.readouterr().err.strip()
+    assert code != 0 and "light refused: E-stop pressed" in err and "\n" not in err
+    assert main(["controller", "trigger", "--port", bench.path, "--exposure", "0"]) == 2
+    assert "trigger exposure" in capsys.readouterr().err
