@@ -273,7 +273,6 @@ def _u32(x: float) -> int:
 def main(argv=None) -> int:  # pragma: no cover - interactive tool
     """Serve the emulator on a pty in real time and print its path (try ``gonio controller`` on it)."""
     import argparse
-    import time
 
     from gonio.rig.clock import RealClock
 
@@ -283,12 +282,9 @@ def main(argv=None) -> int:  # pragma: no cover - interactive tool
     ap.add_argument("--estop", action="store_true", help="start with the E-stop pressed")
     ap.add_argument("--seed", type=int, default=0, help="photodiode noise seed")
     args = ap.parse_args(argv)
-    with ControllerEmulator(RealClock(), seed=args.seed) as emu:
-        emu.set_estop(args.estop)
-        print(emu.path, flush=True)
-        deadline = time.monotonic() + args.seconds
-        while time.monotonic() < deadline:
-            time.sleep(0.2)
+    emu = ControllerEmulator(RealClock(), seed=args.seed)
+    emu.set_estop(args.estop)
+    emu.serve_interactively(args.seconds)
     return 0
 
 

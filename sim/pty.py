@@ -63,6 +63,20 @@ class PtyServer:
     def __exit__(self, *exc):
         self.stop()
 
+    def serve_interactively(self, seconds: float) -> None:  # pragma: no cover - interactive tool
+        """Start, print :attr:`path` (for the command-line tools to open) and serve for ``seconds``
+        of real time or until Ctrl-C, then stop. Used by ``python -m sim.servo_bus`` / ``sim.controller``."""
+        import time
+
+        with self:
+            print(self.path, flush=True)
+            deadline = time.monotonic() + seconds
+            try:
+                while time.monotonic() < deadline:
+                    time.sleep(0.2)
+            except KeyboardInterrupt:
+                pass
+
     # -- I/O ----------------------------------------------------------------------------------
     def _loop(self) -> None:
         while not self._stop.is_set():

@@ -366,7 +366,6 @@ class ServoBus(PtyServer):
 
 def main(argv=None) -> int:  # pragma: no cover - interactive tool
     import argparse
-    import time
 
     ap = argparse.ArgumentParser(prog="python -m sim.servo_bus", description="Serve emulated Dynamixel servos on a pty.")
     ap.add_argument("--ids", default="1,2,3,4", help="comma-separated IDs")
@@ -374,11 +373,7 @@ def main(argv=None) -> int:  # pragma: no cover - interactive tool
     ap.add_argument("--seconds", type=float, default=3600.0, help="serve this long, then exit")
     args = ap.parse_args(argv)
     ids = [int(x) for x in args.ids.split(",") if x]
-    with ServoBus({i: args.model for i in ids}) as bus:
-        print(bus.path, flush=True)
-        deadline = time.monotonic() + args.seconds
-        while time.monotonic() < deadline:
-            time.sleep(0.2)
+    ServoBus({i: args.model for i in ids}).serve_interactively(args.seconds)
     return 0
 
 

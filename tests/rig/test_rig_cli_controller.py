@@ -56,3 +56,19 @@ def test_one_line_errors(bench, capsys):
     assert code != 0 and "light refused: E-stop pressed" in err and "\n" not in err
     assert main(["controller", "trigger", "--port", bench.path, "--exposure", "0"]) == 2
     assert "trigger exposure" in capsys.readouterr().err
+
+
+def test_python_m_sim_controller_serves_a_pty_for_the_bench_tools(capsys):
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "sim.controller", "--seconds", "20", "--estop"],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        path = proc.stdout.readline().strip()
+        assert path.startswith("/dev/pts/")
+        assert main(["controller", "status", "--port", path]) == 0
+        assert "E-stop      PRESSED" in capsys.readouterr().out
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
