@@ -24,10 +24,11 @@ import numpy as np
 
 from gonio.errors import ConfigError, DataError, GonioError
 from gonio.fit.data import DEFAULT_MAX_THETA_DEG, FitData, prepare
-from gonio.fit.layout import CHANNELS, Layout, auto_tied, make_basis, model_class
+from gonio.fit.kernels import profile_for
+from gonio.fit.layout import CHANNELS, Layout, SubSpace, auto_tied, make_basis, model_class
 from gonio.fit.losses import LOSSES, Loss, get_loss
 from gonio.fit.result import FitResult
-from gonio.fit.solve import Projection
+from gonio.fit.solve import Projection, ProfiledProjection, jtj_from_elements
 
 METHODS = ("auto", "varpro", "plain")
 
@@ -61,6 +62,13 @@ def heuristics(data: FitData) -> dict[str, Any]:
     return {"floor_albedo": (np.pi * floor).tolist(), "peak": peak.tolist(), "width_deg": width}
 
 
+def _channel_weights(w: np.ndarray) -> np.ndarray:
+    """``w`` (N, 3) as one column (N,) when every channel has the same weight (the cosine loss), else as is."""
+    if w.strides[1] == 0 or (np.array_equal(w[:, 0], w[:, 1]) and np.array_equal(w[:, 0], w[:, 2])):
+        return np.ascontiguousarray(w[:, 0])
+    return w
+
+
 class _Problem:
     """A model, a loss and the data; evaluates model values and residuals for packed parameters."""
 
@@ -68,6 +76,7 @@ class _Problem:
         self.d, self.L, self.loss, self.basis = data, layout, loss, basis
         self._cache: dict[tuple, Any] = {}
         self.n_evals = 0
+        self.profile = None  # a profile kernel (gonio.fit.kernels.PROFILES): exact Jacobian, tied f0 profiled
 
     def _basis_at(self, shape):
         key = tuple(np.asarray(shape, dtype=np.float64).tolist())
@@ -104,6 +113,10 @@ class _Problem:
 
         For a linear loss on a separable model the colour columns are exact (√w Bₖ) and only the
         shape columns need differences of the basis (:meth:`_jtj_linear`)."""
+        if self.loss.linear and self.profile is not None:
+            colour, shape = self.L.unpack(p)
+            elems, C = self.profile.jacobian(self.d, self.L, colour, shape)
+            return jtj_from_elements(elems, C, _channel_weights(self.loss.weight(self.d.y, self.d.cos_i, self.d.sigma)))
         if self.loss.linear and self.basis is not None and self.basis.separable:
             return self._jtj_linear(p)
         P = p.size
@@ -443,22 +456,32 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
     if method == "auto":
         method = "varpro" if separable else "plain"
     prob = _Problem(d, L, lossobj, basis if separable else None)
+    prob.profile = profile_for(L) if separable and kernel == "auto" else None
     notes: list[str] = []
     if np.all(d.y == 0):
         notes.append("all values are zero")
     if method == "varpro":
         w = (lossobj.weight or LOSSES["cosine"].weight)(d.y, d.cos_i, d.sigma)
-        proj = Projection(basis, np.ascontiguousarray(w), d.y, L.colour_lo, L.colour_hi)
-        if len(d) > COARSE_N and L.S:
+        profile = prob.profile
+
+        def projection(data_, w_, basis_=None):
+            if profile is not None:  # the tied parameter is minimized exactly inside (kernels.PROFILES)
+                return ProfiledProjection(profile, L, data_, w_, L.shape.index(profile.tied))
+            basis_ = basis_ or make_basis(L, data_, use_kernels=kernel == "auto", seed=seed)
+            return Projection(basis_, np.ascontiguousarray(w_), data_.y, L.colour_lo, L.colour_hi)
+
+        space = L if profile is None else SubSpace(L, [j for j, n in enumerate(L.shape) if n != profile.tied])
+        proj = projection(d, w, basis)
+        if len(d) > COARSE_N and space.S:
             idx = np.sort(rng.choice(len(d), COARSE_N, replace=False))
-            ds = d.subset(idx)
-            proj_s = Projection(make_basis(L, ds, use_kernels=kernel == "auto", seed=seed),
-                                np.ascontiguousarray(w[idx]), ds.y, L.colour_lo, L.colour_hi)
-            shape_s, _, _ = _search_shape(proj_s, L, rng, n_starts)
-            shape, colour, cost = _refine(proj, L, L.to_u(shape_s))
+            proj_s = projection(d.subset(idx), w[idx])
+            shape_s, _, _ = _search_shape(proj_s, space, rng, n_starts)
+            shape, colour, cost = _refine(proj, space, space.to_u(shape_s))
             prob.n_evals += proj_s.n_evals
         else:
-            shape, colour, cost = _search_shape(proj, L, rng, n_starts)
+            shape, colour, cost = _search_shape(proj, space, rng, n_starts)
+        if profile is not None:
+            shape = proj.full_shape(shape)
         p = L.pack(colour, shape)
         prob.n_evals += proj.n_evals
         if not lossobj.linear:

@@ -39,23 +39,10 @@ def _microfacet(data, layout, shape):
     import numpy as np
 
     from gonio.brdf.fresnel import schlick
-    from gonio.brdf.microfacet import distribution_d, smith_g2
 
     fixed = layout.fixed
     name, alpha = fixed["distribution"], shape["alpha"]
-    specs = data.__dict__.setdefault("_kernel_cache", {}).setdefault("spec", {})
-    key = (name, float(alpha))
-    if key not in specs:
-        if len(specs) >= 4:  # two lobes of a sum alternate: keep a few
-            specs.clear()
-        if name == "ggx":
-            spec = _ggx_spec(data, alpha)
-        else:
-            h = data.half
-            spec = distribution_d(name, h, alpha) * smith_g2(name, data.wi, data.wo, h, alpha)
-            spec /= 4.0 * data.cos_i * data.cos_o
-        specs[key] = spec
-    spec = specs[key]
+    spec = _spec(data, name, alpha)
     if "f0" in shape:
         f0 = float(shape["f0"])
         if f0 != 1.0:
@@ -71,6 +58,28 @@ def _microfacet(data, layout, shape):
             b = basis[k] if basis[k].ndim == 2 else basis[k][:, None]
             offset = (0.0 if offset is None else offset) + np.asarray(fixed[k]) * b
     return offset, [basis[k] for k in layout.colour]
+
+
+def _spec(data, name, alpha):
+    """D G2 / (4 cos θi cos θo) of distribution ``name`` at roughness ``alpha``, cached for the last few α
+    (Walter et al. 2007, eq. 20 without F)."""
+    import numpy as np
+
+    from gonio.brdf.microfacet import distribution_d, smith_g2
+
+    specs = data.__dict__.setdefault("_kernel_cache", {}).setdefault("spec", {})
+    key = (name, float(alpha))
+    if key not in specs:
+        if len(specs) >= 4:  # two lobes of a sum alternate: keep a few
+            specs.clear()
+        if name == "ggx":
+            spec = _ggx_spec(data, alpha)
+        else:
+            h = data.half
+            spec = distribution_d(name, h, alpha) * smith_g2(name, data.wi, data.wo, h, alpha)
+            spec /= 4.0 * data.cos_i * data.cos_o
+        specs[key] = np.asarray(spec, dtype=np.float64)
+    return specs[key]
 
 
 def _schlick_m5(data):
@@ -135,6 +144,113 @@ def _fresnel_cache(data, f0, schlick):
     if key not in cache:
         cache[key] = schlick(f0, data.cos_d)
     return cache[key]
+
+
+def _ggx_spec_dalpha(data, alpha):
+    """∂S/∂α of S = D G2 / (4 cos θi cos θo) for GGX (the α-column of the Jacobian, exact).
+
+    From D = α²/(π (sin²θh + α² cos²θh)²) and G1(v) = 2/(1 + rᵥ), rᵥ = √(1 + α² tan²θv) (Walter et al.
+    2007, eqs. 33-34): ∂ln S/∂α² = 1/α² − 2 cos²θh/(sin²θh + α² cos²θh) − Σᵥ tan²θv/(2 rᵥ (1 + rᵥ)),
+    and ∂α²/∂α = 2α (0 below the roughness floor, where α is clamped). Checked against central
+    differences in tests/fit/test_fast.py.
+    """
+    import numpy as np
+
+    from gonio.brdf.microfacet import ALPHA_MIN
+
+    if alpha <= ALPHA_MIN:
+        return np.zeros(len(data))
+    c2h, s2h, t2i, t2o, _ = _geometry(data)
+    a2 = float(alpha) ** 2
+    dlog = 1.0 / a2 - 2.0 * c2h / (s2h + a2 * c2h)
+    for t2 in (t2i, t2o):
+        r = np.sqrt(1.0 + a2 * t2)
+        dlog -= t2 / (2.0 * r * (1.0 + r))
+    return _spec(data, "ggx", alpha) * dlog * (2.0 * float(alpha))
+
+
+class MicrofacetTiedF0:
+    """The microfacet kernel with a tied Schlick f0 = t, written over *elementary* vectors (see
+    :class:`gonio.fit.solve.ProfiledProjection`): with S = D G2/(4 cos θi cos θo) and m⁵ = (1 − cos θd)⁵,
+
+        f_c = kd_c/π + ks_c (t S + (1 − t) S m⁵)          (Walter et al. 2007, eq. 20; Schlick 1994, eq. 15)
+
+    so every colour basis function is T(t) · [1/π, S, S m⁵] with T affine in t. For one α the weighted
+    Gram matrix of the three elementary vectors gives the projected cost at *every* f0 in O(1), which
+    turns the two-parameter shape search (α, f0) into a one-parameter search in α with an exact inner
+    minimization over f0 (the optimum is the joint one: min over (α, t, a) = min_α min_t min_a).
+    """
+
+    tied = "f0"
+
+    @staticmethod
+    def supports(L) -> bool:
+        import numpy as np
+
+        return (L.name == "microfacet" and L.shape == ["alpha", "f0"] and "f0" in L.tied and "ks" in L.colour
+                and not any(k in L.fixed and np.any(np.asarray(L.fixed[k]) != 0) for k in ("kd", "ks")))
+
+    @staticmethod
+    def elements(data, L, shape_nl):
+        """``[1/π, S, S m⁵]`` at α = ``shape_nl[0]`` (a float stands for a constant vector)."""
+        S = _spec(data, L.fixed["distribution"], float(shape_nl[0]))
+        return [1.0 / 3.141592653589793, S, S * _schlick_m5(data)]
+
+    @staticmethod
+    def transform(L, t):
+        """T(t), shape (len(t), K, 3): colour basis k = Σⱼ T[k, j] eⱼ, for an array of f0 values ``t``."""
+        import numpy as np
+
+        t = np.atleast_1d(np.asarray(t, dtype=np.float64))
+        T = np.zeros((t.size, L.K, 3))
+        for k, name in enumerate(L.colour):
+            if name == "kd":
+                T[:, k, 0] = 1.0
+            else:
+                T[:, k, 1], T[:, k, 2] = t, 1.0 - t
+        return T
+
+    @staticmethod
+    def jacobian(data, L, colour, shape):
+        """Elementary vectors ``[1/π, S, S m⁵, ∂S/∂α, ∂S/∂α m⁵]`` and coefficients C (3, 5, 3K + 2): the
+        Jacobian column of parameter q in channel c is ∂f_c/∂p_q = Σⱼ C[c, j, q] eⱼ (exact for GGX; ∂S/∂α
+        by central differences of S for other distributions)."""
+        import numpy as np
+
+        from gonio.brdf.microfacet import ALPHA_MIN
+
+        name = L.fixed["distribution"]
+        alpha, t = float(shape[0]), float(shape[1])
+        S, m5 = _spec(data, name, alpha), _schlick_m5(data)
+        if name == "ggx":
+            dS = _ggx_spec_dalpha(data, alpha)
+        else:
+            h = 1e-6 * max(alpha, 1e-3)
+            up, dn = alpha + h, max(alpha - h, ALPHA_MIN)
+            dS = (_spec(data, name, up) - _spec(data, name, dn)) / (up - dn)
+        elems = [1.0 / np.pi, S, S * m5, dS, dS * m5]
+        K = L.K
+        C = np.zeros((3, 5, 3 * K + 2))
+        ks = colour[L.colour.index("ks")]
+        for c in range(3):
+            for k, nm in enumerate(L.colour):
+                if nm == "kd":
+                    C[c, 0, 3 * k + c] = 1.0
+                else:
+                    C[c, 1, 3 * k + c], C[c, 2, 3 * k + c] = t, 1.0 - t
+            C[c, 3, 3 * K], C[c, 4, 3 * K] = ks[c] * t, ks[c] * (1.0 - t)
+            C[c, 1, 3 * K + 1], C[c, 2, 3 * K + 1] = ks[c], -ks[c]
+        return elems, C
+
+
+#: Registry: model name -> profile kernel (an affine tied parameter profiled out exactly).
+PROFILES: dict[str, type] = {"microfacet": MicrofacetTiedF0}
+
+
+def profile_for(layout):
+    """The profile kernel of ``layout`` (:data:`PROFILES`) if it supports its free/fixed/tied parameters."""
+    p = PROFILES.get(layout.name)
+    return p if p is not None and p.supports(layout) else None
 
 
 _microfacet.supports = lambda L: L.shape in (["alpha"], ["alpha", "f0"]) and ("f0" in L.fixed or "f0" in L.shape)

@@ -186,6 +186,34 @@ class Layout:
         return np.clip(np.array(out, dtype=np.float64), self.shape_lo, self.shape_hi)
 
 
+class SubSpace:
+    """The search space of some of a layout's shape parameters (the others are profiled out, see
+    :class:`gonio.fit.solve.ProfiledProjection`); the same search API as :class:`Layout`."""
+
+    def __init__(self, layout: Layout, keep):
+        self.layout = layout
+        self.keep = np.asarray(keep, dtype=int)
+        self.S = int(self.keep.size)
+        self.shape_lo, self.shape_hi = layout.shape_lo[self.keep], layout.shape_hi[self.keep]
+
+    def search_space(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        u_lo, u_hi, is_log = self.layout.search_space()
+        return u_lo[self.keep], u_hi[self.keep], is_log[self.keep]
+
+    def to_shape(self, u: np.ndarray) -> np.ndarray:
+        _, _, is_log = self.search_space()
+        return np.clip(np.where(is_log, np.exp(u), u), self.shape_lo, self.shape_hi)
+
+    def to_u(self, s: np.ndarray) -> np.ndarray:
+        u_lo, u_hi, is_log = self.search_space()
+        with np.errstate(divide="ignore"):
+            u = np.where(is_log, np.log(np.maximum(s, 1e-300)), s)
+        return np.clip(u, u_lo, u_hi)
+
+    def default_shape(self) -> np.ndarray:
+        return self.layout.default_shape()[self.keep]
+
+
 class Basis:
     """Evaluates f = f₀(s) + Σₖ aₖ Bₖ(s) for the colour parameters aₖ of a :class:`Layout`.
 

@@ -53,6 +53,37 @@ def bounded_lsq(G: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) ->
     return np.clip(best, lo, hi)
 
 
+def bounded_lsq_batch(G: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """:func:`bounded_lsq` for a stack of problems: G (..., K, K), b (..., K) -> a (..., K).
+
+    The same exact method, vectorized over the stack: every active set (each variable free, at its lower
+    or at its upper bound; Lawson & Hanson 1974, ch. 23) is solved for all problems at once (pseudo-inverse
+    of the free block), and each problem keeps its feasible candidate of least ½ aᵀGa − bᵀa.
+    """
+    K = b.shape[-1]
+    best = np.zeros(b.shape)
+    best_val = np.full(b.shape[:-1], np.inf)
+    options = [["free"] + (["lo"] if np.isfinite(lo[k]) else []) + (["hi"] if np.isfinite(hi[k]) else [])
+               for k in range(K)]
+    for combo in itertools.product(*options):
+        free = np.array([c == "free" for c in combo])
+        x = np.zeros(b.shape)
+        for k, c in enumerate(combo):
+            if c != "free":
+                x[..., k] = lo[k] if c == "lo" else hi[k]
+        ok = np.ones(b.shape[:-1], dtype=bool)
+        if free.any():
+            Gff = G[..., free, :][..., :, free]
+            rhs = b[..., free] - np.einsum("...ij,...j->...i", G[..., free, :][..., :, ~free], x[..., ~free])
+            xf = np.einsum("...ij,...j->...i", np.linalg.pinv(Gff), rhs)
+            x[..., free] = xf
+            ok = np.all((xf >= lo[free] - 1e-12) & (xf <= hi[free] + 1e-12), axis=-1)
+        val = 0.5 * np.einsum("...i,...ij,...j->...", x, G, x) - np.einsum("...i,...i->...", b, x)
+        take = ok & (val < best_val)
+        best[take], best_val[take] = x[take], val[take]
+    return np.clip(best, lo, hi)
+
+
 class Projection:
     """The projected cost of the shape parameters for a linear loss with weights ``w`` (N, 3).
 
@@ -110,4 +141,157 @@ class Projection:
             a = bounded_lsq(G[c], b[c], self.lo, self.hi)
             colour[:, c] = a
             cost += 0.5 * max(c0[c] - 2.0 * b[c] @ a + a @ G[c] @ a, 0.0)
+        return cost, colour
+
+
+def weighted_gram(elems, w: np.ndarray, y: np.ndarray | None = None):
+    """Weighted Gram matrix of elementary vectors: H[c, i, j] = Σₙ w[n, c] eᵢ[n] eⱼ[n] and, with ``y``,
+    h[c, j] = Σₙ w[n, c] eⱼ[n] y[n, c].
+
+    ``elems`` holds arrays (N,) or floats (a constant vector); ``w`` is (N,) — one weight for every
+    channel, a single pass — or (N, 3). Returns ``(H (3, J, J), h (3, J) or None)``.
+    """
+    J = len(elems)
+    const = [np.ndim(e) == 0 for e in elems]
+    if w.ndim == 1:
+        ws = [w]
+        ys = None if y is None else [np.ascontiguousarray(y.T)]
+    else:
+        ws = [np.ascontiguousarray(w[:, c]) for c in range(3)]
+        ys = None if y is None else [y[:, c] for c in range(3)]
+    Hs, hs = [], []
+    for n, wc in enumerate(ws):
+        we = [None if const[j] else wc * elems[j] for j in range(J)]
+        sums = [None if const[j] else float(we[j].sum()) for j in range(J)]
+        sw = float(wc.sum()) if any(const) else 0.0
+        H = np.empty((J, J))
+        for i in range(J):
+            for j in range(i, J):
+                if const[i] and const[j]:
+                    v = elems[i] * elems[j] * sw
+                elif const[i]:
+                    v = elems[i] * sums[j]
+                elif const[j]:
+                    v = elems[j] * sums[i]
+                else:
+                    v = we[i] @ elems[j]
+                H[i, j] = H[j, i] = v
+        Hs.append(H)
+        if ys is not None:
+            wy = (ys[n] @ wc) if any(const) else None
+            hs.append(np.stack([elems[j] * wy if const[j] else ys[n] @ we[j] for j in range(J)], axis=-1))
+    if w.ndim == 1:
+        H3 = np.broadcast_to(Hs[0], (3, J, J))
+        h3 = None if y is None else hs[0]
+    else:
+        H3 = np.stack(Hs)
+        h3 = None if y is None else np.stack(hs)
+    return H3, h3
+
+
+def jtj_from_elements(elems, C: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """JᵀJ of residuals r = √w (f − y) whose Jacobian columns are ∂f_c/∂p_q = Σⱼ C[c, j, q] eⱼ:
+    JᵀJ = Σ_c C_cᵀ H_c C_c with the weighted Gram matrix H of the elementary vectors (exact; no finite
+    differences of the model)."""
+    H, _ = weighted_gram(elems, w)
+    return np.einsum("cjp,cjl,clq->pq", C, H, C)
+
+
+class ProfiledProjection:
+    """The projected cost of the *non-tied* shape parameters, a tied affine parameter t minimized exactly.
+
+    For a profile kernel (:data:`gonio.fit.kernels.PROFILES`) the colour bases are Bₖ = Σⱼ T(t)ₖⱼ eⱼ(s)
+    with T affine in t. For each s the Gram matrix H and right-hand sides h of the elementary vectors eⱼ
+    are formed once (one pass over the data); then for any t, G = T H Tᵀ and b = T h give the
+    variable-projection cost (Golub & Pereyra 1973) in O(K³), so t is found by nested dense grids at
+    negligible cost. ``__call__(s)`` returns ``(cost, colour)`` like :class:`Projection`;
+    :meth:`full_shape` inserts the optimal t.
+
+    Parameters
+    ----------
+    profile : profile kernel (``elements``, ``transform``)
+    layout : Layout
+    data : FitData
+    w : ndarray (N, 3)
+        Weights of the linear loss.
+    t_index : int
+        Position of the tied parameter in ``layout.shape``.
+    """
+
+    def __init__(self, profile, layout, data, w: np.ndarray, t_index: int):
+        self.profile, self.L, self.data = profile, layout, data
+        self.t_index = t_index
+        shared = np.array_equal(w[:, 0], w[:, 1]) and np.array_equal(w[:, 0], w[:, 2])
+        self.w = np.ascontiguousarray(w[:, 0] if shared else w)
+        self.y = data.y
+        self.c0 = np.einsum("nc,nc,nc->c", data.y, w, data.y)
+        self.lo, self.hi = layout.colour_lo, layout.colour_hi
+        u_lo, u_hi, is_log = layout.search_space()
+        self.t_space = (float(u_lo[t_index]), float(u_hi[t_index]), bool(is_log[t_index]))
+        self.n_evals = 0
+        self._memo: dict[tuple, tuple] = {}
+
+    def _t_of(self, u):
+        return np.exp(u) if self.t_space[2] else np.asarray(u)
+
+    def _costs(self, t, H, h):
+        """Projected costs (len(t),) at tied values ``t`` (colours unconstrained where feasible,
+        :func:`bounded_lsq` otherwise)."""
+        T = self.profile.transform(self.L, t)
+        G = np.einsum("tkj,cjl,tml->tckm", T, H, T)
+        b = np.einsum("tkj,cj->tck", T, h)
+        with np.errstate(all="ignore"):
+            try:
+                a = np.linalg.solve(G, b[..., None])[..., 0]
+                ok = np.isfinite(a).all(-1) & (a >= self.lo).all(-1) & (a <= self.hi).all(-1)
+            except np.linalg.LinAlgError:
+                a = np.zeros_like(b)
+                ok = np.zeros(b.shape[:2], dtype=bool)
+        if not ok.all():
+            a[~ok] = bounded_lsq_batch(G[~ok], b[~ok], self.lo, self.hi)
+        q = self.c0 - 2.0 * np.einsum("tck,tck->tc", b, a) + np.einsum("tck,tckm,tcm->tc", a, G, a)
+        return 0.5 * np.maximum(q, 0.0).sum(axis=1)
+
+    def _solve(self, shape_nl) -> tuple[float, float, np.ndarray]:
+        """``(t, cost, colour)`` at the non-tied shape ``shape_nl``: t global over a 33-point grid of its
+        search interval, then the bracket around the best point is gridded again (each round vectorized,
+        16-fold shrink) down to 1e-10; colours by :func:`bounded_lsq` at that t. Memoized per ``shape_nl``."""
+
+        shape_nl = np.atleast_1d(np.asarray(shape_nl, dtype=np.float64))
+        key = tuple(shape_nl.tolist())
+        hit = self._memo.get(key)
+        if hit is not None:
+            return hit
+        H, h = weighted_gram(self.profile.elements(self.data, self.L, shape_nl), self.w, self.y)
+        a, b = self.t_space[:2]
+        for _ in range(12):  # each round shrinks the bracket 16-fold: 12 rounds reach ~1e-14 of the range
+            grid = np.linspace(a, b, 33)
+            costs = self._costs(self._t_of(grid), H, h)
+            j = int(np.argmin(costs))
+            u = float(grid[j])
+            a, b = grid[max(j - 1, 0)], grid[min(j + 1, grid.size - 1)]
+            if b - a <= 1e-10 * max(1.0, abs(u)):
+                break
+        t = float(np.clip(self._t_of(u), self.L.shape_lo[self.t_index], self.L.shape_hi[self.t_index]))
+        T = self.profile.transform(self.L, t)[0]
+        colour = np.empty((self.L.K, 3))
+        cost = 0.0
+        for c in range(3):
+            G, bc = T @ H[c] @ T.T, T @ h[c]
+            ac = bounded_lsq(G, bc, self.lo, self.hi)
+            colour[:, c] = ac
+            cost += 0.5 * max(self.c0[c] - 2.0 * bc @ ac + ac @ G @ ac, 0.0)
+        if len(self._memo) > 256:
+            self._memo.clear()
+        self._memo[key] = out = (t, cost, colour)
+        return out
+
+    def full_shape(self, shape_nl) -> np.ndarray:
+        """All shape parameters: ``shape_nl`` with the optimal tied value inserted."""
+        shape_nl = np.atleast_1d(np.asarray(shape_nl, dtype=np.float64))
+        return np.insert(shape_nl, self.t_index, self._solve(shape_nl)[0])
+
+    def __call__(self, shape_nl) -> tuple[float, np.ndarray]:
+        self.n_evals += 1
+        _, cost, colour = self._solve(shape_nl)
         return cost, colour
