@@ -1,0 +1,88 @@
+"""The fast default path of the fit: f0 profiled out exactly, analytic Jacobian, batched bounded solves.
+
+Each piece is checked against the slower independent computation it replaces."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gonio.fit import fit, prepare
+from gonio.fit.fit import _Problem
+from gonio.fit.kernels import _ggx_spec_dalpha, _spec, profile_for
+from gonio.fit.layout import Layout, make_basis
+from gonio.fit.losses import LOSSES
+from gonio.fit.solve import Projection, ProfiledProjection, bounded_lsq, bounded_lsq_batch
+
+from .conftest import synth
+
+TRUTH = {"kd": [0.3, 0.12, 0.06], "ks": [0.8, 0.7, 0.6], "alpha": 0.2, "f0": 0.3}
+
+
+@pytest.fixture(scope="module")
+def data():
+    return prepare(synth("microfacet", TRUTH, n=1500))
+
+
+@pytest.mark.parametrize("alpha", [0.03, 0.2, 0.7])
+def test_ggx_dalpha_matches_central_differences(data, alpha):
+    h = 1e-6 * alpha
+    fd = (_spec(data, "ggx", alpha + h) - _spec(data, "ggx", alpha - h)) / (2 * h)
+    np.testing.assert_allclose(_ggx_spec_dalpha(data, alpha), fd, rtol=1e-6, atol=1e-9 * np.abs(fd).max())
+
+
+@pytest.mark.parametrize("dist", ["ggx", "beckmann"])
+@pytest.mark.parametrize("loss", ["cosine", "chi2"])
+def test_analytic_jtj_matches_finite_differences(data, dist, loss):
+    L = Layout("microfacet", {"distribution": dist}, ("f0",))
+    assert profile_for(L) is not None
+    prob = _Problem(data, L, LOSSES[loss], make_basis(L, data))
+    p = L.pack(np.array([[0.3, 0.12, 0.06], [0.8, 0.7, 0.6]]), np.array([0.2, 0.3]))
+    slow = prob.jtj(p)  # central differences of the model values (no profile kernel set)
+    prob.profile = profile_for(L)
+    fast = prob.jtj(p)
+    np.testing.assert_allclose(fast, slow, rtol=1e-5, atol=1e-7 * np.abs(slow).max())
+
+
+@pytest.mark.parametrize("loss", ["cosine", "chi2"])
+def test_profiled_cost_is_the_projected_cost_minimized_over_f0(data, loss):
+    L = Layout("microfacet", {}, ("f0",))
+    w = LOSSES[loss].weight(data.y, data.cos_i, data.sigma)
+    prof = ProfiledProjection(profile_for(L), L, data, w, L.shape.index("f0"))
+    plain = Projection(make_basis(L, data), np.ascontiguousarray(w), data.y, L.colour_lo, L.colour_hi)
+    for alpha in (0.05, 0.2, 0.5):
+        cost, colour = prof(np.array([alpha]))
+        shape = prof.full_shape(np.array([alpha]))
+        ref_cost, ref_colour = plain(shape)  # the generic projection at the (alpha, f0) found
+        assert cost == pytest.approx(ref_cost, rel=1e-9)
+        np.testing.assert_allclose(colour, ref_colour, rtol=1e-7, atol=1e-12)
+        # no f0 on a fine grid does better
+        grid = [plain(np.array([alpha, t]))[0] for t in np.geomspace(1e-3, 1.0, 60)]
+        assert cost <= min(grid) * (1 + 1e-12)
+
+
+def test_batched_bounded_lsq_equals_the_scalar_one():
+    rng = np.random.default_rng(4)
+    lo, hi = np.array([0.0, 0.0, -1.0]), np.array([1.0, 1.0, np.inf])
+    A = rng.normal(size=(200, 6, 3))
+    G = np.einsum("nij,nik->njk", A, A)
+    b = rng.normal(scale=2.0, size=(200, 3))
+    got = bounded_lsq_batch(G, b, lo, hi)
+    want = np.stack([bounded_lsq(G[i], b[i], lo, hi) for i in range(200)])
+    np.testing.assert_allclose(got, want, atol=1e-9)
+    assert np.any(got == 0.0) and np.any(got == 1.0)  # bounds were active in some problems
+
+
+@pytest.mark.parametrize("loss", ["cosine", "chi2"])
+def test_fast_default_fit_reaches_the_generic_optimum(loss):
+    s = synth("microfacet", TRUTH, n=1500)
+    fast = fit(s, "microfacet", loss=loss)
+    slow = fit(s, "microfacet", loss=loss, kernel=None)  # model evaluation, 2-D (alpha, f0) search, FD Jacobian
+    assert fast.cost <= slow.cost * (1 + 1e-7)
+    assert fast.cost == pytest.approx(slow.cost, rel=1e-6)
+    for k in ("alpha", "f0"):
+        assert fast.params[k] == pytest.approx(slow.params[k], rel=1e-3)
+        assert fast.uncertainty[k] == pytest.approx(slow.uncertainty[k], rel=1e-3)
+    np.testing.assert_allclose(fast.params["ks"], slow.params["ks"], rtol=1e-3)
+    np.testing.assert_allclose(fast.uncertainty["ks"], slow.uncertainty["ks"], rtol=1e-3)
+    assert fast.params["f0"] == pytest.approx(TRUTH["f0"], rel=0.1)
