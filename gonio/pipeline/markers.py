@@ -15,7 +15,7 @@ import numpy as np
 
 from gonio.pipeline.target import BOARD_TO_SAMPLE_R, CameraCalibration, CameraPose, CharucoSpec
 
-__all__ = ["BoardPose", "to_gray8", "detect_board_pose"]
+__all__ = ["BoardPose", "to_gray8", "detect_board_pose", "board_pose_from_points", "corner_spread"]
 
 #: Fewest ChArUco corners accepted for a pose.
 MIN_CORNERS = 6
@@ -25,6 +25,18 @@ MIN_CORNERS = 6
 #: finder is not better than ~0.05 px on real or rendered images, even when the residuals of a
 #: few corners happen to be smaller.
 MIN_CORNER_SIGMA_PX = 0.05
+
+#: Smallest RMS distance of the corners from their best-fit line, in squares, for a pose: corners on
+#: one row (or diagonal) leave the rotation about that line free (see :func:`corner_spread`).
+MIN_SPREAD_SQUARES = 0.2
+
+#: Largest RMS reprojection residual (pixels) of an accepted pose: rendered or real corners fit to
+#: ~0.1 px; more means a wrong corner match or a wrong solution.
+MAX_RMS_PX = 2.0
+
+#: Largest condition number of JᵀJ (pose parameters (rvec, tvec), pixels) for which the covariance is
+#: trusted (simulated sessions: 7e2 … 1.5e4); beyond it the corners leave a pose direction undetermined.
+MAX_JTJ_CONDITION = 1e10
 
 
 @dataclass(frozen=True)
@@ -86,7 +98,9 @@ def to_gray8(pixels: np.ndarray, bit_depth: int, black_level: float = 0.0) -> np
 def detect_board_pose(gray: np.ndarray, calib: CameraCalibration, spec: CharucoSpec, board=None) -> BoardPose | None:
     """Camera pose (sample frame) from the ChArUco board in ``gray``, or ``None`` if not found.
 
-    ``None`` when fewer than :data:`MIN_CORNERS` corners are found or PnP fails.
+    ``None`` when fewer than :data:`MIN_CORNERS` corners are found, or when they do not determine a
+    pose (:func:`board_pose_from_points`): the caller then falls back on the kinematics and flags
+    the samples ``NO_BOARD``.
     """
     import cv2
 
@@ -98,21 +112,72 @@ def detect_board_pose(gray: np.ndarray, calib: CameraCalibration, spec: CharucoS
     obj, img = board.matchImagePoints(ch_corners, ch_ids)
     if obj is None or len(obj) < MIN_CORNERS:
         return None
-    obj = obj.reshape(-1, 3).astype(np.float64)
-    img = img.reshape(-1, 2).astype(np.float64)
-    ok, rvec, tvec = cv2.solvePnP(obj, img, calib.K, calib.dist, flags=cv2.SOLVEPNP_IPPE)
-    if not ok:
+    return board_pose_from_points(obj, img, calib, spec)
+
+
+def corner_spread(obj: np.ndarray) -> float:
+    """RMS distance (metres) of planar board points from their best-fit line.
+
+    The smaller singular value of the centred (x, y) coordinates over √N (principal component
+    analysis; Golub & Van Loan, *Matrix Computations*, §2.5.3). Zero for collinear points: a planar
+    pose from collinear points is undetermined (free rotation about the line; the plane-to-image
+    homography has rank 2, Hartley & Zisserman §4.1.3), and IPPE then returns NaN.
+    """
+    xy = np.asarray(obj, dtype=np.float64).reshape(-1, 3)[:, :2]
+    if len(xy) < 3 or not np.isfinite(xy).all():
+        return 0.0
+    sv = np.linalg.svd(xy - xy.mean(axis=0), compute_uv=False)
+    return float(sv[-1] / np.sqrt(len(xy)))
+
+
+def board_pose_from_points(obj, img, calib: CameraCalibration, spec: CharucoSpec) -> BoardPose | None:
+    """Camera pose (sample frame) from matched board points ``obj`` (N, 3) and image points ``img`` (N, 2).
+
+    IPPE (Collins & Bartoli 2014) then Levenberg–Marquardt refinement, and the pose covariance
+    ``s² (JᵀJ)⁻¹``, ``s² = Σr² / (2N − 6)`` (Hartley & Zisserman, "Multiple View Geometry", 2nd ed.,
+    §5.2.3), with ``s`` floored at :data:`MIN_CORNER_SIGMA_PX`.
+
+    Returns ``None`` — never NaN, never a guess — when the points cannot determine a pose: fewer than
+    :data:`MIN_CORNERS`, non-finite input, corners (nearly) collinear (:func:`corner_spread` below
+    :data:`MIN_SPREAD_SQUARES` squares: e.g. a grazing view that decodes one row of markers), a
+    solver result that is not finite or puts the board behind the camera, residuals above
+    :data:`MAX_RMS_PX`, or a singular normal matrix ``JᵀJ`` (condition number above
+    :data:`MAX_JTJ_CONDITION`).
+    """
+    import cv2
+
+    obj = np.asarray(obj, dtype=np.float64).reshape(-1, 3)
+    img = np.asarray(img, dtype=np.float64).reshape(-1, 2)
+    if len(obj) < MIN_CORNERS or len(obj) != len(img) or not (np.isfinite(obj).all() and np.isfinite(img).all()):
         return None
-    rvec, tvec = cv2.solvePnPRefineLM(obj, img, calib.K, calib.dist, rvec, tvec)
-    proj, jac = cv2.projectPoints(obj, rvec, tvec, calib.K, calib.dist)
+    if corner_spread(obj) < MIN_SPREAD_SQUARES * spec.square_length:
+        return None
+    try:
+        ok, rvec, tvec = cv2.solvePnP(obj, img, calib.K, calib.dist, flags=cv2.SOLVEPNP_IPPE)
+        if not ok or not (np.isfinite(rvec).all() and np.isfinite(tvec).all()):
+            return None
+        rvec, tvec = cv2.solvePnPRefineLM(obj, img, calib.K, calib.dist, rvec, tvec)
+        proj, jac = cv2.projectPoints(obj, rvec, tvec, calib.K, calib.dist)
+    except cv2.error:
+        return None
+    if not (np.isfinite(rvec).all() and np.isfinite(tvec).all() and np.isfinite(proj).all() and np.isfinite(jac).all()):
+        return None
+    R_cb, _ = cv2.Rodrigues(rvec)
+    if not np.all(obj @ R_cb.T[:, 2] + float(tvec.reshape(3)[2]) > 0):  # every corner in front of the camera
+        return None
     res = proj.reshape(-1, 2) - img
     rms = float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
-    # Pose covariance of a least-squares fit: s² (JᵀJ)⁻¹, s² = Σr² / (2N − 6) (Hartley & Zisserman,
-    # "Multiple View Geometry", 2nd ed., §5.2.3), with s floored at MIN_CORNER_SIGMA_PX.
+    if not rms <= MAX_RMS_PX:
+        return None
     J = jac[:, :6]
     s2 = max(float(np.sum(res**2)) / max(res.size - 6, 1), MIN_CORNER_SIGMA_PX**2)
     JtJ = J.T @ J
-    cov = s2 * np.linalg.pinv(JtJ) if np.isfinite(JtJ).all() and np.isfinite(s2) else None
+    # the covariance is (JᵀJ)⁻¹ with JᵀJ symmetric positive semi-definite: an eigen-decomposition, not
+    # pinv's SVD; a singular JᵀJ means some pose direction is not constrained by the corners
+    lam, vec = np.linalg.eigh(JtJ)
+    if not (lam[0] > 0 and lam[-1] / lam[0] < MAX_JTJ_CONDITION):
+        return None
+    cov = s2 * (vec / lam) @ vec.T
     # board = R_bs · sample + t_bs  (R_bs = BOARD_TO_SAMPLE_R is its own inverse)
     pose = _sample_frame_pose(rvec, tvec, spec.size)
     return BoardPose(pose, n_corners=len(obj), rms_px=rms, rvec=rvec.reshape(3).copy(), tvec=tvec.reshape(3).copy(),
