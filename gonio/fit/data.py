@@ -64,14 +64,24 @@ class FitData:
         return half_vector(self.wi, self.wo)
 
     @cached_property
+    def _half_norm(self) -> np.ndarray | None:
+        """|wi + wo|, shape (N,), or None if some wi = −wo (no half vector; the half-vector path applies)."""
+        s = self.wi + self.wo
+        n = np.sqrt(np.einsum("ij,ij->i", s, s))
+        return n if np.all(n > 1e-150) else None
+
+    @cached_property
     def cos_h(self) -> np.ndarray:
-        """cos θh = n·h, shape (N,)."""
-        return self.half[:, 2].copy()
+        """cos θh = n·h = (cos θi + cos θo)/|wi + wo|, shape (N,) (h = (wi + wo)/|wi + wo|, Blinn 1977)."""
+        n = self._half_norm
+        return self.half[:, 2].copy() if n is None else (self.cos_i + self.cos_o) / n
 
     @cached_property
     def cos_d(self) -> np.ndarray:
-        """cos θd = wi·h (the Fresnel angle), shape (N,)."""
-        return np.einsum("ij,ij->i", self.wi, self.half)
+        """cos θd = wi·h (the Fresnel angle), shape (N,): for unit wi, wo, wi·(wi + wo) = 1 + wi·wo =
+        |wi + wo|²/2, so wi·h = |wi + wo|/2."""
+        n = self._half_norm
+        return np.einsum("ij,ij->i", self.wi, self.half) if n is None else 0.5 * n
 
     def subset(self, index) -> "FitData":
         """The samples selected by a mask or index array (geometry is recomputed lazily)."""
@@ -145,8 +155,8 @@ def prepare(data, *, max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG, use_fl
         raise DataError(f"{source}: no usable sample out of {n} ({why})")
     wi, wo, f = wi[keep], wo[keep], f[keep]
     # Directions must be unit vectors; renormalize quietly (stored data is rounded).
-    wi = wi / np.linalg.norm(wi, axis=1, keepdims=True)
-    wo = wo / np.linalg.norm(wo, axis=1, keepdims=True)
+    wi = wi / np.sqrt(np.einsum("ij,ij->i", wi, wi))[:, None]
+    wo = wo / np.sqrt(np.einsum("ij,ij->i", wo, wo))[:, None]
     if sigma is not None:
         sigma = sigma[keep]
         if not (np.isfinite(sigma).all() and (sigma > 0).all()):

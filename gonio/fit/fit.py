@@ -76,6 +76,7 @@ class _Problem:
         self.d, self.L, self.loss, self.basis = data, layout, loss, basis
         self._cache: dict[tuple, Any] = {}
         self.n_evals = 0
+        self._last_values: tuple | None = None
         self.profile = None  # a profile kernel (gonio.fit.kernels.PROFILES): exact Jacobian, tied f0 profiled
 
     def _basis_at(self, shape):
@@ -87,7 +88,18 @@ class _Problem:
         return self._cache[key]
 
     def values(self, p, index=slice(None)) -> np.ndarray:
-        """Model values f_m (N, 3) at packed parameters ``p``."""
+        """Model values f_m (N, 3) at packed parameters ``p`` (the last full-data result is kept: the final
+        cost, RMS and χ² share one evaluation)."""
+        full = isinstance(index, slice) and index == slice(None)
+        key = np.asarray(p, dtype=np.float64).tobytes()
+        if full and self._last_values is not None and self._last_values[0] == key:
+            return self._last_values[1]
+        m = self._values(p, index)
+        if full:
+            self._last_values = (key, m)
+        return m
+
+    def _values(self, p, index) -> np.ndarray:
         self.n_evals += 1
         colour, shape = self.L.unpack(p)
         if self.basis is not None and self.basis.separable:

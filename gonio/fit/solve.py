@@ -75,7 +75,10 @@ def bounded_lsq_batch(G: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarr
         if free.any():
             Gff = G[..., free, :][..., :, free]
             rhs = b[..., free] - np.einsum("...ij,...j->...i", G[..., free, :][..., :, ~free], x[..., ~free])
-            xf = np.einsum("...ij,...j->...i", np.linalg.pinv(Gff), rhs)
+            try:
+                xf = np.linalg.solve(Gff, rhs[..., None])[..., 0]
+            except np.linalg.LinAlgError:  # a singular free block somewhere in the stack: minimum-norm solutions
+                xf = np.einsum("...ij,...j->...i", np.linalg.pinv(Gff), rhs)
             x[..., free] = xf
             ok = np.all((xf >= lo[free] - 1e-12) & (xf <= hi[free] + 1e-12), axis=-1)
         val = 0.5 * np.einsum("...i,...ij,...j->...", x, G, x) - np.einsum("...i,...i->...", b, x)
@@ -144,21 +147,22 @@ class Projection:
         return cost, colour
 
 
-def weighted_gram(elems, w: np.ndarray, y: np.ndarray | None = None):
-    """Weighted Gram matrix of elementary vectors: H[c, i, j] = Σₙ w[n, c] eᵢ[n] eⱼ[n] and, with ``y``,
-    h[c, j] = Σₙ w[n, c] eⱼ[n] y[n, c].
+def weighted_gram(elems, w: np.ndarray, yT: np.ndarray | None = None):
+    """Weighted Gram matrix of elementary vectors: H[c, i, j] = Σₙ w[n, c] eᵢ[n] eⱼ[n] and, with the
+    measured values ``yT`` (3, N) (channels first, contiguous), h[c, j] = Σₙ w[n, c] eⱼ[n] y[n, c].
 
     ``elems`` holds arrays (N,) or floats (a constant vector); ``w`` is (N,) — one weight for every
     channel, a single pass — or (N, 3). Returns ``(H (3, J, J), h (3, J) or None)``.
     """
     J = len(elems)
+    y = yT
     const = [np.ndim(e) == 0 for e in elems]
     if w.ndim == 1:
         ws = [w]
-        ys = None if y is None else [np.ascontiguousarray(y.T)]
+        ys = None if y is None else [y]
     else:
         ws = [np.ascontiguousarray(w[:, c]) for c in range(3)]
-        ys = None if y is None else [y[:, c] for c in range(3)]
+        ys = None if y is None else [y[c] for c in range(3)]
     Hs, hs = [], []
     for n, wc in enumerate(ws):
         we = [None if const[j] else wc * elems[j] for j in range(J)]
@@ -223,7 +227,7 @@ class ProfiledProjection:
         self.t_index = t_index
         shared = np.array_equal(w[:, 0], w[:, 1]) and np.array_equal(w[:, 0], w[:, 2])
         self.w = np.ascontiguousarray(w[:, 0] if shared else w)
-        self.y = data.y
+        self.yT = np.ascontiguousarray(data.y.T)
         self.c0 = np.einsum("nc,nc,nc->c", data.y, w, data.y)
         self.lo, self.hi = layout.colour_lo, layout.colour_hi
         u_lo, u_hi, is_log = layout.search_space()
@@ -253,24 +257,24 @@ class ProfiledProjection:
         return 0.5 * np.maximum(q, 0.0).sum(axis=1)
 
     def _solve(self, shape_nl) -> tuple[float, float, np.ndarray]:
-        """``(t, cost, colour)`` at the non-tied shape ``shape_nl``: t global over a 33-point grid of its
+        """``(t, cost, colour)`` at the non-tied shape ``shape_nl``: t global over a 65-point grid of its
         search interval, then the bracket around the best point is gridded again (each round vectorized,
-        16-fold shrink) down to 1e-10; colours by :func:`bounded_lsq` at that t. Memoized per ``shape_nl``."""
+        32-fold shrink) down to 1e-9; colours by :func:`bounded_lsq` at that t. Memoized per ``shape_nl``."""
 
         shape_nl = np.atleast_1d(np.asarray(shape_nl, dtype=np.float64))
         key = tuple(shape_nl.tolist())
         hit = self._memo.get(key)
         if hit is not None:
             return hit
-        H, h = weighted_gram(self.profile.elements(self.data, self.L, shape_nl), self.w, self.y)
+        H, h = weighted_gram(self.profile.elements(self.data, self.L, shape_nl), self.w, self.yT)
         a, b = self.t_space[:2]
-        for _ in range(12):  # each round shrinks the bracket 16-fold: 12 rounds reach ~1e-14 of the range
-            grid = np.linspace(a, b, 33)
+        for _ in range(10):  # each round shrinks the bracket 32-fold: 10 rounds reach ~1e-15 of the range
+            grid = np.linspace(a, b, 65)
             costs = self._costs(self._t_of(grid), H, h)
             j = int(np.argmin(costs))
             u = float(grid[j])
             a, b = grid[max(j - 1, 0)], grid[min(j + 1, grid.size - 1)]
-            if b - a <= 1e-10 * max(1.0, abs(u)):
+            if b - a <= 1e-9 * max(1.0, abs(u)):
                 break
         t = float(np.clip(self._t_of(u), self.L.shape_lo[self.t_index], self.L.shape_hi[self.t_index]))
         T = self.profile.transform(self.L, t)[0]
