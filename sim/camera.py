@@ -23,8 +23,8 @@ import numpy as np
 
 from gonio.brdf.base import BRDF
 from gonio.errors import ConfigError, HardwareError
-from gonio.geometry import dot, frame_from_normal, normalize, to_local, transform_normals
-from gonio.pipeline.target import CameraCalibration, CameraPose, NoiseModel, TargetLayout
+from gonio.geometry import dot, normalize, to_local
+from gonio.pipeline.target import CameraCalibration, CameraPose, NoiseModel, TargetLayout, surface_frame
 from gonio.rig.interfaces import Clock, Frame
 
 __all__ = ["SensorModel", "SimScene", "SimCamera", "SceneLight", "normal_table"]
@@ -109,8 +109,10 @@ class SimScene:
     """What is on the sample stage and how the light shines on it.
 
     ``light_intensity`` is the radiant intensity (W/sr) of the point source at output 1;
-    ``sample_transform`` (4×4, optional) moves the sample patch off the board plane (a tilt, a
-    mounting error); its normals are transformed by the inverse-transpose.
+    ``sample_transform`` (4×4, optional) is the sample patch's *true* placement off the board plane
+    (a tilt, a mounting error); its normals are transformed by the inverse-transpose. Without it the
+    patch sits where the layout declares it (``layout.mount``); give both to simulate a mount that
+    differs from what the lab declared.
     """
 
     layout: TargetLayout
@@ -343,15 +345,13 @@ class SimCamera:
     def _shade_sample(self, rate: np.ndarray, C: np.ndarray) -> None:
         """Overwrite ``rate`` where rays hit the (possibly transformed) sample patch."""
         s = self.scene
-        M = np.eye(4) if s.sample_transform is None else np.asarray(s.sample_transform, dtype=np.float64)
+        M = s.layout.mount.transform if s.sample_transform is None else np.asarray(s.sample_transform, dtype=np.float64)
         corners = s.layout.sample.corners() @ M[:3, :3].T + M[:3, 3]
         box = self._bbox(corners)
         if box is None:
             return
         d = self._world_rays(box)
-        n = transform_normals(M, [0.0, 0.0, 1.0])  # inverse-transpose (lecture notes 000)
-        frame = frame_from_normal(n, M[:3, :3] @ np.array([1.0, 0.0, 0.0]))
-        origin = M[:3, 3]
+        origin, n, frame = surface_frame(M)  # normal by the inverse-transpose (lecture notes 000)
         dn = d @ n
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.dot(origin - C, n) / dn

@@ -1,8 +1,12 @@
 """From a merged radiometric image to BRDF samples: per-pixel geometry, the white reference, binning.
 
-Per pixel x on the sample plane (sample frame, z = 0): ``wo = (C − x)/|C − x|``, ``wi = (S − x)/|S − x|``
-(C camera centre, S light position), irradiance per unit source intensity ``E = cos θi / r²``
-(point source; lecture notes 004, "point light"). The camera measures ``rate = k I L`` with
+Per pixel x on its surface — the board plane z = 0 for the white reference, the sample's own plane
+for the sample (the declared :class:`~gonio.pipeline.target.SampleMount`: the viewing ray meets the
+plane ``n·(x − o) = 0``, n by the inverse-transpose; flat by default) —
+``wo = (C − x)/|C − x|``, ``wi = (S − x)/|S − x|`` (C camera centre, S light position),
+irradiance per unit source intensity ``E = (wi·n) / r²`` (point source; lecture notes 004, "point
+light"). The samples' wi/wo are then expressed in the sample's own frame
+(:func:`~gonio.pipeline.target.surface_frame`). The camera measures ``rate = k I L`` with
 ``L = f E`` (lecture notes 004: reflected radiance = BRDF × irradiance). The white reference
 (Lambertian, albedo ρ_w) gives ``k I = rate_w / (ρ_w/π · E_w)`` at its own pixels (its own wi,
 distance to the light), so ``f = rate / (k I · E)`` — light intensity, lens and sensor responsivity
@@ -16,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gonio import samples as S
-from gonio.geometry import dot, normalize
+from gonio.geometry import dot, normalize, to_local
 from gonio.pipeline.hdr import HdrImage
 from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
 from gonio.pipeline.uncertainty import geometry_variance
@@ -29,7 +33,8 @@ __all__ = ["Roi", "build_roi", "reflectance_samples"]
 class Roi:
     """Pixels of the frame that see the sample or the white reference.
 
-    ``rows``/``cols`` crop the frame; ``p`` (h, w, 3) are the plane points of the crop's pixels;
+    ``rows``/``cols`` crop the frame; ``p`` (h, w, 3) are the surface points of the crop's pixels
+    (sample frame: on the mounted sample's plane where ``label`` ≥ 0, on the board plane elsewhere);
     ``label`` (h, w) is the sample tile index (−1 elsewhere); ``white`` (h, w) marks white-patch pixels.
     """
 
@@ -55,6 +60,12 @@ def _angle_span(vectors: np.ndarray) -> float:
     return float(np.arccos(c.min()))
 
 
+def _pose_in_frame(pose: CameraPose, origin: np.ndarray, frame: np.ndarray) -> CameraPose:
+    """The camera pose relative to a local frame (``X_world = origin + frameᵀ X_local``):
+    ``X_cam = R frameᵀ X_local + (R origin + t)``."""
+    return CameraPose(pose.R @ frame.T, pose.R @ origin + pose.t)
+
+
 def build_roi(pose: CameraPose, calib: CameraCalibration, layout: TargetLayout, light_position, *,
               margin_px: float = 3.0, max_bin_deg: float = 2.0, max_bins: int = 8) -> Roi:
     """Region of interest, per-pixel plane points and tiles for one camera pose.
@@ -65,7 +76,8 @@ def build_roi(pose: CameraPose, calib: CameraCalibration, layout: TargetLayout, 
     """
     C = pose.centre
     S_ = np.asarray(light_position, dtype=np.float64)
-    corners = np.concatenate([layout.sample.corners(), layout.white.corners()])
+    sc = layout.sample_corners()
+    corners = np.concatenate([sc, layout.white.corners()])
     uv = pose.project(corners, calib)
     in_front = (corners @ pose.R.T + pose.t)[:, 2] > 0
     if not in_front.all() or not np.isfinite(uv).all():
@@ -82,11 +94,23 @@ def build_roi(pose: CameraPose, calib: CameraCalibration, layout: TargetLayout, 
     p = C + t[..., None] * d
     foot = np.linalg.norm(C) / calib.K[0, 0]
     m = margin_px * foot
-    x, y = p[..., 0], p[..., 1]
+    white = layout.white.contains(p[..., 0], p[..., 1], m)
     sr = layout.sample
+    if layout.mount.is_flat:
+        x, y = p[..., 0], p[..., 1]
+    else:  # the ray meets the mounted sample's plane n·(x − o) = 0 at t = n·(o − C) / (n·d)
+        o, nrm, _ = layout.mount.frame()
+        dn = d @ nrm
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ts = np.where(dn < -1e-12, np.dot(o - C, nrm) / dn, np.nan)
+        ts = np.where(ts > 0, ts, np.nan)
+        ps = C + ts[..., None] * d
+        q = layout.mount.to_patch(ps)
+        x, y = q[..., 0], q[..., 1]
     in_sample = sr.contains(x, y, m)
-    white = layout.white.contains(x, y, m)
-    sc = sr.corners()
+    if not layout.mount.is_flat:
+        p = np.where(in_sample[..., None], ps, p)
+        white &= ~in_sample  # the sample, if raised, hides what is behind it
     span = max(_angle_span(normalize(C - sc)), _angle_span(normalize(S_ - sc)))
     n = int(np.clip(np.ceil(np.degrees(span) / max_bin_deg), 1, max_bins))
     with np.errstate(invalid="ignore"):
@@ -117,13 +141,18 @@ def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_positio
     S_ = np.asarray(light_position, dtype=np.float64)
     nt = roi.n_tiles
     p = roi.p
+    flat = layout.mount.is_flat
+    origin, nrm, frame = layout.mount.frame()
     to_l = S_ - p
     r2 = dot(to_l, to_l)
     with np.errstate(invalid="ignore", divide="ignore"):
         wi = to_l / np.sqrt(r2)[..., None]
         wo = normalize(C - p)
-        E = np.maximum(wi[..., 2], 0.0) / r2
-    finite = np.isfinite(p).all(axis=-1) & (wi[..., 2] > 0) & (wo[..., 2] > 0)
+        # cosines against each pixel's own surface normal: the board's z, the mounted sample's n
+        cos_i = wi[..., 2] if flat else np.where(roi.label >= 0, wi @ nrm, wi[..., 2])
+        cos_o = wo[..., 2] if flat else np.where(roi.label >= 0, wo @ nrm, wo[..., 2])
+        E = np.maximum(cos_i, 0.0) / r2
+    finite = np.isfinite(p).all(axis=-1) & (cos_i > 0) & (cos_o > 0)
     sat_px = hdr.saturated.any(axis=-1)
     # --- white reference: k·I per channel ------------------------------------------------------
     rho = np.asarray(layout.white_albedo) / np.pi
@@ -171,6 +200,8 @@ def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_positio
     # directions: mean over all sample pixels of the tile (saturated ones included: same geometry)
     wi_t = vec_mean(wi, in_s)
     wo_t = vec_mean(wo, in_s)
+    if not flat:  # into the mounted sample's frame (DESIGN.md §2: z = its normal)
+        wi_t, wo_t = to_local(wi_t, frame), to_local(wo_t, frame)
     with np.errstate(invalid="ignore", divide="ignore"):
         f = fsum / n[:, None]
         var = vsum / n[:, None] ** 2 + f**2 * (kI_var / kI**2 + light_rel_sigma**2)
@@ -189,8 +220,16 @@ def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_positio
         n_grid = int(round(np.sqrt(nt)))
         okt = np.isfinite(p_tile).all(axis=1)
         p_tile[~okt] = 0.0
-        gv = geometry_variance(np.where(np.isfinite(f), f, np.nan), p_tile, p_white, pose, S_, n_grid,
-                               pose_perturbations=pose_perturbations, light_sigma=light_sigma)
+        if flat:
+            gv = geometry_variance(np.where(np.isfinite(f), f, np.nan), p_tile, p_white, pose, S_, n_grid,
+                                   pose_perturbations=pose_perturbations, light_sigma=light_sigma)
+        else:  # in the mounted sample's frame, where its surface is z = 0 (the white's cos θ there is
+            # approximated by the sample's: a second-order error in the tilt of an uncertainty)
+            loc = lambda x: (x - origin) @ frame.T  # noqa: E731
+            gv = geometry_variance(np.where(np.isfinite(f), f, np.nan), loc(p_tile),
+                                   None if p_white is None else loc(p_white), _pose_in_frame(pose, origin, frame),
+                                   loc(S_), n_grid, light_sigma=light_sigma,
+                                   pose_perturbations=[_pose_in_frame(q, origin, frame) for q in pose_perturbations])
         var = var + np.where(okt[:, None], gv, 0.0)
     if chans == 1:
         f, var = np.repeat(f, 3, axis=1), np.repeat(var, 3, axis=1)
@@ -207,8 +246,8 @@ def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_positio
     if not keep.any():
         keep = np.zeros(nt, bool)
         keep[0] = True
-        wi_t[0] = normalize(S_)
-        wo_t[0] = normalize(C)
+        wi_t[0] = to_local(normalize(S_ - origin), frame)
+        wo_t[0] = to_local(normalize(C - origin), frame)
         f[0], sigma[0] = np.nan, np.nan
         fl[0] |= S.BAD_FRAME
     return SampleSet(wi=wi_t[keep], wo=wo_t[keep], f=f[keep], sigma=sigma[keep], n_pixels=n[keep].astype(np.int64),

@@ -11,6 +11,11 @@ origin at the board's top-left corner, x along the image columns, y along the ro
 board. The board is mounted with its centre on the sample centre, so
 ``board = (x_s + W/2, H/2 − y_s, −z_s)`` — a rotation by π about x plus a translation.
 *Camera frame* (OpenCV pinhole): x right, y down, z forward; ``X_cam = R X_world + t``.
+*Mounted sample frame*: a sample that does not lie in the board plane (a tilted or raised mount,
+:class:`SampleMount`) has its own local frame, ``X_world = M X_patch`` (M 4×4 affine); its normal is
+M's inverse-transpose applied to z (lecture notes 000, "Note on normals and spaces"), its x axis
+M·x made orthogonal to the normal. A flat mount (M = I) makes it the sample frame itself. The
+BRDF samples' wi/wo are expressed in this frame (DESIGN.md §2: z = the sample's normal).
 """
 
 from __future__ import annotations
@@ -20,9 +25,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gonio.errors import ConfigError
-from gonio.geometry import normalize
+from gonio.geometry import frame_from_normal, normalize, transform_normals
 
-__all__ = ["Rect", "CharucoSpec", "TargetLayout", "NoiseModel", "CameraCalibration", "CameraPose"]
+__all__ = ["Rect", "CharucoSpec", "SampleMount", "surface_frame", "TargetLayout", "NoiseModel", "CameraCalibration",
+           "CameraPose"]
 
 #: Rotation board frame -> sample frame (and its own inverse): π about x.
 BOARD_TO_SAMPLE_R = np.diag([1.0, -1.0, -1.0])
@@ -106,18 +112,127 @@ class CharucoSpec:
         return (np.asarray(p, dtype=np.float64) - np.array([w / 2, h / 2, 0.0])) @ BOARD_TO_SAMPLE_R
 
 
+def surface_frame(transform) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(origin, normal, frame)`` of the surface z = 0 of patch coordinates moved by ``transform``.
+
+    ``transform`` (4×4 affine, ``X_world = M X_patch``): origin = M·0, normal = (M⁻¹)ᵀ z normalized
+    (:func:`gonio.geometry.transform_normals`; lecture notes 000, "Note on normals and spaces"),
+    frame rows = local x (M·x orthogonalised against the normal), y = z × x, z = normal
+    (:func:`gonio.geometry.frame_from_normal`). Shared by the renderer and the pipeline.
+    """
+    M = np.asarray(transform, dtype=np.float64)
+    n = transform_normals(M, [0.0, 0.0, 1.0])
+    return M[:3, 3].copy(), n, frame_from_normal(n, M[:3, :3] @ np.array([1.0, 0.0, 0.0]))
+
+
+@dataclass(frozen=True)
+class SampleMount:
+    """A known sample mounting: where the sample surface is relative to the board plane.
+
+    The lab measures (or machines) the mount and declares it; the pipeline then computes each
+    pixel's surface point on the tilted plane and wi/wo in the sample's own frame
+    (:func:`surface_frame`). Either tilt angles — ``X_world = T(0, 0, height) · R_y(tilt_y) ·
+    R_x(tilt_x) · X_patch`` (rotations about the board's x then y axis through the sample centre,
+    right-handed, degrees at this user boundary) — or a full 4×4 ``matrix`` (which then replaces
+    the tilts and height).
+
+    An undeclared tilt is *not* detected: per pose, the sample's shading cannot separate a tilt
+    from the unknown BRDF, and the white reference lies on the board, not on the mount; the patch
+    outline moves by only ~1–3 px for 5° at the simulated rig's geometry. Declare the mount.
+    """
+
+    tilt_x_deg: float = 0.0
+    tilt_y_deg: float = 0.0
+    height: float = 0.0
+    matrix: tuple | None = None
+
+    def __post_init__(self):
+        for name in ("tilt_x_deg", "tilt_y_deg"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float, np.floating, np.integer)) and abs(float(v)) < 45.0):
+                raise ConfigError.field(None, f"target.mount.{name}", v, "needs a number of degrees in (-45, 45)")
+        if not (isinstance(self.height, (int, float, np.floating, np.integer)) and abs(float(self.height)) < 0.1):
+            raise ConfigError.field(None, "target.mount.height", self.height, "needs metres in (-0.1, 0.1)")
+        if self.matrix is not None:
+            try:
+                M = np.asarray(self.matrix, dtype=np.float64)
+            except (TypeError, ValueError):
+                M = np.zeros(0)
+            ok = M.shape == (4, 4) and np.isfinite(M).all() and np.allclose(M[3], [0, 0, 0, 1])
+            if ok:
+                det = np.linalg.det(M[:3, :3])
+                ok = det > 1e-6
+            if not ok:
+                raise ConfigError.field(None, "target.mount.matrix", self.matrix,
+                                        "needs a finite 4x4 affine matrix (last row 0 0 0 1, positive determinant)")
+            object.__setattr__(self, "matrix", tuple(tuple(float(x) for x in row) for row in M))
+
+    @property
+    def transform(self) -> np.ndarray:
+        """The 4×4 affine map patch coordinates → sample (board-centred) frame."""
+        if self.matrix is not None:
+            return np.array(self.matrix, dtype=np.float64)
+        ax, ay = np.radians(self.tilt_x_deg), np.radians(self.tilt_y_deg)
+        rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
+        ry = np.array([[np.cos(ay), 0, np.sin(ay)], [0, 1, 0], [-np.sin(ay), 0, np.cos(ay)]])
+        M = np.eye(4)
+        M[:3, :3] = ry @ rx
+        M[2, 3] = self.height
+        return M
+
+    @property
+    def is_flat(self) -> bool:
+        """True when the sample lies in the board plane with the board's axes (M = I)."""
+        return bool(np.array_equal(self.transform, np.eye(4)))
+
+    def frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(origin, normal, frame)`` of the sample surface, :func:`surface_frame`."""
+        return surface_frame(self.transform)
+
+    def to_patch(self, p) -> np.ndarray:
+        """World points (..., 3) → patch coordinates (``M⁻¹ X``; z = 0 on the sample surface)."""
+        Minv = np.linalg.inv(self.transform)
+        return np.asarray(p, dtype=np.float64) @ Minv[:3, :3].T + Minv[:3, 3]
+
+    def to_dict(self) -> dict:
+        d = {"tilt_x_deg": float(self.tilt_x_deg), "tilt_y_deg": float(self.tilt_y_deg), "height": float(self.height)}
+        if self.matrix is not None:
+            d = {"matrix": [list(r) for r in self.matrix]}
+        return d
+
+    @classmethod
+    def from_dict(cls, d, source: str | None = None) -> "SampleMount":
+        """From ``{"tilt_x_deg", "tilt_y_deg", "height"}`` or ``{"matrix": 4x4}``; unknown keys are an error."""
+        if not isinstance(d, dict):
+            raise ConfigError.field(source, "target.mount", d, "needs a table of tilt_x_deg, tilt_y_deg, height "
+                                    "or matrix")
+        unknown = set(d) - {"tilt_x_deg", "tilt_y_deg", "height", "matrix"}
+        if unknown:
+            raise ConfigError.field(source, f"target.mount.{sorted(unknown)[0]}", d[sorted(unknown)[0]],
+                                    "unknown key (tilt_x_deg, tilt_y_deg, height or matrix)")
+        if "matrix" in d and set(d) - {"matrix"}:
+            raise ConfigError.field(source, "target.mount.matrix", d["matrix"], "give either matrix or tilts/height")
+        try:
+            return cls(**d)
+        except ConfigError as exc:
+            raise ConfigError(f"{source}: {exc}" if source else str(exc)) from None
+
+
 @dataclass(frozen=True)
 class TargetLayout:
     """Board, sample patch and white reference patch (rectangles in the sample frame, metres).
 
     The white reference is Lambertian with albedo ``white_albedo`` (per RGB channel, e.g. a
-    calibrated Spectralon tile: 0.99).
+    calibrated Spectralon tile: 0.99). ``sample`` is in the patch's own coordinates; ``mount``
+    (:class:`SampleMount`, default flat) places it relative to the board; the white reference lies
+    on the board plane.
     """
 
     charuco: CharucoSpec = field(default_factory=CharucoSpec)
     sample: Rect = field(default_factory=lambda: Rect(-0.025, -0.025, 0.025, 0.025))
     white: Rect = field(default_factory=lambda: Rect(-0.105, -0.02, -0.065, 0.02))
     white_albedo: tuple[float, float, float] = (0.99, 0.99, 0.99)
+    mount: SampleMount = field(default_factory=SampleMount)
 
     def __post_init__(self):
         w, h = self.charuco.size
@@ -130,6 +245,54 @@ class TargetLayout:
         a = np.asarray(self.white_albedo, dtype=np.float64)
         if a.shape != (3,) or not np.all((a > 0) & (a <= 1)):
             raise ConfigError.field(None, "target.white_albedo", self.white_albedo, "needs 3 values in (0, 1]")
+        if not isinstance(self.mount, SampleMount):
+            raise ConfigError.field(None, "target.mount", self.mount, "needs a SampleMount")
+
+    def sample_corners(self) -> np.ndarray:
+        """The sample patch's 4 corners in the sample (board-centred) frame, through the mount (4, 3)."""
+        M = self.mount.transform
+        return self.sample.corners() @ M[:3, :3].T + M[:3, 3]
+
+    def to_dict(self) -> dict:
+        """JSON-able description (the session manifest's ``target``), metres and degrees."""
+        c = self.charuco
+        return {"charuco": {"squares": list(c.squares), "square_length": c.square_length,
+                            "marker_length": c.marker_length, "dictionary": c.dictionary},
+                "sample": [self.sample.x0, self.sample.y0, self.sample.x1, self.sample.y1],
+                "white": [self.white.x0, self.white.y0, self.white.x1, self.white.y1],
+                "white_albedo": [float(a) for a in self.white_albedo], "mount": self.mount.to_dict()}
+
+    @classmethod
+    def from_dict(cls, d, source: str | None = None) -> "TargetLayout":
+        """Inverse of :meth:`to_dict`; missing keys take the defaults; errors name ``source`` and the field."""
+        if not isinstance(d, dict):
+            raise ConfigError.field(source, "target", d, "needs a table")
+        unknown = set(d) - {"charuco", "sample", "white", "white_albedo", "mount"}
+        if unknown:
+            k = sorted(unknown)[0]
+            raise ConfigError.field(source, f"target.{k}", d[k], "unknown key")
+        kw = {}
+        try:
+            if "charuco" in d:
+                ch = dict(d["charuco"])
+                if "squares" in ch:
+                    ch["squares"] = tuple(int(v) for v in ch["squares"])
+                kw["charuco"] = CharucoSpec(**ch)
+            for name in ("sample", "white"):
+                if name in d:
+                    v = d[name]
+                    if not (isinstance(v, (list, tuple)) and len(v) == 4):
+                        raise ConfigError.field(None, f"target.{name}", v, "needs [x0, y0, x1, y1] in metres")
+                    kw[name] = Rect(*(float(x) for x in v))
+            if "white_albedo" in d:
+                kw["white_albedo"] = tuple(float(x) for x in d["white_albedo"])
+            if "mount" in d:
+                kw["mount"] = SampleMount.from_dict(d["mount"])
+            return cls(**kw)
+        except ConfigError as exc:
+            raise ConfigError(f"{source}: {exc}" if source else str(exc)) from None
+        except (TypeError, ValueError) as exc:
+            raise ConfigError.field(source, "target", d, f"malformed: {exc}") from None
 
 
 @dataclass(frozen=True)

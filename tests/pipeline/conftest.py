@@ -19,10 +19,10 @@ class Bench:
     """Camera, light and pipeline around one material."""
 
     def __init__(self, material, *, sensor=None, seed=0, drift=0.0, tau=300.0, intensity=1.0, transform=None,
-                 settings=None, absolute_scale=None):
+                 settings=None, absolute_scale=None, layout=None):
         self.sensor = sensor or SensorModel()
         self.calib = CameraCalibration.pinhole(WIDTH, HEIGHT, FOCAL, noise=self.sensor.noise_model())
-        self.layout = TargetLayout()
+        self.layout = layout or TargetLayout()
         self.material = material
         self.clock = SimClock()
         self.light = SceneLight(self.clock, drift=drift, tau=tau)
