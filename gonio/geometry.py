@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from gonio.errors import ConfigError
+
 __all__ = [
     "Z",
     "normalize",
@@ -103,9 +105,22 @@ def half_vector(wi, wo) -> np.ndarray:
     """Half vector ``h = normalize(wi + wo)`` (Blinn 1977; lecture notes 000).
 
     For ``wi = -wo`` there is no half vector; the function returns the surface normal +z
-    (where θh = 0, a value every model in :mod:`gonio.brdf` treats as finite).
+    (where θh = 0, a value every model in :mod:`gonio.brdf` treats as finite). Keeps a float32
+    input float32 (the models' float32 evaluation path); anything else is computed in float64.
     """
-    return normalize(_vec(wi) + _vec(wo), fallback=Z)
+    wi, wo = np.asarray(wi), np.asarray(wo)
+    if wi.dtype != np.float32 or wo.dtype != np.float32:
+        wi, wo = _vec(wi), _vec(wo)
+    elif wi.shape[-1:] != (3,) or wo.shape[-1:] != (3,):
+        raise ValueError(f"expected vectors of shape (..., 3), got shapes {wi.shape} and {wo.shape}")
+    s = wi + wo
+    n2 = s[..., 0] * s[..., 0] + s[..., 1] * s[..., 1] + s[..., 2] * s[..., 2]
+    ok = n2 > np.finfo(s.dtype).tiny * 1e6
+    inv = 1.0 / np.sqrt(np.where(ok, n2, 1.0))
+    h = s * inv[..., None]
+    z = np.zeros_like(h)
+    z[..., 2] = 1.0
+    return np.where(ok[..., None], h, z)
 
 
 def orthonormal_basis(n) -> tuple[np.ndarray, np.ndarray]:
@@ -222,14 +237,17 @@ def transform_normals(matrix, normals) -> np.ndarray:
     Under a non-uniform scale, normals transformed like points stop being perpendicular to the
     surface; the inverse-transpose of the linear part keeps them perpendicular (lecture notes 000,
     "Note on normals and spaces"). ``matrix`` is 3×3, or 4×4 homogeneous (its upper-left 3×3 is
-    used; translation does not affect normals). A singular matrix raises ``ValueError``.
+    used; translation does not affect normals). A matrix of another shape, with NaN/inf, or singular
+    raises :class:`gonio.errors.ConfigError` (such matrices come from configuration: a sample mount).
     """
     m = np.asarray(matrix, dtype=np.float64)
     if m.shape in ((4, 4),):
         m = m[:3, :3]
     if m.shape != (3, 3):
-        raise ValueError(f"normal transform needs a 3x3 or 4x4 matrix, got shape {m.shape}")
+        raise ConfigError.field(None, "normal transform", f"shape {m.shape}", "needs a 3x3 or 4x4 matrix")
+    if not np.all(np.isfinite(m)):
+        raise ConfigError.field(None, "normal transform", m.tolist(), "has non-finite entries")
     if abs(np.linalg.det(m)) < 1e-300:
-        raise ValueError("normal transform: the matrix is singular (no inverse-transpose)")
+        raise ConfigError.field(None, "normal transform", m.tolist(), "the matrix is singular (no inverse-transpose)")
     inv_t = np.linalg.inv(m).T
     return normalize(np.einsum("ij,...j->...i", inv_t, _vec(normals)))

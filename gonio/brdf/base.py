@@ -79,13 +79,19 @@ class BRDF:
     #: Registry name (``gonio.brdf.make(name, ...)``).
     name: ClassVar[str] = ""
     #: Parameter specifications, in a stable order.
-    PARAMS: ClassVar[Mapping[str, Param]] = {}
+    PARAMS: ClassVar[Mapping[str, Param]] = MappingProxyType({})
     #: f(wi, wo) = f(wo, wi) for every parameter value.
     reciprocal: ClassVar[bool] = True
     #: Invariant under rotation of both directions about the normal.
     isotropic: ClassVar[bool] = True
     #: Directional albedo ≤ 1 for physical parameters (kd + ks ≤ 1 etc.), as the model is normalized.
     energy_conserving: ClassVar[bool] = True
+
+    def __init_subclass__(cls, **kwargs):
+        """Freeze a subclass's ``PARAMS`` (written as a dict literal) into a read-only mapping."""
+        super().__init_subclass__(**kwargs)
+        if not isinstance(cls.__dict__.get("PARAMS", MappingProxyType({})), MappingProxyType):
+            cls.PARAMS = MappingProxyType(dict(cls.PARAMS))
 
     def __init__(self, *, _source: str | None = None, **params: Any):
         unknown = sorted(set(params) - set(self.PARAMS))

@@ -26,6 +26,7 @@ import numpy as np
 
 from gonio.brdf.base import BRDF, Param
 from gonio.brdf.fresnel import one_minus_cos_d, schlick
+from gonio.geometry import half_vector  # re-exported: the models import it from here
 
 __all__ = [
     "ALPHA_MIN",
@@ -55,22 +56,6 @@ def _tiny(x) -> float:
 def clamp_alpha(alpha):
     """Roughness clamped at the floor :data:`ALPHA_MIN` (keeps the dtype of ``alpha``)."""
     return np.maximum(alpha, ALPHA_MIN)
-
-
-def half_vector(wi, wo) -> np.ndarray:
-    """Half vector ``h = normalize(wi + wo)`` (Blinn 1977), dtype-preserving.
-
-    Same convention as :func:`gonio.geometry.half_vector`: for ``wi = -wo`` (no half vector) the
-    result is the normal +z. Kept here in a dtype-preserving form for float32 evaluation.
-    """
-    s = wi + wo
-    n2 = s[..., 0] * s[..., 0] + s[..., 1] * s[..., 1] + s[..., 2] * s[..., 2]
-    ok = n2 > _tiny(s) * 1e6
-    inv = 1.0 / np.sqrt(np.where(ok, n2, 1.0))
-    h = s * inv[..., None]
-    z = np.zeros_like(h)
-    z[..., 2] = 1.0
-    return np.where(ok[..., None], h, z)
 
 
 def beckmann_d(h, alpha_x, alpha_y=None) -> np.ndarray:
