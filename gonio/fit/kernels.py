@@ -179,39 +179,53 @@ class MicrofacetTiedF0:
     Gram matrix of the three elementary vectors gives the projected cost at *every* f0 in O(1), which
     turns the two-parameter shape search (α, f0) into a one-parameter search in α with an exact inner
     minimization over f0 (the optimum is the joint one: min over (α, t, a) = min_α min_t min_a).
+
+    Applies to ``microfacet`` and to the sums ``lambert+ggx`` / ``lambert+beckmann`` (Lambert albedo as kd,
+    the lobe's ks, α and f0), with f0 tied and no colour held at a non-zero value.
     """
 
-    tied = "f0"
+    def __init__(self, layout):
+        self.roles = roles = self._roles(layout)
+        self.tied = None if roles is None else roles["f0"]
 
     @staticmethod
-    def supports(L) -> bool:
+    def _roles(L):
+        if L.name == "microfacet":
+            return {"kd": "kd", "ks": "ks", "alpha": "alpha", "f0": "f0", "distribution": L.fixed.get("distribution")}
+        parts = getattr(L.cls, "PARTS", ())
+        if len(parts) == 2 and parts[0][1].name == "lambert" and parts[1][1].name == "microfacet":
+            d, s = parts[0][0], parts[1][0]
+            return {"kd": f"{d}.albedo", "ks": f"{s}.ks", "alpha": f"{s}.alpha", "f0": f"{s}.f0",
+                    "distribution": dict(parts[1][2]).get("distribution")}
+        return None
+
+    def supports(self, L) -> bool:
         import numpy as np
 
-        return (L.name == "microfacet" and L.shape == ["alpha", "f0"] and "f0" in L.tied and "ks" in L.colour
-                and not any(k in L.fixed and np.any(np.asarray(L.fixed[k]) != 0) for k in ("kd", "ks")))
+        r = self.roles
+        return (r is not None and r["distribution"] is not None and L.shape == [r["alpha"], r["f0"]]
+                and r["f0"] in L.tied and r["ks"] in L.colour and set(L.colour) <= {r["kd"], r["ks"]}
+                and not any(k in L.fixed and np.any(np.asarray(L.fixed[k]) != 0) for k in (r["kd"], r["ks"])))
 
-    @staticmethod
-    def elements(data, L, shape_nl):
+    def elements(self, data, L, shape_nl):
         """``[1/π, S, S m⁵]`` at α = ``shape_nl[0]`` (a float stands for a constant vector)."""
-        S = _spec(data, L.fixed["distribution"], float(shape_nl[0]))
+        S = _spec(data, self.roles["distribution"], float(shape_nl[0]))
         return [1.0 / 3.141592653589793, S, S * _schlick_m5(data)]
 
-    @staticmethod
-    def transform(L, t):
+    def transform(self, L, t):
         """T(t), shape (len(t), K, 3): colour basis k = Σⱼ T[k, j] eⱼ, for an array of f0 values ``t``."""
         import numpy as np
 
         t = np.atleast_1d(np.asarray(t, dtype=np.float64))
         T = np.zeros((t.size, L.K, 3))
         for k, name in enumerate(L.colour):
-            if name == "kd":
+            if name == self.roles["kd"]:
                 T[:, k, 0] = 1.0
             else:
                 T[:, k, 1], T[:, k, 2] = t, 1.0 - t
         return T
 
-    @staticmethod
-    def jacobian(data, L, colour, shape):
+    def jacobian(self, data, L, colour, shape):
         """Elementary vectors ``[1/π, S, S m⁵, ∂S/∂α, ∂S/∂α m⁵]`` and coefficients C (3, 5, 3K + 2): the
         Jacobian column of parameter q in channel c is ∂f_c/∂p_q = Σⱼ C[c, j, q] eⱼ (exact for GGX; ∂S/∂α
         by central differences of S for other distributions)."""
@@ -219,8 +233,10 @@ class MicrofacetTiedF0:
 
         from gonio.brdf.microfacet import ALPHA_MIN
 
-        name = L.fixed["distribution"]
-        alpha, t = float(shape[0]), float(shape[1])
+        r = self.roles
+        name = r["distribution"]
+        ia, it = L.shape.index(r["alpha"]), L.shape.index(r["f0"])
+        alpha, t = float(shape[ia]), float(shape[it])
         S, m5 = _spec(data, name, alpha), _schlick_m5(data)
         if name == "ggx":
             dS = _ggx_spec_dalpha(data, alpha)
@@ -231,26 +247,32 @@ class MicrofacetTiedF0:
         elems = [1.0 / np.pi, S, S * m5, dS, dS * m5]
         K = L.K
         C = np.zeros((3, 5, 3 * K + 2))
-        ks = colour[L.colour.index("ks")]
+        ks = colour[L.colour.index(r["ks"])]
         for c in range(3):
             for k, nm in enumerate(L.colour):
-                if nm == "kd":
+                if nm == r["kd"]:
                     C[c, 0, 3 * k + c] = 1.0
                 else:
                     C[c, 1, 3 * k + c], C[c, 2, 3 * k + c] = t, 1.0 - t
-            C[c, 3, 3 * K], C[c, 4, 3 * K] = ks[c] * t, ks[c] * (1.0 - t)
-            C[c, 1, 3 * K + 1], C[c, 2, 3 * K + 1] = ks[c], -ks[c]
+            qa, qt = 3 * K + ia, 3 * K + it
+            C[c, 3, qa], C[c, 4, qa] = ks[c] * t, ks[c] * (1.0 - t)
+            C[c, 1, qt], C[c, 2, qt] = ks[c], -ks[c]
         return elems, C
 
 
-#: Registry: model name -> profile kernel (an affine tied parameter profiled out exactly).
-PROFILES: dict[str, type] = {"microfacet": MicrofacetTiedF0}
+#: Registry: model name -> profile kernel class (an affine tied parameter profiled out exactly).
+PROFILES: dict[str, type] = {"microfacet": MicrofacetTiedF0, "lambert+ggx": MicrofacetTiedF0,
+                             "lambert+beckmann": MicrofacetTiedF0}
 
 
 def profile_for(layout):
-    """The profile kernel of ``layout`` (:data:`PROFILES`) if it supports its free/fixed/tied parameters."""
-    p = PROFILES.get(layout.name)
-    return p if p is not None and p.supports(layout) else None
+    """The profile kernel of ``layout`` (:data:`PROFILES`, bound to it) if it supports its free/fixed/tied
+    parameters, else None."""
+    cls = PROFILES.get(layout.name)
+    if cls is None:
+        return None
+    p = cls(layout)
+    return p if p.supports(layout) else None
 
 
 _microfacet.supports = lambda L: L.shape in (["alpha"], ["alpha", "f0"]) and ("f0" in L.fixed or "f0" in L.shape)

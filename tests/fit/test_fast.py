@@ -31,13 +31,17 @@ def test_ggx_dalpha_matches_central_differences(data, alpha):
     np.testing.assert_allclose(_ggx_spec_dalpha(data, alpha), fd, rtol=1e-6, atol=1e-9 * np.abs(fd).max())
 
 
-@pytest.mark.parametrize("dist", ["ggx", "beckmann"])
+@pytest.mark.parametrize("model, fixed, tied", [("microfacet", {"distribution": "ggx"}, ("f0",)),
+                                                 ("microfacet", {"distribution": "beckmann"}, ("f0",)),
+                                                 ("microfacet", {"kd": 0.0}, ("f0",)),
+                                                 ("lambert+ggx", {}, ("lobe1.f0",))])
 @pytest.mark.parametrize("loss", ["cosine", "chi2"])
-def test_analytic_jtj_matches_finite_differences(data, dist, loss):
-    L = Layout("microfacet", {"distribution": dist}, ("f0",))
+def test_analytic_jtj_matches_finite_differences(data, model, fixed, tied, loss):
+    L = Layout(model, fixed, tied)
     assert profile_for(L) is not None
     prob = _Problem(data, L, LOSSES[loss], make_basis(L, data))
-    p = L.pack(np.array([[0.3, 0.12, 0.06], [0.8, 0.7, 0.6]]), np.array([0.2, 0.3]))
+    colour = np.array([[0.3, 0.12, 0.06], [0.8, 0.7, 0.6]])[-L.K:]
+    p = L.pack(colour, np.array([0.2, 0.3]))
     slow = prob.jtj(p)  # central differences of the model values (no profile kernel set)
     prob.profile = profile_for(L)
     fast = prob.jtj(p)
@@ -73,16 +77,30 @@ def test_batched_bounded_lsq_equals_the_scalar_one():
     assert np.any(got == 0.0) and np.any(got == 1.0)  # bounds were active in some problems
 
 
+SUM_TRUTH = {"diffuse.albedo": TRUTH["kd"], "lobe1.ks": TRUTH["ks"], "lobe1.alpha": TRUTH["alpha"],
+             "lobe1.f0": TRUTH["f0"]}
+
+
 @pytest.mark.parametrize("loss", ["cosine", "chi2"])
-def test_fast_default_fit_reaches_the_generic_optimum(loss):
-    s = synth("microfacet", TRUTH, n=1500)
-    fast = fit(s, "microfacet", loss=loss)
-    slow = fit(s, "microfacet", loss=loss, kernel=None)  # model evaluation, 2-D (alpha, f0) search, FD Jacobian
+@pytest.mark.parametrize("model, truth, pre", [("microfacet", TRUTH, ""), ("lambert+ggx", SUM_TRUTH, "lobe1.")])
+def test_fast_default_fit_reaches_the_generic_optimum(loss, model, truth, pre):
+    s = synth(model, truth, n=1500)
+    fast = fit(s, model, loss=loss)
+    slow = fit(s, model, loss=loss, kernel=None)  # model evaluation, 2-D (alpha, f0) search, FD Jacobian
     assert fast.cost <= slow.cost * (1 + 1e-7)
     assert fast.cost == pytest.approx(slow.cost, rel=1e-6)
-    for k in ("alpha", "f0"):
+    for k in (pre + "alpha", pre + "f0"):
         assert fast.params[k] == pytest.approx(slow.params[k], rel=1e-3)
         assert fast.uncertainty[k] == pytest.approx(slow.uncertainty[k], rel=1e-3)
-    np.testing.assert_allclose(fast.params["ks"], slow.params["ks"], rtol=1e-3)
-    np.testing.assert_allclose(fast.uncertainty["ks"], slow.uncertainty["ks"], rtol=1e-3)
-    assert fast.params["f0"] == pytest.approx(TRUTH["f0"], rel=0.1)
+    np.testing.assert_allclose(fast.params[pre + "ks"], slow.params[pre + "ks"], rtol=1e-3)
+    np.testing.assert_allclose(fast.uncertainty[pre + "ks"], slow.uncertainty[pre + "ks"], rtol=1e-3)
+    assert fast.params[pre + "f0"] == pytest.approx(TRUTH["f0"], rel=0.1)
+
+
+def test_profile_applies_only_where_it_is_exact():
+    assert profile_for(Layout("lambert+ggx", {}, ("lobe1.f0",))) is not None
+    assert profile_for(Layout("microfacet", {"f0": 1.0})) is None  # nothing tied
+    assert profile_for(Layout("microfacet", {"kd": 0.1}, ("f0",))) is None  # a non-zero offset
+    assert profile_for(Layout("microfacet", {"kd": 0.0}, ("f0",))) is not None  # ks alone
+    assert profile_for(Layout("lambert+2ggx", {}, ("lobe1.f0", "lobe2.f0"))) is None  # two tied values
+    assert profile_for(Layout("oren-nayar+ggx", {}, ("lobe1.f0",))) is None
