@@ -59,7 +59,7 @@ def test_nearest_lookup_uses_spec_index(independent_file):
     table = read_merl(independent_file)
     th, td, pd = np.radians([10.0, 40.0, 70.0]), np.radians([5.2, 33.3, 61.7]), np.radians([20.3, 250.6, 91.7])
     wi, wo = dirs_from_half_diff(th, np.radians([0.0, 77.0, 300.0]), td, pd)
-    got = table.lookup(wi, wo)
+    got = table.lookup(wi, wo, "nearest")
     for k in range(3):
         ih = min(int(np.sqrt(th[k] / (np.pi / 2)) * 90), 89)
         id_ = min(int(td[k] / (np.pi / 2) * 90), 89)
