@@ -42,6 +42,9 @@ def register(sub) -> None:
                    help="camera intrinsics and noise (hardware): width, height, focal_px, [dist], [noise]")
     p.add_argument("--material", metavar="FILE.toml", help="material of the simulated sample (model + [params]); "
                    "on hardware only its label is recorded")
+    p.add_argument("--target", metavar="TARGET.toml", help="target layout (default: the standard board, flat "
+                   "sample): sample/white rectangles, white_albedo, [charuco], [mount] tilt_x_deg, tilt_y_deg, "
+                   "height (or matrix) of a tilted or raised sample; recorded in the manifest")
     add_plan_options(p, default_plan=DEFAULT_PLAN)
     p.add_argument("--seed", type=int, default=0, help="seed of the simulation and of the plan ordering")
     p.add_argument("--sim-resolution", default=DEFAULT_SIM_RESOLUTION, metavar="WxH",
@@ -123,6 +126,12 @@ def _calibration_from_toml(path: str):
     return CameraCalibration.pinhole(int(data["width"]), int(data["height"]), float(data["focal_px"]), **kw)
 
 
+def _target(path):
+    from gonio.pipeline.target import TargetLayout, load_target
+
+    return load_target(path) if path else TargetLayout()
+
+
 def _calibration_dict(calib) -> dict:
     return {"width": calib.width, "height": calib.height, "K": calib.K.tolist(), "dist": calib.dist.tolist(),
             "noise": dict(calib.noise.__dict__)}
@@ -193,7 +202,7 @@ def _sim_session(store, plan, manifest, quiet: bool) -> int:
     material = material_from_dict({k: v for k, v in manifest["material"].items() if k in ("model", "params", "label")},
                                   source="manifest material")
     config = SimRigConfig.from_dict(manifest["sim"])
-    with SimRig(manifest["rig"]["name"], material.brdf(), config=config) as sim:
+    with SimRig(manifest["rig"]["name"], material.brdf(), config=config, layout=_layout(manifest)) as sim:
         devices = None
         try:
             devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
@@ -208,8 +217,14 @@ def _sim_session(store, plan, manifest, quiet: bool) -> int:
                 devices.close()
 
 
-def _hw_session(store, plan, manifest, rig, calibration, quiet: bool) -> int:
+def _layout(manifest):
+    """The session's target layout (sessions recorded before ``target`` existed: the default one)."""
     from gonio.pipeline.target import TargetLayout
+
+    return TargetLayout.from_dict(manifest.get("target", {}), source="manifest target")
+
+
+def _hw_session(store, plan, manifest, rig, calibration, quiet: bool) -> int:
     from gonio.rig.camera import OpenCVCamera
     from gonio.rig.clock import RealClock
     from gonio.session.runner import open_devices
@@ -220,7 +235,7 @@ def _hw_session(store, plan, manifest, rig, calibration, quiet: bool) -> int:
     try:
         camera = OpenCVCamera(hw["camera"], clock)
         devices = open_devices(rig, hw["servo_port"], hw["controller_port"], camera, clock)
-        return _run_session(store, plan, devices, calibration, TargetLayout(), before_pose=None, quiet=quiet,
+        return _run_session(store, plan, devices, calibration, _layout(manifest), before_pose=None, quiet=quiet,
                             resume_cmd=f"gonio resume {store.directory}")
     except BaseException as exc:
         if devices is None:
@@ -268,6 +283,7 @@ def run_measure(args) -> int:
         "plan": plan,
         "rig": {"name": rig.name, "source": rig_src if args.sim else str(args.rig)},
         "material": material.to_dict() if material is not None else {"label": ""},
+        "target": _target(args.target).to_dict(),
     }
     if adaptive is not None:
         manifest["adaptive"] = adaptive["adaptive"]

@@ -27,8 +27,8 @@ import numpy as np
 from gonio.errors import ConfigError
 from gonio.geometry import frame_from_normal, normalize, transform_normals
 
-__all__ = ["Rect", "CharucoSpec", "SampleMount", "surface_frame", "TargetLayout", "NoiseModel", "CameraCalibration",
-           "CameraPose"]
+__all__ = ["Rect", "CharucoSpec", "SampleMount", "surface_frame", "TargetLayout", "load_target", "NoiseModel",
+           "CameraCalibration", "CameraPose"]
 
 #: Rotation board frame -> sample frame (and its own inverse): π about x.
 BOARD_TO_SAMPLE_R = np.diag([1.0, -1.0, -1.0])
@@ -293,6 +293,32 @@ class TargetLayout:
             raise ConfigError(f"{source}: {exc}" if source else str(exc)) from None
         except (TypeError, ValueError) as exc:
             raise ConfigError.field(source, "target", d, f"malformed: {exc}") from None
+
+
+def load_target(path) -> TargetLayout:
+    """A :class:`TargetLayout` from a TOML file with the keys of :meth:`TargetLayout.to_dict`, e.g.::
+
+        sample = [-0.025, -0.025, 0.025, 0.025]   # metres, patch coordinates
+        [mount]                                   # the measured sample mounting
+        tilt_x_deg = 5.0
+        tilt_y_deg = 0.0
+        height = 0.002
+
+    Missing keys take the defaults; errors name the file and the field.
+    """
+    from pathlib import Path
+
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+        import tomli as tomllib
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError.field(None, "--target", str(path), f"cannot read: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    return TargetLayout.from_dict(data, source=str(path))
 
 
 @dataclass(frozen=True)
