@@ -7,7 +7,10 @@ Two solvers, same optimum:
   closed form (bounded least squares per channel) for each value of the shape parameters, and only
   the shape parameters are searched: a seeded coarse scan, then Brent's method (one shape parameter)
   or L-BFGS-B (several) from the best starts. Non-linear losses (log, cube root) are then polished
-  from that start by ``plain``.
+  from that start by ``plain``. Where a profile kernel applies (:data:`gonio.fit.kernels.PROFILES`:
+  microfacet and lambert+ggx with the Fresnel f0 tied, the default), f0 is minimized exactly inside
+  the projection as well (:class:`gonio.fit.solve.ProfiledProjection`), so only α is searched, and the
+  Jacobian of the uncertainties is analytic.
 * ``plain``: :func:`scipy.optimize.least_squares` (trust-region reflective, bounds from the model's
   ``PARAMS``) over every parameter, from a heuristic start and seeded random starts.
 
