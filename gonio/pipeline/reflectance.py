@@ -223,12 +223,14 @@ def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_positio
         if flat:
             gv = geometry_variance(np.where(np.isfinite(f), f, np.nan), p_tile, p_white, pose, S_, n_grid,
                                    pose_perturbations=pose_perturbations, light_sigma=light_sigma)
-        else:  # in the mounted sample's frame, where its surface is z = 0 (the white's cos θ there is
-            # approximated by the sample's: a second-order error in the tilt of an uncertainty)
-            loc = lambda x: (x - origin) @ frame.T  # noqa: E731
+        else:  # in the mounted sample's frame, where its surface is z = 0. geometry_variance takes
+            # every point on z = 0: the white (on the board plane) enters at its (x, y) on the sample's
+            # plane — its irradiance's response to a perturbation is then off by O(tilt) of itself, a
+            # second-order error of an uncertainty (its z offset kept would be a spurious first-order term)
+            loc = lambda x: (x - origin) @ frame.T * np.array([1.0, 1.0, 0.0])  # noqa: E731
             gv = geometry_variance(np.where(np.isfinite(f), f, np.nan), loc(p_tile),
                                    None if p_white is None else loc(p_white), _pose_in_frame(pose, origin, frame),
-                                   loc(S_), n_grid, light_sigma=light_sigma,
+                                   (S_ - origin) @ frame.T, n_grid, light_sigma=light_sigma,
                                    pose_perturbations=[_pose_in_frame(q, origin, frame) for q in pose_perturbations])
         var = var + np.where(okt[:, None], gv, 0.0)
     if chans == 1:
