@@ -27,7 +27,7 @@ import numpy as np
 
 from gonio.errors import ConfigError, DataError, GonioError
 from gonio.fit.data import DEFAULT_MAX_THETA_DEG, FitData, prepare
-from gonio.fit.kernels import profile_for
+from gonio.fit.kernels import jacobian_for, profile_for
 from gonio.fit.layout import CHANNELS, Layout, SubSpace, auto_tied, make_basis, model_class
 from gonio.fit.losses import LOSSES, Loss, get_loss
 from gonio.fit.result import FitResult
@@ -80,7 +80,8 @@ class _Problem:
         self._cache: dict[tuple, Any] = {}
         self.n_evals = 0
         self._last_values: tuple | None = None
-        self.profile = None  # a profile kernel (gonio.fit.kernels.PROFILES): exact Jacobian, tied f0 profiled
+        self.profile = None  # a profile kernel (gonio.fit.kernels.PROFILES): tied f0 profiled out
+        self.jacobian = None  # a kernel with an exact Jacobian (gonio.fit.kernels.jacobian_for)
 
     def _basis_at(self, shape):
         key = tuple(np.asarray(shape, dtype=np.float64).tolist())
@@ -128,9 +129,9 @@ class _Problem:
 
         For a linear loss on a separable model the colour columns are exact (√w Bₖ) and only the
         shape columns need differences of the basis (:meth:`_jtj_linear`)."""
-        if self.loss.linear and self.profile is not None:
+        if self.loss.linear and self.jacobian is not None:
             colour, shape = self.L.unpack(p)
-            elems, C = self.profile.jacobian(self.d, self.L, colour, shape)
+            elems, C = self.jacobian.jacobian(self.d, self.L, colour, shape)
             return jtj_from_elements(elems, C, _channel_weights(self.loss.weight(self.d.y, self.d.cos_i, self.d.sigma)))
         if self.loss.linear and self.basis is not None and self.basis.separable:
             return self._jtj_linear(p)
@@ -443,7 +444,16 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
     weak = [t for t in L.tied if not r.uncertainty[t] <= TIED_MAX_SE]  # inf, or too wide; nan = on a bound
     if weak:
         L2 = Layout(cls, {**fixed, **{t: 1.0 for t in weak}}, [t for t in tied if t not in weak])
-        r2 = _fit_layout(d, L2, lossobj, **kw)
+        optimum = None
+        if all(abs(r.params[t] - 1.0) <= 1e-7 for t in weak):
+            # on its upper bound (the tolerance of _uncertainty), at the value it is now held at: the held
+            # fit's minimizer is this one (the same point is feasible and nothing lower is), so the search is
+            # not repeated; the colours are solved again at the held value
+            optimum = (np.array([r.params[n] for n in L2.colour], dtype=np.float64),
+                       np.array([r.params[n] for n in L2.shape], dtype=np.float64))
+        r2 = _fit_layout(d, L2, lossobj, **kw, optimum=optimum)
+        if optimum is not None:
+            r2.method = r.method
         why = ", ".join(f"{t} = {r.params[t]:.3g} ± {r.uncertainty[t]:.2g}" for t in weak)
         r2.notes.insert(0, f"not identifiable from these data: {why} (the angular range does not separate the "
                            f"Fresnel rise from ks); held at 1, so ks is the specular reflectance ks·F")
@@ -459,8 +469,12 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
 TIED_MAX_SE = 0.2
 
 
-def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method, kernel, max_nfev) -> FitResult:
-    """One fit of the layout ``L`` (free, tied and fixed parameters decided) to prepared data."""
+def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method, kernel, max_nfev,
+                optimum: tuple[np.ndarray, np.ndarray] | None = None) -> FitResult:
+    """One fit of the layout ``L`` (free, tied and fixed parameters decided) to prepared data.
+
+    ``optimum = (colour, shape)`` skips the search: the caller knows the minimizer already (a tied
+    parameter that sat exactly at the value it is now held at); the result is then built around it."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
     heur = heuristics(d if len(d) <= COARSE_N else d.subset(rng.choice(len(d), COARSE_N, replace=False)))
@@ -472,10 +486,18 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
         method = "varpro" if separable else "plain"
     prob = _Problem(d, L, lossobj, basis if separable else None)
     prob.profile = profile_for(L) if separable and kernel == "auto" else None
+    prob.jacobian = jacobian_for(L) if separable and kernel == "auto" else None
     notes: list[str] = []
     if np.all(d.y == 0):
         notes.append("all values are zero")
-    if method == "varpro":
+    if optimum is not None:
+        colour, shape = optimum
+        if separable and lossobj.linear:  # colours solved again at the held value
+            w = lossobj.weight(d.y, d.cos_i, d.sigma)
+            _, colour = Projection(basis, np.ascontiguousarray(w), d.y, L.colour_lo, L.colour_hi)(shape)
+        p = L.pack(colour, shape)
+        cost = prob.cost(p)
+    elif method == "varpro":
         w = (lossobj.weight or LOSSES["cosine"].weight)(d.y, d.cos_i, d.sigma)
         profile = prob.profile
 

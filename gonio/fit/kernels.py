@@ -200,11 +200,24 @@ class MicrofacetTiedF0:
         return None
 
     def supports(self, L) -> bool:
+        """f0 tied (profiled out and in the Jacobian)."""
+        r = self.roles
+        return self._colours_ok(L) and L.shape == [r["alpha"], r["f0"]] and r["f0"] in L.tied
+
+    def supports_jacobian(self, L) -> bool:
+        """f0 tied, or held at 1 for every channel (F = 1: then only the Jacobian is provided)."""
         import numpy as np
 
         r = self.roles
-        return (r is not None and r["distribution"] is not None and L.shape == [r["alpha"], r["f0"]]
-                and r["f0"] in L.tied and r["ks"] in L.colour and set(L.colour) <= {r["kd"], r["ks"]}
+        return self.supports(L) or (self._colours_ok(L) and L.shape == [r["alpha"]] and r["f0"] in L.fixed
+                                    and bool(np.all(np.asarray(L.fixed[r["f0"]]) == 1.0)))
+
+    def _colours_ok(self, L) -> bool:
+        import numpy as np
+
+        r = self.roles
+        return (r is not None and r["distribution"] is not None and r["ks"] in L.colour
+                and set(L.colour) <= {r["kd"], r["ks"]}
                 and not any(k in L.fixed and np.any(np.asarray(L.fixed[k]) != 0) for k in (r["kd"], r["ks"])))
 
     def elements(self, data, L, shape_nl):
@@ -235,8 +248,9 @@ class MicrofacetTiedF0:
 
         r = self.roles
         name = r["distribution"]
-        ia, it = L.shape.index(r["alpha"]), L.shape.index(r["f0"])
-        alpha, t = float(shape[ia]), float(shape[it])
+        ia = L.shape.index(r["alpha"])
+        it = L.shape.index(r["f0"]) if r["f0"] in L.shape else None  # None: f0 held at 1, F = 1
+        alpha, t = float(shape[ia]), (1.0 if it is None else float(shape[it]))
         S, m5 = _spec(data, name, alpha), _schlick_m5(data)
         if name == "ggx":
             dS = _ggx_spec_dalpha(data, alpha)
@@ -246,7 +260,7 @@ class MicrofacetTiedF0:
             dS = (_spec(data, name, up) - _spec(data, name, dn)) / (up - dn)
         elems = [1.0 / np.pi, S, S * m5, dS, dS * m5]
         K = L.K
-        C = np.zeros((3, 5, 3 * K + 2))
+        C = np.zeros((3, 5, 3 * K + L.S))
         ks = colour[L.colour.index(r["ks"])]
         for c in range(3):
             for k, nm in enumerate(L.colour):
@@ -254,15 +268,28 @@ class MicrofacetTiedF0:
                     C[c, 0, 3 * k + c] = 1.0
                 else:
                     C[c, 1, 3 * k + c], C[c, 2, 3 * k + c] = t, 1.0 - t
-            qa, qt = 3 * K + ia, 3 * K + it
+            qa = 3 * K + ia
             C[c, 3, qa], C[c, 4, qa] = ks[c] * t, ks[c] * (1.0 - t)
-            C[c, 1, qt], C[c, 2, qt] = ks[c], -ks[c]
+            if it is not None:
+                C[c, 1, 3 * K + it], C[c, 2, 3 * K + it] = ks[c], -ks[c]
+        if it is None:  # F = 1: the m⁵ vectors have zero coefficients
+            return [elems[0], elems[1], elems[3]], C[:, [0, 1, 3], :]
         return elems, C
 
 
 #: Registry: model name -> profile kernel class (an affine tied parameter profiled out exactly).
 PROFILES: dict[str, type] = {"microfacet": MicrofacetTiedF0, "lambert+ggx": MicrofacetTiedF0,
                              "lambert+beckmann": MicrofacetTiedF0}
+
+
+def jacobian_for(layout):
+    """A kernel with an exact ``jacobian(data, L, colour, shape)`` for ``layout`` (see
+    :meth:`MicrofacetTiedF0.supports_jacobian`), else None."""
+    cls = PROFILES.get(layout.name)
+    if cls is None:
+        return None
+    p = cls(layout)
+    return p if p.supports_jacobian(layout) else None
 
 
 def profile_for(layout):

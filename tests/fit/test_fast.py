@@ -9,7 +9,7 @@ import pytest
 
 from gonio.fit import fit, prepare
 from gonio.fit.fit import _Problem
-from gonio.fit.kernels import _ggx_spec_dalpha, _spec, profile_for
+from gonio.fit.kernels import _ggx_spec_dalpha, _spec, jacobian_for, profile_for
 from gonio.fit.layout import Layout, make_basis
 from gonio.fit.losses import LOSSES
 from gonio.fit.solve import Projection, ProfiledProjection, bounded_lsq, bounded_lsq_batch
@@ -34,16 +34,18 @@ def test_ggx_dalpha_matches_central_differences(data, alpha):
 @pytest.mark.parametrize("model, fixed, tied", [("microfacet", {"distribution": "ggx"}, ("f0",)),
                                                  ("microfacet", {"distribution": "beckmann"}, ("f0",)),
                                                  ("microfacet", {"kd": 0.0}, ("f0",)),
-                                                 ("lambert+ggx", {}, ("lobe1.f0",))])
+                                                 ("lambert+ggx", {}, ("lobe1.f0",)),
+                                                 ("microfacet", {"f0": 1.0}, ()),
+                                                 ("lambert+beckmann", {"lobe1.f0": 1.0}, ())])
 @pytest.mark.parametrize("loss", ["cosine", "chi2"])
 def test_analytic_jtj_matches_finite_differences(data, model, fixed, tied, loss):
     L = Layout(model, fixed, tied)
-    assert profile_for(L) is not None
+    assert jacobian_for(L) is not None and (profile_for(L) is not None) == bool(tied)
     prob = _Problem(data, L, LOSSES[loss], make_basis(L, data))
     colour = np.array([[0.3, 0.12, 0.06], [0.8, 0.7, 0.6]])[-L.K:]
-    p = L.pack(colour, np.array([0.2, 0.3]))
-    slow = prob.jtj(p)  # central differences of the model values (no profile kernel set)
-    prob.profile = profile_for(L)
+    p = L.pack(colour, np.array([0.2, 0.3])[:L.S])
+    slow = prob.jtj(p)  # central differences of the model values (no Jacobian kernel set)
+    prob.jacobian = jacobian_for(L)
     fast = prob.jtj(p)
     np.testing.assert_allclose(fast, slow, rtol=1e-5, atol=1e-7 * np.abs(slow).max())
 
@@ -104,3 +106,20 @@ def test_profile_applies_only_where_it_is_exact():
     assert profile_for(Layout("microfacet", {"kd": 0.0}, ("f0",))) is not None  # ks alone
     assert profile_for(Layout("lambert+2ggx", {}, ("lobe1.f0", "lobe2.f0"))) is None  # two tied values
     assert profile_for(Layout("oren-nayar+ggx", {}, ("lobe1.f0",))) is None
+    assert jacobian_for(Layout("microfacet", {"f0": [1.0, 0.5, 1.0]})) is None  # F varies per channel
+
+
+def test_f0_on_its_bound_is_held_without_a_second_search():
+    truth = {"kd": [0.3, 0.12, 0.06], "ks": [0.8, 0.7, 0.6], "alpha": 0.2, "f0": 1.0}
+    s = synth("microfacet", truth, n=1500, noise=0.0)
+    # reflectance falling towards grazing θd: the fit wants f0 > 1 and stops on the bound
+    cos_d = np.linalg.norm(s.wi + s.wo, axis=1) / 2
+    s = (s.wi, s.wo, s.f * (1.0 - 0.3 * (1.0 - cos_d))[:, None])
+    r = fit(s, "microfacet", loss="cosine")
+    held = fit(s, "microfacet", loss="cosine", fixed={"f0": 1.0})  # the fit it stands for
+    assert r.params["f0"] == [1.0, 1.0, 1.0] and r.n_params == 7 and not r.identifiable
+    assert any("held at 1" in n for n in r.notes)
+    assert r.cost == pytest.approx(held.cost, rel=1e-6, abs=1e-12)
+    assert r.params["alpha"] == pytest.approx(held.params["alpha"], rel=1e-6)
+    np.testing.assert_allclose(r.params["ks"], held.params["ks"], rtol=1e-6)
+    np.testing.assert_allclose(r.uncertainty["ks"], held.uncertainty["ks"], rtol=1e-3)
