@@ -18,9 +18,10 @@ Configuration boundary: ``gonio`` never imports ``sim``; only ``gonio/cli/measur
 module, lazily, for ``--sim``. The host code learns it is simulated only through the device paths and
 the :class:`SimClock` it is given.
 
-Camera noise is reproducible per pose: :meth:`SimRig.begin_pose` reseeds the camera's generator from
-``(seed, pose index)``, so a pose measured in a resumed session gives the same frames (up to the
-servo position noise and the exposure choice) as in an uninterrupted one.
+Camera and photodiode noise are reproducible per pose: :meth:`SimRig.begin_pose` reseeds the camera's
+and the controller emulator's generators from ``(seed, pose index)``, so a pose measured in a resumed
+session gives the same frames (up to the servo position noise and the exposure choice) as in an
+uninterrupted one.
 """
 
 from __future__ import annotations
@@ -48,7 +49,8 @@ __all__ = ["SimRig", "SimRigConfig", "RigCamera", "RecordingServoBus", "DEFAULT_
 DEFAULT_MATERIAL = {"model": "microfacet",
                     "params": {"kd": [0.3, 0.12, 0.06], "ks": 0.8, "alpha": 0.25, "f0": 0.04, "distribution": "ggx"}}
 #: Joint angles (degrees) the simulated rig is powered on at: arms apart, out of any collision zone.
-PARK_DEG = {"light_az": 0.0, "light_el": 30.0, "camera_az": 0.0, "camera_el": -20.0}
+#: Keyed by joint name, every layout's joints (gonio.rig.kinematics.LAYOUTS).
+PARK_DEG = {"light_az": 0.0, "light_el": 30.0, "camera_az": 0.0, "camera_el": -20.0, "sample_az": 0.0}
 
 
 @dataclass(frozen=True)
@@ -74,6 +76,12 @@ class SimRigConfig:
 
     def to_dict(self) -> dict:
         return dict(self.__dict__)
+
+    def calibration(self) -> CameraCalibration:
+        """The simulated camera's exact calibration (ideal pinhole, no distortion, the sensor's noise
+        model): what the host's pipeline is given, and what the session manifest records."""
+        return CameraCalibration.pinhole(self.width, self.height, self.focal_px,
+                                         noise=SensorModel(bit_depth=self.bit_depth).noise_model())
 
     @classmethod
     def from_dict(cls, d) -> "SimRigConfig":
@@ -184,8 +192,7 @@ class SimRig:
                                              pd_noise=cfg.pd_noise)
         self.sensor = SensorModel(bit_depth=cfg.bit_depth)
         self.layout = layout or TargetLayout()
-        self.calibration = CameraCalibration.pinhole(cfg.width, cfg.height, cfg.focal_px,
-                                                     noise=self.sensor.noise_model())
+        self.calibration = cfg.calibration()
         scene = SimScene(self.layout, self.material, light_intensity=cfg.light_intensity)
         self.sim_camera = SimCamera(self.calibration, self.sensor, scene, seed=cfg.seed, clock=self.clock,
                                     light_output=self.controller.light_output)
@@ -237,7 +244,7 @@ class SimRig:
         return (ticks - joint.zero_offset_deg / 360.0 * n) * 2.0 * math.pi / n / (joint.direction * joint.gear_ratio)
 
     def actual_joints(self) -> np.ndarray:
-        """Joint angles (rad, :data:`gonio.rig.kinematics.JOINT_NAMES` order) of the arms *now*: the
+        """Joint angles (rad, :attr:`gonio.rig.kinematics.Rig.names` order) of the arms *now*: the
         load side of each servo after backlash, advanced to the current simulated time."""
         out = []
         with self.servo_bus.atomic():  # the bus thread updates the servos under this lock
@@ -254,9 +261,11 @@ class SimRig:
 
     # -- per-pose hook and faults ---------------------------------------------------------------
     def begin_pose(self, index: int) -> None:
-        """Reseed the camera noise from ``(seed, index)`` so a pose's frames do not depend on what was
-        captured before it (reproducible across interrupted and resumed sessions)."""
+        """Reseed the camera noise and the controller's photodiode noise from ``(seed, index)`` so a
+        pose's frames and photodiode readings do not depend on what was captured before it
+        (reproducible across interrupted and resumed sessions)."""
         self.sim_camera.reseed([int(self.config.seed), int(index)])
+        self.controller.reseed([int(self.config.seed), int(index), 1])
 
     def trip(self, joint: str, bits: int = HW_OVERLOAD) -> None:
         """Raise a hardware error (default overload) on the servo of ``joint``."""

@@ -34,7 +34,8 @@ def register(sub) -> None:
                                    "rendering camera, simulated clock).")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--sim", action="store_true", help="use the simulated rig")
-    where.add_argument("--rig", metavar="RIG.toml", help="rig geometry of the hardware (default rig with --sim)")
+    p.add_argument("--rig", metavar="RIG.toml", help="rig geometry (required on hardware; with --sim a rig file "
+                   "or shipped rig name such as 'turntable', default 'default')")
     p.add_argument("--servo-port", help="servo bus serial port (hardware)")
     p.add_argument("--controller-port", help="rig controller serial port (hardware)")
     p.add_argument("--camera", help="camera index or path for OpenCV (hardware)")
@@ -97,33 +98,11 @@ def _make_plan(args, rig):
 
 
 def _calibration_from_toml(path: str):
-    """Camera intrinsics + noise for hardware sessions: ``width``, ``height``, ``focal_px`` (or ``K``),
-    optional ``dist`` and ``[noise]`` (dn_per_electron, read_noise_e, full_well_e)."""
-    from pathlib import Path
+    """The camera description of a hardware session: intrinsics, [noise] and [camera] (linear, bit_depth,
+    black_level, response, trigger), see :func:`gonio.rig.calibration.load_camera_calibration`."""
+    from gonio.rig.calibration import load_camera_calibration
 
-    from gonio.errors import ConfigError
-    from gonio.pipeline.target import CameraCalibration, NoiseModel
-
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # pragma: no cover - Python 3.10
-        import tomli as tomllib
-    try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError.field(None, "--calibration", path, f"cannot read: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
-    for key in ("width", "height"):
-        if key not in data:
-            raise ConfigError.field(path, key, None, "missing")
-    noise = NoiseModel(**data.get("noise", {}))
-    kw = {"noise": noise, **({"dist": data["dist"]} if "dist" in data else {})}
-    if "K" in data:
-        return CameraCalibration(K=data["K"], width=int(data["width"]), height=int(data["height"]), **kw)
-    if "focal_px" not in data:
-        raise ConfigError.field(path, "focal_px", None, "missing (or give K)")
-    return CameraCalibration.pinhole(int(data["width"]), int(data["height"]), float(data["focal_px"]), **kw)
+    return load_camera_calibration(path)
 
 
 def _target(path):
@@ -135,6 +114,61 @@ def _target(path):
 def _calibration_dict(calib) -> dict:
     return {"width": calib.width, "height": calib.height, "K": calib.K.tolist(), "dist": calib.dist.tolist(),
             "noise": dict(calib.noise.__dict__)}
+
+
+def _calibration_from_dict(c, source: str):
+    """The :class:`CameraCalibration` a manifest's ``calibration`` entry records."""
+    from gonio.errors import DataError
+    from gonio.pipeline.target import CameraCalibration, NoiseModel
+
+    try:
+        return CameraCalibration(K=c["K"], width=c["width"], height=c["height"], dist=c["dist"],
+                                 noise=NoiseModel(**c["noise"]))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DataError(f"{source}: calibration is not a valid camera calibration ({exc})") from None
+
+
+def _rig_record(rig, source: str, text: str) -> dict:
+    """The manifest's ``rig``: name, where it came from, and the full TOML text with its SHA-256, so
+    that a resumed session (or anything rebuilding the rig) uses this rig even if the file changes."""
+    import hashlib
+
+    return {"name": rig.name, "source": source, "toml": text,
+            "sha256": hashlib.sha256(text.encode("utf-8")).hexdigest()}
+
+
+def _warn(msg: str) -> None:
+    print(f"gonio: warning: {msg}", file=sys.stderr)
+
+
+def _manifest_rig(manifest, where: str):
+    """The session's rig, from the manifest's copy of its TOML (checked against its SHA-256); a manifest
+    written before the copy existed falls back to the recorded source, with a warning line."""
+    import hashlib
+
+    from gonio.errors import DataError
+    from gonio.rig.kinematics import load_rig
+
+    rec = manifest.get("rig") or {}
+    text = rec.get("toml")
+    if text is None:
+        src = rec.get("source") or rec.get("name") or "default"
+        _warn(f"{where}: rig has no recorded description (older session): using the current {src!r}, "
+              f"which may differ from the one measured with")
+        return load_rig(src)
+    if hashlib.sha256(str(text).encode("utf-8")).hexdigest() != rec.get("sha256"):
+        raise DataError(f"{where}: rig.toml does not match its rig.sha256 (the manifest was altered)")
+    return load_rig(text=str(text), source=f"{where} rig")
+
+
+def _manifest_calibration(manifest, where: str, fallback=None):
+    """The calibration the session recorded; for an older simulated session without one, ``fallback``
+    (the simulated camera's) with a warning line."""
+    c = manifest.get("calibration")
+    if c is None and fallback is not None:
+        _warn(f"{where}: no recorded camera calibration (older session): using the simulated camera's")
+        return fallback
+    return _calibration_from_dict(c, where)
 
 
 def _default_out() -> str:
@@ -200,13 +234,16 @@ def _sim_session(store, plan, manifest, quiet: bool) -> int:
     from sim.rig import SimRig, SimRigConfig  # the configuration boundary: only here does gonio import sim
 
     material = material_from_dict({k: v for k, v in manifest["material"].items() if k in ("model", "params", "label")},
-                                  source="manifest material")
+                                  source="manifest material", complete=False)
     config = SimRigConfig.from_dict(manifest["sim"])
-    with SimRig(manifest["rig"]["name"], material.brdf(), config=config, layout=_layout(manifest)) as sim:
+    where = f"{store.directory}/manifest.json"
+    rig = _manifest_rig(manifest, where)
+    with SimRig(rig, material.brdf(), config=config, layout=_layout(manifest)) as sim:
+        calibration = _manifest_calibration(manifest, where, fallback=sim.calibration)
         devices = None
         try:
             devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
-            return _run_session(store, plan, devices, sim.calibration, sim.layout, before_pose=sim.begin_pose,
+            return _run_session(store, plan, devices, calibration, sim.layout, before_pose=sim.begin_pose,
                                 quiet=quiet, resume_cmd=f"gonio resume {store.directory}")
         except BaseException as exc:
             if devices is None:  # could not even open the devices: record why, keep the session resumable
@@ -225,7 +262,8 @@ def _layout(manifest):
 
 
 def _hw_session(store, plan, manifest, rig, calibration, quiet: bool) -> int:
-    from gonio.rig.camera import OpenCVCamera
+    from gonio.rig.calibration import CameraSettings
+    from gonio.rig.camera import open_camera
     from gonio.rig.clock import RealClock
     from gonio.session.runner import open_devices
 
@@ -233,8 +271,13 @@ def _hw_session(store, plan, manifest, rig, calibration, quiet: bool) -> int:
     clock = RealClock()
     devices = camera = None
     try:
-        camera = OpenCVCamera(hw["camera"], clock)
+        where = f"{store.directory} manifest calibration"
+        settings = CameraSettings.from_dict((manifest.get("calibration") or {}).get("camera", {}), source=where)
+        settings.check_session(where)
+        camera = open_camera(hw["camera"], settings, clock)
         devices = open_devices(rig, hw["servo_port"], hw["controller_port"], camera, clock)
+        if settings.trigger == "controller":  # the rig controller fires each exposure
+            camera.trigger = devices.controller.trigger_camera
         return _run_session(store, plan, devices, calibration, _layout(manifest), before_pose=None, quiet=quiet,
                             resume_cmd=f"gonio resume {store.directory}")
     except BaseException as exc:
@@ -250,12 +293,12 @@ def _hw_session(store, plan, manifest, rig, calibration, quiet: bool) -> int:
 
 def run_measure(args) -> int:
     from gonio.errors import ConfigError
-    from gonio.rig.kinematics import load_rig
+    from gonio.rig.kinematics import load_rig, read_rig_text
     from gonio.session.store import SessionStore
 
     out = args.out or _default_out()
     if args.sim:
-        rig_src = "default"
+        rig_src = args.rig or "default"
     else:
         missing = [o for o, v in (("--rig", args.rig), ("--servo-port", args.servo_port),
                                   ("--controller-port", args.controller_port), ("--camera", args.camera),
@@ -264,7 +307,8 @@ def run_measure(args) -> int:
             raise ConfigError.field(None, missing[0], None,
                                     "required on hardware (or use --sim for the simulated rig)")
         rig_src = args.rig
-    rig = load_rig(rig_src)
+    rig_text, rig_where = read_rig_text(rig_src)
+    rig = load_rig(text=rig_text, source=rig_where)
     material = _material(args.material) if (args.sim or args.material) else None
     adaptive = None
     if args.plan == "adaptive":
@@ -281,7 +325,7 @@ def run_measure(args) -> int:
         "command": ["gonio", *sys.argv[1:]] if sys.argv and sys.argv[0].endswith(("gonio", "main.py")) else None,
         "seed": args.seed,
         "plan": plan,
-        "rig": {"name": rig.name, "source": rig_src if args.sim else str(args.rig)},
+        "rig": _rig_record(rig, rig_src if args.sim else str(args.rig), rig_text),
         "material": material.to_dict() if material is not None else {"label": ""},
         "target": _target(args.target).to_dict(),
     }
@@ -293,25 +337,27 @@ def run_measure(args) -> int:
         w, h = _resolution(args.sim_resolution)
         config = SimRigConfig(seed=args.seed, width=w, height=h, focal_px=380.0 * w / 320.0)
         manifest["sim"] = config.to_dict()
+        manifest["calibration"] = _calibration_dict(config.calibration())
         store = SessionStore.create(out, manifest)
-        _say_plan(plan, store, args.quiet)
+        _say_plan(plan, store, args.quiet, rig)
         return _sim_session(store, plan, store.manifest, args.quiet)
-    calibration = _calibration_from_toml(args.calibration)
+    description = _calibration_from_toml(args.calibration)
+    calibration = description.calibration
     manifest["hardware"] = {"servo_port": args.servo_port, "controller_port": args.controller_port,
                             "camera": args.camera}
-    manifest["calibration"] = _calibration_dict(calibration)
+    manifest["calibration"] = description.to_dict()
     store = SessionStore.create(out, manifest)
-    _say_plan(plan, store, args.quiet)
+    _say_plan(plan, store, args.quiet, rig)
     return _hw_session(store, plan, store.manifest, rig, calibration, args.quiet)
 
 
-def _say_plan(plan, store, quiet: bool) -> None:
+def _say_plan(plan, store, quiet: bool, rig) -> None:
     if quiet:
         return
     from gonio.plan import estimate_plan
     from gonio.session.runner import format_lab_time
 
-    est = estimate_plan(plan, store.manifest["rig"]["name"] if store.manifest["mode"] == "sim" else None)
+    est = estimate_plan(plan, rig)
     dropped = f", {plan.n_dropped} dropped as unreachable" if plan.n_dropped else ""
     eta = f", estimated lab time {format_lab_time(est.optimized)} (lower bound {format_lab_time(est.lower_bound)})"
     if plan.generator == "adaptive":
@@ -328,7 +374,6 @@ def run_resume(args) -> int:
 
     from gonio.errors import ConfigError, DataError
     from gonio.plan.plan import Plan
-    from gonio.rig.kinematics import load_rig
     from gonio.session.store import MANIFEST, SessionStore
 
     d = Path(args.dir)
@@ -357,12 +402,9 @@ def run_resume(args) -> int:
             if getattr(args, key):
                 hw[key] = getattr(args, key)
         manifest["hardware"] = hw
-        rig = load_rig(manifest["rig"]["source"])
-        from gonio.pipeline.target import CameraCalibration, NoiseModel
-
-        c = manifest["calibration"]
-        calib = CameraCalibration(K=c["K"], width=c["width"], height=c["height"], dist=c["dist"],
-                                  noise=NoiseModel(**c["noise"]))
+        where = str(d / MANIFEST)
+        rig = _manifest_rig(manifest, where)
+        calib = _manifest_calibration(manifest, where)
         return _hw_session(store, plan, manifest, rig, calib, args.quiet)
     except BaseException:
         store.close()

@@ -1,7 +1,10 @@
 """Rig kinematics: BRDF angles (θi, φi, θo, φo) ↔ joint angles, reachability, poses, move times.
 
 Pure code, vectorized over many poses (plans have thousands). The rig is described by a TOML file
-(``gonio/rig/rigs/default.toml`` is the default; see its header for the layout):
+whose ``layout`` chooses the joints (:data:`LAYOUTS`; ``Rig.names`` is the joint order of every
+joint-angle array, last axis):
+
+``layout = "arms"`` (the default; ``gonio/rig/rigs/default.toml``, joints :data:`JOINT_NAMES`):
 
 * the sample lies flat at the origin of its local frame (DESIGN.md §2: z = normal, x = reference
   direction); it does not move;
@@ -16,6 +19,18 @@ Pure code, vectorized over many poses (plans have thousands). The rig is describ
   are closer than ``min_arm_separation_deg``, or when the camera body (a sphere) cuts the light's beam
   (a cylinder around the light → sample segment). The light (outer arc) can never sit between the
   camera and the sample.
+
+``layout = "turntable"`` (``gonio/rig/rigs/turntable.toml``, joints ``sample_az, light_el, camera_az,
+camera_el``): the sample turns on a turntable about its normal (``sample_az``); the light arm has an
+elevation carriage only, its arc fixed at the lab azimuth ``light_azimuth_deg`` (α); the camera arm
+is as above. In the lab frame the light is at ``R_z(α)·(sin el, 0, cos el)``; the sample frame is
+the lab frame turned by ``sample_az`` (s) about z, so in the sample frame every arm is turned by
+``−s``: the light's azimuth is ``α − s`` (+π past the pole), the camera's ``camera_az − s``. φi is
+set by the turntable, φo − φi by the camera azimuth. The ChArUco board turns with the sample, so the
+camera pose the pipeline estimates from it is already in the sample frame. Collision and shadow tests
+are the same (they depend only on the angle between the arms, which the rotation keeps); the solver
+searches the coupled solutions (light sign × turntable turn × camera sign × camera turn) for the one
+the trapezoidal profile reaches soonest.
 
 Move time: each joint follows a trapezoidal velocity profile (accelerate at ``a``, cruise at ``v``,
 decelerate), joints move concurrently, so a move costs its slowest joint (:func:`trapezoid_time`,
@@ -41,10 +56,16 @@ try:  # Python >= 3.11
 except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["Joint", "Rig", "load_rig", "trapezoid_time", "trapezoid_progress", "JOINT_NAMES", "REASONS"]
+__all__ = ["Joint", "Rig", "load_rig", "read_rig_text", "trapezoid_time", "trapezoid_progress", "JOINT_NAMES", "LAYOUTS", "REASONS"]
 
-#: Joint order of every joint-angle array, last axis.
-JOINT_NAMES = ("light_az", "light_el", "camera_az", "camera_el")
+#: Joints of each rig layout, in the order of every joint-angle array (last axis): (name, kind).
+LAYOUTS = {
+    "arms": (("light_az", "azimuth"), ("light_el", "elevation"), ("camera_az", "azimuth"), ("camera_el", "elevation")),
+    "turntable": (("sample_az", "turntable"), ("light_el", "elevation"), ("camera_az", "azimuth"),
+                  ("camera_el", "elevation")),
+}
+#: Joint order of the default ("arms") layout; a rig's own order is :attr:`Rig.names`.
+JOINT_NAMES = tuple(n for n, _ in LAYOUTS["arms"])
 #: Reason codes of refused poses (index 0 = reachable).
 REASONS = ("ok", "limits", "collision", "shadow")
 _TWO_PI = 2.0 * math.pi
@@ -119,6 +140,7 @@ class Joint:
     upper: float
     max_speed: float
     max_accel: float
+    kind: str = ""  #: "azimuth", "elevation" or "turntable" (:data:`LAYOUTS`)
 
 
 def _num(src, where, table, key, lo=-math.inf, hi=math.inf):
@@ -132,7 +154,9 @@ def _num(src, where, table, key, lo=-math.inf, hi=math.inf):
 
 @dataclass(frozen=True)
 class Rig:
-    """A light arm + camera arm rig (see the module docstring); load with :func:`load_rig`."""
+    """A light arm + camera arm rig, with or without a sample turntable (see the module docstring);
+    load with :func:`load_rig`. ``light_azimuth`` (rad) is the fixed light arc's azimuth of the
+    turntable layout."""
 
     name: str
     joints: tuple[Joint, ...]
@@ -143,6 +167,8 @@ class Rig:
     min_separation: float
     baud: int = 1_000_000
     source: str = "<rig>"
+    layout: str = "arms"
+    light_azimuth: float = 0.0
 
     # -- joint arrays ------------------------------------------------------------------------------
     @property
@@ -159,12 +185,12 @@ class Rig:
 
     @property
     def max_speed(self) -> np.ndarray:
-        """Per-joint speed limits, rad/s, in :data:`JOINT_NAMES` order."""
+        """Per-joint speed limits, rad/s, in :attr:`names` order."""
         return np.array([j.max_speed for j in self.joints])
 
     @property
     def max_accel(self) -> np.ndarray:
-        """Per-joint acceleration limits, rad/s², in :data:`JOINT_NAMES` order."""
+        """Per-joint acceleration limits, rad/s², in :attr:`names` order."""
         return np.array([j.max_accel for j in self.joints])
 
     def as_array(self, joints) -> np.ndarray:
@@ -193,21 +219,36 @@ class Rig:
         s = np.sin(el)
         return np.stack(np.broadcast_arrays(s * np.cos(az), s * np.sin(az), np.cos(el)), axis=-1)
 
-    def directions(self, joints) -> tuple[np.ndarray, np.ndarray]:
-        """Unit directions ``(wi, wo)`` (toward light, toward camera) for joints ``(..., 4)``."""
+    def arm_angles(self, joints) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Each arm's (azimuth, signed elevation) *in the sample frame*: ``(light_az, light_el,
+        camera_az, camera_el)`` for joints ``(..., 4)`` of this rig's layout.
+
+        Arms layout: the joints themselves. Turntable layout: the sample frame is the lab frame turned
+        by ``sample_az`` about z, so both arms turn by ``−sample_az``: light azimuth ``α − sample_az``,
+        camera azimuth ``camera_az − sample_az`` (module docstring).
+        """
         j = self.as_array(joints)
-        return self._arm_dir(j[..., 0], j[..., 1]), self._arm_dir(j[..., 2], j[..., 3])
+        if self.layout == "turntable":
+            s = j[..., 0]
+            return self.light_azimuth - s, j[..., 1], j[..., 2] - s, j[..., 3]
+        return j[..., 0], j[..., 1], j[..., 2], j[..., 3]
+
+    def directions(self, joints) -> tuple[np.ndarray, np.ndarray]:
+        """Unit directions ``(wi, wo)`` (toward light, toward camera; sample frame) for joints ``(..., 4)``."""
+        laz, lel, caz, cel = self.arm_angles(joints)
+        return self._arm_dir(laz, lel), self._arm_dir(caz, cel)
 
     def forward(self, joints) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """BRDF angles ``(θi, φi, θo, φo)`` of joints ``(..., 4)``: θ = |el|, φ = az (+π if el < 0),
-        φ wrapped to [0, 2π). At the pole (el = 0) φ is the azimuth stage's angle."""
-        j = self.as_array(joints)
+        """BRDF angles ``(θi, φi, θo, φo)`` of joints ``(..., 4)``: per arm (:meth:`arm_angles`)
+        θ = |el|, φ = az (+π if el < 0), φ wrapped to [0, 2π). At the pole (el = 0) φ is the arm's
+        azimuth in the sample frame."""
+        laz, lel, caz, cel = self.arm_angles(joints)
 
         def arm(az, el):
             return np.abs(el), np.mod(az + np.where(el < 0, math.pi, 0.0), _TWO_PI)
 
-        ti, pi_ = arm(j[..., 0], j[..., 1])
-        to, po = arm(j[..., 2], j[..., 3])
+        ti, pi_ = arm(laz, lel)
+        to, po = arm(caz, cel)
         return ti, pi_, to, po
 
     def light_position(self, joints) -> np.ndarray:
@@ -220,11 +261,10 @@ class Rig:
         Returns ``(position (..., 3), R (..., 3, 3))``; the rows of ``R`` are the camera's x (right),
         y (down) and z (optical axis, toward the sample origin) axes in sample coordinates (OpenCV
         convention), so a sample-frame point ``p`` is ``R @ (p - position)`` in camera coordinates.
-        x is the camera arm's azimuth tangent, defined everywhere including the pole.
+        x is the camera arm's azimuth tangent (in the sample frame), defined everywhere including the pole.
         """
-        j = self.as_array(joints)
-        az = j[..., 2]
-        wo = self._arm_dir(az, j[..., 3])
+        _, _, az, el = self.arm_angles(joints)
+        wo = self._arm_dir(az, el)
         z = -wo
         x = np.stack(np.broadcast_arrays(-np.sin(az), np.cos(az), np.zeros_like(az)), axis=-1)
         y = np.cross(z, x)
@@ -268,6 +308,32 @@ class Rig:
         ok = np.isfinite(np.take_along_axis(cost, best[..., None], axis=-1)[..., 0])
         return pick(az), pick(el), ok
 
+    def _solve_turntable(self, ti, pi_, to, po, cur):
+        """Turntable layout: of every joint solution within limits, the one nearest ``cur`` in move time.
+
+        Candidates (module docstring): light ``el = σ·θi`` with the turntable at
+        ``s = α + (π if σ < 0) − φi + 2πk``; camera ``el = τ·θo``, ``camera_az = φo + s + (π if τ < 0)
+        + 2πm``; σ, τ ∈ {±1}, k, m ∈ {−2..2}. At a pole the azimuth is free: the turntable (light at the
+        pole) or the camera azimuth (camera at the pole) stays where it is. Returns
+        ``(joints (..., 4), ok (...))``.
+        """
+        sign = np.array([1.0, -1.0])
+        turns = _TWO_PI * np.arange(-2, 3)
+        e = lambda a: np.asarray(a, dtype=np.float64)[..., None, None, None, None]  # noqa: E731
+        sl, k = sign[:, None, None, None], turns[None, :, None, None]  # light sign, turntable turn
+        sc, m = sign[None, None, :, None], turns[None, None, None, :]  # camera sign, camera turn
+        s = self.light_azimuth + np.where(sl < 0, math.pi, 0.0) - e(pi_) + k
+        s = np.where(e(ti) < 1e-12, e(cur[..., 0]), s)
+        caz = e(po) + s + np.where(sc < 0, math.pi, 0.0) + m
+        caz = np.where(e(to) < 1e-12, e(cur[..., 2]), caz)
+        cand = np.stack(np.broadcast_arrays(s, sl * e(ti), caz, sc * e(to)), axis=-1)
+        cand = cand.reshape(cand.shape[:-5] + (-1, 4))
+        inside = np.all((cand >= self.lower - 1e-12) & (cand <= self.upper + 1e-12), axis=-1)
+        cost = np.where(inside, self.move_time(cur[..., None, :], cand), np.inf)
+        best = np.argmin(cost, axis=-1)
+        ok = np.isfinite(np.take_along_axis(cost, best[..., None], axis=-1)[..., 0])
+        return np.take_along_axis(cand, best[..., None, None], axis=-2)[..., 0, :], ok
+
     def solve_many(self, theta_i, phi_i, theta_o, phi_o, current=None, *, isotropic: bool = False):
         """Vectorized :meth:`solve`: returns ``(joints (..., 4), reason codes (...))``.
 
@@ -284,17 +350,23 @@ class Rig:
             cur_ti, cur_pi, cur_to, cur_po = self.forward(cur)
             dphi = po - pi_
             options = [pi_, np.where(cur_ti > 1e-9, cur_pi, pi_), np.where(cur_to > 1e-9, cur_po - dphi, pi_)]
+            if self.layout == "turntable":  # keep the turntable still: the light on either side of the pole
+                keep = self.light_azimuth - cur[..., 0]
+                options[1:2] = [keep, keep + math.pi]
             sols = [self.solve_many(ti, psi, to, psi + dphi, cur) for psi in options]
             times = np.stack([np.where(c == 0, self.move_time(cur, np.nan_to_num(j)), np.inf) for j, c in sols])
             best = np.argmin(times, axis=0)
             joints = np.choose(best[..., None], [j for j, _ in sols])
             code = np.choose(best, [c for _, c in sols])
             return joints, code
-        laz, lel, lok = self._solve_arm(ti, pi_, cur[..., 0], cur[..., 1], 0, 1)
-        caz, cel, cok = self._solve_arm(to, po, cur[..., 2], cur[..., 3], 2, 3)
-        joints = np.stack([laz, lel, caz, cel], axis=-1)
+        if self.layout == "turntable":
+            joints, ok = self._solve_turntable(ti, pi_, to, po, cur)
+        else:
+            laz, lel, lok = self._solve_arm(ti, pi_, cur[..., 0], cur[..., 1], 0, 1)
+            caz, cel, cok = self._solve_arm(to, po, cur[..., 2], cur[..., 3], 2, 3)
+            joints, ok = np.stack([laz, lel, caz, cel], axis=-1), lok & cok
         wi, wo = dirs_from_angles(ti, pi_, to, po)
-        code = np.where(lok & cok, self.check_directions(wi, wo), np.int8(1)).astype(np.int8)
+        code = np.where(ok, self.check_directions(wi, wo), np.int8(1)).astype(np.int8)
         joints = np.where((code == 0)[..., None], joints, np.nan)
         return joints, code
 
@@ -320,8 +392,8 @@ class Rig:
 
 
 # -- loading -----------------------------------------------------------------------------------------
-def load_rig(path: str | Path | None = None) -> Rig:
-    """Load a rig TOML file (a path, or a name of a shipped rig such as ``"default"``)."""
+def read_rig_text(path: str | Path | None = None) -> tuple[str, str]:
+    """``(text, source)`` of a rig TOML file (a path, or a shipped rig name, as :func:`load_rig`)."""
     if path is None or (isinstance(path, str) and "/" not in path and not path.endswith(".toml")):
         name = path or "default"
         res = resources.files("gonio.rig") / "rigs" / f"{name}.toml"
@@ -335,21 +407,39 @@ def load_rig(path: str | Path | None = None) -> Rig:
         except OSError as exc:
             raise ConfigError(f"{p}: cannot read rig file: {exc.strerror}") from None
         src = str(p)
+    return text, src
+
+
+def load_rig(path: str | Path | None = None, *, text: str | None = None, source: str | None = None) -> Rig:
+    """Load a rig TOML file (a path, or a name of a shipped rig: ``"default"``, ``"turntable"``), or
+    parse ``text`` (e.g. the copy a session manifest keeps; ``source`` names it in error messages)."""
+    if text is None:
+        text, src = read_rig_text(path)
+    else:
+        src = source or "<rig text>"
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{src}: not valid TOML: {exc}") from None
     geo = data.get("geometry", {})
+    layout = data.get("layout", "arms")
+    if layout not in LAYOUTS:
+        raise ConfigError.field(src, "layout", layout, f"must be one of {', '.join(LAYOUTS)}")
+    wanted = LAYOUTS[layout]
+    names = [n for n, _ in wanted]
     joints_t = data.get("joints", [])
     by_name = {j.get("name"): (i, j) for i, j in enumerate(joints_t)}
-    if sorted(n for n in by_name if n) != sorted(JOINT_NAMES) or len(joints_t) != 4:
+    if sorted(n for n in by_name if n) != sorted(names) or len(joints_t) != len(names):
         raise ConfigError.field(src, "joints.name", [j.get("name") for j in joints_t],
-                                f"need exactly the joints {', '.join(JOINT_NAMES)}")
+                                f"layout {layout!r} needs exactly the joints {', '.join(names)}")
     joints = []
     ids = set()
-    for name in JOINT_NAMES:
+    for name, kind in wanted:
         i, jt = by_name[name]
         where = f"joints[{i}]"
+        if jt.get("kind", kind) != kind:
+            raise ConfigError.field(src, f"{where}.kind", jt["kind"], f"joint {name!r} of layout {layout!r} is "
+                                    f"a {kind!r} joint")
         lo, hi = _num(src, where, jt, "min_deg", -360, 360), _num(src, where, jt, "max_deg", -360, 360)
         if lo >= hi:
             raise ConfigError.field(src, f"{where}.max_deg", hi, f"must be greater than min_deg = {lo}")
@@ -365,13 +455,20 @@ def load_rig(path: str | Path | None = None) -> Rig:
                             zero_offset_deg=_num(src, where, jt, "zero_offset_deg", 0, 360),
                             direction=direction, lower=math.radians(lo), upper=math.radians(hi),
                             max_speed=math.radians(_num(src, where, jt, "max_speed_deg_s", 1e-3, 1e4)),
-                            max_accel=math.radians(_num(src, where, jt, "max_accel_deg_s2", 1e-3, 1e6))))
+                            max_accel=math.radians(_num(src, where, jt, "max_accel_deg_s2", 1e-3, 1e6)),
+                            kind=kind))
     rl = _num(src, "geometry", geo, "light_arm_radius_m", 1e-3, 100)
     rc = _num(src, "geometry", geo, "camera_arm_radius_m", 1e-3, 100)
     if rc >= rl:
         raise ConfigError.field(src, "geometry.camera_arm_radius_m", rc, f"must be less than light_arm_radius_m = {rl}")
+    alpha = 0.0
+    if layout == "turntable":
+        alpha = math.radians(_num(src, "geometry", {"light_azimuth_deg": 0.0, **geo}, "light_azimuth_deg", -360, 360))
+    elif "light_azimuth_deg" in geo:
+        raise ConfigError.field(src, "geometry.light_azimuth_deg", geo["light_azimuth_deg"],
+                                f"only for layout 'turntable' (the {layout!r} layout turns the light arm)")
     return Rig(name=str(data.get("name", Path(src).stem)), joints=tuple(joints), light_radius=rl, camera_radius=rc,
                camera_body_radius=_num(src, "geometry", geo, "camera_body_radius_m", 0, 10),
                light_beam_radius=_num(src, "geometry", geo, "light_beam_radius_m", 0, 10),
                min_separation=math.radians(_num(src, "geometry", geo, "min_arm_separation_deg", 0, 180)),
-               baud=int(data.get("bus", {}).get("baud", 1_000_000)), source=src)
+               baud=int(data.get("bus", {}).get("baud", 1_000_000)), source=src, layout=layout, light_azimuth=alpha)
