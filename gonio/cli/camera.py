@@ -1,0 +1,195 @@
+"""``gonio camera info|capture|response``: the lab-bench camera tools (like ``gonio servo``).
+
+``info`` shows what the driver offers (resolution, backend, manual exposure); ``capture`` saves one
+raw frame (8/16-bit PNG or ``.npy``); ``response`` captures an exposure bracket of a static scene and
+recovers the inverse response of an 8-bit non-linear camera (Debevec & Malik, SIGGRAPH 1997, through
+:func:`gonio.pipeline.hdr.calibrate_response`), saved as the ``.npz`` that ``[camera] response`` of a
+``CAMERA.toml`` names (:mod:`gonio.rig.calibration`).
+
+``--sim`` uses the rendering camera (:class:`sim.camera.SimCamera`, by default its 8-bit gamma
+response) looking at the standard target: the same commands run in CI without a camera. Like
+``gonio measure --sim``, this is a configuration boundary where gonio imports ``sim`` (lazily).
+"""
+
+from __future__ import annotations
+
+import sys
+
+DEFAULT_SIM_RESOLUTION = "320x240"
+
+
+def register(sub) -> None:
+    p = sub.add_parser("camera", help="inspect a camera, capture a raw frame, calibrate an 8-bit response",
+                       description="Lab-bench tools for the camera (OpenCV VideoCapture; --sim: the rendering "
+                                   "camera).")
+    csub = p.add_subparsers(dest="camera_command", metavar="ACTION", required=True)
+
+    def common(sp):
+        where = sp.add_mutually_exclusive_group(required=True)
+        where.add_argument("--camera", metavar="N", help="camera index or device path (OpenCV)")
+        where.add_argument("--sim", action="store_true", help="the simulated camera (8-bit gamma by default)")
+        sp.add_argument("--backend", default="v4l2", help="OpenCV backend: any, v4l2, gstreamer, ffmpeg, aravis")
+        sp.add_argument("--exposure-unit", type=float, default=1e-4,
+                        help="seconds per CAP_PROP_EXPOSURE unit (V4L2: 1e-4)")
+        sp.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for a frame")
+        sp.add_argument("--sim-bit-depth", type=int, default=8, help="simulated sensor bit depth (8: gamma-encoded)")
+        sp.add_argument("--sim-gamma", type=float, default=2.2, help="simulated 8-bit response y = 255 x^(1/gamma)")
+        sp.add_argument("--sim-resolution", default=DEFAULT_SIM_RESOLUTION, metavar="WxH")
+        sp.add_argument("--seed", type=int, default=0, help="simulated noise seed")
+        sp.set_defaults(func=run)
+
+    i = csub.add_parser("info", help="resolution, backend, whether manual exposure is accepted")
+    common(i)
+    c = csub.add_parser("capture", help="save one raw frame (PNG: 8/16-bit; or .npy)")
+    common(c)
+    c.add_argument("--exposure", type=float, required=True, help="exposure, seconds")
+    c.add_argument("--gain", type=float, default=1.0, help="analogue gain (default 1)")
+    c.add_argument("-o", "--output", required=True, metavar="FRAME.png|.npy")
+    r = csub.add_parser("response", help="capture a bracket of a static scene and recover the inverse response")
+    common(r)
+    r.add_argument("--exposures", required=True, metavar="S,S,...", help="bracket, seconds (at least 3, e.g. "
+                   "0.001,0.002,...,0.128: the darkest frame mostly dark, the brightest mostly saturated)")
+    r.add_argument("--gain", type=float, default=1.0, help="analogue gain (default 1)")
+    r.add_argument("--samples", type=int, default=100, help="pixels sampled by the Debevec solver")
+    r.add_argument("-o", "--output", required=True, metavar="RESPONSE.npz")
+
+
+def _open(args):
+    from gonio.errors import ConfigError
+
+    if args.sim:
+        return _sim_camera(args)
+    from gonio.rig.calibration import BACKENDS
+    from gonio.rig.camera import OpenCVCamera
+    from gonio.rig.clock import RealClock
+
+    backend = args.backend.lower()
+    if backend not in BACKENDS:
+        raise ConfigError.field("--backend", "backend", args.backend, f"must be one of {', '.join(BACKENDS)}")
+    if not args.exposure_unit > 0:
+        raise ConfigError.field("--exposure-unit", "exposure_unit", args.exposure_unit, "must be positive")
+    # raw frames: no linearization here (the response is what `response` measures)
+    return OpenCVCamera(args.camera, RealClock(), backend=BACKENDS[backend], exposure_unit=args.exposure_unit)
+
+
+def _sim_camera(args):
+    from gonio.brdf import make
+    from gonio.cli.measure import _resolution
+    from gonio.errors import ConfigError
+    from gonio.pipeline.target import CameraCalibration, TargetLayout
+    from sim.camera import SensorModel, SimCamera, SimScene  # configuration boundary (module docstring)
+    from sim.clock import SimClock
+
+    w, h = _resolution(args.sim_resolution)
+    if not (args.sim_gamma > 0):
+        raise ConfigError.field("--sim-gamma", "gamma", args.sim_gamma, "must be positive")
+    sensor = SensorModel(bit_depth=args.sim_bit_depth, linear=args.sim_bit_depth != 8, gamma=args.sim_gamma)
+    calib = CameraCalibration.pinhole(w, h, 380.0 * w / 320.0, noise=sensor.noise_model())
+    scene = SimScene(layout=TargetLayout(), material=make("lambert", albedo=(0.5, 0.5, 0.5)))
+    return SimCamera(calib, sensor, scene, seed=args.seed, clock=SimClock())
+
+
+def _positive(text: str, option: str) -> float:
+    import math
+
+    from gonio.errors import ConfigError
+
+    try:
+        v = float(text)
+    except ValueError:
+        raise ConfigError.field(option, option.lstrip("-"), text, "must be a number of seconds") from None
+    if not (v > 0 and math.isfinite(v)):
+        raise ConfigError.field(option, option.lstrip("-"), text, "must be positive")
+    return v
+
+
+def _save_frame(path: str, frame) -> None:
+    from pathlib import Path
+
+    import numpy as np
+
+    from gonio.errors import ConfigError, DataError
+
+    suffix = Path(path).suffix.lower()
+    px = frame.pixels
+    if suffix == ".npy":
+        with open(path, "wb") as fh:
+            np.save(fh, px, allow_pickle=False)
+        return
+    if suffix != ".png":
+        raise ConfigError.field("-o", "output", path, "must end in .png or .npy")
+    import cv2
+
+    img = px[..., ::-1] if px.ndim == 3 else px  # RGB -> BGR for OpenCV
+    if not cv2.imwrite(path, np.ascontiguousarray(img)):
+        raise DataError(f"{path}: cannot write the PNG")
+
+
+def run(args) -> int:
+    from gonio.errors import ConfigError
+
+    cam = _open(args)
+    try:
+        if args.camera_command == "info":
+            return _info(cam, args)
+        if args.camera_command == "capture":
+            exposure = _positive(str(args.exposure), "--exposure")
+            frame = cam.capture(exposure, args.gain, timeout=args.timeout)
+            _save_frame(args.output, frame)
+            px = frame.pixels
+            print(f"{args.output}: {px.shape[1]}x{px.shape[0]} {px.dtype} ({frame.bit_depth}-bit, "
+                  f"{'linear' if frame.linear else 'non-linear'}), exposure {frame.exposure:g} s, gain "
+                  f"{frame.gain:g}, min {int(px.min())} max {int(px.max())}, "
+                  f"{(px >= frame.saturation_level).mean() * 100:.1f} % saturated")
+            return 0
+        exposures = [_positive(t, "--exposures") for t in args.exposures.split(",") if t.strip()]
+        if len(exposures) < 3 or len(set(exposures)) != len(exposures):
+            raise ConfigError.field("--exposures", "exposures", args.exposures, "needs at least 3 different exposures")
+        if not 10 <= args.samples <= 10000:
+            raise ConfigError.field("--samples", "samples", args.samples, "must be in [10, 10000]")
+        return _response(cam, sorted(exposures), args)
+    finally:
+        cam.close()
+
+
+def _info(cam, args) -> int:
+    if args.sim:
+        s, c = cam.sensor, cam.calibration
+        rows = {"device": "sim", "backend": "SimCamera (rendering)", "width": c.width, "height": c.height,
+                "bit_depth": s.bit_depth, "linear": "yes" if s.linear else f"no (8-bit, gamma {s.gamma:g})",
+                "manual_exposure": f"yes ({s.min_exposure:g} .. {s.max_exposure:g} s)", "gain": "yes (1 .. 64)"}
+    else:
+        rows = cam.info()
+    for k, v in rows.items():
+        print(f"{k:16s} {v}")
+    return 0
+
+
+def _response(cam, exposures, args) -> int:
+    import numpy as np
+
+    from gonio.errors import ConfigError
+    from gonio.pipeline.hdr import calibrate_response
+    from gonio.rig.calibration import ResponseCurve
+
+    frames = [cam.capture(t, args.gain, timeout=args.timeout) for t in exposures]
+    if any(f.pixels.dtype != np.uint8 for f in frames):
+        raise ConfigError.field("--camera", "bit depth", frames[0].bit_depth,
+                                "response calibration is for 8-bit non-linear cameras; a raw 10-16-bit camera "
+                                "is linear: declare linear = true and its bit_depth in [camera]")
+    got = [f.exposure for f in frames]
+    mids = [float(((f.pixels > 5) & (f.pixels < 250)).mean()) for f in frames]
+    if max(mids) < 0.05:
+        raise ConfigError.field("--exposures", "exposures", args.exposures,
+                                "no frame has 5 % of its pixels in 6..249: widen the bracket or light the scene")
+    curve = ResponseCurve.from_debevec(calibrate_response([f.pixels for f in frames], got, samples=args.samples),
+                                       got, source=args.output)
+    curve.save(args.output)
+    inv = curve.inverse
+    print(f"{args.output}: inverse response from {len(frames)} frames ({got[0]:g} .. {got[-1]:g} s)")
+    print("value  " + "  ".join(f"{v:>7d}" for v in (16, 32, 64, 128, 192, 255)))
+    for c in range(inv.shape[1]):
+        name = "RGB"[c] if inv.shape[1] == 3 else "Y"
+        print(f"{name:5s}  " + "  ".join(f"{inv[v, c]:7.4f}" for v in (16, 32, 64, 128, 192, 255)))
+    print(f"add to CAMERA.toml: [camera] linear = false, bit_depth = 8, response = \"{args.output}\"", file=sys.stderr)
+    return 0

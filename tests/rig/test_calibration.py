@@ -1,0 +1,103 @@
+"""CAMERA.toml parsing (gonio.rig.calibration): every bad value is a one-line ConfigError naming the
+file, field and value; response curves round-trip through .npz without pickle; `gonio measure` on
+hardware refuses a bad or unusable camera description before a session directory exists."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gonio.cli.main import main
+from gonio.errors import ConfigError
+from gonio.rig.calibration import CameraDescription, ResponseCurve, load_camera_calibration
+
+BASE = "width = 320\nheight = 240\nfocal_px = 380.0\n"
+LINEAR = BASE + "[camera]\nlinear = true\nbit_depth = 12\nblack_level = 64\n"
+
+
+def _write(tmp_path, text, name="camera.toml"):
+    p = tmp_path / name
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+def _curve(tmp_path, name="resp.npz"):
+    v = np.arange(256)
+    ResponseCurve(inverse=np.stack([(v / 255.0) ** 2.2] * 3, axis=-1), exposures=(0.001, 0.002, 0.004)).save(
+        tmp_path / name)
+    return tmp_path / name
+
+
+def test_linear_camera_description_round_trips_through_the_manifest(tmp_path):
+    d = load_camera_calibration(_write(tmp_path, LINEAR + 'trigger = "controller"\n[noise]\nread_noise_e = 2.5\n'))
+    assert d.camera.linear and d.camera.bit_depth == 12 and d.camera.black_level == 64.0
+    assert d.camera.trigger == "controller" and d.calibration.noise.read_noise_e == 2.5
+    assert d.calibration.K[0, 0] == 380.0 and d.calibration.width == 320
+    back = CameraDescription.from_dict(d.to_dict(), source="manifest")
+    assert back.camera == d.camera and np.array_equal(back.calibration.K, d.calibration.K)
+
+
+def test_non_linear_camera_with_its_response_curve(tmp_path):
+    _curve(tmp_path)
+    d = load_camera_calibration(_write(tmp_path, BASE + '[camera]\nlinear = false\nbit_depth = 8\nresponse = "resp.npz"\n'))
+    r = d.camera.response
+    assert r is not None and r.inverse.shape == (256, 3) and r.exposures == (0.001, 0.002, 0.004)
+    assert r.inverse[128, 1] == pytest.approx((128 / 255) ** 2.2)
+    back = CameraDescription.from_dict(d.to_dict(), source="manifest")  # curve stored inline in the manifest
+    assert np.array_equal(back.camera.response.inverse, r.inverse)
+
+
+@pytest.mark.parametrize("text, field", [
+    (BASE + "[noise]\nfoo = 1\n", "noise.foo = 1: unknown key"),
+    ("width = 320\nheight = 240\nfocal_px = \"x\"\n", "focal_px = 'x'"),
+    ("width = 0\nheight = 240\nfocal_px = 380.0\n", "width = 0"),
+    ("width = 320\nfocal_px = 380.0\n", "height = None: missing"),
+    (BASE + "[noise]\ndn_per_electron = -1\n", "noise.dn_per_electron = -1"),
+    (BASE + "dist = [1, 2]\n", "dist = [1, 2]"),
+    (BASE + "colour = 1\n", "colour = 1: unknown key"),
+    (LINEAR + "bit_depth = 9\n", None),  # duplicate key: invalid TOML, still one line
+    (BASE + "[camera]\nlinear = true\nbit_depth = 9\n", "camera.bit_depth = 9"),
+    (BASE + "[camera]\nlinear = \"yes\"\n", "camera.linear = 'yes'"),
+    (BASE + "[camera]\nlinear = true\nshutter = 1\n", "camera.shutter = 1: unknown key"),
+    (BASE + "[camera]\nlinear = true\ntrigger = \"gpio\"\n", "camera.trigger = 'gpio'"),
+    (BASE + "[camera]\nlinear = false\nresponse = \"nope.npz\"\n", "camera.response = 'nope.npz': no such file"),
+    (BASE + "[camera]\nlinear = false\n", "camera.linear = False: a non-linear camera needs its response curve"),
+    (BASE, "gonio camera response"),  # no [camera]: an 8-bit webcam without a curve, with how to fix it
+])
+def test_bad_values_are_one_line_config_errors(tmp_path, text, field):
+    p = _write(tmp_path, text)
+    with pytest.raises(ConfigError) as exc:
+        load_camera_calibration(p)
+    msg = str(exc.value)
+    assert "\n" not in msg and str(p) in msg
+    if field is not None:
+        assert field in msg
+
+
+def test_response_with_a_linear_camera_and_bad_curve_files(tmp_path):
+    _curve(tmp_path)
+    with pytest.raises(ConfigError, match="non-linear 8-bit"):
+        load_camera_calibration(_write(tmp_path, LINEAR + 'response = "resp.npz"\n'))
+    np.savez(tmp_path / "obj.npz", inverse_response=np.array([{"a": 1}], dtype=object))
+    with pytest.raises(ConfigError, match="camera.response"):  # object arrays need pickle: refused
+        load_camera_calibration(_write(tmp_path, BASE + '[camera]\nresponse = "obj.npz"\n'))
+    np.savez(tmp_path / "short.npz", inverse_response=np.ones(10))
+    with pytest.raises(ConfigError, match="shape"):
+        load_camera_calibration(_write(tmp_path, BASE + '[camera]\nresponse = "short.npz"\n'))
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(ConfigError, match="junk.npz"):
+        load_camera_calibration(_write(tmp_path, BASE + '[camera]\nresponse = "junk.npz"\n'))
+
+
+@pytest.mark.parametrize("text, expect", [
+    (BASE + "[noise]\nfoo = 1\n", "noise.foo"),
+    (BASE, "camera.linear = False"),
+])
+def test_measure_refuses_the_camera_before_creating_a_session(tmp_path, capsys, text, expect):
+    cal = _write(tmp_path, text)
+    out = tmp_path / "session"
+    rc = main(["measure", "--rig", "default", "--servo-port", "/dev/null", "--controller-port", "/dev/null",
+               "--camera", "0", "--calibration", str(cal), "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and expect in err and "\n" not in err and "Traceback" not in err
+    assert not out.exists()
