@@ -178,10 +178,12 @@ def _response(cam, exposures, args) -> int:
                                 "response calibration is for 8-bit non-linear cameras; a raw 10-16-bit camera "
                                 "is linear: declare linear = true and its bit_depth in [camera]")
     got = [f.exposure for f in frames]
-    mids = [float(((f.pixels > 5) & (f.pixels < 250)).mean()) for f in frames]
-    if max(mids) < 0.05:
+    counts = sum(np.bincount(f.pixels.ravel(), minlength=256) for f in frames)
+    coverage = float(np.mean(counts[16:241] >= 10))
+    if coverage < 0.8:  # Debevec & Malik need every level of the curve seen in some frame
         raise ConfigError.field("--exposures", "exposures", args.exposures,
-                                "no frame has 5 % of its pixels in 6..249: widen the bracket or light the scene")
+                                f"the frames show only {coverage:.0%} of the 8-bit levels 16..240: widen the "
+                                "bracket (darkest frame mostly dark, brightest mostly saturated) or light the scene")
     curve = ResponseCurve.from_debevec(calibrate_response([f.pixels for f in frames], got, samples=args.samples),
                                        got, source=args.output)
     curve.save(args.output)
