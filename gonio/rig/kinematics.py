@@ -313,18 +313,25 @@ class Rig:
 
         Candidates (module docstring): light ``el = σ·θi`` with the turntable at
         ``s = α + (π if σ < 0) − φi + 2πk``; camera ``el = τ·θo``, ``camera_az = φo + s + (π if τ < 0)
-        + 2πm``; σ, τ ∈ {±1}, k, m ∈ {−2..2}. At a pole the azimuth is free: the turntable (light at the
-        pole) or the camera azimuth (camera at the pole) stays where it is. Returns
-        ``(joints (..., 4), ok (...))``.
+        + 2πm``; σ, τ ∈ {±1}; of the turns k, m only those that can fall within the joint's limits
+        (the angle wrapped to [lower, lower + 2π), plus whole turns up to the joint's range). At a pole
+        the azimuth is free: the turntable (light at the pole) or the camera azimuth (camera at the pole)
+        stays where it is. Returns ``(joints (..., 4), ok (...))``.
         """
+        def turns(angle, joint: Joint, axis: int, ndim: int = 4):
+            """``angle`` (..., 2 signs, ...) wrapped into the joint's range, with a new turns axis."""
+            n = int(math.ceil((joint.upper - joint.lower) / _TWO_PI)) + 1
+            shape = [1] * ndim
+            shape[axis] = n
+            base = joint.lower + np.mod(angle - joint.lower, _TWO_PI)
+            return base + _TWO_PI * np.arange(n).reshape(shape)
+
         sign = np.array([1.0, -1.0])
-        turns = _TWO_PI * np.arange(-2, 3)
         e = lambda a: np.asarray(a, dtype=np.float64)[..., None, None, None, None]  # noqa: E731
-        sl, k = sign[:, None, None, None], turns[None, :, None, None]  # light sign, turntable turn
-        sc, m = sign[None, None, :, None], turns[None, None, None, :]  # camera sign, camera turn
-        s = self.light_azimuth + np.where(sl < 0, math.pi, 0.0) - e(pi_) + k
+        sl, sc = sign[:, None, None, None], sign[None, None, :, None]  # light sign, camera sign
+        s = turns(self.light_azimuth + np.where(sl < 0, math.pi, 0.0) - e(pi_), self.joints[0], 1)
         s = np.where(e(ti) < 1e-12, e(cur[..., 0]), s)
-        caz = e(po) + s + np.where(sc < 0, math.pi, 0.0) + m
+        caz = turns(e(po) + s + np.where(sc < 0, math.pi, 0.0), self.joints[2], 3)
         caz = np.where(e(to) < 1e-12, e(cur[..., 2]), caz)
         cand = np.stack(np.broadcast_arrays(s, sl * e(ti), caz, sc * e(to)), axis=-1)
         cand = cand.reshape(cand.shape[:-5] + (-1, 4))
