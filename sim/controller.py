@@ -103,6 +103,13 @@ class ControllerEmulator(PtyServer):
             self.resets += 1
             self._power_on()
 
+    def reseed(self, seed) -> None:
+        """Restart the photodiode noise generator from ``seed`` (anything ``numpy.random.default_rng``
+        takes, e.g. ``[session seed, pose index]``): the readings that follow depend only on the seed,
+        the light's state and the requests, not on what was read before."""
+        with self._lock:
+            self._rng = np.random.default_rng(seed)
+
     def inject_reset(self) -> None:
         """Reset when the next valid frame arrives, before handling it (a brown-out mid-session)."""
         with self._lock:

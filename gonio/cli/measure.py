@@ -171,6 +171,19 @@ def _manifest_calibration(manifest, where: str, fallback=None):
     return _calibration_from_dict(c, where)
 
 
+def _record_detector(manifest: dict, calibration, rig, *, pinhole: bool) -> None:
+    """``detector`` (how it was computed) and ``detector_solid_angle_sr`` (None with the reason if
+    unknown) in the manifest: :mod:`gonio.session.detector`."""
+    from gonio.pipeline.target import TargetLayout
+    from gonio.session.detector import aperture_from_calibration, detector_solid_angle
+
+    diameter, how = (None, "") if pinhole else aperture_from_calibration(manifest["calibration"], "--calibration")
+    det = detector_solid_angle(calibration, TargetLayout.from_dict(manifest["target"], source="--target"), rig,
+                               aperture_diameter_m=diameter, pinhole=pinhole, aperture_source=how)
+    manifest["detector"] = det
+    manifest["detector_solid_angle_sr"] = det["solid_angle_sr"]
+
+
 def _default_out() -> str:
     return time.strftime("gonio-session-%Y%m%d-%H%M%S")
 
@@ -338,6 +351,7 @@ def run_measure(args) -> int:
         config = SimRigConfig(seed=args.seed, width=w, height=h, focal_px=380.0 * w / 320.0)
         manifest["sim"] = config.to_dict()
         manifest["calibration"] = _calibration_dict(config.calibration())
+        _record_detector(manifest, config.calibration(), rig, pinhole=True)
         store = SessionStore.create(out, manifest)
         _say_plan(plan, store, args.quiet, rig)
         return _sim_session(store, plan, store.manifest, args.quiet)
@@ -346,6 +360,7 @@ def run_measure(args) -> int:
     manifest["hardware"] = {"servo_port": args.servo_port, "controller_port": args.controller_port,
                             "camera": args.camera}
     manifest["calibration"] = description.to_dict()
+    _record_detector(manifest, calibration, rig, pinhole=False)
     store = SessionStore.create(out, manifest)
     _say_plan(plan, store, args.quiet, rig)
     return _hw_session(store, plan, store.manifest, rig, calibration, args.quiet)

@@ -189,7 +189,8 @@ def run(args) -> int:
     from gonio.rig.kinematics import load_rig
 
     rig = load_rig(args.rig)
-    plan = plan_from_args(args, args.name, rig, where="NAME", source="gonio plan", time_budget=args.time_budget)
+    # source=None: the CLI's own prefix ("gonio plan: error: ") already names the command
+    plan = plan_from_args(args, args.name, rig, where="NAME", source=None, time_budget=args.time_budget)
     if args.name == "adaptive":
         return _print_adaptive(args, plan, rig)
     gen = GENERATORS[args.name]

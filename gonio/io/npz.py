@@ -66,7 +66,9 @@ def build_metadata(manifest: Mapping[str, Any] | None, **extra: Any) -> dict[str
         "units": UNITS,
         "frame": "z = surface normal, x = sample reference direction, y = z × x; wi toward the light, "
                  "wo toward the camera",
+        # the session's definition and computation: gonio/session/detector.py (None + reason if unknown)
         "detector_solid_angle_sr": _find(manifest, "detector_solid_angle_sr", "detector_solid_angle"),
+        "detector": manifest.get("detector"),
         "material_label": label,
         "rig": manifest.get("rig"),
         "software_version": _find(manifest, "software_version") or (

@@ -11,8 +11,11 @@ A material file is TOML::
     f0 = 0.04
     distribution = "ggx"
 
-Every error is a :class:`gonio.errors.ConfigError` whose one-line message names the file, the field
-and the value (the model's own parameter checks name them too, through ``make(..., source=file)``).
+The simulated sample's material must be *complete*: every parameter of the model is given (a missing
+one is not filled with the model's default: ``model = "microfacet"`` with only ``kd`` would silently
+run with ks = 1, alpha = 0.1, f0 = 1). Every error is a :class:`gonio.errors.ConfigError` whose
+one-line message names the file, the field(s) and the value: missing and unknown parameters are
+listed all at once; types and ranges are the model's own checks (``make(..., source=file)``).
 """
 
 from __future__ import annotations
@@ -53,8 +56,27 @@ class Material:
         return {"model": self.model, "params": dict(self.params), "label": self.label}
 
 
-def material_from_dict(data: Mapping[str, Any], source: str = "<material>") -> Material:
-    """Check a parsed material table and build the BRDF once (so bad parameters fail here)."""
+def _model_params(model: str, source: str) -> tuple[str, ...]:
+    """The parameter names of the model registered as ``model`` (unknown model: ConfigError from make)."""
+    from gonio.brdf import MODELS, is_sum_name, lobe_sum, make
+
+    cls = MODELS.get(model)
+    if cls is None and is_sum_name(model):
+        try:
+            cls = lobe_sum(model)
+        except ConfigError:
+            cls = None
+    if cls is None:
+        make(model, source=source)  # raises the registry's one-line error naming the model
+    return tuple(cls.PARAMS)
+
+
+def material_from_dict(data: Mapping[str, Any], source: str = "<material>", *, complete: bool = True) -> Material:
+    """Check a parsed material table and build the BRDF once (so bad parameters fail here).
+
+    With ``complete`` (material files), every parameter of the model must be given; ``complete=False``
+    only for materials recorded by older sessions, which ran with the model's defaults filled in.
+    """
     if not isinstance(data, Mapping):
         raise ConfigError.field(source, "material", data, "must be a table")
     unknown = sorted(set(data) - _KEYS)
@@ -71,6 +93,15 @@ def material_from_dict(data: Mapping[str, Any], source: str = "<material>") -> M
     label = data.get("label", "")
     if not isinstance(label, str):
         raise ConfigError.field(source, "label", label, "must be a string")
+    names = _model_params(model, source)
+    unknown = [k for k in params if k not in names]
+    if unknown:
+        raise ConfigError(f"{source}: params: unknown parameter{'s' if len(unknown) > 1 else ''} "
+                          f"{', '.join(unknown)} (model {model!r} takes {', '.join(names)})")
+    missing = [k for k in names if k not in params]
+    if missing and complete:
+        raise ConfigError(f"{source}: params: missing {', '.join(missing)} (the simulated sample needs every "
+                          f"parameter of model {model!r}: {', '.join(names)})")
     m = Material(model=model, params=dict(params), label=label or model, source=source)
     m.brdf()  # unknown model, missing or bad parameter -> ConfigError naming source and field
     return m
