@@ -37,17 +37,18 @@ def _session(plan, resolution, out: Path, material=None):
 def run(quick: bool = False) -> list[Table]:
     from dataclasses import replace
 
-    from gonio.cli.measure import DEFAULT_PLAN, DEFAULT_PLAN_PARAMS, DEFAULT_SIM_RESOLUTION
+    from gonio.cli.measure import DEFAULT_PLAN, DEFAULT_SIM_RESOLUTION, default_plan_params
     from gonio.plan.generators import make_plan
     from gonio.plan.plan import CaptureSettings
 
-    params = {k: np.radians(v) for k, v in DEFAULT_PLAN_PARAMS.items()}
+    params = default_plan_params(DEFAULT_PLAN)
     if quick:
         params = {"theta_i_step": np.radians(30), "theta_o_step": np.radians(30), "theta_max": np.radians(60)}
     plan = make_plan(DEFAULT_PLAN, seed=0, **params)
     res = tuple(int(x) for x in DEFAULT_SIM_RESOLUTION.split("x"))
     configs = [
-        ("1 exposure × 1 frame (baseline)", replace(plan, capture=CaptureSettings(exposures=(0.004,), frames=1)), res),
+        ("1 exposure × 1 frame (baseline)", replace(plan, capture=CaptureSettings(exposures=(0.004,), frames=1,
+                                                                                  auto_exposure=False)), res),
         ("default: 3 exposures × 2 frames", plan, res),
         ("default plan, 640×480 camera", plan, (640, 480)),
     ]
@@ -56,8 +57,8 @@ def run(quick: bool = False) -> list[Table]:
     t = Table(f"session: default `gonio measure --sim` ({len(plan)} poses, plan {DEFAULT_PLAN})",
               ["configuration", "wall s (total)", "× baseline", "lab s", "lab/wall", "wall ms/pose", "samples"],
               baseline=0, default=1,
-              why_default="the plan's 3-exposure bracket covers glossy peaks and the white reference without "
-                          "saturation; at 320×240 the whole default session stays within a few seconds of wall time.")
+              why_default="the plan's 3-exposure bracket covers glossy peaks and the white reference; at 320×240 the "
+                          "whole default session stays within a few seconds of wall time.")
     b = Table("session: wall and lab time per pose, by stage (mean over poses)",
               ["configuration", "move wall ms", "move lab s", "settle+dark wall ms", "settle+dark lab s",
                "capture wall ms", "capture lab s", "pipeline wall ms", "frames/pose"], baseline=0, default=1)
@@ -78,7 +79,75 @@ def run(quick: bool = False) -> list[Table]:
     b.notes.append("move lab includes the settle time (controller.wait after the move). settle+dark: dark-frame "
                    "refresh plus the light's re-warm-up when darks are due (every 900 s of lab time); the first "
                    "darks are taken together with the initial warm-up, so a session this short shows 0 here.")
-    return [t, b, adaptive_table(quick)]
+    return [exposure_table(quick), t, b, adaptive_table(quick)]
+
+
+def _flag_stats(samples, brdf):
+    """flagged %, saturated %, low-signal %, usable samples, median σ/f and median relative error of the
+    unflagged samples against the true BRDF."""
+    from gonio import samples as S
+
+    ok = samples.flags == 0
+    f_true = brdf.eval(samples.wi[ok], samples.wo[ok])
+    rel = np.abs(samples.f[ok] - f_true) / np.maximum(np.abs(f_true), 1e-12)
+    sf = samples.sigma[ok] / np.maximum(np.abs(samples.f[ok]), 1e-12)
+    pct = 100.0 / max(len(samples), 1)
+    return (pct * np.count_nonzero(~ok), pct * np.count_nonzero(samples.flags & S.SATURATED),
+            pct * np.count_nonzero(samples.flags & S.LOW_SIGNAL), int(ok.sum()),
+            float(np.median(sf)) if sf.size else float("nan"), float(np.median(rel)) if rel.size else float("nan"))
+
+
+def exposure_table(quick: bool = False) -> Table:
+    """Automatic exposure (the default) against the old fixed bracket: flagged samples, lab time and the
+    cost model's estimate / lower bound of the same plan, on the simulator's default material and on a
+    glossy two-lobe material (narrow lobe: the case the fixed bracket saturates)."""
+    from dataclasses import replace
+
+    from benchmarks.bench_tradeoffs import MATERIAL as TWO_LOBES
+    from gonio.brdf import make
+    from gonio.cli.measure import DEFAULT_PLAN, DEFAULT_SIM_RESOLUTION, default_plan_params
+    from gonio.plan import estimate_plan
+    from gonio.plan.generators import make_plan
+    from gonio.session.store import load_session
+    from sim.rig import DEFAULT_MATERIAL
+
+    params = default_plan_params(DEFAULT_PLAN)
+    if quick:
+        params = {"theta_i_step": np.radians(30), "theta_o_step": np.radians(30), "theta_max": np.radians(60)}
+    plan = make_plan(DEFAULT_PLAN, seed=0, **params)
+    res = tuple(int(x) for x in DEFAULT_SIM_RESOLUTION.split("x"))
+    fixed = replace(plan, capture=replace(plan.capture, frames=2, auto_exposure=False))  # the default
+    plan = replace(plan, capture=replace(plan.capture, frames=1, auto_exposure=True))
+    materials = [("sim default (microfacet GGX α 0.25)", DEFAULT_MATERIAL), ("lambert+2ggx, narrow lobe α 0.1", TWO_LOBES)]
+    if quick:
+        materials = materials[1:]
+    t = Table(f"exposure control: automatic (default) vs the fixed bracket, `gonio measure --sim` plan ({len(plan)} "
+              f"poses {DEFAULT_PLAN})",
+              ["material", "exposure", "flagged %", "saturated %", "low signal %", "usable samples", "median σ/f",
+               "median rel err", "lab s", "lab vs fixed", "lab s (poses)", "frames/pose", "estimate s",
+               "lower bound s"], baseline=0, default=0,
+              why_default="the fixed bracket stays the default until a resumed auto-exposure session reproduces an "
+                          "uninterrupted one exactly; auto cuts the flagged samples for about the same lab time.")
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, (label, material) in enumerate(materials):
+            brdf = make(material["model"], **material["params"])
+            lab_fixed = None
+            for j, (how, p) in enumerate((("fixed 4/16/64 ms × 2 (default)", fixed),
+                                          ("auto (expected 4/16/64 ms × 1)", plan))):
+                result, _ = _session(p, res, Path(tmp) / f"e{i}{j}", material=material)
+                samples = load_session(Path(tmp) / f"e{i}{j}")[1]
+                est = estimate_plan(p)
+                lab_fixed = lab_fixed or result.lab_time
+                poses_lab = sum(x["move_lab"] + x["dark_lab"] + x["capture_lab"] for x in result.timings)
+                frames = float(np.mean([x["frames"] for x in result.timings]))
+                t.add(label, how, *_flag_stats(samples, brdf), result.lab_time, result.lab_time / lab_fixed,
+                      poses_lab, frames, est.optimized, est.lower_bound)
+    t.notes.append("Rows of a material: the fixed bracket first (its baseline). flagged: any flag (saturated in every "
+                   "exposure, low signal, no board, ...); errors over unflagged samples against the true BRDF at "
+                   "their directions. lab s: the whole session (darks of every exposure used, warm-up, poses); "
+                   "estimate / lower bound: gonio.plan.estimate_plan (the runner's cost model, gonio.plan.labtime; "
+                   "auto: the expected bracket 4/16/64 ms × 1). frames/pose includes the metering frame.")
+    return t
 
 
 def _adaptive_session(candidates, settings, fit, resolution, out: Path, material=None):

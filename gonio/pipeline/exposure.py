@@ -11,7 +11,7 @@ import numpy as np
 from gonio.errors import ConfigError
 from gonio.pipeline.target import NoiseModel
 
-__all__ = ["CapturePlan", "ExposureSettings", "plan_bracket"]
+__all__ = ["CapturePlan", "ExposureSettings", "plan_bracket", "exposure_ladder"]
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,10 @@ class ExposureSettings:
         Wanted SNR of one sample (mean over its pixels) of the dimmest region.
     min_exposure, max_exposure : float
         Seconds.
+    ladder : tuple of float, optional
+        Allowed exposures (s, ascending). When given, every bracket member is a rung of the ladder, so a
+        session can measure the dark frames of all the exposures it may use before the first pose
+        (:func:`exposure_ladder`); without it exposures are continuous.
     """
 
     high: float = 0.75
@@ -59,8 +63,14 @@ class ExposureSettings:
     target_snr: float = 300.0
     min_exposure: float = 1e-5
     max_exposure: float = 2.0
+    ladder: tuple[float, ...] | None = None
 
     def __post_init__(self):
+        if self.ladder is not None:
+            rungs = tuple(float(t) for t in self.ladder)
+            if not rungs or any(not (t > 0 and math.isfinite(t)) for t in rungs) or list(rungs) != sorted(set(rungs)):
+                raise ConfigError.field(None, "exposure.ladder", self.ladder, "needs ascending positive seconds")
+            object.__setattr__(self, "ladder", rungs)
         if not (0 < self.low < 1 and 0 < self.high < 1):
             raise ConfigError.field(None, "exposure.high/low", (self.high, self.low), "must be in (0, 1)")
         if self.step <= 1:
@@ -77,8 +87,12 @@ def plan_bracket(rate_bright: float, rate_dim: float, range_dn: float, n_pixels:
     ×``step`` until the dimmest pixel reaches ``low · range`` or ``max_brackets``. Frames per
     exposure: ``n = ⌈(SNR_target / (SNR_px √N_pix))²⌉`` where ``SNR_px`` is the dimmest pixel's SNR
     at the longest exposure under the EMVA 1288 noise model, clamped to [min_frames, max_frames].
+    With ``settings.ladder``, ``t₁`` is rounded down to a rung (the brightest pixel stays below
+    ``high``) and the bracket continues on the following rungs.
     """
     s = settings
+    if s.ladder is not None:
+        return _ladder_bracket(rate_bright, rate_dim, range_dn, n_pixels, noise, s, gain, dark_dn_per_s)
     rate_bright = max(float(rate_bright), 1e-12)
     rate_dim = min(max(float(rate_dim), 1e-12), rate_bright)
     g = float(gain)
@@ -92,10 +106,41 @@ def plan_bracket(rate_bright: float, rate_dim: float, range_dn: float, n_pixels:
         if exposures and t <= exposures[-1]:
             break
         exposures.append(t)
-    t_long = exposures[-1]
+    return CapturePlan(tuple(exposures), (_frames(exposures[-1], rate_dim, range_dn, n_pixels, noise, s, g,
+                                                  dark_dn_per_s),) * len(exposures), g)
+
+
+def _frames(t_long, rate_dim, range_dn, n_pixels, noise, s, g, dark_dn_per_s) -> int:
+    """Frames per exposure for the target SNR of the dimmest region at the longest exposure."""
     sig = min(rate_dim * g * t_long, range_dn)
     var = float(noise.variance(sig + dark_dn_per_s * g * t_long, g))
     snr_px = sig / math.sqrt(var) if var > 0 else float("inf")
     need = (s.target_snr / max(snr_px * math.sqrt(max(n_pixels, 1)), 1e-12)) ** 2
-    frames = int(min(max(math.ceil(need), s.min_frames), s.max_frames))
+    return int(min(max(math.ceil(need), s.min_frames), s.max_frames))
+
+
+def _ladder_bracket(rate_bright, rate_dim, range_dn, n_pixels, noise, s, gain, dark_dn_per_s) -> CapturePlan:
+    """:func:`plan_bracket` restricted to the rungs of ``s.ladder``."""
+    rate_bright = max(float(rate_bright), 1e-12)
+    rate_dim = min(max(float(rate_dim), 1e-12), rate_bright)
+    g = float(gain)
+    rungs = np.asarray(s.ladder, dtype=np.float64)
+    t1 = s.high * range_dn / (rate_bright * g)
+    i0 = max(int(np.searchsorted(rungs, t1 * (1 + 1e-9), side="right")) - 1, 0)
+    exposures = [float(rungs[i0])]
+    i = i0 + 1
+    while (len(exposures) < s.max_brackets and i < rungs.size
+           and rate_dim * g * exposures[-1] < s.low * range_dn):
+        exposures.append(float(rungs[i]))
+        i += 1
+    frames = _frames(exposures[-1], rate_dim, range_dn, n_pixels, noise, s, g, dark_dn_per_s)
     return CapturePlan(tuple(exposures), (frames,) * len(exposures), g)
+
+
+def exposure_ladder(expected, step: float, *, extra: int = 2, lo: float = 1e-5, hi: float = 2.0) -> tuple[float, ...]:
+    """The rungs automatic exposure may use: the ``expected`` bracket extended by ``extra`` rungs of
+    ratio ``step`` below its shortest and above its longest exposure, kept within ``[lo, hi]``."""
+    exp = sorted(float(t) for t in expected)
+    below = [exp[0] / step**k for k in range(extra, 0, -1)]
+    above = [exp[-1] * step**k for k in range(1, extra + 1)]
+    return tuple(t for t in (*below, *exp, *above) if lo * (1 - 1e-12) <= t <= hi * (1 + 1e-12))

@@ -149,9 +149,11 @@ GENERATORS: dict[str, Generator] = {g.name: g for g in (
         "theta_max": PlanParam("angle", _A(80), 0.0, _A(89), "largest zenith angle"),
     }, "phi_i = 0, phi_o in [0, 180] deg (isotropic materials)"),
     Generator("in_plane", in_plane_poses, {
-        "theta_i_step": PlanParam("angle", _A(10), _A(0.1), _A(90), "light zenith step"),
-        "theta_o_step": PlanParam("angle", _A(5), _A(0.1), _A(90), "camera zenith step (signed, both sides)"),
-        "theta_max": PlanParam("angle", _A(80), 0.0, _A(89), "largest zenith angle"),
+        # the defaults are `gonio measure`'s default session (56 poses on the default rig): one source for
+        # `gonio plan in_plane` and `gonio measure --sim`
+        "theta_i_step": PlanParam("angle", _A(20), _A(0.1), _A(90), "light zenith step"),
+        "theta_o_step": PlanParam("angle", _A(10), _A(0.1), _A(90), "camera zenith step (signed, both sides)"),
+        "theta_max": PlanParam("angle", _A(70), 0.0, _A(89), "largest zenith angle"),
     }, "plane of incidence only"),
     Generator("half_diff", half_diff_poses, {
         "n_theta_h": PlanParam("int", 12, 1, 90, "number of theta_h values, spaced (k/n)^2 * 90 deg"),

@@ -134,6 +134,9 @@ class LabTimeEstimate:
     lower_bound: float
     raster: float
     raster_concurrent: float
+    startup: float = 0.0  #: of ``optimized``: the session's first darks and warm-up (0: poses only)
+    auto_exposure: bool = False  #: capture time estimated with the expected bracket
+    account: dict | None = None  #: :meth:`gonio.plan.labtime.LabAccount.to_dict` of ``optimized``
 
     @property
     def ratio_to_raster(self) -> float:
@@ -149,7 +152,8 @@ class LabTimeEstimate:
         return {"n_poses": self.n_poses, "pose_time": self.pose_time, "optimized": self.optimized,
                 "lower_bound": self.lower_bound, "raster": self.raster,
                 "raster_concurrent": self.raster_concurrent, "ratio_to_raster": self.ratio_to_raster,
-                "ratio_to_bound": self.ratio_to_bound}
+                "ratio_to_bound": self.ratio_to_bound, "startup": self.startup, "auto_exposure": self.auto_exposure,
+                "account": self.account}
 
 
 def _check(joints, model: MotionModel) -> np.ndarray:

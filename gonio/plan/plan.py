@@ -36,15 +36,22 @@ class CaptureSettings:
     Attributes
     ----------
     exposures : tuple of float
-        Exposure bracket, seconds (one HDR frame set per pose uses all of them).
+        Exposure bracket, seconds (one HDR frame set per pose uses all of them). With
+        ``auto_exposure`` the *expected* bracket: the lab-time estimate uses it, the exposure ladder
+        (whose dark frames the session measures) is built around it.
     frames : int
-        Frames averaged per exposure.
+        Frames averaged per exposure (expected frames with ``auto_exposure``).
     gain : float
         Analogue gain (linear, 1 = unity).
     readout : float
         Per-frame overhead (readout + transfer), seconds.
     settle : float
         Time to wait after a move before capturing (vibration settling), seconds.
+    auto_exposure : bool
+        Choose the bracket per pose from its metering frame (:func:`gonio.pipeline.exposure.plan_bracket`
+        on the exposure ladder; more frames where the SNR is below target) instead of capturing the
+        fixed bracket. Off by default until a resumed auto-exposure session reproduces an uninterrupted one
+        exactly (tests/session/test_reliability.py fails with it on).
     """
 
     exposures: tuple[float, ...] = (0.004, 0.016, 0.064)
@@ -52,6 +59,7 @@ class CaptureSettings:
     gain: float = 1.0
     readout: float = 0.05
     settle: float = 0.3
+    auto_exposure: bool = False
 
     def __post_init__(self):
         exps = _as_float_tuple(self.exposures, "capture.exposures", "plan")
@@ -66,28 +74,34 @@ class CaptureSettings:
             if not math.isfinite(v) or v < 0 or (name == "gain" and v == 0):
                 raise DataError(f"plan: capture.{name} = {v!r}: must be finite and positive")
             object.__setattr__(self, name, v)
+        if not isinstance(self.auto_exposure, (bool, np.bool_)):
+            raise DataError(f"plan: capture.auto_exposure = {self.auto_exposure!r}: must be true or false")
+        object.__setattr__(self, "auto_exposure", bool(self.auto_exposure))
 
     def capture_time(self) -> float:
-        """Seconds spent capturing one pose: ``frames · Σ (exposure + readout)``."""
-        return self.frames * sum(e + self.readout for e in self.exposures)
+        """Expected seconds capturing one pose: a metering frame + ``frames · Σ (exposure + readout)``
+        (:func:`gonio.plan.labtime.pose_capture_time`, the runner's cost model)."""
+        from gonio.plan.labtime import pose_capture_time
+
+        return pose_capture_time(self)
 
     def pose_time(self) -> float:
-        """Fixed seconds per pose, independent of the order: settle + capture."""
+        """Expected fixed seconds per pose, independent of the order: settle + capture."""
         return self.settle + self.capture_time()
 
     def to_dict(self) -> dict[str, Any]:
         return {"exposures": list(self.exposures), "frames": self.frames, "gain": self.gain,
-                "readout": self.readout, "settle": self.settle}
+                "readout": self.readout, "settle": self.settle, "auto_exposure": self.auto_exposure}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], source: str = "plan") -> "CaptureSettings":
         if not isinstance(d, Mapping):
             raise DataError(f"{source}: capture = {d!r}: must be a table")
-        unknown = sorted(set(d) - {"exposures", "frames", "gain", "readout", "settle"})
+        unknown = sorted(set(d) - {"exposures", "frames", "gain", "readout", "settle", "auto_exposure"})
         if unknown:
             raise DataError(f"{source}: capture.{unknown[0]}: unknown field")
         try:
-            return cls(**dict(d))
+            return cls(**{"auto_exposure": False, **dict(d)})  # stored before auto exposure: a fixed bracket
         except DataError as exc:
             raise DataError(f"{source}: {str(exc).removeprefix('plan: ')}") from None
 

@@ -11,10 +11,19 @@ tolerance), then for each remaining pose in plan order:
    watchdog fed meanwhile), verify the *measured* joint angles against the target (re-issue the move a
    bounded number of times, then :class:`~gonio.errors.HardwareError`);
 3. capture through the pipeline with the light position and camera-pose hint from the forward
-   kinematics of the *measured* joints, the plan's bracket (``plan.capture``), photodiode normalization
-   inside the pipeline; dark frames are re-measured on a schedule (``dark_max_age`` of lab time, before
-   the pose so the light can settle again) and the white reference is in every frame;
-4. append the samples with per-pose meta (measured joints, exposures, photodiode, lab time, timings).
+   kinematics of the *measured* joints, photodiode normalization inside the pipeline. Exposure: with
+   ``plan.capture.auto_exposure`` (the default) the pipeline chooses each pose's bracket from its
+   metering frame (metered at the previous pose's shortest exposure) on the exposure ladder, more
+   frames where the SNR is below target; otherwise the plan's fixed bracket. Dark frames of every
+   exposure the session may use are measured before the first pose and re-measured as one set on a
+   schedule (``dark_max_age`` of lab time, before the pose so the light can warm up again); the white
+   reference is in every frame;
+4. append the samples with per-pose meta (measured joints, exposures and frames used, photodiode, lab
+   time, timings).
+
+Lab-time accounting: the runner spends exactly the costs of :mod:`gonio.plan.labtime` (its
+:class:`~gonio.plan.labtime.SessionTiming` is built from :class:`RunnerSettings`); the ETA and the
+estimate recorded with the run come from that model.
 
 Faults: a hardware error during a pose is recovered from (servo alarm: reboot; controller reset or
 watchdog trip: light back on and warmed up) and the pose retried, at most ``pose_retries`` times; then
@@ -39,7 +48,10 @@ from typing import Callable, TextIO
 import numpy as np
 
 from gonio.errors import ConfigError, EmergencyStop, GonioError, HardwareError, ServoAlarm, UnreachablePose
+from gonio.plan.labtime import SessionTiming, dark_exposures, session_lab_time
 from gonio.rig.interfaces import Frame
+
+_TIMING = SessionTiming()
 
 __all__ = ["RunnerSettings", "Devices", "RunResult", "SessionRunner", "open_devices", "format_lab_time"]
 
@@ -52,12 +64,20 @@ class RunnerSettings:
     move_retries: int = 2  #: re-issued moves when a joint is off target
     pose_retries: int = 3  #: recover-and-retry rounds per pose after a hardware error
     move_timeout: float = 60.0
-    warmup_step: float = 15.0  #: lab seconds between photodiode readings while warming up
+    warmup_step: float = _TIMING.warmup_step  #: lab seconds between photodiode readings while warming up
     warmup_samples: int = 64  #: photodiode samples averaged per reading
     warmup_tolerance: float = 1e-3  #: relative change between readings that counts as stable
     warmup_max: float = 1800.0  #: give up (HardwareError) after this much warm-up
-    dark_max_age: float = 900.0  #: re-measure dark frames when older than this (lab seconds)
+    dark_max_age: float = _TIMING.dark_max_age  #: re-measure dark frames when older than this (lab seconds)
     light_level: float = 1.0
+    dark_frames: int = _TIMING.dark_frames  #: frames averaged per dark exposure
+
+    def timing(self) -> SessionTiming:
+        """The lab-time cost model's view of these settings (:mod:`gonio.plan.labtime`)."""
+        from dataclasses import replace
+
+        return replace(_TIMING, warmup_step=self.warmup_step, dark_max_age=self.dark_max_age,
+                       dark_frames=self.dark_frames)
 
 
 @dataclass
@@ -126,11 +146,14 @@ class RunResult:
     timings: list = field(default_factory=list)  #: per-pose dicts of lab and wall seconds
     retries: int = 0
     error: GonioError | None = None
+    estimated_lab_time: float | None = None  #: the cost model's estimate of this run, before it started
+    exposure: dict = field(default_factory=dict)  #: mode and poses per bracket used
 
     def summary(self) -> dict:
         """JSON-able summary for the manifest."""
         return {"status": self.status, "poses": self.measured, "samples": self.samples, "retries": self.retries,
                 "lab_time_s": self.lab_time, "wall_time_s": self.wall_time,
+                "estimated_lab_time_s": self.estimated_lab_time, "exposure": self.exposure,
                 "skipped": [{"pose": k, "reason": r} for k, r in self.skipped]}
 
     @property
@@ -211,11 +234,24 @@ class SessionRunner:
         self.stream = stream
         self.clock = devices.clock
         self.camera = _TimedCamera(devices.camera, self.clock)
-        ps = pipeline_settings or PipelineSettings(dark_max_age=st.dark_max_age, light_level=st.light_level)
+        from dataclasses import replace
+
+        cap = plan.capture
+        self.timing = st.timing()
+        #: every exposure the session may capture (the bracket, or the auto-exposure ladder): its dark set
+        self.dark_exposures = dark_exposures(cap, self.timing)
+        # the runner schedules the dark set (one light-off for all of it); the cache never refreshes alone
+        ps = pipeline_settings or PipelineSettings(light_level=st.light_level, gain=cap.gain)
+        ps = replace(ps, dark_max_age=math.inf, dark_frames=st.dark_frames)
+        if cap.auto_exposure:
+            ps = replace(ps, exposure=replace(ps.exposure, ladder=self.dark_exposures),
+                         initial_exposure=cap.exposures[0])
         self.pipeline = Pipeline(self.camera, calibration, layout, light=devices.controller, clock=self.clock,
                                  settings=ps)
-        cap = plan.capture
-        self.bracket = CapturePlan(tuple(cap.exposures), (cap.frames,) * len(cap.exposures), cap.gain)
+        #: the fixed bracket, or None: chosen per pose (automatic exposure)
+        self.bracket = None if cap.auto_exposure else CapturePlan(tuple(cap.exposures),
+                                                                  (cap.frames,) * len(cap.exposures), cap.gain)
+        self._darks_at: float | None = None
         self._stop = threading.Event()
         self._interrupts = 0
 
@@ -278,15 +314,18 @@ class SessionRunner:
                             f"(tolerance {st.joint_tolerance_deg:g} deg)", device=worst)
 
     def _refresh_darks(self) -> bool:
-        """Re-measure the bracket's dark frames if due; then let the light settle again."""
+        """Measure the whole dark set (every exposure the session may use) if it is older than
+        ``dark_max_age`` (or was never measured); then warm the light up again."""
+        now = self.clock.now()
+        if self._darks_at is not None and now - self._darks_at <= self.settings.dark_max_age:
+            return False
         darks = self.pipeline.darks
-        before = darks.captures
-        for t in self.bracket.exposures:
-            darks.get(t, self.bracket.gain)
-        if darks.captures != before:
-            self.warm_up()  # switching the light off and on restarts its warm-up
-            return True
-        return False
+        darks.invalidate()
+        self._darks_at = now
+        for t in self.dark_exposures:
+            darks.get(t, self.plan.capture.gain)
+        self.warm_up()  # switching the light off and on restarts its warm-up
+        return True
 
     def _measure(self, index: int) -> tuple:
         from gonio.pipeline.target import CameraPose
@@ -302,6 +341,9 @@ class SessionRunner:
         joints = rig.as_array(measured)
         position, R = rig.camera_pose(joints)
         cam_w, cam_l, frames = self.camera.wall, self.camera.lab, self.camera.frames
+        # meter every pose at the expected bracket's shortest exposure, not at the previous pose's: a pose's
+        # bracket then depends on the pose only, so a resumed session measures what an uninterrupted one does
+        self.pipeline._next_exposure = self.plan.capture.exposures[0]
         res = self.pipeline.measure(rig.light_position(joints), pose_index=index,
                                     camera_pose_hint=CameraPose(R, -R @ position), plan=self.bracket)
         w3, l3 = time.perf_counter(), self.clock.now()
@@ -316,6 +358,7 @@ class SessionRunner:
             "joints_rad": {k: float(v) for k, v in measured.items()},
             "exposures_s": [float(t) for t in res.plan.exposures],
             "frames": [int(n) for n in res.plan.frames],
+            "auto_exposure": self.bracket is None,
             "gain": float(res.plan.gain),
             "photodiode": {"mean": float(pd.mean()) if pd.size else None,
                            "min": float(pd.min()) if pd.size else None, "max": float(pd.max()) if pd.size else None},
@@ -355,6 +398,10 @@ class SessionRunner:
         result = RunResult(status="completed")
         total = len(self.plan)
         progress = _Progress(self.stream, total)
+        todo = [k for k in remaining if k not in done]
+        ends = self._predict(todo)
+        result.estimated_lab_time = float(ends[-1]) if len(ends) else 0.0
+        brackets: dict[str, int] = {}
         old_handler = None
         if threading.current_thread() is threading.main_thread():
             old_handler = signal.signal(signal.SIGINT, self._on_sigint)
@@ -362,11 +409,11 @@ class SessionRunner:
             try:
                 self.check_devices()
                 t_warm = self.clock.now()
-                if not self._refresh_darks():  # darks first (light off), then one warm-up serves both
-                    self.warm_up()
-                self._say(f"darks measured, light stable after {format_lab_time(self.clock.now() - t_warm)} lab")
-                lab_poses = self.clock.now()
-                for n, k in enumerate(remaining):
+                self._refresh_darks()  # darks first (light off), then one warm-up
+                self._say(f"darks measured ({len(self.dark_exposures)} exposures), light stable after "
+                          f"{format_lab_time(self.clock.now() - t_warm)} lab")
+                n_todo = 0
+                for k in remaining:
                     if self._stop.is_set():
                         result.status = "interrupted"
                         break
@@ -380,8 +427,12 @@ class SessionRunner:
                     result.measured += 1
                     result.samples += len(samples)
                     result.timings.append(timing)
-                    per_pose = (self.clock.now() - lab_poses) / (n + 1)  # mean lab time of a pose so far
-                    progress.update(len(done), self.clock.now() - lab0, per_pose * (len(remaining) - n - 1))
+                    key = ",".join(f"{t:g}x{f}" for t, f in zip(meta["exposures_s"], meta["frames"]))
+                    brackets[key] = brackets.get(key, 0) + 1
+                    n_todo += 1
+                    # ETA: the cost model's remaining time from this pose on (gonio.plan.labtime)
+                    eta = float(ends[-1] - ends[min(n_todo, len(ends)) - 1]) if len(ends) else 0.0
+                    progress.update(len(done), self.clock.now() - lab0, eta)
                 else:
                     if self._stop.is_set():
                         result.status = "interrupted"
@@ -400,11 +451,28 @@ class SessionRunner:
                 signal.signal(signal.SIGINT, old_handler)
             result.lab_time = self.clock.now() - lab0
             result.wall_time = time.perf_counter() - wall0
+            result.exposure = {"mode": "fixed" if self.bracket is not None else "auto",
+                               "dark_exposures_s": list(self.dark_exposures), "poses_per_bracket": brackets}
             self.store.finish(result.status, last_run=result.summary())
         if result.status != "completed" and self.resume_command:
             self._say(f"session {result.status.split(':')[0]}: {result.measured} poses measured in this run; "
                       f"resume with:\n  {self.resume_command}")
         return result
+
+    def _predict(self, todo) -> np.ndarray:
+        """Cost-model lab time at the end of each pose of ``todo`` from the start of this run (start-up
+        darks and warm-up included), moves from the current joints; zeros if the model cannot say."""
+        from gonio.plan import plan_move_times
+
+        if not todo:
+            return np.zeros(0)
+        try:
+            cur = self.dev.axes.positions()
+            start = self.dev.rig.as_array(cur)
+            moves = plan_move_times(self.plan, self.dev.rig, start=start, indices=todo)
+        except Exception:  # noqa: BLE001 - the ETA must never stop a session
+            moves = np.zeros(len(todo))
+        return session_lab_time(moves, self.plan.capture, self.timing).ends
 
     def _pose_with_retries(self, k: int, result: RunResult):
         """``(samples, meta, timing)`` of pose ``k`` or ``(None, None, None)`` if it cannot be measured."""

@@ -1,0 +1,144 @@
+"""The lab-time cost model of a session: ONE account of what the session runner spends, used by the
+estimator (:func:`gonio.plan.estimate_plan`, ``gonio plan --estimate``, ``gonio measure``'s announcement)
+and by the runner itself (its ETA and the estimate it records next to the lab time it measured).
+
+Costs (seconds of lab time), in the order the runner spends them (:mod:`gonio.session.runner`):
+
+* **start-up**: dark frames with the light off, ``dark_frames`` frames at every exposure the session may
+  use (the fixed bracket, or the whole exposure ladder of automatic exposure), then the light's warm-up;
+* **per pose**: the move (concurrent joints, trapezoidal profiles, :mod:`gonio.plan.ordering`), the
+  settle time, one metering frame (it also locates the board) and the bracket: ``Σ_k n_k (t_k + r)``
+  with ``r`` the per-frame readout/transfer time;
+* **dark re-measurement**: before a pose that starts more than ``dark_max_age`` after the last dark set
+  started, the whole dark set again and a new warm-up (switching the light off restarts it).
+
+A frame costs its exposure plus the readout/transfer time (the camera integrates, then reads out and
+transfers the frame; the EMVA 1288 timing model, EMVA Standard 1288 R4.0, 2021, §"Camera model"). The
+warm-up ends when two photodiode readings one ``warmup_step`` apart agree: at least one step (the lower
+bound), ``warmup_expected`` on average (the estimate; the simulated lamp, depth 5 %, τ = 120 s, needs
+210 s to reach 1e-3 between readings 15 s apart).
+
+With automatic exposure the bracket of a pose is chosen while measuring: the estimate uses the plan's
+*expected* bracket (``CaptureSettings.exposures × frames``) and says so; the lower bound uses one
+frame at the ladder's shortest exposure.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["SessionTiming", "LabAccount", "dark_exposures", "pose_capture_time", "session_lab_time"]
+
+
+@dataclass(frozen=True)
+class SessionTiming:
+    """Session-level lab-time knobs shared by the runner (which spends them) and the estimator.
+
+    Attributes
+    ----------
+    warmup_step : float
+        Lab seconds between photodiode readings while the light warms up.
+    warmup_expected : float
+        Expected warm-up of the light to a stable reading (the estimate; the bound uses one step).
+    dark_frames : int
+        Frames averaged per dark exposure.
+    dark_max_age : float
+        Dark frames are re-measured (and the light warmed up again) when older than this.
+    ladder_extra : int
+        Automatic exposure: rungs of the exposure ladder beyond the expected bracket, each side.
+    """
+
+    warmup_step: float = 15.0
+    warmup_expected: float = 225.0
+    dark_frames: int = 4
+    dark_max_age: float = 900.0
+    ladder_extra: int = 2
+
+
+def dark_exposures(capture, timing: SessionTiming | None = None) -> tuple[float, ...]:
+    """Exposures whose dark frames the session measures: the bracket, or with automatic exposure the
+    ladder :func:`gonio.pipeline.exposure.exposure_ladder` builds around the expected bracket."""
+    if not getattr(capture, "auto_exposure", False):
+        return tuple(capture.exposures)
+    from gonio.pipeline.exposure import ExposureSettings, exposure_ladder
+
+    timing = timing or SessionTiming()
+    es = ExposureSettings()
+    return exposure_ladder(capture.exposures, es.step, extra=timing.ladder_extra, lo=es.min_exposure,
+                           hi=es.max_exposure)
+
+
+def pose_capture_time(capture, *, bound: bool = False, timing: SessionTiming | None = None) -> float:
+    """Lab seconds of one pose's capture: a metering frame plus ``Σ_k n_k (t_k + readout)``.
+
+    ``bound``: a true lower bound (metering frame of readout only; automatic exposure: one frame at
+    the ladder's shortest exposure)."""
+    r = capture.readout
+    if bound:
+        if getattr(capture, "auto_exposure", False):
+            return r + (min(dark_exposures(capture, timing)) + r)
+        return r + capture.frames * sum(e + r for e in capture.exposures)
+    return (capture.exposures[0] + r) + capture.frames * sum(e + r for e in capture.exposures)
+
+
+@dataclass(frozen=True)
+class LabAccount:
+    """Where the lab time of a session goes (seconds)."""
+
+    total: float
+    startup: float  #: first darks + warm-up
+    moves: float
+    settle: float
+    capture: float
+    refreshes: int  #: dark re-measurements (each with a warm-up)
+    refresh_time: float
+    ends: np.ndarray  #: lab time at the end of each pose, from the session's start
+
+    def to_dict(self) -> dict:
+        return {"total": self.total, "startup": self.startup, "moves": self.moves, "settle": self.settle,
+                "capture": self.capture, "refreshes": self.refreshes, "refresh_time": self.refresh_time}
+
+
+def session_lab_time(move_times, capture, timing: SessionTiming | None = None, *, bound: bool = False,
+                     startup: bool = True) -> LabAccount:
+    """Lab time of a session measuring poses whose moves take ``move_times`` (seconds, one per pose, in
+    order), under the costs of the module docstring.
+
+    ``bound``: every cost at its minimum (one warm-up step, the bound capture time): with the moves of
+    a lower bound (MST) this is a true lower bound of the session. ``startup=False``: the session's
+    darks and warm-up were already done (a resumed or adaptive round) at time 0.
+    """
+    timing = timing or SessionTiming()
+    m = np.asarray(move_times, dtype=np.float64).reshape(-1)
+    n = m.size
+    darks = timing.dark_frames * sum(t + capture.readout for t in dark_exposures(capture, timing))
+    warm = timing.warmup_step if bound else timing.warmup_expected
+    cap = pose_capture_time(capture, bound=bound, timing=timing)
+    cost = m + capture.settle + cap
+    t0 = darks + warm if startup else 0.0
+    t, t_dark, i, refreshes = t0, 0.0, 0, 0
+    ends = np.empty(n, np.float64)
+    for _ in range(n + 1):  # each round measures at least one pose (bounded)
+        if i >= n:
+            break
+        c = cost[i:]
+        cum = np.cumsum(c)
+        starts = t + cum - c
+        due = np.flatnonzero(starts - t_dark > timing.dark_max_age)
+        j = int(due[0]) if due.size else c.size
+        ends[i:i + j] = t + cum[:j]
+        if j == c.size:
+            t = float(ends[-1]) if n else t
+            break
+        t_start = float(starts[j])
+        t_dark = t_start
+        t = t_start + darks + warm
+        refreshes += 1
+        ends[i + j] = t + c[j]
+        t = float(ends[i + j])
+        i += j + 1
+    total = float(ends[-1]) if n else t0
+    return LabAccount(total=total, startup=t0, moves=float(m.sum()), settle=n * capture.settle, capture=n * cap,
+                      refreshes=refreshes, refresh_time=refreshes * (darks + warm), ends=ends)
