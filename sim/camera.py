@@ -70,6 +70,9 @@ class SensorModel:
         Electrons per second per unit radiance (W m⁻² sr⁻¹), per RGB channel (lens + QE + filters).
     linear : bool
         False for an 8-bit camera with the response ``y = 255 (x / x_sat)^(1/gamma)``.
+    readout : float
+        Seconds of readout + transfer after each exposure (lab time a capture costs beyond the
+        exposure; :data:`gonio.plan.plan.CaptureSettings.readout` assumes the same 0.05 s).
     """
 
     bit_depth: int = 12
@@ -83,6 +86,7 @@ class SensorModel:
     gamma: float = 2.2
     min_exposure: float = 1e-5
     max_exposure: float = 2.0
+    readout: float = 0.05
 
     def __post_init__(self):
         if self.bit_depth not in (8, 10, 12, 14, 16):
@@ -398,7 +402,7 @@ class SimCamera:
         np.clip(dn, 0, sn.saturation, out=dn)
         pixels = dn.astype(np.uint8 if sn.bit_depth == 8 else np.uint16)
         if self.clock is not None:
-            self.clock.sleep(exposure)
+            self.clock.sleep(exposure + sn.readout)
         return Frame(pixels=pixels, exposure=float(exposure), gain=float(gain), bit_depth=sn.bit_depth,
                      black_level=float(sn.black_level), timestamp=t0, linear=sn.linear,
                      meta={"device": "sim", "light_output": level})

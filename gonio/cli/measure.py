@@ -19,10 +19,24 @@ import sys
 import time
 
 DEFAULT_PLAN = "in_plane"
-#: The default plan's parameters (degrees): an in-plane sweep, 56 poses on the default rig, a few seconds
-#: of wall time on a 2-core machine (benchmarks/bench_session.py).
-DEFAULT_PLAN_PARAMS = {"theta_i_step": 20.0, "theta_o_step": 10.0, "theta_max": 70.0}
 DEFAULT_SIM_RESOLUTION = "320x240"
+
+
+def default_plan_params(name: str = DEFAULT_PLAN) -> dict:
+    """The parameters (radians) a plan gets when none are given: its generator's defaults, the one source
+    shared with ``gonio plan`` (the default in-plane sweep: 56 poses on the default rig, a few seconds of
+    wall time on a 2-core machine, benchmarks/bench_session.py)."""
+    from gonio.plan.generators import GENERATORS
+
+    return {k: p.default for k, p in GENERATORS[name].params.items()}
+
+
+def __getattr__(name: str):
+    if name == "DEFAULT_PLAN_PARAMS":  # degrees, for callers written before default_plan_params
+        import math
+
+        return {k: math.degrees(v) for k, v in default_plan_params(DEFAULT_PLAN).items()}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def register(sub) -> None:
@@ -93,8 +107,7 @@ def _material(path: str | None):
 def _make_plan(args, rig):
     from gonio.cli.plan import plan_from_args
 
-    defaults = DEFAULT_PLAN_PARAMS if args.plan == DEFAULT_PLAN else None
-    return plan_from_args(args, args.plan, rig, where="--plan", source="--plan", defaults=defaults)
+    return plan_from_args(args, args.plan, rig, where="--plan", source="--plan")  # generator defaults
 
 
 def _calibration_from_toml(path: str):
@@ -374,7 +387,9 @@ def _say_plan(plan, store, quiet: bool, rig) -> None:
 
     est = estimate_plan(plan, rig)
     dropped = f", {plan.n_dropped} dropped as unreachable" if plan.n_dropped else ""
-    eta = f", estimated lab time {format_lab_time(est.optimized)} (lower bound {format_lab_time(est.lower_bound)})"
+    eta = (f", estimated lab time {format_lab_time(est.optimized)} incl. {format_lab_time(est.startup)} of darks and "
+           f"warm-up (lower bound {format_lab_time(est.lower_bound)})"
+           + ("; automatic exposure: estimated with the expected bracket" if est.auto_exposure else ""))
     if plan.generator == "adaptive":
         p = plan.params
         budget = f"at most the lab budget {format_lab_time(p['lab_budget'])}" if p["lab_budget"] else "no lab budget"

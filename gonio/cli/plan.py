@@ -33,8 +33,9 @@ def add_plan_options(p, *, default_plan: str | None = None) -> None:
             g.add_argument(f"--{name.replace('_', '-')}", dest=f"plan_{name}", type=float, default=None,
                            metavar="V", help=f"{spec.doc}{unit}")
     c = p.add_argument_group("capture settings")
-    c.add_argument("--exposures", default=None, metavar="S,S,...", help="exposure bracket, seconds")
-    c.add_argument("--frames", type=int, default=None, help="frames averaged per exposure")
+    c.add_argument("--exposures", default=None, metavar="S,S,...",
+                   help="fixed exposure bracket, seconds")
+    c.add_argument("--frames", type=int, default=None, help="frames averaged per exposure (fixes the bracket too)")
     c.add_argument("--gain", type=float, default=None, help="analogue gain")
     c.add_argument("--settle", type=float, default=None, help="settle time after each move, seconds")
     p.add_argument("--order", choices=["optimized", "raster"], default="optimized", help="pose order")
@@ -72,6 +73,8 @@ def _capture(args):
     for key in ("frames", "gain", "settle"):
         if getattr(args, key) is not None:
             changes[key] = getattr(args, key)
+    if args.exposures is not None or args.frames is not None:
+        changes["auto_exposure"] = False  # a bracket given on the command line is captured as given
     try:
         return replace(cs, **changes)
     except DataError as exc:
@@ -202,16 +205,24 @@ def run(args) -> int:
         why = ", ".join(f"{n} {r}" for r, n in sorted(plan.dropped_reasons().items()))
         print(f"dropped {plan.n_dropped} poses: {why}")
     cap = plan.capture
-    print(f"capture: exposures {', '.join(f'{e:g}' for e in cap.exposures)} s x {cap.frames} frames, gain {cap.gain:g}, "
-          f"settle {cap.settle:g} s -> {cap.pose_time():.3f} s per pose")
+    bracket = f"exposures {', '.join(f'{e:g}' for e in cap.exposures)} s x {cap.frames} frames"
+    print(f"capture: {'automatic exposure per pose (expected ' + bracket + ')' if cap.auto_exposure else bracket}, "
+          f"gain {cap.gain:g}, settle {cap.settle:g} s, readout {cap.readout:g} s/frame -> "
+          f"{cap.pose_time():.3f} s per pose + moves")
     if args.estimate:
         e = estimate_plan(plan, rig)
 
         def hms(t: float) -> str:
             return f"{t:10.1f} s  ({int(t // 3600)}:{int(t % 3600 // 60):02d}:{t % 60:04.1f})"
 
+        a = e.account
         print(f"lab time, this order:                     {hms(e.optimized)}")
-        print(f"lower bound (N*pose time + MST of moves): {hms(e.lower_bound)}   this order / bound = {e.ratio_to_bound:.3f}")
+        print(f"  start-up (darks + warm-up) {a['startup']:.1f} s, moves {a['moves']:.1f} s, settle {a['settle']:.1f} s, "
+              f"capture {a['capture']:.1f} s, {a['refreshes']} dark re-measurements {a['refresh_time']:.1f} s")
+        if e.auto_exposure:
+            print("  (automatic exposure: capture estimated with the expected bracket; each pose's is chosen "
+                  "while measuring)")
+        print(f"lower bound (MST moves, minimum costs):   {hms(e.lower_bound)}   this order / bound = {e.ratio_to_bound:.3f}")
         print(f"raster order, one axis at a time:         {hms(e.raster)}   this order / raster = {e.ratio_to_raster:.3f}")
         print(f"raster order, joints together:            {hms(e.raster_concurrent)}")
     _write(args, plan)
