@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import tempfile
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -63,41 +63,181 @@ def overhead_lab(result) -> float:
     return result.lab_time - sum(t["move_lab"] + t["dark_lab"] + t["capture_lab"] for t in result.timings)
 
 
-def fit_error(samples, wi, wo, f_true) -> tuple[float, float]:
+def fit_error(samples, wi, wo, f_true, n_starts: int = 4) -> tuple[float, float]:
     """Fit :data:`MATERIAL`'s model to ``samples``: ``(relative RMS error over (wi, wo), fit seconds)``."""
     from gonio.brdf import make
     from gonio.fit import fit
     from gonio.plan.adaptive import relative_rms
 
     t0 = time.perf_counter()
-    res = fit(samples, MATERIAL["model"], n_starts=4)
+    res = fit(samples, MATERIAL["model"], n_starts=n_starts)
     secs = time.perf_counter() - t0
     return relative_rms(make(res.model, **res.params).eval(wi, wo), f_true), secs
 
 
-def _plans(quick: bool) -> list[tuple[str, str, dict]]:
-    from gonio.cli.measure import DEFAULT_PLAN_PARAMS
+@dataclass(frozen=True)
+class PlanRow:
+    """One measured row of :func:`plan_table`: a simulated session and the fit of its samples."""
+
+    kind: str
+    label: str
+    poses: int
+    lab: float  #: the session's lab seconds, overheads included
+    wall: float
+    usable: int
+    sample_err: float
+    err: float  #: BRDF relative RMS error of the fitted model
+    fit_s: float
+    default: bool = False
+
+
+def _uniform_plans(quick: bool) -> list[tuple[str, str, dict, bool]]:
+    """``(kind, label, params, is_default)`` of the uniform plans: each generator at a few densities, with
+    the in-plane and half/difference densities around the default and around the knee."""
+    from gonio.cli.measure import DEFAULT_PLAN, DEFAULT_PLAN_PARAMS
 
     deflt = {k: _D(v) for k, v in DEFAULT_PLAN_PARAMS.items()}
     t = _D(THETA_MAX_DEG)
-    rows = [("in_plane", "30°/30°, θ ≤ 60°", {"theta_i_step": _D(30), "theta_o_step": _D(30), "theta_max": _D(60)}),
-            ("in_plane", "20°/10° (gonio measure default)", deflt),
-            ("half_diff", "4 θh, 20°/60°", {"n_theta_h": 4, "theta_d_step": _D(20), "phi_d_step": _D(60), "theta_max": t}),
-            ("in_plane", "10°/5°", {"theta_i_step": _D(10), "theta_o_step": _D(5), "theta_max": t}),
-            ("half_diff", "6 θh, 15°/45°", {"n_theta_h": 6, "theta_d_step": _D(15), "phi_d_step": _D(45), "theta_max": t}),
-            ("half_diff", "10 θh, 10°/30°", {"n_theta_h": 10, "theta_d_step": _D(10), "phi_d_step": _D(30), "theta_max": t}),
-            ("grid", "30°/90°", {"theta_step": _D(30), "phi_step": _D(90), "theta_max": t}),
-            ("grid", "20°/60°", {"theta_step": _D(20), "phi_step": _D(60), "theta_max": t}),
-            ("isotropic", "20°/45°", {"theta_step": _D(20), "phi_step": _D(45), "theta_max": t}),
-            ("isotropic", "10°/30°", {"theta_step": _D(10), "phi_step": _D(30), "theta_max": t})]
+
+    def ip(a, b, tmax=THETA_MAX_DEG):
+        return {"theta_i_step": _D(a), "theta_o_step": _D(b), "theta_max": _D(tmax)}
+
+    def hd(n, td, pd):
+        return {"n_theta_h": n, "theta_d_step": _D(td), "phi_d_step": _D(pd), "theta_max": t}
+
+    d_label = "/".join(f"{DEFAULT_PLAN_PARAMS[k]:g}°" for k in ("theta_i_step", "theta_o_step")
+                       if k in DEFAULT_PLAN_PARAMS) or "generator defaults"
+    rows = [("in_plane", "30°/30°, θ ≤ 60°", ip(30, 30, 60), False),
+            (DEFAULT_PLAN, f"{d_label} (gonio measure default)", deflt, True),
+            ("half_diff", "4 θh, 20°/60°", hd(4, 20, 60), False),
+            ("in_plane", "20°/20°", ip(20, 20), False),
+            ("in_plane", "15°/10°", ip(15, 10), False),
+            ("in_plane", "10°/5°", ip(10, 5), False),
+            ("half_diff", "6 θh, 20°/60°", hd(6, 20, 60), False),
+            ("half_diff", "5 θh, 15°/45°", hd(5, 15, 45), False),
+            ("half_diff", "6 θh, 15°/45°", hd(6, 15, 45), False),
+            ("half_diff", "7 θh, 15°/45°", hd(7, 15, 45), False),
+            ("half_diff", "8 θh, 15°/45°", hd(8, 15, 45), False),
+            ("half_diff", "10 θh, 10°/30°", hd(10, 10, 30), False),
+            ("grid", "30°/90°", {"theta_step": _D(30), "phi_step": _D(90), "theta_max": t}, False),
+            ("grid", "20°/60°", {"theta_step": _D(20), "phi_step": _D(60), "theta_max": t}, False),
+            ("isotropic", "20°/45°", {"theta_step": _D(20), "phi_step": _D(45), "theta_max": t}, False)]
     return rows[:3] if quick else rows
 
 
-def plan_table(quick: bool = False) -> Table:
-    """Lab time vs BRDF error of uniform plans (simulated sessions end to end) and adaptive plans."""
-    from gonio.plan.generators import make_plan
+def adaptive_args(lab_budget: float, target_error: float, quick: bool = False):
+    """The parsed options of ``gonio measure --sim --plan adaptive`` fitting :data:`MATERIAL`'s model with
+    ``--lab-budget`` / ``--target-error`` (everything else the CLI's defaults; quick: a small session)."""
+    from gonio.cli.main import build_parser
 
+    argv = ["measure", "--sim", "--plan", "adaptive", "--model", MATERIAL["model"],
+            "--lab-budget", repr(float(lab_budget)), "--target-error", repr(float(target_error))]
+    if quick:
+        argv += ["--coarse", "6", "--batch", "6", "--max-rounds", "2"]
+    return build_parser().parse_args(argv)
+
+
+def simulate_adaptive(args, out: Path):
+    """Run the adaptive session ``args`` describe (:func:`gonio.cli.plan.adaptive_from_args`, then
+    :class:`gonio.session.adaptive.AdaptiveSession` on the simulated rig rendering :data:`MATERIAL`):
+    ``(AdaptiveSessionResult, wall s, SampleSet)``."""
+    from benchmarks.bench_session import _adaptive_session
+    from gonio.cli.plan import adaptive_from_args
+    from gonio.rig.kinematics import load_rig
+
+    candidates, settings, spec = adaptive_from_args(args, load_rig(), source="bench --plan adaptive")
+    return _adaptive_session(candidates, settings, spec, RESOLUTION, out, material=MATERIAL)
+
+
+def _adaptive_runs(default: PlanRow, overhead: float, quick: bool) -> list[tuple[str, object]]:
+    """``(label, args)`` of the adaptive sessions: lab budgets of the default session's pose time (its lab
+    time without the session's start-up overhead) and 1.5× it, and one run to the CLI's target error."""
+    from gonio.cli.plan import ADAPTIVE_TARGET
+
+    budget = max(default.lab - overhead, 1.0)
+    if quick:
+        return [(f"budget 1× default's ({budget:.0f} s), coarse 6, 6 a round, ≤ 2 rounds",
+                 adaptive_args(budget, 0.0, quick=True))]
+    return [(f"budget 1× default's ({budget:.0f} s)", adaptive_args(budget, 0.0)),
+            (f"budget 1.5× default's ({1.5 * budget:.0f} s)", adaptive_args(1.5 * budget, 0.0)),
+            (f"target error {ADAPTIVE_TARGET:g}, budget ≤ 3× default's", adaptive_args(3 * budget, ADAPTIVE_TARGET))]
+
+
+def pareto_front(lab, err) -> np.ndarray:
+    """Indices of the rows no other row beats in both lab time and error (ties kept), by lab time."""
+    lab, err = np.asarray(lab, float), np.asarray(err, float)
+    ok = np.isfinite(lab) & np.isfinite(err)
+    idx = [i for i in np.flatnonzero(ok)
+           if not np.any(ok & (lab <= lab[i]) & (err <= err[i]) & ((lab < lab[i]) | (err < err[i])))]
+    return np.array(sorted(idx, key=lambda i: (lab[i], err[i])), dtype=np.int64)
+
+
+def knee(lab, err) -> int:
+    """Index of the knee of the lab time vs error trade: the Pareto-front row farthest below the chord
+    from the cheapest to the most accurate front row, in (lab time, log error) scaled to the unit square
+    (the "Kneedle" criterion, Satopää et al., *Finding a "Kneedle" in a Haystack*, ICDCS Workshops 2011).
+    Ties (a front of one or two rows has no point below its chord) go to the more accurate row."""
+    front = pareto_front(lab, err)
+    if len(front) == 0:
+        raise ValueError("no row with a finite lab time and error")
+    x = np.asarray(lab, float)[front]
+    y = np.log(np.asarray(err, float)[front])
+    xs = (x - x[0]) / (x[-1] - x[0]) if x[-1] > x[0] else np.zeros_like(x)
+    ys = (y - y[-1]) / (y[0] - y[-1]) if y[0] > y[-1] else np.zeros_like(y)
+    d = 1.0 - xs - ys
+    return int(front[np.flatnonzero(d >= d.max() - 1e-12)[-1]])
+
+
+def why_default(rows: list[PlanRow]) -> str:
+    """The table's ``why_default``, computed from its rows: the default, whether the Pareto front holds
+    it (or which row dominates it), and the knee relative to the default."""
+    lab = [r.lab for r in rows]
+    err = [r.err for r in rows]
+    d = next(i for i, r in enumerate(rows) if r.default)
+    r0 = rows[d]
+
+    def name(r):
+        return f"{r.kind} {r.label.split(':')[0].replace(' (gonio measure default)', '')} ({r.poses} poses)"
+
+    def vs(r):
+        return f"{r.lab / r0.lab:.2f}× the default's lab time for {r.err / r0.err:.2f}× its error"
+
+    front, skip = pareto_front(lab, err), []
+    text = f"`gonio measure`'s plan, {name(r0)}: {r0.lab:.0f} s lab, {r0.err:.2%} BRDF error. "
+    if d in front:
+        text += "It is on the lab time / error Pareto front of these sessions. "
+    else:
+        dom = [i for i in range(len(rows)) if lab[i] <= lab[d] and err[i] <= err[d]
+               and (lab[i] < lab[d] or err[i] < err[d])]
+        best = min(dom, key=lambda i: err[i])
+        skip.append(best)
+        text += f"It is **not** on the Pareto front: {name(rows[best])} beats it in both ({vs(rows[best])}). "
+    k = knee(lab, err)
+    if k == d:
+        text += "It is the knee of the front (farthest below the chord from the cheapest to the most accurate plan)."
+    else:
+        text += (f"The knee of the front (farthest below the chord from the cheapest to the most accurate plan, "
+                 f"lab time vs log error) is {name(rows[k])}: {vs(rows[k])}.")
+    cheaper = [i for i in front if lab[i] < lab[d] and i != k and i not in skip]
+    if cheaper:
+        c = cheaper[-1]
+        text += f" The next cheaper plan on the front, {name(rows[c])}: {vs(rows[c])}."
+    return text
+
+
+def _session_row(kind, label, n, result, wall, s, wi, wo, f_true, f_truth, default=False, n_starts=4) -> PlanRow:
     from gonio.plan.adaptive import relative_rms
+
+    good = s.good()
+    err, fit_s = fit_error(s, wi, wo, f_true, n_starts)
+    return PlanRow(kind, label, n, result.lab_time, wall, len(good),
+                   relative_rms(good.f, f_truth.eval(good.wi, good.wo)), err, fit_s, default)
+
+
+def plan_table(quick: bool = False) -> Table:
+    """Lab time vs BRDF error of uniform and adaptive plans, every row a simulated session end to end
+    fitted the same way; the default's place relative to the knee is computed from the rows."""
+    from gonio.plan.generators import make_plan
 
     f_truth = truth()
     wi, wo = eval_directions()
@@ -106,94 +246,53 @@ def plan_table(quick: bool = False) -> Table:
               f"simulated sessions at {RESOLUTION[0]}×{RESOLUTION[1]}, fitted {MATERIAL['model']})",
               ["plan", "parameters", "poses", "lab s", "lab vs default", "wall s", "usable samples",
                "sample rel RMS err", "BRDF rel RMS err", "err vs default", "fit s"], baseline=1, default=1)
-    found = []
+    rows: list[PlanRow] = []
+    overhead, starts = None, 2 if quick else 4
     with tempfile.TemporaryDirectory() as tmp:
-        for i, (kind, label, params) in enumerate(_plans(quick)):
+        for i, (kind, label, params, is_default) in enumerate(_uniform_plans(quick)):
             plan = make_plan(kind, seed=0, **params)
             try:
                 result, wall, s = simulate(plan, Path(tmp) / f"p{i}")
+                rows.append(_session_row(kind, label, len(plan), result, wall, s, wi, wo, f_true, f_truth, is_default,
+                                         starts))
             except Exception as exc:  # a crashing session is a finding: say so, keep the other rows
-                if i == 1:
+                if is_default:
                     raise  # the default session is every row's baseline
                 t.notes.append(f"{kind} {label} ({len(plan)} poses): the session failed, no row: "
                                f"{type(exc).__name__}: {exc}")
                 continue
-            good = s.good()
-            err, fit_s = fit_error(s, wi, wo, f_true)
-            found.append((kind, label, len(plan), result, wall, len(good),
-                          relative_rms(good.f, f_truth.eval(good.wi, good.wo)), err, fit_s, good, plan))
-    base = next(r for r in found if "default" in r[1])
-    t.baseline = t.default = found.index(base)
-    for kind, label, n, result, wall, n_good, s_err, err, fit_s, *_ in found:
-        t.add(kind, label, n, result.lab_time, result.lab_time / base[3].lab_time, wall, n_good, s_err, err,
-              err / base[7], fit_s)
+            if is_default:
+                overhead = overhead_lab(result)
+        base = next(r for r in rows if r.default)
+        for j, (label, args) in enumerate(_adaptive_runs(base, overhead, quick)):
+            try:
+                result, wall, s = simulate_adaptive(args, Path(tmp) / f"a{j}")
+                n = sum(r["n_poses"] for r in result.rounds)
+                rows.append(_session_row("adaptive", f"{label}: {len(result.rounds)} rounds, stop: {result.stop}",
+                                         n, result, wall, s, wi, wo, f_true, f_truth, n_starts=starts))
+            except Exception as exc:
+                t.notes.append(f"adaptive {label}: the session failed, no row: {type(exc).__name__}: {exc}")
+    rows.sort(key=lambda r: (r.kind != base.kind, r.kind == "adaptive", r.kind, r.lab))
+    t.baseline = t.default = rows.index(base)
+    for r in rows:
+        t.add(r.kind, r.label, r.poses, r.lab, r.lab / base.lab, r.wall, r.usable, r.sample_err, r.err,
+              r.err / base.err, r.fit_s)
+    t.why_default = why_default(rows)
     t.notes.append("BRDF error: ‖fitted − true‖ / ‖true‖ over 20,000 random direction pairs with θi, θo ≤ "
-                   f"{THETA_MAX_DEG:g}° (uniform in solid angle); sample error: the session's unflagged samples "
-                   "against the true BRDF at their directions. Lab time includes device checks, darks and the "
-                   f"light's warm-up ({overhead_lab(base[3]):.0f} s of the default session).")
-    for row in _adaptive_rows(base[10], base[3], base[9], wi, wo, f_true, quick):
-        t.add(*row)
-    t.notes.append("rows from 'planner callback' on do not run sessions: they measure through the adaptive "
-                   "planner's simulated measure callback (the true BRDF + Gaussian noise of the default session's "
-                   "median σ/f, one sample per pose, no camera, no pose error); their 'err vs default' is against "
-                   "the 'planner callback' row (the default plan's poses measured the same way). Adaptive: "
-                   "gonio.plan.adaptive over an isotropic 10°/30° candidate set, lab time = the planner's account "
-                   "(moves + settle + capture) + the default session's overhead. One seed per row: fits of the "
-                   "two-lobe model have local minima.")
-    lab0, err0 = base[3].lab_time, base[7]
-    denser = [r for r in found if r[0] == "in_plane" and r[2] > base[2]]
-    knee = (f"; the denser in-plane plan ({denser[0][2]} poses) costs {denser[0][3].lab_time / lab0:.2f}× the lab "
-            f"time for {denser[0][7] / err0:.2f}× the error") if denser else ""
-    t.why_default = (f"`gonio measure`'s plan: {base[2]} poses, {lab0:.0f} s lab, {err0:.2%} BRDF error{knee}; "
-                     "sparser plans miss the narrow lobe (error × the table's ratios).")
+                   f"{THETA_MAX_DEG:g}° (uniform in solid angle) of {MATERIAL['model']} fitted to all of a session's "
+                   f"samples (gonio.fit, {starts} starts); sample error: the session's unflagged samples against the true "
+                   "BRDF at their directions. Lab time: the session's simulated clock, including device checks, "
+                   f"darks and the light's warm-up ({overhead:.0f} s of the default session). One seed per row: fits "
+                   "of the two-lobe model have local minima, so neighbouring densities can differ by more than "
+                   "their sampling explains.")
+    t.notes.append("adaptive rows: `gonio measure --sim --plan adaptive --model "
+                   f"{MATERIAL['model']} --lab-budget S --target-error E` (gonio.cli.plan.adaptive_from_args + "
+                   "gonio.session.adaptive.AdaptiveSession; CLI defaults otherwise: the isotropic 10°/30° "
+                   "candidates, a coarse round of 24, 16 poses a round, each round fitted with 3 starts). The budget "
+                   "counts the poses and each round's light check, not the session's start-up, so its lab time "
+                   "is comparable with a uniform session's; target error 0 runs to the budget. The rounds' fits "
+                   "are in the wall time; the BRDF error is the same 4-start fit as the uniform rows'.")
     return t
-
-
-def _adaptive_rows(default_plan, default_result, default_good, wi, wo, f_true, quick: bool):
-    """Rows of adaptive plans and, as their baseline, the default plan's poses through the same callback."""
-    from gonio.geometry import dirs_from_angles
-    from gonio.plan.adaptive import adaptive_plan, fit_model, relative_rms
-    from gonio.plan.generators import make_plan
-    from gonio.plan.ordering import MotionModel
-    from gonio.rig.kinematics import load_rig
-    from gonio.samples import SampleSet
-
-    rig = load_rig()
-    cand = make_plan("isotropic", rig=rig, order="raster", theta_step=_D(10), phi_step=_D(30),
-                     theta_max=_D(THETA_MAX_DEG))
-    f_truth = truth()
-    noise = float(np.median(default_good.sigma / np.maximum(np.abs(default_good.f), 1e-12)))
-    rng = np.random.default_rng(0)
-
-    def measure(poses):
-        a, b = dirs_from_angles(*poses.T)
-        f = f_truth.eval(a, b)
-        sig = noise * f + 1e-5
-        return SampleSet(a, b, f + rng.normal(size=f.shape) * sig, sig)
-
-    over = overhead_lab(default_result)
-    budget0 = default_result.lab_time - over
-    pose_time = cand.capture.pose_time()
-    fit = fit_model(MATERIAL["model"], n_starts=4)
-    t0 = time.perf_counter()
-    ref = fit(measure(default_plan.poses))
-    secs = time.perf_counter() - t0
-    default_err = relative_rms(ref.eval(wi, wo), f_true)
-    rows = [("in_plane, planner callback", "default plan's poses", len(default_plan), default_result.lab_time, 1.0,
-             secs, len(default_plan), noise, default_err, 1.0, secs)]
-    for mult in ((1.0,) if quick else (0.5, 1.0, 2.0)):
-        budget = mult * budget0
-        t0 = time.perf_counter()
-        res = adaptive_plan(cand, measure, fit, motion=MotionModel.from_rig(rig),
-                            target_error=0.0, lab_budget=budget, n_initial=max(8, int(budget / pose_time / 3)),
-                            batch=8, seed=0)
-        wall = time.perf_counter() - t0
-        err = relative_rms(res.model.eval(wi, wo), f_true)
-        lab = res.lab_time + over
-        rows.append(("adaptive", f"{mult:g}× default's pose budget", len(res.plan), lab,
-                     lab / default_result.lab_time, wall, len(res.samples), float("nan"), err, err / default_err,
-                     float("nan")))
-    return rows
 
 
 def _brackets(quick: bool):

@@ -56,11 +56,17 @@ def _plot_plans(ax, tables) -> bool:
     t = _find(tables, "plan", "lab s", "BRDF rel RMS err")
     if t is None:
         return False
+    from benchmarks.bench_tradeoffs import knee, pareto_front
+
     kind, lab, err = _col(t, "plan"), _col(t, "lab s").astype(float), _col(t, "BRDF rel RMS err").astype(float)
     for k in dict.fromkeys(kind):
         sel = kind == k
         order = np.argsort(lab[sel])
-        ax.plot(lab[sel][order], err[sel][order], "o-" if "callback" not in k else "s", label=k)
+        ax.plot(lab[sel][order], err[sel][order], "s--" if k == "adaptive" else "o-", label=k)
+    front = pareto_front(lab, err)
+    ax.plot(lab[front], err[front], ":", color="0.4", lw=2, label="Pareto front")
+    k = knee(lab, err)
+    ax.plot([lab[k]], [err[k]], "*", ms=16, mfc="none", mec="r", label="knee")
     _mark_default(ax, t, lab, err)
     ax.set(xlabel="lab time (s)", ylabel="BRDF relative RMS error", yscale="log",
            title="Plan density and kind: lab time vs BRDF error")

@@ -31,6 +31,9 @@ def test_quick_report_completes_with_every_table(report):
     assert text.count("**default**") >= len(TRADES)
     assert text.count("\nDefault: ") >= len(TRADES)
     assert "This trade failed" not in text
+    # the plan table's rows are all sessions: an adaptive session row, no planner-callback rows
+    assert "| adaptive | budget" in text and "planner callback" not in text
+    assert "Pareto front" in text
 
 
 def test_quick_report_writes_a_png_per_trade(report):
@@ -79,3 +82,40 @@ def test_report_without_matplotlib_and_with_a_failing_trade(tmp_path, monkeypatc
     assert not list(tmp_path.glob("*.png"))
     err = capsys.readouterr().err
     assert "matplotlib is not installed" in err and "broken failed" in err
+
+
+def _row(kind, label, lab, err, default=False):
+    from benchmarks.bench_tradeoffs import PlanRow
+
+    return PlanRow(kind, label, 10, lab, 1.0, 100, 0.01, err, 1.0, default)
+
+
+def test_pareto_front_and_knee():
+    from benchmarks.bench_tradeoffs import knee, pareto_front
+
+    lab = [100, 110, 120, 130, 200, 150, 400]
+    err = [1.0, 0.1, 0.05, 0.045, 0.03, 0.2, 0.02]  # row 5 is dominated (by rows 1-3)
+    assert pareto_front(lab, err).tolist() == [0, 1, 2, 3, 4, 6]
+    assert knee(lab, err) == 2  # the big drop is over by 120 s; later rows buy little for their time
+    assert knee([100], [0.5]) == 0
+    assert pareto_front([1, 2, float("nan")], [2, 1, 0.1]).tolist() == [0, 1]
+
+
+def test_why_default_is_computed_from_the_rows():
+    from benchmarks.bench_tradeoffs import why_default
+
+    rows = [_row("in_plane", "sparse", 100, 1.0), _row("in_plane", "d (gonio measure default)", 120, 0.2, True),
+            _row("half_diff", "6 θh", 115, 0.05), _row("grid", "dense", 400, 0.04)]
+    text = why_default(rows)
+    assert "in_plane d (10 poses)" in text and "**not** on the Pareto front" in text
+    assert "half_diff 6 θh (10 poses) beats it in both (0.96× the default's lab time for 0.25× its error)" in text
+    assert "knee" in text and "half_diff 6 θh" in text.split("knee")[1]
+    rows[2] = _row("half_diff", "6 θh", 130, 0.19)
+    text = why_default(rows)
+    assert "It is on the lab time / error Pareto front" in text and "It is the knee" in text
+
+
+def test_knee_of_a_two_row_front_is_the_more_accurate_row():
+    from benchmarks.bench_tradeoffs import knee
+
+    assert knee([235.0, 246.0, 300.0], [5.7, 0.02, 0.1]) == 1
