@@ -17,7 +17,9 @@ from tests.session.conftest import POSES_DEG, assert_one_record_per_pose, joint_
 # -- material files -------------------------------------------------------------------------------
 @pytest.mark.parametrize("text, names", [
     ('model = "nope"', ["model", "nope"]),
-    ('model = "microfacet"\n[params]\nkd = [1, 2]', ["microfacet.kd", "[1, 2]"]),
+    ('model = "microfacet"\n[params]\nkd = [1, 2]\nks = 0.5\nalpha = 0.2\nf0 = 0.04\ndistribution = "ggx"',
+     ["microfacet.kd", "[1, 2]"]),
+    ('model = "microfacet"\n[params]\nkd = 0.5', ["params", "missing ks, alpha, f0, distribution"]),
     ('model = "lambert"\n[params]\nalbedo = -1', ["lambert.albedo", "-1"]),
     ('model = "lambert"\ncolour = 1', ["colour"]),
     ('label = "x"', ["model", "missing"]),
