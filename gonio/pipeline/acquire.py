@@ -152,8 +152,11 @@ class Pipeline:
 
     # -- the pose -----------------------------------------------------------------------------
     def measure(self, light_position, *, pose_index: int = -1, camera_pose_hint: CameraPose | None = None,
-                plan: CapturePlan | None = None) -> PoseResult:
-        """Measure one pose; see the module docstring. Raises :class:`BoardNotFound` or :class:`BadFrame`."""
+                plan: CapturePlan | None = None, nominal=None) -> PoseResult:
+        """Measure one pose; see the module docstring. Raises :class:`BoardNotFound` or :class:`BadFrame`.
+
+        ``nominal = (camera centre, light position)`` of the planned pose fixes the tiling (see
+        :func:`gonio.pipeline.reflectance.build_roi`)."""
         st = self.settings
         gain = st.gain if plan is None else plan.gain
         flags = 0
@@ -183,7 +186,7 @@ class Pipeline:
         if board is None:
             flags |= S.NO_BOARD
         roi = build_roi(cam_pose, self.calib, self.layout, light_position, margin_px=st.margin_px,
-                        max_bin_deg=st.max_bin_deg, max_bins=st.max_bins)
+                        max_bin_deg=st.max_bin_deg, max_bins=st.max_bins, nominal=nominal)
         if roi.empty:
             raise BoardNotFound("camera frame: the sample or white patch is outside the image at this pose",
                                 device="camera")

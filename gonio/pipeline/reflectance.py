@@ -67,12 +67,15 @@ def _pose_in_frame(pose: CameraPose, origin: np.ndarray, frame: np.ndarray) -> C
 
 
 def build_roi(pose: CameraPose, calib: CameraCalibration, layout: TargetLayout, light_position, *,
-              margin_px: float = 3.0, max_bin_deg: float = 2.0, max_bins: int = 8) -> Roi:
+              margin_px: float = 3.0, max_bin_deg: float = 2.0, max_bins: int = 8, nominal=None) -> Roi:
     """Region of interest, per-pixel plane points and tiles for one camera pose.
 
     The sample patch is cut into n × n tiles (n ≤ ``max_bins``) so that each tile spans at most
     ``max_bin_deg`` of wi and of wo (estimated from the patch corners); a margin of ``margin_px``
     pixel footprints is dropped along every patch edge (pixels there mix patch and board).
+    ``nominal = (camera centre, light position)`` of the *planned* pose, if given, fixes n: the
+    tiling then depends on the pose only, not on encoder noise or the board estimate (a span near a
+    multiple of ``max_bin_deg`` would otherwise give n × n or (n+1) × (n+1) tiles from run to run).
     """
     C = pose.centre
     S_ = np.asarray(light_position, dtype=np.float64)
@@ -111,7 +114,8 @@ def build_roi(pose: CameraPose, calib: CameraCalibration, layout: TargetLayout, 
     if not layout.mount.is_flat:
         p = np.where(in_sample[..., None], ps, p)
         white &= ~in_sample  # the sample, if raised, hides what is behind it
-    span = max(_angle_span(normalize(C - sc)), _angle_span(normalize(S_ - sc)))
+    Cn, Sn = (C, S_) if nominal is None else (np.asarray(nominal[0], float), np.asarray(nominal[1], float))
+    span = max(_angle_span(normalize(Cn - sc)), _angle_span(normalize(Sn - sc)))
     n = int(np.clip(np.ceil(np.degrees(span) / max_bin_deg), 1, max_bins))
     with np.errstate(invalid="ignore"):
         ix = np.clip(((x - sr.x0) / (sr.x1 - sr.x0) * n).astype(int), 0, n - 1)

@@ -59,7 +59,7 @@ class CaptureSettings:
     gain: float = 1.0
     readout: float = 0.05
     settle: float = 0.3
-    auto_exposure: bool = False
+    auto_exposure: bool = True
 
     def __post_init__(self):
         exps = _as_float_tuple(self.exposures, "capture.exposures", "plan")

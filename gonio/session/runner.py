@@ -344,8 +344,10 @@ class SessionRunner:
         # meter every pose at the expected bracket's shortest exposure, not at the previous pose's: a pose's
         # bracket then depends on the pose only, so a resumed session measures what an uninterrupted one does
         self.pipeline._next_exposure = self.plan.capture.exposures[0]
+        planned = rig.as_array(target)
         res = self.pipeline.measure(rig.light_position(joints), pose_index=index,
-                                    camera_pose_hint=CameraPose(R, -R @ position), plan=self.bracket)
+                                    camera_pose_hint=CameraPose(R, -R @ position), plan=self.bracket,
+                                    nominal=(rig.camera_pose(planned)[0], rig.light_position(planned)))
         w3, l3 = time.perf_counter(), self.clock.now()
         capture_wall = self.camera.wall - cam_w
         timing = {"move_lab": l1 - l0, "move_wall": w1 - w0, "dark_lab": l2 - l1, "dark_wall": w2 - w1,
