@@ -32,7 +32,9 @@ def run(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ConfigError.field("-o", "out", str(out), "exists and is not a directory")
-    from benchmarks.report import write_report
+    from gonio.plugins import plugin
+
+    write_report = plugin("benchmarks.report").write_report
 
     t0 = time.perf_counter()
     path, failed = write_report(out, quick=args.quick, stream=sys.stderr)

@@ -8,7 +8,7 @@ recovers the inverse response of an 8-bit non-linear camera (Debevec & Malik, SI
 
 ``--sim`` uses the rendering camera (:class:`sim.camera.SimCamera`, by default its 8-bit gamma
 response) looking at the standard target: the same commands run in CI without a camera. Like
-``gonio measure --sim``, this is a configuration boundary where gonio imports ``sim`` (lazily).
+``gonio measure --sim``, the simulator is found through :mod:`gonio.plugins`, not imported.
 """
 
 from __future__ import annotations
@@ -77,8 +77,10 @@ def _sim_camera(args):
     from gonio.cli.measure import _resolution
     from gonio.errors import ConfigError
     from gonio.pipeline.target import CameraCalibration, TargetLayout
-    from sim.camera import SensorModel, SimCamera, SimScene  # configuration boundary (module docstring)
-    from sim.clock import SimClock
+    from gonio.plugins import plugin
+
+    simcam, SimClock = plugin("sim.camera"), plugin("sim.clock").SimClock  # DESIGN §1: found, not imported
+    SensorModel, SimCamera, SimScene = simcam.SensorModel, simcam.SimCamera, simcam.SimScene
 
     w, h = _resolution(args.sim_resolution)
     if not (args.sim_gamma > 0):

@@ -2,9 +2,10 @@
 
 ``gonio measure --sim`` builds the virtual rig (:mod:`sim.rig`: servo-bus and controller emulators on
 pseudo-terminals, driven through the real dynamixel-sdk and pyserial, a rendering camera, a simulated
-clock). This module is the *configuration boundary*: it is the only place in ``gonio`` that imports
-``sim``, lazily and only for ``--sim``/resuming a simulated session; everything below it (runner,
-drivers, pipeline) gets device paths, a camera and a clock and cannot tell simulation from hardware.
+clock). This module is the *configuration boundary*: gonio never imports ``sim`` (DESIGN.md §1); for
+``--sim``/resuming a simulated session it finds the simulator through the ``gonio.plugins`` entry points
+(:mod:`gonio.plugins`); everything below it (runner, drivers, pipeline) gets device paths, a camera and a
+clock and cannot tell simulation from hardware.
 
 The manifest records everything needed to rebuild the session (plan, rig, material, simulator
 configuration and seed, or the hardware ports), so ``gonio resume DIR`` restarts the same simulated
@@ -257,7 +258,10 @@ def _run_session(store, plan, devices, calibration, layout, *, before_pose, quie
 def _sim_session(store, plan, manifest, quiet: bool) -> int:
     from gonio.session.material import material_from_dict
     from gonio.session.runner import open_devices
-    from sim.rig import SimRig, SimRigConfig  # the configuration boundary: only here does gonio import sim
+    from gonio.plugins import plugin
+
+    simrig = plugin("sim.rig")  # DESIGN §1: gonio never imports sim; the simulator is found by configuration
+    SimRig, SimRigConfig = simrig.SimRig, simrig.SimRigConfig
 
     material = material_from_dict({k: v for k, v in manifest["material"].items() if k in ("model", "params", "label")},
                                   source="manifest material", complete=False)
@@ -358,7 +362,9 @@ def run_measure(args) -> int:
     if adaptive is not None:
         manifest["adaptive"] = adaptive["adaptive"]
     if args.sim:
-        from sim.rig import SimRigConfig  # configuration boundary (see the module docstring)
+        from gonio.plugins import plugin
+
+        SimRigConfig = plugin("sim.rig").SimRigConfig
 
         w, h = _resolution(args.sim_resolution)
         config = SimRigConfig(seed=args.seed, width=w, height=h, focal_px=380.0 * w / 320.0)

@@ -1,0 +1,26 @@
+"""Parts of the source tree that gonio finds through package metadata, never by importing them by name.
+
+DESIGN.md §1: ``gonio`` never imports ``sim``; the simulator is selected through configuration. The
+command line's ``--sim`` switches and ``gonio bench`` find the simulator and the benchmarks through
+the entry points ``pyproject.toml`` declares (``[project.entry-points."gonio.plugins"]``), so the
+dependency points from ``sim`` to ``gonio`` only, and an installation without them says so in one line.
+"""
+
+from __future__ import annotations
+
+from gonio.errors import ConfigError
+
+__all__ = ["plugin"]
+
+GROUP = "gonio.plugins"
+
+
+def plugin(name: str):
+    """The module registered as ``name`` in the ``gonio.plugins`` entry-point group (e.g. ``sim.rig``)."""
+    from importlib.metadata import entry_points
+
+    found = [ep for ep in entry_points(group=GROUP) if ep.name == name]
+    if not found:
+        raise ConfigError(f"{name}: not installed (the simulator and the benchmarks come with the gonio source "
+                          f"tree: pip install -e . in a checkout)")
+    return found[0].load()
