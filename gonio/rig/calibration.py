@@ -47,7 +47,9 @@ __all__ = ["ResponseCurve", "CameraSettings", "CameraDescription", "load_camera_
 BACKENDS = {"any": 0, "v4l2": 200, "gstreamer": 1800, "ffmpeg": 1900, "aravis": 2100}
 #: Bit depth of frames linearized through a response curve (uint16, full scale = the 8-bit value 255).
 LINEARIZED_BIT_DEPTH = 16
-_TOP_KEYS = {"width", "height", "focal_px", "K", "dist", "noise", "camera", "radiometric_scale"}
+#: Lens aperture (for the detector solid angle, gonio.session.detector): a diameter, or f-number + focal length.
+_LENS_KEYS = {"aperture_diameter_m", "f_number", "focal_length_m"}
+_TOP_KEYS = {"width", "height", "focal_px", "K", "dist", "noise", "camera", "radiometric_scale"} | _LENS_KEYS
 _NOISE_KEYS = {"dn_per_electron", "read_noise_e", "full_well_e"}
 _CAMERA_KEYS = {"linear", "bit_depth", "black_level", "response", "trigger", "exposure_unit", "backend"}
 _TRIGGERS = ("none", "controller")
@@ -284,11 +286,13 @@ class CameraDescription:
     calibration: Any  # gonio.pipeline.target.CameraCalibration
     camera: CameraSettings = field(default_factory=CameraSettings)
     source: str | None = None
+    #: ``aperture_diameter_m``, or ``f_number`` + ``focal_length_m``, as given (validated).
+    lens: Mapping[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         c = self.calibration
         d = {"width": c.width, "height": c.height, "K": c.K.tolist(), "dist": c.dist.tolist(),
-             "noise": dict(c.noise.__dict__), "camera": self.camera.to_dict()}
+             "noise": dict(c.noise.__dict__), "camera": self.camera.to_dict(), **dict(self.lens)}
         if c.radiometric_scale is not None:
             d["radiometric_scale"] = list(c.radiometric_scale)
         return d
@@ -304,7 +308,20 @@ class CameraDescription:
                                       noise=noise, radiometric_scale=_radiometric(d, source))
         except KeyError as exc:
             raise ConfigError.field(source, f"calibration.{exc.args[0]}", None, "missing") from None
-        return cls(calibration=calib, camera=CameraSettings.from_dict(d.get("camera", {}), source), source=source)
+        return cls(calibration=calib, camera=CameraSettings.from_dict(d.get("camera", {}), source), source=source,
+                   lens=_lens_fields(d, source))
+
+
+def _lens_fields(d, source: str | None) -> dict:
+    """The lens-aperture keys present in ``d``, each a positive number; f_number and focal_length_m together."""
+    lens = {k: d[k] for k in sorted(_LENS_KEYS) if k in d}
+    for k, v in lens.items():
+        if not _is_number(v) or not (math.isfinite(v) and v > 0):
+            raise ConfigError.field(source, k, v, "must be a positive number")
+    if ("f_number" in lens) != ("focal_length_m" in lens):
+        missing = "f_number" if "f_number" not in lens else "focal_length_m"
+        raise ConfigError.field(source, missing, None, "missing (f_number and focal_length_m go together)")
+    return {k: float(v) for k, v in lens.items()}
 
 
 def _noise_fields(d, source: str | None) -> dict:
@@ -399,7 +416,7 @@ def load_camera_calibration(path, *, for_session: bool = True) -> CameraDescript
     settings = _settings(_camera_fields(cam, src, base=Path(path).parent), src)
     if for_session:
         settings.check_session(src)
-    return CameraDescription(calibration=calib, camera=settings, source=src)
+    return CameraDescription(calibration=calib, camera=settings, source=src, lens=_lens_fields(data, src))
 
 
 class LinearizedCamera:

@@ -101,3 +101,18 @@ def test_measure_refuses_the_camera_before_creating_a_session(tmp_path, capsys, 
     err = capsys.readouterr().err.strip()
     assert rc == 2 and expect in err and "\n" not in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_lens_aperture_reaches_the_manifest_and_the_detector_solid_angle(tmp_path):
+    from gonio.session.detector import aperture_from_calibration, aperture_solid_angle
+
+    d = load_camera_calibration(_write(tmp_path, "f_number = 4.0\nfocal_length_m = 0.016\n" + LINEAR))
+    manifest_calibration = CameraDescription.from_dict(d.to_dict(), source="manifest").to_dict()
+    diameter, how = aperture_from_calibration(manifest_calibration, "manifest")
+    assert diameter == pytest.approx(0.004) and how == "focal_length_m / f_number"
+    # a 4 mm pupil at 0.4 m: 2π(1 − R/√(R² + D²/4)) ≈ π D²/(4 R²)
+    assert aperture_solid_angle(diameter, 0.4) == pytest.approx(np.pi * 0.004 ** 2 / 4 / 0.4 ** 2, rel=1e-4)
+    for text, field in (("f_number = 4.0\n", "focal_length_m"), ("aperture_diameter_m = -1\n", "aperture_diameter_m")):
+        with pytest.raises(ConfigError) as err:
+            load_camera_calibration(_write(tmp_path, text + LINEAR, name="bad.toml"))
+        assert field in str(err.value) and "bad.toml" in str(err.value) and "\n" not in str(err.value)
