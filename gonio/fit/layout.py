@@ -53,7 +53,24 @@ def auto_tied(cls: type[BRDF], fixed: dict, free=()) -> tuple[str, ...]:
                  and k not in free and _base(k) not in free)
 
 
-class Layout:
+class _SearchMap:
+    """Maps between shape parameters and the search space (log-scaled where ``is_log``), for classes
+    with ``search_space()``, ``shape_lo`` and ``shape_hi``."""
+
+    def to_shape(self, u: np.ndarray) -> np.ndarray:
+        """Shape parameters of a point of the search space (clipped to the model bounds)."""
+        _, _, is_log = self.search_space()
+        s = np.where(is_log, np.exp(u), u)
+        return np.clip(s, self.shape_lo, self.shape_hi)
+
+    def to_u(self, s: np.ndarray) -> np.ndarray:
+        u_lo, u_hi, is_log = self.search_space()
+        with np.errstate(divide="ignore"):
+            u = np.where(is_log, np.log(np.maximum(s, 1e-300)), s)
+        return np.clip(u, u_lo, u_hi)
+
+
+class Layout(_SearchMap):
     """Free parameters of a model class, packed into one vector ``p = [colours (K×3, per channel), shapes (S)]``.
 
     Parameters
@@ -166,18 +183,6 @@ class Layout:
         self._space = (np.array(u_lo), np.array(u_hi), np.array(is_log, dtype=bool))
         return self._space
 
-    def to_shape(self, u: np.ndarray) -> np.ndarray:
-        """Shape parameters of a point of the search space (clipped to the model bounds)."""
-        _, _, is_log = self.search_space()
-        s = np.where(is_log, np.exp(u), u)
-        return np.clip(s, self.shape_lo, self.shape_hi)
-
-    def to_u(self, s: np.ndarray) -> np.ndarray:
-        u_lo, u_hi, is_log = self.search_space()
-        with np.errstate(divide="ignore"):
-            u = np.where(is_log, np.log(np.maximum(s, 1e-300)), s)
-        return np.clip(u, u_lo, u_hi)
-
     def default_shape(self) -> np.ndarray:
         out = []
         for j, name in enumerate(self.shape):
@@ -186,7 +191,7 @@ class Layout:
         return np.clip(np.array(out, dtype=np.float64), self.shape_lo, self.shape_hi)
 
 
-class SubSpace:
+class SubSpace(_SearchMap):
     """The search space of some of a layout's shape parameters (the others are profiled out, see
     :class:`gonio.fit.solve.ProfiledProjection`); the same search API as :class:`Layout`."""
 
@@ -199,16 +204,6 @@ class SubSpace:
     def search_space(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         u_lo, u_hi, is_log = self.layout.search_space()
         return u_lo[self.keep], u_hi[self.keep], is_log[self.keep]
-
-    def to_shape(self, u: np.ndarray) -> np.ndarray:
-        _, _, is_log = self.search_space()
-        return np.clip(np.where(is_log, np.exp(u), u), self.shape_lo, self.shape_hi)
-
-    def to_u(self, s: np.ndarray) -> np.ndarray:
-        u_lo, u_hi, is_log = self.search_space()
-        with np.errstate(divide="ignore"):
-            u = np.where(is_log, np.log(np.maximum(s, 1e-300)), s)
-        return np.clip(u, u_lo, u_hi)
 
     def default_shape(self) -> np.ndarray:
         return self.layout.default_shape()[self.keep]
