@@ -454,7 +454,9 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
         r2 = _fit_layout(d, L2, lossobj, **kw, optimum=optimum)
         if optimum is not None:
             r2.method = r.method
-        why = ", ".join(f"{t} = {r.params[t]:.3g} ± {r.uncertainty[t]:.2g}" for t in weak)
+        why = ", ".join(f"{t} = {r.params[t]:.3g} " + ("on its upper bound" if not np.isfinite(r.uncertainty[t])
+                                                        and abs(r.params[t] - 1.0) <= 1e-7
+                                                        else f"± {r.uncertainty[t]:.2g}") for t in weak)
         r2.notes.insert(0, f"not identifiable from these data: {why} (the angular range does not separate the "
                            f"Fresnel rise from ks); held at 1, so ks is the specular reflectance ks·F")
         r2.n_evals += r.n_evals
