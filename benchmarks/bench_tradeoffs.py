@@ -94,9 +94,9 @@ class PlanRow:
 def _uniform_plans(quick: bool) -> list[tuple[str, str, dict, bool]]:
     """``(kind, label, params, is_default)`` of the uniform plans: each generator at a few densities, with
     the in-plane and half/difference densities around the default and around the knee."""
-    from gonio.cli.measure import DEFAULT_PLAN, DEFAULT_PLAN_PARAMS
+    from gonio.cli.measure import DEFAULT_PLAN, default_plan_params
 
-    deflt = {k: _D(v) for k, v in DEFAULT_PLAN_PARAMS.items()}
+    deflt = default_plan_params(DEFAULT_PLAN)
     t = _D(THETA_MAX_DEG)
 
     def ip(a, b, tmax=THETA_MAX_DEG):
@@ -105,12 +105,11 @@ def _uniform_plans(quick: bool) -> list[tuple[str, str, dict, bool]]:
     def hd(n, td, pd):
         return {"n_theta_h": n, "theta_d_step": _D(td), "phi_d_step": _D(pd), "theta_max": t}
 
-    d_label = "/".join(f"{DEFAULT_PLAN_PARAMS[k]:g}°" for k in ("theta_i_step", "theta_o_step")
-                       if k in DEFAULT_PLAN_PARAMS) or "generator defaults"
     rows = [("in_plane", "30°/30°, θ ≤ 60°", ip(30, 30, 60), False),
-            (DEFAULT_PLAN, f"{d_label} (gonio measure default)", deflt, True),
+            (DEFAULT_PLAN, f"{_params_label(DEFAULT_PLAN, deflt)} (gonio measure default)", deflt, True),
             ("half_diff", "4 θh, 20°/60°", hd(4, 20, 60), False),
             ("in_plane", "20°/20°", ip(20, 20), False),
+            ("in_plane", "20°/10°", ip(20, 10), False),
             ("in_plane", "15°/10°", ip(15, 10), False),
             ("in_plane", "10°/5°", ip(10, 5), False),
             ("half_diff", "6 θh, 20°/60°", hd(6, 20, 60), False),
@@ -122,7 +121,23 @@ def _uniform_plans(quick: bool) -> list[tuple[str, str, dict, bool]]:
             ("grid", "30°/90°", {"theta_step": _D(30), "phi_step": _D(90), "theta_max": t}, False),
             ("grid", "20°/60°", {"theta_step": _D(20), "phi_step": _D(60), "theta_max": t}, False),
             ("isotropic", "20°/45°", {"theta_step": _D(20), "phi_step": _D(45), "theta_max": t}, False)]
+    # the default's parameters appear once (as the default row)
+    rows = [r for r in rows if r[3] or not (r[0] == DEFAULT_PLAN and _same_params(r[2], deflt))]
     return rows[:3] if quick else rows
+
+
+def _same_params(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(math.isclose(a[k], b[k], rel_tol=1e-9) for k in a)
+
+
+def _params_label(kind: str, p: dict) -> str:
+    """A row label from a plan's parameters, in the style of the other rows."""
+    deg = {k: math.degrees(v) for k, v in p.items() if k != "n_theta_h"}
+    if kind == "half_diff":
+        return f"{p['n_theta_h']} θh, {deg['theta_d_step']:g}°/{deg['phi_d_step']:g}°"
+    if kind == "in_plane":
+        return f"{deg['theta_i_step']:g}°/{deg['theta_o_step']:g}°"
+    return ", ".join(f"{k} {v:g}°" for k, v in deg.items())
 
 
 def adaptive_args(lab_budget: float, target_error: float, quick: bool = False):
@@ -298,29 +313,33 @@ def plan_table(quick: bool = False) -> Table:
 def _brackets(quick: bool):
     from gonio.plan.plan import CaptureSettings
 
-    rows = [("1 exposure (16 ms) × 1 frame", CaptureSettings(exposures=(0.016,), frames=1)),
-            ("1 exposure (16 ms) × 4 frames", CaptureSettings(exposures=(0.016,), frames=4)),
-            ("3 exposures × 1 frame", CaptureSettings(frames=1)),
-            ("3 exposures × 2 frames", CaptureSettings()),
-            ("3 exposures × 4 frames", CaptureSettings(frames=4)),
-            ("5 exposures (1–256 ms) × 2 frames", CaptureSettings(exposures=(0.001, 0.004, 0.016, 0.064, 0.256)))]
-    return [rows[0], rows[3], rows[4]] if quick else rows
+    def fixed(**kw):
+        return CaptureSettings(auto_exposure=False, **kw)
+
+    rows = [("fixed: 1 exposure (16 ms) × 1 frame", fixed(exposures=(0.016,), frames=1)),
+            ("fixed: 1 exposure (16 ms) × 4 frames", fixed(exposures=(0.016,), frames=4)),
+            ("fixed: 3 exposures × 1 frame", fixed(frames=1)),
+            ("fixed: 3 exposures (4, 16, 64 ms) × 2 frames", fixed()),
+            ("fixed: 3 exposures × 4 frames", fixed(frames=4)),
+            ("fixed: 5 exposures (1–256 ms) × 2 frames", fixed(exposures=(0.001, 0.004, 0.016, 0.064, 0.256))),
+            ("automatic exposure per pose", CaptureSettings())]
+    return [rows[0], rows[3], rows[6]] if quick else rows
 
 
 def capture_table(quick: bool = False) -> Table:
     """Lab time vs noise of the exposure bracket and the frames averaged, on one plan."""
-    from gonio.cli.measure import DEFAULT_PLAN, DEFAULT_PLAN_PARAMS
+    from gonio.cli.measure import DEFAULT_PLAN, default_plan_params
     from gonio.plan.adaptive import relative_rms
     from gonio.plan.generators import make_plan
     from gonio.plan.plan import CaptureSettings
 
-    params = ({"theta_i_step": _D(30), "theta_o_step": _D(30), "theta_max": _D(60)} if quick
-              else {k: _D(v) for k, v in DEFAULT_PLAN_PARAMS.items()})
-    plan = make_plan(DEFAULT_PLAN, seed=0, **params)
+    kind, params = (("in_plane", {"theta_i_step": _D(30), "theta_o_step": _D(30), "theta_max": _D(60)}) if quick
+                    else (DEFAULT_PLAN, default_plan_params(DEFAULT_PLAN)))
+    plan = make_plan(kind, seed=0, **params)
     f_truth = truth()
     rows = _brackets(quick)
     default = next(i for i, (_, c) in enumerate(rows) if c == CaptureSettings())
-    t = Table(f"exposure bracket and frames averaged: lab time vs noise ({DEFAULT_PLAN} plan, {len(plan)} poses, "
+    t = Table(f"exposure bracket and frames averaged: lab time vs noise ({kind} plan, {len(plan)} poses, "
               f"{MATERIAL['model']} with a narrow lobe)",
               ["capture", "capture s/pose", "lab s/pose", "lab s", "lab vs baseline", "usable samples", "flagged %",
                "median σ/f", "σ/f vs baseline", "sample rel RMS err"], baseline=0, default=default)
@@ -335,10 +354,12 @@ def capture_table(quick: bool = False) -> Table:
             t.add(label, cap.capture_time(), per_pose, result.lab_time, result.lab_time / lab0, len(good),
                   100.0 * (1 - len(good) / max(len(s), 1)), rel, rel / rel0,
                   relative_rms(good.f, f_truth.eval(good.wi, good.wo)))
-    t.why_default = ("the knee: the 3-exposure bracket (4, 16, 64 ms) is what keeps the narrow lobe's peak and the "
-                     "diffuse tail usable (a single exposure loses most samples: flagged %); averaging frames lowers "
-                     "σ/f only as 1/√frames while capture time grows linearly, and the sample error, dominated by "
-                     "pose and calibration error, does not improve past 2 frames.")
+    t.why_default = ("automatic exposure (gonio.pipeline.exposure: a metering frame per pose, a bracket from the "
+                     "exposure ladder that keeps the sample and the white reference in the linear range, more frames "
+                     "where the SNR is low): fixed brackets either lose the narrow lobe's peak or the diffuse tail "
+                     "(flagged %) or spend capture time on every pose; averaging frames lowers σ/f only as "
+                     "1/√frames while capture time grows linearly, and the sample error, dominated by pose and "
+                     "calibration error, does not improve past 2 frames. `--exposures`/`--frames` fix a bracket.")
     t.notes.append("lab s/pose: move + settle + darks + capture, without the session's fixed overhead "
                    f"(device checks, first darks, warm-up: {overhead_lab(result):.0f} s).")
     t.notes.append("σ/f: the pipeline's standard uncertainty over the value, median over unflagged samples; sample "

@@ -88,7 +88,7 @@ def polar_slice(*, samples: SampleSet | None = None, table=None, theta_i_deg: fl
     else:
         raise ValueError("polar_slice needs samples or a table")
     ax.set_rlim(0, 90)
-    ax.set_title(f"{title + ': ' if title else ''}BRDF at {ti:g}° incidence (radius θo, angle φo − φi)")
+    ax.set_title(f"{title + ': ' if title else ''}BRDF at {ti:.1f}° incidence (radius θo, angle φo − φi)")
     fig.colorbar(art, ax=ax, label="log10 BRDF (1/sr), mean of R,G,B", shrink=0.8)
     return fig
 
@@ -140,7 +140,7 @@ def inplane(*, samples: SampleSet | None = None, table=None, model=None, theta_i
     ax.set_ylabel("BRDF (1/sr)")
     ax.set_xlim(-90, 90)
     ax.axvline(theta_i_deg, color="0.6", lw=0.8, ls=":")
-    ax.set_title(f"{title + ': ' if title else ''}plane of incidence, θi = {theta_i_deg:g}°")
+    ax.set_title(f"{title + ': ' if title else ''}plane of incidence, θi = {theta_i_deg:.1f}°")
     ax.legend(fontsize=7, ncol=3)
     return fig
 

@@ -19,25 +19,18 @@ import math
 import sys
 import time
 
-DEFAULT_PLAN = "in_plane"
+#: The knee of benchmarks/REPORT.md's plan table (lab time vs BRDF error): uniform in half/difference angles.
+DEFAULT_PLAN = "half_diff"
 DEFAULT_SIM_RESOLUTION = "320x240"
 
 
 def default_plan_params(name: str = DEFAULT_PLAN) -> dict:
     """The parameters (radians) a plan gets when none are given: its generator's defaults, the one source
-    shared with ``gonio plan`` (the default in-plane sweep: 56 poses on the default rig, a few seconds of
-    wall time on a 2-core machine, benchmarks/bench_session.py)."""
+    shared with ``gonio plan`` (the default half/difference plan: 38 poses on the default rig, a few seconds
+    of wall time on a 2-core machine, benchmarks/bench_session.py)."""
     from gonio.plan.generators import GENERATORS
 
     return {k: p.default for k, p in GENERATORS[name].params.items()}
-
-
-def __getattr__(name: str):
-    if name == "DEFAULT_PLAN_PARAMS":  # degrees, for callers written before default_plan_params
-        import math
-
-        return {k: math.degrees(v) for k, v in default_plan_params(DEFAULT_PLAN).items()}
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def register(sub) -> None:

@@ -41,7 +41,7 @@ def test_material_file_is_used_and_recorded(tmp_path):
 
 @pytest.mark.parametrize("extra, named", [
     (["--plan", "spiral"], "spiral"),
-    (["--theta-d-step", "5"], "--theta-d-step"),
+    (["--theta-i-step", "5"], "--theta-i-step"),  # not a parameter of the default plan (half_diff)
     (["--plan", "grid", "--theta-max", "0", "--theta-step", "10"], "no reachable pose"),
     (["--sim-resolution", "big"], "big"),
 ])
