@@ -19,7 +19,8 @@ import math
 import sys
 import time
 
-#: The knee of benchmarks/REPORT.md's plan table (lab time vs BRDF error): uniform in half/difference angles.
+#: Uniform in half/difference angles: the uniform plan on the Pareto front (lab time vs BRDF error) of
+#: benchmarks/report/REPORT.md's plan table nearest its knee (the knee itself is an adaptive session).
 DEFAULT_PLAN = "half_diff"
 DEFAULT_SIM_RESOLUTION = "320x240"
 

@@ -164,7 +164,7 @@ class MerlTable:
 
         ``method="nearest"``: the value of the cell holding the pair (the MERL reference lookup,
         reproducing published values cell for cell).
-        ``method="trilinear"`` (default; benchmarks/REPORT.md "MERL lookup": ~16× less error than
+        ``method="trilinear"`` (default; benchmarks/report/REPORT.md "MERL lookup": ~16× less error than
         nearest for ~2.6× the time): trilinear interpolation between the 8 surrounding cell centres in
         index space ``(uθh − ½, uθd − ½, uφd − ½)`` (see :func:`grid_coords`), clamped at the θh/θd
         edges and periodic in φd (reciprocity: cell 179 neighbours cell 0). Not-measured corners

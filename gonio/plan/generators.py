@@ -156,7 +156,7 @@ GENERATORS: dict[str, Generator] = {g.name: g for g in (
         "theta_max": PlanParam("angle", _A(70), 0.0, _A(89), "largest zenith angle"),
     }, "plane of incidence only"),
     Generator("half_diff", half_diff_poses, {
-        # defaults: gonio measure's default plan, the knee of benchmarks/REPORT.md's plan table (38 poses)
+        # defaults: gonio measure's default plan, on the Pareto front of benchmarks/report/REPORT.md's plan table
         "n_theta_h": PlanParam("int", 6, 1, 90, "number of theta_h values, spaced (k/n)^2 * 90 deg"),
         "theta_d_step": PlanParam("angle", _A(20), _A(0.1), _A(90), "difference zenith step"),
         "phi_d_step": PlanParam("angle", _A(60), _A(0.1), _A(180), "difference azimuth step over [0, 180) deg"),
