@@ -37,19 +37,15 @@ def _session(plan, resolution, out: Path, material=None):
 def run(quick: bool = False) -> list[Table]:
     from dataclasses import replace
 
-    from gonio.cli.measure import DEFAULT_PLAN, DEFAULT_SIM_RESOLUTION, default_plan_params
-    from gonio.plan.generators import make_plan
+    from gonio.cli.measure import DEFAULT_PLAN, DEFAULT_SIM_RESOLUTION
     from gonio.plan.plan import CaptureSettings
 
-    params = default_plan_params(DEFAULT_PLAN)
-    if quick:
-        params = {"theta_i_step": np.radians(30), "theta_o_step": np.radians(30), "theta_max": np.radians(60)}
-    plan = make_plan(DEFAULT_PLAN, seed=0, **params)
+    plan = _default_plan(quick)
     res = tuple(int(x) for x in DEFAULT_SIM_RESOLUTION.split("x"))
     configs = [
         ("1 exposure × 1 frame (baseline)", replace(plan, capture=CaptureSettings(exposures=(0.004,), frames=1,
                                                                                   auto_exposure=False)), res),
-        ("default: 3 exposures × 2 frames", plan, res),
+        ("default: automatic exposure", plan, res),
         ("default plan, 640×480 camera", plan, (640, 480)),
     ]
     if quick:
@@ -57,8 +53,8 @@ def run(quick: bool = False) -> list[Table]:
     t = Table(f"session: default `gonio measure --sim` ({len(plan)} poses, plan {DEFAULT_PLAN})",
               ["configuration", "wall s (total)", "× baseline", "lab s", "lab/wall", "wall ms/pose", "samples"],
               baseline=0, default=1,
-              why_default="the plan's 3-exposure bracket covers glossy peaks and the white reference; at 320×240 the "
-                          "whole default session stays within a few seconds of wall time.")
+              why_default="automatic exposure keeps glossy peaks and the white reference in range (see the exposure "
+                          "table); at 320×240 the whole default session stays within a few seconds of wall time.")
     b = Table("session: wall and lab time per pose, by stage (mean over poses)",
               ["configuration", "move wall ms", "move lab s", "settle+dark wall ms", "settle+dark lab s",
                "capture wall ms", "capture lab s", "pipeline wall ms", "frames/pose"], baseline=0, default=1)
@@ -105,19 +101,14 @@ def exposure_table(quick: bool = False) -> Table:
 
     from benchmarks.bench_tradeoffs import MATERIAL as TWO_LOBES
     from gonio.brdf import make
-    from gonio.cli.measure import DEFAULT_PLAN, DEFAULT_SIM_RESOLUTION, default_plan_params
+    from gonio.cli.measure import DEFAULT_PLAN, DEFAULT_SIM_RESOLUTION
     from gonio.plan import estimate_plan
-    from gonio.plan.generators import make_plan
     from gonio.session.store import load_session
     from sim.rig import DEFAULT_MATERIAL
 
-    params = default_plan_params(DEFAULT_PLAN)
-    if quick:
-        params = {"theta_i_step": np.radians(30), "theta_o_step": np.radians(30), "theta_max": np.radians(60)}
-    plan = make_plan(DEFAULT_PLAN, seed=0, **params)
+    plan = _default_plan(quick)  # its capture is the default: automatic exposure
     res = tuple(int(x) for x in DEFAULT_SIM_RESOLUTION.split("x"))
-    fixed = replace(plan, capture=replace(plan.capture, frames=2, auto_exposure=False))  # the default
-    plan = replace(plan, capture=replace(plan.capture, frames=1, auto_exposure=True))
+    fixed = replace(plan, capture=replace(plan.capture, auto_exposure=False))  # the expected bracket, fixed
     materials = [("sim default (microfacet GGX α 0.25)", DEFAULT_MATERIAL), ("lambert+2ggx, narrow lobe α 0.1", TWO_LOBES)]
     if quick:
         materials = materials[1:]
@@ -125,15 +116,15 @@ def exposure_table(quick: bool = False) -> Table:
               f"poses {DEFAULT_PLAN})",
               ["material", "exposure", "flagged %", "saturated %", "low signal %", "usable samples", "median σ/f",
                "median rel err", "lab s", "lab vs fixed", "lab s (poses)", "frames/pose", "estimate s",
-               "lower bound s"], baseline=0, default=0,
-              why_default="the fixed bracket stays the default until a resumed auto-exposure session reproduces an "
-                          "uninterrupted one exactly; auto cuts the flagged samples for about the same lab time.")
+               "lower bound s"], baseline=0, default=1,
+              why_default="automatic exposure: no sample lost to saturation on a glossy lobe for about the same lab "
+                          "time; the fixed bracket flags the peak's samples.")
     with tempfile.TemporaryDirectory() as tmp:
         for i, (label, material) in enumerate(materials):
             brdf = make(material["model"], **material["params"])
             lab_fixed = None
-            for j, (how, p) in enumerate((("fixed 4/16/64 ms × 2 (default)", fixed),
-                                          ("auto (expected 4/16/64 ms × 1)", plan))):
+            for j, (how, p) in enumerate((("fixed 4/16/64 ms × 2", fixed),
+                                          ("auto (default; expected 4/16/64 ms × 2)", plan))):
                 result, _ = _session(p, res, Path(tmp) / f"e{i}{j}", material=material)
                 samples = load_session(Path(tmp) / f"e{i}{j}")[1]
                 est = estimate_plan(p)
@@ -146,8 +137,19 @@ def exposure_table(quick: bool = False) -> Table:
                    "exposure, low signal, no board, ...); errors over unflagged samples against the true BRDF at "
                    "their directions. lab s: the whole session (darks of every exposure used, warm-up, poses); "
                    "estimate / lower bound: gonio.plan.estimate_plan (the runner's cost model, gonio.plan.labtime; "
-                   "auto: the expected bracket 4/16/64 ms × 1). frames/pose includes the metering frame.")
+                   "auto: the expected bracket 4/16/64 ms × 2). frames/pose includes the metering frame.")
     return t
+
+
+def _default_plan(quick: bool):
+    """`gonio measure --sim`'s default plan (quick: a 12-pose in-plane sweep)."""
+    from gonio.cli.measure import DEFAULT_PLAN, default_plan_params
+    from gonio.plan.generators import make_plan
+
+    if quick:
+        return make_plan("in_plane", seed=0, theta_i_step=np.radians(30), theta_o_step=np.radians(30),
+                         theta_max=np.radians(60))
+    return make_plan(DEFAULT_PLAN, seed=0, **default_plan_params(DEFAULT_PLAN))
 
 
 def _adaptive_session(candidates, settings, fit, resolution, out: Path, material=None):

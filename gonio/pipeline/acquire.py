@@ -152,15 +152,17 @@ class Pipeline:
 
     # -- the pose -----------------------------------------------------------------------------
     def measure(self, light_position, *, pose_index: int = -1, camera_pose_hint: CameraPose | None = None,
-                plan: CapturePlan | None = None, nominal=None) -> PoseResult:
+                plan: CapturePlan | None = None, nominal=None, meter_exposure: float | None = None) -> PoseResult:
         """Measure one pose; see the module docstring. Raises :class:`BoardNotFound` or :class:`BadFrame`.
 
         ``nominal = (camera centre, light position)`` of the planned pose fixes the tiling (see
-        :func:`gonio.pipeline.reflectance.build_roi`)."""
+        :func:`gonio.pipeline.reflectance.build_roi`). ``meter_exposure``: exposure of the metering frame
+        (default: the previous pose's shortest exposure); a fixed value makes a pose's bracket depend on the
+        pose only."""
         st = self.settings
         gain = st.gain if plan is None else plan.gain
         flags = 0
-        t = self._next_exposure
+        t = self._next_exposure if meter_exposure is None else float(meter_exposure)
         # 1. meter (and locate the board on the metering frame)
         frame, px, level, _ = self._grab(t, gain)
         board = cam_pose = None

@@ -343,10 +343,10 @@ class SessionRunner:
         cam_w, cam_l, frames = self.camera.wall, self.camera.lab, self.camera.frames
         # meter every pose at the expected bracket's shortest exposure, not at the previous pose's: a pose's
         # bracket then depends on the pose only, so a resumed session measures what an uninterrupted one does
-        self.pipeline._next_exposure = self.plan.capture.exposures[0]
         planned = rig.as_array(target)
         res = self.pipeline.measure(rig.light_position(joints), pose_index=index,
                                     camera_pose_hint=CameraPose(R, -R @ position), plan=self.bracket,
+                                    meter_exposure=self.plan.capture.exposures[0],
                                     nominal=(rig.camera_pose(planned)[0], rig.light_position(planned)))
         w3, l3 = time.perf_counter(), self.clock.now()
         capture_wall = self.camera.wall - cam_w
