@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import threading
+from contextlib import contextmanager
 from typing import Callable
 
 import numpy as np
@@ -35,6 +36,21 @@ from gonio.errors import ConfigError, HardwareError, HardwareTimeout
 from gonio.rig.interfaces import Clock, Frame
 
 __all__ = ["OpenCVCamera", "open_camera"]
+
+
+@contextmanager
+def _quiet_opencv(cv2):
+    """Silence OpenCV's log (``cv2.utils.logging.setLogLevel``, which returns the previous level) for the
+    duration of the block only, restoring the caller's level afterwards."""
+    logging = getattr(getattr(cv2, "utils", None), "logging", None)
+    if logging is None or not hasattr(logging, "setLogLevel"):  # a build without the logging bindings
+        yield
+        return
+    previous = logging.setLogLevel(logging.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        logging.setLogLevel(previous)
 
 
 class _Read:
@@ -107,7 +123,8 @@ class OpenCVCamera:
             raise ConfigError.field(None, "camera.device", device, "must be an index or a device path")
         import cv2
 
-        self._cap = cv2.VideoCapture(device, backend)
+        with _quiet_opencv(cv2):  # OpenCV's own "[ WARN:0@...] can't open camera" lines: we raise one error
+            self._cap = cv2.VideoCapture(device, backend)
         if not self._cap.isOpened():
             self._cap.release()
             raise HardwareError(f"camera {device!r}: cannot open (no such device, or busy)", device=str(device))
