@@ -285,30 +285,54 @@ def _layout(manifest):
     return TargetLayout.from_dict(manifest.get("target", {}), source="manifest target")
 
 
-def _hw_session(store, plan, manifest, rig, calibration, quiet: bool) -> int:
-    from gonio.rig.calibration import CameraSettings
+def _open_hw_devices(rig, hw: dict, settings, clock):
+    """Check and open a rig's devices before anything is written: the serial ports exist, the camera opens,
+    every servo answers, the controller handshakes. On any failure nothing stays open and the error (one
+    line) names the device."""
+    import os
+
+    from gonio.errors import HardwareError
     from gonio.rig.camera import open_camera
-    from gonio.rig.clock import RealClock
     from gonio.session.runner import open_devices
 
-    hw = manifest["hardware"]
-    clock = RealClock()
-    devices = camera = None
+    for key, option in (("servo_port", "--servo-port"), ("controller_port", "--controller-port")):
+        port = str(hw[key])
+        if "://" not in port and not os.path.exists(port):  # pyserial URLs (socket://, rfc2217://) are not paths
+            raise HardwareError(f"{option} {port}: no such device", device=port)
+    camera = open_camera(hw["camera"], settings, clock)
     try:
-        where = f"{store.directory} manifest calibration"
-        settings = CameraSettings.from_dict((manifest.get("calibration") or {}).get("camera", {}), source=where)
-        settings.check_session(where)
-        camera = open_camera(hw["camera"], settings, clock)
         devices = open_devices(rig, hw["servo_port"], hw["controller_port"], camera, clock)
-        if settings.trigger == "controller":  # the rig controller fires each exposure
-            camera.trigger = devices.controller.trigger_camera
+    except BaseException:
+        camera.close()
+        raise
+    if settings.trigger == "controller":  # the rig controller fires each exposure
+        camera.trigger = devices.controller.trigger_camera
+    return devices
+
+
+def _camera_settings(calibration: dict, where: str):
+    from gonio.rig.calibration import CameraSettings
+
+    settings = CameraSettings.from_dict((calibration or {}).get("camera", {}), source=where)
+    settings.check_session(where)
+    return settings
+
+
+def _hw_session(store, plan, manifest, rig, calibration, quiet: bool, devices=None) -> int:
+    """Run a hardware session; ``devices`` already opened (a new session opens them before creating its
+    directory), otherwise opened here (resume), recording a failure to open in the manifest."""
+    from gonio.rig.clock import RealClock
+
+    try:
+        if devices is None:
+            where = f"{store.directory} manifest calibration"
+            devices = _open_hw_devices(rig, manifest["hardware"], _camera_settings(manifest.get("calibration"), where),
+                                       RealClock())
         return _run_session(store, plan, devices, calibration, _layout(manifest), before_pose=None, quiet=quiet,
                             resume_cmd=f"gonio resume {store.directory}")
     except BaseException as exc:
         if devices is None:
             store.finish(f"error: {exc}")
-            if camera is not None:
-                camera.close()
         raise
     finally:
         if devices is not None:
@@ -374,9 +398,18 @@ def run_measure(args) -> int:
                             "camera": args.camera}
     manifest["calibration"] = description.to_dict()
     _record_detector(manifest, calibration, rig, pinhole=False)
-    store = SessionStore.create(out, manifest)
+    from gonio.rig.clock import RealClock
+
+    # the devices are opened before the session directory exists: a rig that does not start leaves nothing
+    description.camera.check_session(args.calibration)
+    devices = _open_hw_devices(rig, manifest["hardware"], description.camera, RealClock())
+    try:
+        store = SessionStore.create(out, manifest)
+    except BaseException:
+        devices.close()
+        raise
     _say_plan(plan, store, args.quiet, rig)
-    return _hw_session(store, plan, store.manifest, rig, calibration, args.quiet)
+    return _hw_session(store, plan, store.manifest, rig, calibration, args.quiet, devices=devices)
 
 
 def _say_plan(plan, store, quiet: bool, rig) -> None:
