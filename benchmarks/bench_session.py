@@ -37,7 +37,7 @@ def _session(plan, resolution, out: Path, material=None):
 def run(quick: bool = False) -> list[Table]:
     from dataclasses import replace
 
-    from gonio.cli.measure import DEFAULT_PLAN, DEFAULT_SIM_RESOLUTION
+    from gonio.cli.measure import DEFAULT_SIM_RESOLUTION
     from gonio.plan.plan import CaptureSettings
 
     plan = _default_plan(quick)
@@ -50,7 +50,7 @@ def run(quick: bool = False) -> list[Table]:
     ]
     if quick:
         configs = configs[:2]
-    t = Table(f"session: default `gonio measure --sim` ({len(plan)} poses, plan {DEFAULT_PLAN})",
+    t = Table(f"session: default `gonio measure --sim` ({len(plan)} poses, plan {plan.generator})",
               ["configuration", "wall s (total)", "× baseline", "lab s", "lab/wall", "wall ms/pose", "samples"],
               baseline=0, default=1,
               why_default="automatic exposure keeps glossy peaks and the white reference in range (see the exposure "
@@ -101,7 +101,7 @@ def exposure_table(quick: bool = False) -> Table:
 
     from benchmarks.bench_tradeoffs import MATERIAL as TWO_LOBES
     from gonio.brdf import make
-    from gonio.cli.measure import DEFAULT_PLAN, DEFAULT_SIM_RESOLUTION
+    from gonio.cli.measure import DEFAULT_SIM_RESOLUTION
     from gonio.plan import estimate_plan
     from gonio.session.store import load_session
     from sim.rig import DEFAULT_MATERIAL
@@ -113,7 +113,7 @@ def exposure_table(quick: bool = False) -> Table:
     if quick:
         materials = materials[1:]
     t = Table(f"exposure control: automatic (default) vs the fixed bracket, `gonio measure --sim` plan ({len(plan)} "
-              f"poses {DEFAULT_PLAN})",
+              f"poses {plan.generator})",
               ["material", "exposure", "flagged %", "saturated %", "low signal %", "usable samples", "median σ/f",
                "median rel err", "lab s", "lab vs fixed", "lab s (poses)", "frames/pose", "estimate s",
                "lower bound s"], baseline=0, default=1,

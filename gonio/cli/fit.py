@@ -65,6 +65,8 @@ def run(args) -> int:
     from gonio.fit import fit
     from gonio.fit.select import DEFAULT_CANDIDATES, select
 
+    if not args.all_angles and not 0.0 < args.max_theta <= 90.0:
+        raise ConfigError.field("--max-theta", "max_theta", args.max_theta, "must be in (0, 90] degrees")
     samples = load_source(args.source)
     fixed = dict(_parse_param(t) for t in args.fix)
     max_theta = None if args.all_angles else args.max_theta

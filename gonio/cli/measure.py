@@ -419,7 +419,7 @@ def _say_plan(plan, store, quiet: bool, rig) -> None:
     from gonio.session.runner import format_lab_time
 
     est = estimate_plan(plan, rig)
-    dropped = f", {plan.n_dropped} dropped as unreachable" if plan.n_dropped else ""
+    dropped = f", {plan.n_dropped} dropped ({plan.dropped_summary()})" if plan.n_dropped else ""
     eta = (f", estimated lab time {format_lab_time(est.optimized)} incl. {format_lab_time(est.startup)} of darks and "
            f"warm-up (lower bound {format_lab_time(est.lower_bound)})"
            + ("; automatic exposure: estimated with the expected bracket" if est.auto_exposure else ""))

@@ -202,7 +202,7 @@ def run(args) -> int:
                       for k, v in plan.params.items() if k in gen.params)
     print(f"plan {plan.generator} ({shown}) on rig {rig.name!r}: {len(plan)} poses, {plan.order} order")
     if plan.n_dropped:
-        why = ", ".join(f"{n} {r}" for r, n in sorted(plan.dropped_reasons().items()))
+        why = plan.dropped_summary()
         print(f"dropped {plan.n_dropped} poses: {why}")
     cap = plan.capture
     bracket = f"exposures {', '.join(f'{e:g}' for e in cap.exposures)} s x {cap.frames} frames"
@@ -246,7 +246,7 @@ def _print_adaptive(args, plan, rig) -> int:
           f"at most {p['max_rounds']} rounds; stop when a round is predicted within {p['target_error']:g} "
           f"(relative RMS)" + (f" or at the lab budget of {p['lab_budget']:g} s" if p["lab_budget"] else ""))
     if plan.n_dropped:
-        why = ", ".join(f"{n} {r}" for r, n in sorted(plan.dropped_reasons().items()))
+        why = plan.dropped_summary()
         print(f"candidates dropped: {plan.n_dropped} poses: {why}")
     e = estimate_plan(plan, rig)
     print(f"lab time of the coarse round: {e.optimized:.1f} s (lower bound {e.lower_bound:.1f} s)")

@@ -50,6 +50,10 @@ def run(args) -> int:
     from gonio.errors import ConfigError
     from gonio.io.source import load_source
 
+    if not 0.0 < args.tol <= 45.0:
+        raise ConfigError.field("--tol", "tol", args.tol, "must be in (0, 45] degrees")
+    if args.theta_i is not None and not 0.0 <= args.theta_i < 90.0:
+        raise ConfigError.field("--theta-i", "theta_i", args.theta_i, "must be in [0, 90) degrees")
     plots.figure(1, 1)  # fail early, with the install hint, when matplotlib is missing
     model = load_model(args.model) if args.model else None
     src = load_source(args.source)

@@ -162,7 +162,9 @@ def select(data, candidates: Sequence[str] = DEFAULT_CANDIDATES, *, criterion: s
             if r is win:
                 nxt = sorted(x["score"] for x in eligible if x is not win)
                 gap = f"; next best is {nxt[0] - r['score']:.4g} higher" if nxt else ""
-                r["reason"] = f"lowest {criterion.upper()} ({r['score']:.6g}){gap}"
+                lower = [x for x in ok if x not in eligible and x["score"] < r["score"]]
+                among = " among the separable candidates" if lower else ""
+                r["reason"] = f"lowest {criterion.upper()}{among} ({r['score']:.6g}){gap}"
             elif r not in eligible:
                 r["reason"] = f"{r['redundant']} ({criterion.upper()} {r['score'] - win['score']:+.4g})"
             else:

@@ -149,8 +149,7 @@ GENERATORS: dict[str, Generator] = {g.name: g for g in (
         "theta_max": PlanParam("angle", _A(80), 0.0, _A(89), "largest zenith angle"),
     }, "phi_i = 0, phi_o in [0, 180] deg (isotropic materials)"),
     Generator("in_plane", in_plane_poses, {
-        # the defaults are `gonio measure`'s default session (56 poses on the default rig): one source for
-        # `gonio plan in_plane` and `gonio measure --sim`
+        # defaults: the in-plane sweep of benchmarks/report/REPORT.md's plan table (56 poses on the default rig)
         "theta_i_step": PlanParam("angle", _A(20), _A(0.1), _A(90), "light zenith step"),
         "theta_o_step": PlanParam("angle", _A(10), _A(0.1), _A(90), "camera zenith step (signed, both sides)"),
         "theta_max": PlanParam("angle", _A(70), 0.0, _A(89), "largest zenith angle"),

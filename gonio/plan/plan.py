@@ -50,8 +50,8 @@ class CaptureSettings:
     auto_exposure : bool
         Choose the bracket per pose from its metering frame (:func:`gonio.pipeline.exposure.plan_bracket`
         on the exposure ladder; more frames where the SNR is below target) instead of capturing the
-        fixed bracket. Off by default until a resumed auto-exposure session reproduces an uninterrupted one
-        exactly (tests/session/test_reliability.py fails with it on).
+        fixed bracket. On by default (benchmarks/report/REPORT.md, capture table: no sample lost to
+        saturation on a glossy lobe for about the same lab time); ``--exposures``/``--frames`` turn it off.
     """
 
     exposures: tuple[float, ...] = (0.004, 0.016, 0.064)
@@ -169,6 +169,10 @@ class Plan:
         for d in self.dropped:
             out[d["reason"]] = out.get(d["reason"], 0) + 1
         return out
+
+    def dropped_summary(self) -> str:
+        """The dropped poses by reason, e.g. ``"6 collision, 12 duplicate, 34 horizon"`` (empty if none)."""
+        return ", ".join(f"{n} {r}" for r, n in sorted(self.dropped_reasons().items()))
 
     def reordered(self, order: Sequence[int], how: str) -> "Plan":
         """The same plan with its poses (and joints) permuted by ``order``."""

@@ -13,7 +13,8 @@ tolerance), then for each remaining pose in plan order:
 3. capture through the pipeline with the light position and camera-pose hint from the forward
    kinematics of the *measured* joints, photodiode normalization inside the pipeline. Exposure: with
    ``plan.capture.auto_exposure`` (the default) the pipeline chooses each pose's bracket from its
-   metering frame (metered at the previous pose's shortest exposure) on the exposure ladder, more
+   metering frame (metered at the expected bracket's shortest exposure, so a pose's bracket depends on the
+   pose only and a resumed session measures what an uninterrupted one does) on the exposure ladder, more
    frames where the SNR is below target; otherwise the plan's fixed bracket. Dark frames of every
    exposure the session may use are measured before the first pose and re-measured as one set on a
    schedule (``dark_max_age`` of lab time, before the pose so the light can warm up again); the white

@@ -170,6 +170,9 @@ def test_plot_merl_input_and_bad_model(npz_session, tmp_path, capsys):
         assert main(["plot", str(out), "--kind", kind, "--theta-i", "30", "-o", str(png)]) == 0
         assert png_pixels(png)[..., :3].std() > 10
     assert main(["plot", str(out), "--kind", "residual", "-o", str(tmp_path / "r.png")]) == 2
+    capsys.readouterr()
+    assert main(["plot", str(out), "--kind", "polar", "--tol", "-1", "-o", str(tmp_path / "t.png")]) == 2
+    assert capsys.readouterr().err.strip() == "gonio plot: error: --tol: tol = -1.0: must be in (0, 45] degrees"
     (tmp_path / "fit.json").write_text(json.dumps({"model": "nosuch", "params": {}}))
     assert main(["plot", str(npz_session), "--kind", "inplane", "--model", str(tmp_path / "fit.json"),
                  "-o", str(tmp_path / "x.png")]) == 2
