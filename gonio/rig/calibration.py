@@ -115,7 +115,9 @@ class ResponseCurve:
             raise ConfigError.field(where, field_name, str(path),
                                     f"cannot read: {exc.strerror or exc}") from None
         except (ValueError, EOFError) as exc:
-            raise ConfigError.field(where, field_name, str(path), f"not a response .npz: {exc}") from None
+            why = "holds pickled objects, which gonio never loads" if "pickle" in str(exc) else str(exc)
+            raise ConfigError.field(where, field_name, str(path),
+                                    f"not a response .npz from `gonio camera response` ({why})") from None
         if inv.dtype.kind not in "fiu":
             raise ConfigError.field(where, field_name, str(path), f"inverse_response has dtype {inv.dtype}")
         return cls(inverse=inv, exposures=tuple(np.asarray(exps, dtype=np.float64).ravel()), source=str(path))
@@ -227,6 +229,9 @@ def _settings(kw: dict, source: str | None) -> CameraSettings:
     if s.response is not None and (s.linear or s.bit_depth != 8):
         raise ConfigError.field(source, "camera.response", s.response.source,
                                 "is for non-linear 8-bit cameras: set linear = false and bit_depth = 8")
+    if s.black_level >= 2 ** s.bit_depth - 1:
+        raise ConfigError.field(source, "camera.black_level", s.black_level,
+                                f"must be below the {s.bit_depth}-bit full scale {2 ** s.bit_depth - 1} DN")
     return s
 
 

@@ -116,3 +116,14 @@ def test_lens_aperture_reaches_the_manifest_and_the_detector_solid_angle(tmp_pat
         with pytest.raises(ConfigError) as err:
             load_camera_calibration(_write(tmp_path, text + LINEAR, name="bad.toml"))
         assert field in str(err.value) and "bad.toml" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_black_level_above_full_scale_and_non_npz_response_are_refused(tmp_path):
+    with pytest.raises(ConfigError, match=r"camera.black_level = 5000.0: must be below the 12-bit full scale 4095"):
+        load_camera_calibration(_write(tmp_path, BASE + "[camera]\nlinear = true\nbit_depth = 12\nblack_level = 5000\n"))
+    np.save(tmp_path / "obj.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    (tmp_path / "obj.npz").write_bytes((tmp_path / "obj.npy").read_bytes())
+    with pytest.raises(ConfigError) as err:
+        load_camera_calibration(_write(tmp_path, BASE + '[camera]\nlinear = false\nbit_depth = 8\nresponse = "obj.npz"\n'))
+    msg = str(err.value)
+    assert "camera.response" in msg and "allow_pickle" not in msg and "\n" not in msg
