@@ -17,8 +17,6 @@ from gonio.plan.plan import CaptureSettings, Plan
 
 
 def _plan_joints(plan: Plan, rig):
-    import numpy as np  # noqa: F401
-
     joints = plan.joints
     if joints is None:
         joints, reasons = solve_plan_joints(rig, plan.poses)
