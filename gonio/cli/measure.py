@@ -432,6 +432,24 @@ def _say_plan(plan, store, quiet: bool, rig) -> None:
     print(f"session {store.directory}: plan {plan.generator}, {len(plan)} poses{dropped}{eta}", file=sys.stderr)
 
 
+def _nothing_to_resume(d) -> bool:
+    """If every pose of the session in ``d`` is stored (and an adaptive session has stopped adapting), say
+    so and return True without counting a resume (a session not marked completed is marked so)."""
+    from gonio.plan.plan import Plan
+    from gonio.session.store import MANIFEST, SAMPLES, SessionStore, _read_manifest, scan_samples
+
+    manifest = _read_manifest(d)
+    plan = Plan.from_dict(manifest.get("plan"), source=str(d / MANIFEST))
+    scan = scan_samples(d / manifest.get("samples_file", SAMPLES))
+    adapting = isinstance(manifest.get("adaptive"), dict) and manifest["adaptive"].get("stop") is None
+    if adapting or scan.torn is not None or any(k not in scan.records for k in range(len(plan))):
+        return False
+    if manifest.get("exit_status") != "completed":
+        SessionStore.open(d, resume=False).finish("completed")
+    print(f"{d}: all {len(plan)} poses are measured; nothing to resume (not counted as a resume)")
+    return True
+
+
 def run_resume(args) -> int:
     from pathlib import Path
 
@@ -442,16 +460,14 @@ def run_resume(args) -> int:
     d = Path(args.dir)
     if not (d / MANIFEST).is_file():
         raise ConfigError.field(None, "session directory", args.dir, "is not a gonio session (no manifest.json)")
+    if _nothing_to_resume(d):
+        return 0
     store = SessionStore.open(d)
     manifest = store.manifest
     try:
         plan = Plan.from_dict(manifest.get("plan"), source=str(d / MANIFEST))
         remaining = store.remaining(plan)
         adapting = isinstance(manifest.get("adaptive"), dict) and manifest["adaptive"].get("stop") is None
-        if len(remaining) == 0 and not adapting:
-            store.finish("completed")
-            print(f"{d}: all {len(plan)} poses are measured; nothing to resume")
-            return 0
         if not args.quiet:
             print(f"resuming {d}: {len(remaining)} of {len(plan)} poses remaining"
                   + ("; then adapting from the stored samples" if adapting else ""), file=sys.stderr)

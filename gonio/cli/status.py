@@ -27,6 +27,14 @@ def session_status(directory) -> dict:
     lab = [m.get("lab_time_s", m.get("lab_time")) for _, m in scan.records.values()]
     lab = [t for t in lab if isinstance(t, (int, float))]
     last_run = manifest.get("last_run") if isinstance(manifest.get("last_run"), dict) else {}
+    runs = [r.get("lab_time_s") for r in manifest.get("runs") or () if isinstance(r, dict)]
+    runs = [t for t in runs if isinstance(t, (int, float))]
+    if runs:  # every finished run (the first and each resume) recorded its lab time: the session's total
+        lab_time = float(sum(runs))
+    elif manifest.get("exit_status"):  # older sessions kept the last run's only
+        lab_time = last_run.get("lab_time_s", manifest.get("lab_time"))
+    else:
+        lab_time = max(lab) if lab else None
     return {
         "material": manifest.get("material"),
         "plan": plan.get("generator") if isinstance(plan, dict) else None,
@@ -34,8 +42,8 @@ def session_status(directory) -> dict:
         "poses_done": len(done),
         "samples": sum(len(s) for s, _ in scan.records.values()),
         "remaining": None if n_plan is None else sum(1 for i in range(n_plan) if i not in done),
-        "lab_time": last_run.get("lab_time_s", manifest.get("lab_time")) if manifest.get("exit_status")
-        else (max(lab) if lab else None),
+        "lab_time": lab_time,  # seconds, summed over the finished runs
+        "lab_time_runs": len(runs),  # how many runs that sum covers (0: older session, or none finished)
         "exit_status": manifest.get("exit_status"),
         "started": manifest.get("started"),
         "stopped": manifest.get("stopped"),
@@ -52,7 +60,13 @@ def run(args) -> int:
     print(f"poses done:   {s['poses_done']} ({s['samples']} samples)")
     print(f"remaining:    {s['remaining'] if s['remaining'] is not None else 'unknown'}")
     lab = s["lab_time"]
-    print(f"lab time:     {'unknown' if lab is None else f'{lab:.1f} s'}")
+    n = s["lab_time_runs"]
+    over = f" over {n} runs" if n > 1 else ""
+    if n and s["exit_status"] is None:
+        over += " (+ the run in progress, not yet recorded)"
+    elif not n and s["resumes"] and lab is not None:
+        over = " (last run only: earlier runs' lab time was not recorded)"
+    print(f"lab time:     {'unknown' if lab is None else f'{lab:.1f} s'}{over}")
     status = s["exit_status"] or "none (still running, or killed: resume with `gonio resume DIR`)"
     print(f"exit status:  {status}")
     print(f"started:      {s['started']}; stopped: {s['stopped'] or '-'}; resumed {s['resumes']} time(s)")

@@ -45,6 +45,8 @@ __all__ = ["SessionStore", "load_session", "scan_samples", "ScanResult", "MANIFE
 
 MANIFEST = "manifest.json"
 SAMPLES = "samples.jsonl"
+#: The fields of a run's summary kept in the manifest's ``runs`` list (one entry per run, see ``finish``).
+RUN_KEYS = ("status", "poses", "samples", "lab_time_s", "wall_time_s")
 STORE_FORMAT = 1
 #: What the stored ``f`` values are (DESIGN.md §2).
 COSINE_CONVENTION = "BRDF, not BRDF*cos"
@@ -277,9 +279,10 @@ class SessionStore:
         return cls(d, full, fd, ScanResult())
 
     @classmethod
-    def open(cls, directory) -> "SessionStore":
+    def open(cls, directory, *, resume: bool = True) -> "SessionStore":
         """Reopen a session to resume it: checks every record, drops a torn last record (cutting the
-        file back to the last good record), and marks the manifest as running again."""
+        file back to the last good record), and marks the manifest as running again (a ``resumes``
+        entry; ``resume=False`` opens it only to record its end, e.g. a session with nothing left)."""
         d = Path(directory)
         manifest = _read_manifest(d)
         path = d / manifest.get("samples_file", SAMPLES)
@@ -299,11 +302,12 @@ class SessionStore:
             if scan.torn is not None:
                 os.ftruncate(fd, scan.good_end)
                 os.fsync(fd)
-            manifest.setdefault("resumes", []).append(
-                {"at": _wall(), "previous_exit_status": manifest.get("exit_status"), "dropped_torn_record": scan.torn})
-            manifest["exit_status"] = None
-            manifest["stopped"] = None
-            write_json_atomic(d / MANIFEST, manifest)
+            if resume or scan.torn is not None:
+                manifest.setdefault("resumes", []).append(
+                    {"at": _wall(), "previous_exit_status": manifest.get("exit_status"), "dropped_torn_record": scan.torn})
+                manifest["exit_status"] = None
+                manifest["stopped"] = None
+                write_json_atomic(d / MANIFEST, manifest)
         except BaseException:
             os.close(fd)
             raise
@@ -370,8 +374,16 @@ class SessionStore:
 
     def finish(self, exit_status: str, **fields: Any) -> None:
         """Record how the session ended (``"completed"``, ``"interrupted"``, ``"error: ..."``), the stop
-        time and the sample count, then close the samples file."""
-        self.update_manifest(**fields, exit_status=str(exit_status), stopped=_wall(),
+        time and the sample count, then close the samples file.
+
+        A ``last_run`` summary (the runner's) is also appended, abridged, to the manifest's ``runs`` list:
+        one entry per run (the first and each resume), so the session's total lab time is their sum."""
+        stopped = _wall()
+        run = fields.get("last_run")
+        if isinstance(run, Mapping):
+            entry = {k: run.get(k) for k in RUN_KEYS if k in run}
+            fields["runs"] = [*(self._manifest.get("runs") or []), {**entry, "stopped": stopped}]
+        self.update_manifest(**fields, exit_status=str(exit_status), stopped=stopped,
                              sample_count=self.sample_count, pose_count=len(self._records))
         self.close()
 
