@@ -11,6 +11,9 @@ A material file is TOML::
     f0 = 0.04
     distribution = "ggx"
 
+A sum of lobes names its parameters ``lobe.param``; dotted keys (``diffuse.albedo = 0.3``, i.e. nested
+tables, at any depth) and quoted keys (``"diffuse.albedo" = 0.3``) are the same.
+
 The simulated sample's material must be *complete*: every parameter of the model is given (a missing
 one is not filled with the model's default: ``model = "microfacet"`` with only ``kd`` would silently
 run with ks = 1, alpha = 0.1, f0 = 1). Every error is a :class:`gonio.errors.ConfigError` whose
@@ -71,6 +74,20 @@ def _model_params(model: str, source: str) -> tuple[str, ...]:
     return tuple(cls.PARAMS)
 
 
+def _flatten(params: Mapping[str, Any], source: str, prefix: str = "") -> dict[str, Any]:
+    """Nested tables to dotted names, at any depth: TOML's ``diffuse.albedo = 0.3`` (a table ``diffuse``)
+    becomes the lobe-sum parameter ``"diffuse.albedo"``, as the quoted key ``"diffuse.albedo" = 0.3`` is."""
+    out: dict[str, Any] = {}
+    for key, value in params.items():
+        name = f"{prefix}{key}"
+        items = _flatten(value, source, f"{name}.") if isinstance(value, Mapping) else {name: value}
+        for k, v in items.items():
+            if k in out:
+                raise ConfigError.field(source, f"params.{k}", v, "given twice (as a dotted and a quoted key)")
+            out[k] = v
+    return out
+
+
 def material_from_dict(data: Mapping[str, Any], source: str = "<material>", *, complete: bool = True) -> Material:
     """Check a parsed material table and build the BRDF once (so bad parameters fail here).
 
@@ -90,6 +107,7 @@ def material_from_dict(data: Mapping[str, Any], source: str = "<material>", *, c
     params = data.get("params", {})
     if not isinstance(params, Mapping):
         raise ConfigError.field(source, "params", params, "must be a table of the model's parameters")
+    params = _flatten(params, source)
     label = data.get("label", "")
     if not isinstance(label, str):
         raise ConfigError.field(source, "label", label, "must be a string")
