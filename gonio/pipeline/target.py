@@ -45,7 +45,7 @@ class Rect:
 
     def __post_init__(self):
         if not (np.isfinite([self.x0, self.y0, self.x1, self.y1]).all() and self.x1 > self.x0 and self.y1 > self.y0):
-            raise ConfigError.field(None, "target.rect", (self.x0, self.y0, self.x1, self.y1), "needs x0 < x1 and y0 < y1")
+            raise ConfigError.field(None, "rect", (self.x0, self.y0, self.x1, self.y1), "needs x0 < x1 and y0 < y1")
 
     def contains(self, x, y, margin: float = 0.0) -> np.ndarray:
         """Boolean mask of points ``(x, y)`` at least ``margin`` inside the rectangle."""
@@ -80,9 +80,9 @@ class CharucoSpec:
 
     def __post_init__(self):
         if not (0 < self.marker_length < self.square_length):
-            raise ConfigError.field(None, "target.marker_length", self.marker_length, "must be in (0, square_length)")
+            raise ConfigError.field(None, "charuco.marker_length", self.marker_length, "must be in (0, square_length)")
         if min(self.squares) < 3:
-            raise ConfigError.field(None, "target.squares", self.squares, "needs at least 3 × 3 squares")
+            raise ConfigError.field(None, "charuco.squares", self.squares, "needs at least 3 × 3 squares")
 
     @property
     def size(self) -> tuple[float, float]:
@@ -96,7 +96,7 @@ class CharucoSpec:
         try:
             dict_id = getattr(cv2.aruco, self.dictionary)
         except AttributeError:
-            raise ConfigError.field(None, "target.dictionary", self.dictionary, "not a cv2.aruco dictionary") from None
+            raise ConfigError.field(None, "charuco.dictionary", self.dictionary, "not a cv2.aruco dictionary") from None
         d = cv2.aruco.getPredefinedDictionary(dict_id)
         return cv2.aruco.CharucoBoard(tuple(self.squares), self.square_length, self.marker_length, d)
 
@@ -150,9 +150,9 @@ class SampleMount:
         for name in ("tilt_x_deg", "tilt_y_deg"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float, np.floating, np.integer)) and abs(float(v)) < 45.0):
-                raise ConfigError.field(None, f"target.mount.{name}", v, "needs a number of degrees in (-45, 45)")
+                raise ConfigError.field(None, f"mount.{name}", v, "needs a number of degrees in (-45, 45)")
         if not (isinstance(self.height, (int, float, np.floating, np.integer)) and abs(float(self.height)) < 0.1):
-            raise ConfigError.field(None, "target.mount.height", self.height, "needs metres in (-0.1, 0.1)")
+            raise ConfigError.field(None, "mount.height", self.height, "needs metres in (-0.1, 0.1)")
         if self.matrix is not None:
             try:
                 M = np.asarray(self.matrix, dtype=np.float64)
@@ -163,7 +163,7 @@ class SampleMount:
                 det = np.linalg.det(M[:3, :3])
                 ok = det > 1e-6
             if not ok:
-                raise ConfigError.field(None, "target.mount.matrix", self.matrix,
+                raise ConfigError.field(None, "mount.matrix", self.matrix,
                                         "needs a finite 4x4 affine matrix (last row 0 0 0 1, positive determinant)")
             object.__setattr__(self, "matrix", tuple(tuple(float(x) for x in row) for row in M))
 
@@ -204,14 +204,14 @@ class SampleMount:
     def from_dict(cls, d, source: str | None = None) -> "SampleMount":
         """From ``{"tilt_x_deg", "tilt_y_deg", "height"}`` or ``{"matrix": 4x4}``; unknown keys are an error."""
         if not isinstance(d, dict):
-            raise ConfigError.field(source, "target.mount", d, "needs a table of tilt_x_deg, tilt_y_deg, height "
+            raise ConfigError.field(source, "mount", d, "needs a table of tilt_x_deg, tilt_y_deg, height "
                                     "or matrix")
         unknown = set(d) - {"tilt_x_deg", "tilt_y_deg", "height", "matrix"}
         if unknown:
-            raise ConfigError.field(source, f"target.mount.{sorted(unknown)[0]}", d[sorted(unknown)[0]],
+            raise ConfigError.field(source, f"mount.{sorted(unknown)[0]}", d[sorted(unknown)[0]],
                                     "unknown key (tilt_x_deg, tilt_y_deg, height or matrix)")
         if "matrix" in d and set(d) - {"matrix"}:
-            raise ConfigError.field(source, "target.mount.matrix", d["matrix"], "give either matrix or tilts/height")
+            raise ConfigError.field(source, "mount.matrix", d["matrix"], "give either matrix or tilts/height")
         try:
             return cls(**d)
         except ConfigError as exc:
@@ -239,14 +239,14 @@ class TargetLayout:
         board = Rect(-w / 2, -h / 2, w / 2, h / 2)
         for name, r in (("sample", self.sample), ("white", self.white)):
             if not (board.contains(r.x0, r.y0) and board.contains(r.x1, r.y1)):
-                raise ConfigError.field(None, f"target.{name}", r, f"must lie on the {w:g} × {h:g} m board")
+                raise ConfigError.field(None, f"{name}", r, f"must lie on the {w:g} × {h:g} m board")
         if self.sample.overlaps(self.white):
-            raise ConfigError.field(None, "target.white", self.white, "overlaps the sample patch")
+            raise ConfigError.field(None, "white", self.white, "overlaps the sample patch")
         a = np.asarray(self.white_albedo, dtype=np.float64)
         if a.shape != (3,) or not np.all((a > 0) & (a <= 1)):
-            raise ConfigError.field(None, "target.white_albedo", self.white_albedo, "needs 3 values in (0, 1]")
+            raise ConfigError.field(None, "white_albedo", self.white_albedo, "needs 3 values in (0, 1]")
         if not isinstance(self.mount, SampleMount):
-            raise ConfigError.field(None, "target.mount", self.mount, "needs a SampleMount")
+            raise ConfigError.field(None, "mount", self.mount, "needs a SampleMount")
 
     def sample_corners(self) -> np.ndarray:
         """The sample patch's 4 corners in the sample (board-centred) frame, through the mount (4, 3)."""
@@ -274,25 +274,73 @@ class TargetLayout:
         kw = {}
         try:
             if "charuco" in d:
-                ch = dict(d["charuco"])
-                if "squares" in ch:
-                    ch["squares"] = tuple(int(v) for v in ch["squares"])
-                kw["charuco"] = CharucoSpec(**ch)
+                kw["charuco"] = _charuco(d["charuco"])
             for name in ("sample", "white"):
                 if name in d:
-                    v = d[name]
-                    if not (isinstance(v, (list, tuple)) and len(v) == 4):
-                        raise ConfigError.field(None, f"target.{name}", v, "needs [x0, y0, x1, y1] in metres")
-                    kw[name] = Rect(*(float(x) for x in v))
+                    kw[name] = _rect(name, d[name])
             if "white_albedo" in d:
-                kw["white_albedo"] = tuple(float(x) for x in d["white_albedo"])
+                kw["white_albedo"] = _albedo(d["white_albedo"])
             if "mount" in d:
                 kw["mount"] = SampleMount.from_dict(d["mount"])
             return cls(**kw)
         except ConfigError as exc:
             raise ConfigError(f"{source}: {exc}" if source else str(exc)) from None
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError) as exc:  # pragma: no cover - every field is checked above
             raise ConfigError.field(source, "target", d, f"malformed: {exc}") from None
+
+
+def _number(field_path: str, v) -> float:
+    """A finite real number from a TARGET table, or a ConfigError naming ``field_path`` and the value."""
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
+        raise ConfigError.field(None, field_path, v, "needs a finite number")
+    return float(v)
+
+
+def _rect(name: str, v) -> Rect:
+    """``[x0, y0, x1, y1]`` (metres) with x0 < x1, y0 < y1; errors name ``name.x0`` ... and the value."""
+    if not (isinstance(v, (list, tuple)) and len(v) == 4):
+        raise ConfigError.field(None, name, v, "needs [x0, y0, x1, y1] in metres")
+    x0, y0, x1, y1 = (_number(f"{name}.{k}", x) for k, x in zip(("x0", "y0", "x1", "y1"), v))
+    if not x1 > x0:
+        raise ConfigError.field(None, f"{name}.x1", x1, f"must exceed {name}.x0 = {x0:g} (as [x0, y0, x1, y1])")
+    if not y1 > y0:
+        raise ConfigError.field(None, f"{name}.y1", y1, f"must exceed {name}.y0 = {y0:g} (as [x0, y0, x1, y1])")
+    return Rect(x0, y0, x1, y1)
+
+
+def _albedo(v) -> tuple[float, float, float]:
+    """``white_albedo``: 3 values (RGB) or one grey value, each in (0, 1]."""
+    vals = list(v) if isinstance(v, (list, tuple)) else [v] * 3
+    if len(vals) != 3 or not all(isinstance(a, (int, float)) and not isinstance(a, bool) and 0 < a <= 1
+                                 for a in vals):
+        raise ConfigError.field(None, "white_albedo", v, "needs 3 values (or one grey value) in (0, 1]")
+    return tuple(float(a) for a in vals)
+
+
+_CHARUCO_KEYS = ("squares", "square_length", "marker_length", "dictionary")
+
+
+def _charuco(v) -> CharucoSpec:
+    """The ``[charuco]`` table; errors name ``charuco.<key>`` and the value."""
+    if not isinstance(v, dict):
+        raise ConfigError.field(None, "charuco", v, f"needs a table of {', '.join(_CHARUCO_KEYS)}")
+    unknown = sorted(set(v) - set(_CHARUCO_KEYS))
+    if unknown:
+        raise ConfigError.field(None, f"charuco.{unknown[0]}", v[unknown[0]],
+                                f"unknown key ({', '.join(_CHARUCO_KEYS)})")
+    kw = dict(v)
+    if "squares" in kw:
+        sq = kw["squares"]
+        if not (isinstance(sq, (list, tuple)) and len(sq) == 2
+                and all(isinstance(n, int) and not isinstance(n, bool) for n in sq)):
+            raise ConfigError.field(None, "charuco.squares", sq, "needs [columns, rows], two integers")
+        kw["squares"] = tuple(sq)
+    for k in ("square_length", "marker_length"):
+        if k in kw:
+            kw[k] = _number(f"charuco.{k}", kw[k])
+    if "dictionary" in kw and not isinstance(kw["dictionary"], str):
+        raise ConfigError.field(None, "charuco.dictionary", kw["dictionary"], "needs a cv2.aruco dictionary name")
+    return CharucoSpec(**kw)
 
 
 def load_target(path) -> TargetLayout:

@@ -59,11 +59,11 @@ def test_mount_round_trips_and_bad_values_name_the_field():
     assert TargetLayout.from_dict(lay.to_dict()) == lay
     m = SampleMount(matrix=TILT.transform)
     assert np.allclose(SampleMount.from_dict(m.to_dict()).transform, TILT.transform)
-    with pytest.raises(ConfigError, match=r"target.toml: target.mount.tilt_x_deg = 60"):
+    with pytest.raises(ConfigError, match=r"target.toml: mount.tilt_x_deg = 60"):
         TargetLayout.from_dict({"mount": {"tilt_x_deg": 60}}, source="target.toml")
-    with pytest.raises(ConfigError, match=r"target.mount.tilt"):
+    with pytest.raises(ConfigError, match=r"^mount.tilt = 5"):
         TargetLayout.from_dict({"mount": {"tilt": 5}})
-    with pytest.raises(ConfigError, match=r"target.mount.matrix"):
+    with pytest.raises(ConfigError, match=r"^mount.matrix = "):
         SampleMount(matrix=np.zeros((4, 4)))
 
 
@@ -96,7 +96,7 @@ def test_measure_with_a_bad_target_file_is_a_one_line_error_naming_file_and_fiel
     t.write_text("[mount]\ntilt_x_deg = 70\n")
     rc = main(["measure", "--sim", "--quiet", "--target", str(t), "--out", str(tmp_path / "s")])
     err = capsys.readouterr().err
-    assert rc == 2 and "target.toml" in err and "target.mount.tilt_x_deg = 70" in err
+    assert rc == 2 and "target.toml" in err and ": mount.tilt_x_deg = 70" in err
     assert not (tmp_path / "s").exists()
 
 
