@@ -35,6 +35,8 @@ from typing import Any
 
 import numpy as np
 
+from gonio.geometry import from_spherical
+
 __all__ = ["pixel_solid_angles", "aperture_solid_angle", "aperture_from_calibration", "detector_solid_angle",
            "REFERENCE_THETA_I_DEG"]
 
@@ -44,11 +46,10 @@ REFERENCE_THETA_I_DEG = 30.0
 
 def pixel_solid_angles(calib, u, v) -> np.ndarray:
     """Solid angle (sr) of pinhole pixels ``(u, v)``: ``(1 + x² + y²)^(-3/2) / (f_x f_y)`` (module
-    docstring), ``x = (u − c_x)/f_x``, ``y = (v − c_y)/f_y``; any shape."""
+    docstring), with ``(1 + x² + y²)^(-1/2)`` the z component of the pixel's unit ray
+    (:meth:`gonio.pipeline.target.CameraCalibration.rays`, distortion removed); any shape."""
     K = calib.K
-    x = (np.asarray(u, dtype=np.float64) - K[0, 2]) / K[0, 0]
-    y = (np.asarray(v, dtype=np.float64) - K[1, 2]) / K[1, 1]
-    return (1.0 + x * x + y * y) ** -1.5 / (K[0, 0] * K[1, 1])
+    return calib.rays(u, v)[..., 2] ** 3 / (K[0, 0] * K[1, 1])
 
 
 def aperture_solid_angle(diameter_m: float, distance_m: float) -> float:
@@ -63,12 +64,8 @@ def _reference_bin(calib, layout, rig, max_bin_deg: float, max_bins: int, margin
     from gonio.pipeline.reflectance import build_roi
     from gonio.pipeline.target import CameraPose
 
-    R_cam = float(rig.camera_radius)
-    C = np.array([0.0, 0.0, R_cam])
-    Rw = np.diag([1.0, -1.0, -1.0])  # camera x = world x, y = -world y, optical axis = -world z
-    pose = CameraPose(Rw, -Rw @ C)
-    ti = math.radians(REFERENCE_THETA_I_DEG)
-    light = float(rig.light_radius) * np.array([math.sin(ti), 0.0, math.cos(ti)])
+    pose = CameraPose.look_at((0.0, 0.0, float(rig.camera_radius)))  # on the normal, image x = sample x
+    light = float(rig.light_radius) * from_spherical(math.radians(REFERENCE_THETA_I_DEG), 0.0)
     roi = build_roi(pose, calib, layout, light, margin_px=margin_px, max_bin_deg=max_bin_deg, max_bins=max_bins)
     if roi.empty:
         return math.nan, 0
