@@ -220,7 +220,7 @@ def _run_session(store, plan, devices, calibration, layout, *, before_pose, quie
     from gonio.session.runner import SessionRunner, format_lab_time
 
     if "adaptive" in store.manifest:  # a loop around the runner: rounds planned from the stored samples
-        from gonio.session.adaptive import AdaptiveSession, rounds_table
+        from gonio.session.adaptive import AdaptiveSession, model_table, rounds_table
 
         result = AdaptiveSession(store, devices, calibration, layout, before_pose=before_pose,
                                  resume_command=resume_cmd, stream=None if quiet else sys.stderr).run()
@@ -229,7 +229,7 @@ def _run_session(store, plan, devices, calibration, layout, *, before_pose, quie
               + (f"stopped ({result.stop})" if result.stop else "not finished"))
         print("\n".join(rounds_table(result.rounds)))
         if result.model is not None:
-            print(f"fitted on every sample: {result.model!r}")
+            print("\n".join(model_table(result.model)))
     else:
         runner = SessionRunner(plan, store, devices, calibration, layout, before_pose=before_pose,
                                resume_command=resume_cmd, stream=None if quiet else sys.stderr)

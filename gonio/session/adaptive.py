@@ -35,6 +35,7 @@ frames and the warm light carry over, so a round costs its poses plus the runner
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from dataclasses import dataclass, field
@@ -48,7 +49,8 @@ from gonio.plan.ordering import MotionModel
 from gonio.plan.plan import Plan
 from gonio.samples import SampleSet
 
-__all__ = ["FitSpec", "AdaptiveSession", "AdaptiveSessionResult", "new_adaptive_manifest", "ADAPTIVE_FORMAT"]
+__all__ = ["FitSpec", "AdaptiveSession", "AdaptiveSessionResult", "new_adaptive_manifest", "ADAPTIVE_FORMAT",
+           "rounds_table", "model_table"]
 
 #: Version of the manifest's ``adaptive`` section.
 ADAPTIVE_FORMAT = 1
@@ -306,6 +308,7 @@ class AdaptiveSession:
             return "completed"
         self._say(f"adaptive round {rnd['round']}: {len(view.remaining())} of {rnd['n_poses']} poses to measure")
         self.runner.plan, self.runner.store = self._plan(), view
+        self.runner.lab_offset = sum(float(r.get("lab_time_s") or 0.0) for r in self.rounds)  # the session's so far
         try:
             result = self.runner.run()
         except BaseException:
@@ -349,6 +352,24 @@ class AdaptiveSession:
             return None
         self._record(model=model)
         return model
+
+
+def _fmt_value(v) -> str:
+    """A parameter value as ``gonio fit``'s table shows it: floats at 5 significant digits, an RGB triple as
+    ``r, g, b`` (one value when the three are equal, e.g. a tied f0)."""
+    if isinstance(v, (list, tuple, np.ndarray)):
+        vals = [_fmt_value(x) for x in np.asarray(v).ravel().tolist()]
+        return vals[0] if vals and all(x == vals[0] for x in vals) else ", ".join(vals)
+    if isinstance(v, (float, np.floating)):
+        return "inf" if math.isinf(v) else ("-" if math.isnan(v) else f"{float(v):.5g}")
+    return str(v)
+
+
+def model_table(model) -> list[str]:
+    """The fitted model for the CLI: its name, then one ``parameter  value`` line per parameter."""
+    name = getattr(model, "name", type(model).__name__)
+    params = dict(getattr(model, "params", {}) or {})
+    return [f"fitted on every sample: model {name}"] + [f"  {k:<18} {_fmt_value(v)}" for k, v in params.items()]
 
 
 def rounds_table(rounds: Sequence[Mapping[str, Any]]) -> list[str]:

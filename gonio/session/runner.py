@@ -253,6 +253,9 @@ class SessionRunner:
         self.bracket = None if cap.auto_exposure else CapturePlan(tuple(cap.exposures),
                                                                   (cap.frames,) * len(cap.exposures), cap.gain)
         self._darks_at: float | None = None
+        #: lab seconds the session spent before this run (earlier runs, earlier adaptive rounds): the progress
+        #: line shows the session's lab time, not this run's
+        self.lab_offset = 0.0
         self._stop = threading.Event()
         self._interrupts = 0
 
@@ -412,9 +415,9 @@ class SessionRunner:
             try:
                 self.check_devices()
                 t_warm = self.clock.now()
-                self._refresh_darks()  # darks first (light off), then one warm-up
-                self._say(f"darks measured ({len(self.dark_exposures)} exposures), light stable after "
-                          f"{format_lab_time(self.clock.now() - t_warm)} lab")
+                if self._refresh_darks():  # darks first (light off), then one warm-up; still fresh: nothing to say
+                    self._say(f"darks measured ({len(self.dark_exposures)} exposures), light stable after "
+                              f"{format_lab_time(self.clock.now() - t_warm)} lab")
                 n_todo = 0
                 for k in remaining:
                     if self._stop.is_set():
@@ -435,7 +438,7 @@ class SessionRunner:
                     n_todo += 1
                     # ETA: the cost model's remaining time from this pose on (gonio.plan.labtime)
                     eta = float(ends[-1] - ends[min(n_todo, len(ends)) - 1]) if len(ends) else 0.0
-                    progress.update(len(done), self.clock.now() - lab0, eta)
+                    progress.update(len(done), self.lab_offset + self.clock.now() - lab0, eta)
                 else:
                     if self._stop.is_set():
                         result.status = "interrupted"
