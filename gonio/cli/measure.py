@@ -125,14 +125,16 @@ def _calibration_dict(calib) -> dict:
 
 
 def _calibration_from_dict(c, source: str):
-    """The :class:`CameraCalibration` a manifest's ``calibration`` entry records."""
-    from gonio.errors import DataError
-    from gonio.pipeline.target import CameraCalibration, NoiseModel
+    """The :class:`CameraCalibration` a manifest's ``calibration`` entry records (all of it: intrinsics,
+    distortion, noise, radiometric scale), read by :meth:`gonio.rig.calibration.CameraDescription.from_dict`."""
+    from gonio.errors import ConfigError, DataError
+    from gonio.rig.calibration import CameraDescription
 
+    if not isinstance(c, dict):
+        raise DataError(f"{source}: calibration is not a valid camera calibration (got {type(c).__name__})")
     try:
-        return CameraCalibration(K=c["K"], width=c["width"], height=c["height"], dist=c["dist"],
-                                 noise=NoiseModel(**c["noise"]))
-    except (KeyError, TypeError, ValueError) as exc:
+        return CameraDescription.from_dict(c, source=source).calibration
+    except (ConfigError, KeyError, TypeError, ValueError) as exc:
         raise DataError(f"{source}: calibration is not a valid camera calibration ({exc})") from None
 
 

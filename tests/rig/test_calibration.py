@@ -127,3 +127,13 @@ def test_black_level_above_full_scale_and_non_npz_response_are_refused(tmp_path)
         load_camera_calibration(_write(tmp_path, BASE + '[camera]\nlinear = false\nbit_depth = 8\nresponse = "obj.npz"\n'))
     msg = str(err.value)
     assert "camera.response" in msg and "allow_pickle" not in msg and "\n" not in msg
+
+
+def test_a_resumed_hardware_session_gets_the_whole_recorded_calibration(tmp_path):
+    from gonio.cli.measure import _calibration_from_dict
+
+    text = LINEAR.replace("[camera]", "radiometric_scale = [1.5, 1.25, 1.0]\ndist = [0.1, -0.02, 0.0, 0.0]\n[camera]")
+    d = load_camera_calibration(_write(tmp_path, text))
+    back = _calibration_from_dict(d.to_dict(), "manifest")
+    assert back.radiometric_scale is not None and list(back.radiometric_scale) == [1.5, 1.25, 1.0]
+    assert np.array_equal(back.dist, d.calibration.dist) and np.array_equal(back.K, d.calibration.K)
