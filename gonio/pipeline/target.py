@@ -354,19 +354,9 @@ def load_target(path) -> TargetLayout:
 
     Missing keys take the defaults; errors name the file and the field.
     """
-    from pathlib import Path
+    from gonio.config import read_toml
 
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # pragma: no cover - Python 3.10
-        import tomli as tomllib
-    try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError.field(None, "--target", str(path), f"cannot read: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
-    return TargetLayout.from_dict(data, source=str(path))
+    return TargetLayout.from_dict(read_toml(path, "--target"), source=str(path))
 
 
 @dataclass(frozen=True)

@@ -372,21 +372,11 @@ def load_camera_calibration(path, *, for_session: bool = True) -> CameraDescript
     the value. With ``for_session`` (default) a non-linear camera without a response curve is refused
     here, before a session starts (:meth:`CameraSettings.check_session`).
     """
+    from gonio.config import read_toml
     from gonio.pipeline.target import CameraCalibration, NoiseModel
 
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # pragma: no cover - Python 3.10
-        import tomli as tomllib
     src = str(path)
-    try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError.field(None, "--calibration", src, f"cannot read: {exc.strerror or exc}") from None
-    except UnicodeDecodeError:
-        raise ConfigError.field(None, "--calibration", src, "not a text (TOML) file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{src}: not valid TOML: {exc}") from None
+    data = read_toml(path, "--calibration")
     unknown = sorted(set(data) - _TOP_KEYS)
     if unknown:
         raise ConfigError.field(src, unknown[0], data[unknown[0]], f"unknown key (known: {', '.join(sorted(_TOP_KEYS))})")

@@ -18,12 +18,9 @@ from functools import lru_cache
 from importlib import resources
 from typing import Mapping
 
+from gonio.config import parse_toml
 from gonio.errors import ConfigError
 
-try:  # Python >= 3.11
-    import tomllib
-except ModuleNotFoundError:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
 
 __all__ = ["Field", "ControlTable", "load_control_table", "model_names", "table_for_model_number"]
 
@@ -110,10 +107,7 @@ class ControlTable:
 
 
 def _parse(model: str, text: str, source: str) -> ControlTable:
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{source}: not valid TOML: {exc}") from None
+    data = parse_toml(text, source)
     fields = {}
     for name, spec in data.get("fields", {}).items():
         try:

@@ -48,13 +48,10 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from gonio.config import parse_toml, read_text
 from gonio.errors import ConfigError, UnreachablePose
 from gonio.geometry import dirs_from_angles, dot, from_spherical
 
-try:  # Python >= 3.11
-    import tomllib
-except ModuleNotFoundError:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
 
 __all__ = ["Joint", "Rig", "load_rig", "read_rig_text", "trapezoid_time", "trapezoid_progress", "JOINT_NAMES", "LAYOUTS", "REASONS"]
 
@@ -408,12 +405,7 @@ def read_rig_text(path: str | Path | None = None) -> tuple[str, str]:
             raise ConfigError.field(None, "rig", name, "no such shipped rig (see gonio/rig/rigs/)")
         text, src = res.read_text(encoding="utf-8"), f"rigs/{name}.toml"
     else:
-        p = Path(path)
-        try:
-            text = p.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise ConfigError(f"{p}: cannot read rig file: {exc.strerror}") from None
-        src = str(p)
+        text, src = read_text(path, "--rig"), str(path)
     return text, src
 
 
@@ -424,10 +416,7 @@ def load_rig(path: str | Path | None = None, *, text: str | None = None, source:
         text, src = read_rig_text(path)
     else:
         src = source or "<rig text>"
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{src}: not valid TOML: {exc}") from None
+    data = parse_toml(text, src)
     geo = data.get("geometry", {})
     layout = data.get("layout", "arms")
     if layout not in LAYOUTS:

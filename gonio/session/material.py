@@ -27,12 +27,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+from gonio.config import read_toml
 from gonio.errors import ConfigError
 
-try:  # Python >= 3.11
-    import tomllib
-except ModuleNotFoundError:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
 
 __all__ = ["Material", "load_material", "material_from_dict"]
 
@@ -127,14 +124,4 @@ def material_from_dict(data: Mapping[str, Any], source: str = "<material>", *, c
 
 def load_material(path: str | Path) -> Material:
     """Read and check a material TOML file."""
-    p = Path(path)
-    src = str(p)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError.field(None, "--material", src, f"cannot read: {exc.strerror or exc}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{src}: not valid TOML: {exc}") from None
-    return material_from_dict(data, src)
+    return material_from_dict(read_toml(path, "--material"), str(path))
