@@ -22,7 +22,7 @@ def _session(plan, resolution, out: Path, material=None):
 
     w, h = resolution
     t0 = time.perf_counter()
-    with SimRig(material=material, config=SimRigConfig(width=w, height=h, focal_px=380.0 * w / 320.0)) as sim:
+    with SimRig(material=material, config=SimRigConfig.at_resolution(w, h)) as sim:
         devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
         try:
             store = SessionStore.create(out, {"plan": plan, "mode": "bench"})
@@ -161,7 +161,7 @@ def _adaptive_session(candidates, settings, fit, resolution, out: Path, material
 
     w, h = resolution
     t0 = time.perf_counter()
-    with SimRig(material=material, config=SimRigConfig(width=w, height=h, focal_px=380.0 * w / 320.0)) as sim:
+    with SimRig(material=material, config=SimRigConfig.at_resolution(w, h)) as sim:
         store = SessionStore.create(out, {**new_adaptive_manifest(candidates, settings, fit, sim.rig), "mode": "bench"})
         devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
         try:

@@ -84,6 +84,11 @@ class SimRigConfig:
                                          noise=SensorModel(bit_depth=self.bit_depth).noise_model())
 
     @classmethod
+    def at_resolution(cls, width: int, height: int, **kw) -> "SimRigConfig":
+        """The default camera at another resolution: same field of view (focal length scaled with the width)."""
+        return cls(width=int(width), height=int(height), focal_px=cls.focal_px * width / cls.width, **kw)
+
+    @classmethod
     def from_dict(cls, d) -> "SimRigConfig":
         known = set(cls.__dataclass_fields__)
         return cls(**{k: v for k, v in dict(d).items() if k in known})

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import sys
 
-DEFAULT_SIM_RESOLUTION = "320x240"
+from gonio.cli.measure import DEFAULT_SIM_RESOLUTION
 
 
 def register(sub) -> None:
@@ -86,7 +86,8 @@ def _sim_camera(args):
     if not (args.sim_gamma > 0):
         raise ConfigError.field("--sim-gamma", "gamma", args.sim_gamma, "must be positive")
     sensor = SensorModel(bit_depth=args.sim_bit_depth, linear=args.sim_bit_depth != 8, gamma=args.sim_gamma)
-    calib = CameraCalibration.pinhole(w, h, 380.0 * w / 320.0, noise=sensor.noise_model())
+    focal = plugin("sim.rig").SimRigConfig.at_resolution(w, h).focal_px  # the simulated rig's camera
+    calib = CameraCalibration.pinhole(w, h, focal, noise=sensor.noise_model())
     scene = SimScene(layout=TargetLayout(), material=make("lambert", albedo=(0.5, 0.5, 0.5)))
     return SimCamera(calib, sensor, scene, seed=args.seed, clock=SimClock())
 

@@ -387,7 +387,7 @@ def run_measure(args) -> int:
         SimRigConfig = plugin("sim.rig").SimRigConfig
 
         w, h = _resolution(args.sim_resolution)
-        config = SimRigConfig(seed=args.seed, width=w, height=h, focal_px=380.0 * w / 320.0)
+        config = SimRigConfig.at_resolution(w, h, seed=args.seed)
         manifest["sim"] = config.to_dict()
         manifest["calibration"] = _calibration_dict(config.calibration())
         _record_detector(manifest, config.calibration(), rig, pinhole=True)
