@@ -61,6 +61,22 @@ class DarkCache:
             self._cache[key] = d
         return d
 
+    def refresh(self, exposures, gain: float = 1.0) -> None:
+        """Measure the dark frames of every exposure in one light-off period (the light is switched off
+        once, not per exposure, and back on at ``level`` afterwards, even on error); replaces the cache."""
+        self._cache.clear()
+        keys = [(float(t), float(gain)) for t in exposures]
+        if self.light is None:
+            for key in keys:
+                self._cache[key] = self._capture(*key)
+            return
+        self.light.set_light(False)
+        try:
+            for key in keys:
+                self._cache[key] = self._capture(*key, switch_light=False)
+        finally:
+            self.light.set_light(True, self.level)
+
     def invalidate(self) -> None:
         """Forget every cached dark frame (e.g. after the camera's temperature changed)."""
         self._cache.clear()
@@ -87,13 +103,14 @@ class DarkCache:
                     raise
         raise AssertionError("unreachable")  # pragma: no cover
 
-    def _capture(self, exposure: float, gain: float) -> DarkFrame:
+    def _capture(self, exposure: float, gain: float, switch_light: bool = True) -> DarkFrame:
         noise = self.calib.noise
         if self.light is None:
             frame, px = self._grab(exposure, gain)
             mean = np.full(px.shape, frame.black_level, dtype=np.float32)
             return DarkFrame(mean, np.zeros(px.shape, np.float32), 0, self._now(), measured=False)
-        self.light.set_light(False)
+        if switch_light:
+            self.light.set_light(False)
         try:
             acc, black = None, 0.0
             for _ in range(self.n_frames):
@@ -103,7 +120,8 @@ class DarkCache:
                 black = frame.black_level
                 self.captures += 1
         finally:
-            self.light.set_light(True, self.level)
+            if switch_light:
+                self.light.set_light(True, self.level)
         mean = acc / np.float32(self.n_frames)
         var = (noise.variance(mean - black, gain) / self.n_frames).astype(np.float32)
         return DarkFrame(mean, var, self.n_frames, self._now(), measured=True)

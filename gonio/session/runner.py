@@ -323,11 +323,8 @@ class SessionRunner:
         now = self.clock.now()
         if self._darks_at is not None and now - self._darks_at <= self.settings.dark_max_age:
             return False
-        darks = self.pipeline.darks
-        darks.invalidate()
         self._darks_at = now
-        for t in self.dark_exposures:
-            darks.get(t, self.plan.capture.gain)
+        self.pipeline.darks.refresh(self.dark_exposures, self.plan.capture.gain)  # one light-off period
         self.warm_up()  # switching the light off and on restarts its warm-up
         return True
 
