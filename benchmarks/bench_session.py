@@ -207,7 +207,7 @@ def adaptive_table(quick: bool = False) -> Table:
             f_true = truth.eval(wi, wo)
             spec = FitSpec(model, n_starts=3)
             settings = AdaptiveSettings(n_initial=16, batch=8, target_error=0.0, lab_budget=budget, seed=0,
-                                        round_overhead=RunnerSettings().warmup_step)
+                                        round_overhead=RunnerSettings().timing.warmup_step)
             ar, a_wall, a_s = _adaptive_session(cand, settings, spec, res, Path(tmp) / f"a{i}", material)
             n = sum(r["n_poses"] for r in ar.rounds)
             # uniform: the same number of candidates spread by farthest-point sampling, ordered for lab time

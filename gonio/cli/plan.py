@@ -150,7 +150,7 @@ def adaptive_from_args(args, rig, *, source: str):
         target_error=ADAPTIVE_TARGET if args.target_error is None else args.target_error,
         lab_budget=math.inf if args.lab_budget is None else args.lab_budget,
         max_rounds=20 if args.max_rounds is None else args.max_rounds, seed=args.seed,
-        round_overhead=RunnerSettings().warmup_step)
+        round_overhead=RunnerSettings().timing.warmup_step)
     if args.select is not None and args.model is not None:
         raise ConfigError.field("--select", "option", args.select, "give --model or --select, not both")
     select = None if args.select is None else tuple(m.strip() for m in args.select.split(",") if m.strip())

@@ -52,8 +52,6 @@ from gonio.errors import ConfigError, EmergencyStop, GonioError, HardwareError, 
 from gonio.plan.labtime import SessionTiming, dark_exposures, session_lab_time
 from gonio.rig.interfaces import Frame
 
-_TIMING = SessionTiming()
-
 __all__ = ["RunnerSettings", "Devices", "RunResult", "SessionRunner", "open_devices", "format_lab_time"]
 
 
@@ -65,20 +63,13 @@ class RunnerSettings:
     move_retries: int = 2  #: re-issued moves when a joint is off target
     pose_retries: int = 3  #: recover-and-retry rounds per pose after a hardware error
     move_timeout: float = 60.0
-    warmup_step: float = _TIMING.warmup_step  #: lab seconds between photodiode readings while warming up
+    #: the lab-time cost model's values the runner spends (:mod:`gonio.plan.labtime`): warm-up step,
+    #: dark frames per exposure, dark re-measurement age; the estimator uses the same object
+    timing: SessionTiming = field(default_factory=SessionTiming)
     warmup_samples: int = 64  #: photodiode samples averaged per reading
     warmup_tolerance: float = 1e-3  #: relative change between readings that counts as stable
     warmup_max: float = 1800.0  #: give up (HardwareError) after this much warm-up
-    dark_max_age: float = _TIMING.dark_max_age  #: re-measure dark frames when older than this (lab seconds)
     light_level: float = 1.0
-    dark_frames: int = _TIMING.dark_frames  #: frames averaged per dark exposure
-
-    def timing(self) -> SessionTiming:
-        """The lab-time cost model's view of these settings (:mod:`gonio.plan.labtime`)."""
-        from dataclasses import replace
-
-        return replace(_TIMING, warmup_step=self.warmup_step, dark_max_age=self.dark_max_age,
-                       dark_frames=self.dark_frames)
 
 
 @dataclass
@@ -238,12 +229,12 @@ class SessionRunner:
         from dataclasses import replace
 
         cap = plan.capture
-        self.timing = st.timing()
+        self.timing = st.timing
         #: every exposure the session may capture (the bracket, or the auto-exposure ladder): its dark set
         self.dark_exposures = dark_exposures(cap, self.timing)
         # the runner schedules the dark set (one light-off for all of it); the cache never refreshes alone
         ps = pipeline_settings or PipelineSettings(light_level=st.light_level, gain=cap.gain)
-        ps = replace(ps, dark_max_age=math.inf, dark_frames=st.dark_frames)
+        ps = replace(ps, dark_max_age=math.inf, dark_frames=st.timing.dark_frames)
         if cap.auto_exposure:
             ps = replace(ps, exposure=replace(ps.exposure, ladder=self.dark_exposures),
                          initial_exposure=cap.exposures[0])
@@ -283,7 +274,7 @@ class SessionRunner:
         t0 = self.clock.now()
         ctl.set_light(True, st.light_level)
         prev = None
-        for _ in range(int(math.ceil(st.warmup_max / st.warmup_step)) + 1):  # bounded
+        for _ in range(int(math.ceil(st.warmup_max / st.timing.warmup_step)) + 1):  # bounded
             p, u = ctl.read_photodiode(st.warmup_samples)
             if p <= 4 * u:
                 raise HardwareError(f"light: photodiode reads {p:g} ± {u:g} after switching on: the light is off "
@@ -293,7 +284,7 @@ class SessionRunner:
             prev = p
             if self.clock.now() - t0 >= st.warmup_max:
                 break
-            ctl.wait(st.warmup_step)
+            ctl.wait(st.timing.warmup_step)
         raise HardwareError(f"light: not stable after {st.warmup_max:g} s of warm-up (photodiode {prev:g})",
                             device="light")
 
@@ -321,7 +312,7 @@ class SessionRunner:
         """Measure the whole dark set (every exposure the session may use) if it is older than
         ``dark_max_age`` (or was never measured); then warm the light up again."""
         now = self.clock.now()
-        if self._darks_at is not None and now - self._darks_at <= self.settings.dark_max_age:
+        if self._darks_at is not None and now - self._darks_at <= self.settings.timing.dark_max_age:
             return False
         self._darks_at = now
         self.pipeline.darks.refresh(self.dark_exposures, self.plan.capture.gain)  # one light-off period
