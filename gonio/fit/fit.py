@@ -31,7 +31,7 @@ from gonio.fit.kernels import jacobian_for, profile_for
 from gonio.fit.layout import CHANNELS, Layout, SubSpace, auto_tied, make_basis, model_class
 from gonio.fit.losses import LOSSES, Loss, get_loss
 from gonio.fit.result import FitResult
-from gonio.fit.solve import Projection, ProfiledProjection, jtj_from_elements
+from gonio.fit.solve import Projection, ProfiledProjection, jtj_from_elements, shared_weights
 
 METHODS = ("auto", "varpro", "plain")
 
@@ -67,9 +67,8 @@ def heuristics(data: FitData) -> dict[str, Any]:
 
 def _channel_weights(w: np.ndarray) -> np.ndarray:
     """``w`` (N, 3) as one column (N,) when every channel has the same weight (the cosine loss), else as is."""
-    if w.strides[1] == 0 or (np.array_equal(w[:, 0], w[:, 1]) and np.array_equal(w[:, 0], w[:, 2])):
-        return np.ascontiguousarray(w[:, 0])
-    return w
+    w1 = shared_weights(w)
+    return w if w1 is None else w1
 
 
 class _Problem:

@@ -282,24 +282,24 @@ PROFILES: dict[str, type] = {"microfacet": MicrofacetTiedF0, "lambert+ggx": Micr
                              "lambert+beckmann": MicrofacetTiedF0}
 
 
-def jacobian_for(layout):
-    """A kernel with an exact ``jacobian(data, L, colour, shape)`` for ``layout`` (see
-    :meth:`MicrofacetTiedF0.supports_jacobian`), else None."""
+def _kernel_if(layout, test: str):
     cls = PROFILES.get(layout.name)
     if cls is None:
         return None
     p = cls(layout)
-    return p if p.supports_jacobian(layout) else None
+    return p if getattr(p, test)(layout) else None
+
+
+def jacobian_for(layout):
+    """A kernel with an exact ``jacobian(data, L, colour, shape)`` for ``layout`` (see
+    :meth:`MicrofacetTiedF0.supports_jacobian`), else None."""
+    return _kernel_if(layout, "supports_jacobian")
 
 
 def profile_for(layout):
     """The profile kernel of ``layout`` (:data:`PROFILES`, bound to it) if it supports its free/fixed/tied
     parameters, else None."""
-    cls = PROFILES.get(layout.name)
-    if cls is None:
-        return None
-    p = cls(layout)
-    return p if p.supports(layout) else None
+    return _kernel_if(layout, "supports")
 
 
 _microfacet.supports = lambda L: L.shape in (["alpha"], ["alpha", "f0"]) and ("f0" in L.fixed or "f0" in L.shape)

@@ -14,6 +14,14 @@ import itertools
 import numpy as np
 
 
+def shared_weights(w: np.ndarray) -> np.ndarray | None:
+    """``w`` (N, 3) as one contiguous column (N,) when every channel has the same weight (the cosine
+    loss: one Gram matrix then serves R, G and B), else None."""
+    if w.strides[1] == 0 or (np.array_equal(w[:, 0], w[:, 1]) and np.array_equal(w[:, 0], w[:, 2])):
+        return np.ascontiguousarray(w[:, 0])
+    return None
+
+
 def bounded_lsq(G: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Minimize ½ aᵀGa − bᵀa subject to lo ≤ a ≤ hi, for a small K×K positive semi-definite G.
 
@@ -98,8 +106,7 @@ class Projection:
     def __init__(self, basis, w: np.ndarray, y: np.ndarray, lo: np.ndarray, hi: np.ndarray):
         self.basis, self.w, self.y, self.lo, self.hi = basis, w, y, lo, hi
         self.n_evals = 0
-        # Weights equal across channels (cosine loss): one Gram matrix serves R, G and B.
-        self.w1 = w[:, 0].copy() if np.array_equal(w[:, 0], w[:, 1]) and np.array_equal(w[:, 0], w[:, 2]) else None
+        self.w1 = shared_weights(w)
         self._c0 = np.einsum("nc,nc,nc->c", y, w, y)
         self._wb_cache: dict[int, tuple] = {}
 
@@ -225,8 +232,8 @@ class ProfiledProjection:
     def __init__(self, profile, layout, data, w: np.ndarray, t_index: int):
         self.profile, self.L, self.data = profile, layout, data
         self.t_index = t_index
-        shared = np.array_equal(w[:, 0], w[:, 1]) and np.array_equal(w[:, 0], w[:, 2])
-        self.w = np.ascontiguousarray(w[:, 0] if shared else w)
+        w1 = shared_weights(w)
+        self.w = np.ascontiguousarray(w) if w1 is None else w1
         self.yT = np.ascontiguousarray(data.y.T)
         self.c0 = np.einsum("nc,nc,nc->c", data.y, w, data.y)
         self.lo, self.hi = layout.colour_lo, layout.colour_hi
