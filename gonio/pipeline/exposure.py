@@ -91,23 +91,24 @@ def plan_bracket(rate_bright: float, rate_dim: float, range_dn: float, n_pixels:
     ``high``) and the bracket continues on the following rungs.
     """
     s = settings
-    if s.ladder is not None:
-        return _ladder_bracket(rate_bright, rate_dim, range_dn, n_pixels, noise, s, gain, dark_dn_per_s)
     rate_bright = max(float(rate_bright), 1e-12)
     rate_dim = min(max(float(rate_dim), 1e-12), rate_bright)
     g = float(gain)
-    t1 = float(np.clip(s.high * range_dn / (rate_bright * g), s.min_exposure, s.max_exposure))
-    t_need = s.low * range_dn / (rate_dim * g)
-    n = 1 if t_need <= t1 else 1 + math.ceil(math.log(t_need / t1) / math.log(s.step) - 1e-9)
-    n = max(1, min(n, s.max_brackets))
-    exposures = []
-    for k in range(n):
-        t = min(t1 * s.step**k, s.max_exposure)
-        if exposures and t <= exposures[-1]:
+    t1 = s.high * range_dn / (rate_bright * g)
+    if s.ladder is None:
+        t1 = float(np.clip(t1, s.min_exposure, s.max_exposure))
+        candidates = [min(t1 * s.step**k, s.max_exposure) for k in range(s.max_brackets)]
+    else:
+        rungs = np.asarray(s.ladder, dtype=np.float64)
+        candidates = rungs[max(int(np.searchsorted(rungs, t1 * (1 + 1e-9), side="right")) - 1, 0):].tolist()
+    exposures: list[float] = []
+    for t in candidates:  # longer exposures until the dimmest region reaches `low` of the range
+        if exposures and (t <= exposures[-1] or len(exposures) >= s.max_brackets
+                          or rate_dim * g * exposures[-1] >= s.low * range_dn * (1 - 1e-9)):
             break
-        exposures.append(t)
-    return CapturePlan(tuple(exposures), (_frames(exposures[-1], rate_dim, range_dn, n_pixels, noise, s, g,
-                                                  dark_dn_per_s),) * len(exposures), g)
+        exposures.append(float(t))
+    frames = _frames(exposures[-1], rate_dim, range_dn, n_pixels, noise, s, g, dark_dn_per_s)
+    return CapturePlan(tuple(exposures), (frames,) * len(exposures), g)
 
 
 def _frames(t_long, rate_dim, range_dn, n_pixels, noise, s, g, dark_dn_per_s) -> int:
@@ -117,24 +118,6 @@ def _frames(t_long, rate_dim, range_dn, n_pixels, noise, s, g, dark_dn_per_s) ->
     snr_px = sig / math.sqrt(var) if var > 0 else float("inf")
     need = (s.target_snr / max(snr_px * math.sqrt(max(n_pixels, 1)), 1e-12)) ** 2
     return int(min(max(math.ceil(need), s.min_frames), s.max_frames))
-
-
-def _ladder_bracket(rate_bright, rate_dim, range_dn, n_pixels, noise, s, gain, dark_dn_per_s) -> CapturePlan:
-    """:func:`plan_bracket` restricted to the rungs of ``s.ladder``."""
-    rate_bright = max(float(rate_bright), 1e-12)
-    rate_dim = min(max(float(rate_dim), 1e-12), rate_bright)
-    g = float(gain)
-    rungs = np.asarray(s.ladder, dtype=np.float64)
-    t1 = s.high * range_dn / (rate_bright * g)
-    i0 = max(int(np.searchsorted(rungs, t1 * (1 + 1e-9), side="right")) - 1, 0)
-    exposures = [float(rungs[i0])]
-    i = i0 + 1
-    while (len(exposures) < s.max_brackets and i < rungs.size
-           and rate_dim * g * exposures[-1] < s.low * range_dn):
-        exposures.append(float(rungs[i]))
-        i += 1
-    frames = _frames(exposures[-1], rate_dim, range_dn, n_pixels, noise, s, g, dark_dn_per_s)
-    return CapturePlan(tuple(exposures), (frames,) * len(exposures), g)
 
 
 def exposure_ladder(expected, step: float, *, extra: int = 2, lo: float = 1e-5, hi: float = 2.0) -> tuple[float, ...]:
