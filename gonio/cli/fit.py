@@ -1,4 +1,4 @@
-"""``gonio fit SOURCE [--model NAME | --select] [--loss NAME] [--json OUT]``: fit analytic BRDF models to a
+"""``gonio fit SOURCE [--model NAME | --select] [--loss NAME] [--json OUT] [--mitsuba OUT.xml]``: fit analytic BRDF models to a
 session directory or a MERL ``.binary`` and print a table."""
 
 from __future__ import annotations
@@ -23,6 +23,9 @@ def register(sub) -> None:
     p.add_argument("--all-angles", action="store_true", help="no grazing cutoff")
     p.add_argument("--seed", type=int, default=0, help="seed of the multi-start (default 0)")
     p.add_argument("--json", metavar="OUT", help="write the result as JSON")
+    p.add_argument("--mitsuba", metavar="OUT.xml|OUT.json",
+                   help="also write the fitted model as a Mitsuba 3 BSDF (XML element or load_dict JSON) where "
+                        "Mitsuba reproduces it exactly: lambert, microfacet/ggx/beckmann lobes with f0 = 1, their sums")
     p.set_defaults(func=run)
 
 
@@ -96,6 +99,12 @@ def run(args) -> int:
         print(f"{k:<18} {_fmt(v):<36} {_fmt(result.uncertainty[k]) if k in result.uncertainty else '(fixed)'}")
     for note in result.notes:
         print(f"note: {note}")
+    if args.mitsuba:
+        from gonio.brdf import make
+        from gonio.io.mitsuba import write_mitsuba
+
+        write_mitsuba(make(result.model, **result.params), args.mitsuba)
+        print(f"wrote {args.mitsuba} (Mitsuba 3 BSDF)")
     if args.json:
         try:
             Path(args.json).write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
