@@ -251,9 +251,9 @@ def _camera_fields(d: Mapping[str, Any], source: str | None, base: Path | None) 
         kw["linear"] = d["linear"]
     if "bit_depth" in d:
         v = d["bit_depth"]
-        if not isinstance(v, int) or isinstance(v, bool) or v not in (8, 10, 12, 14, 16):
+        if not isinstance(v, int) or isinstance(v, bool):
             raise ConfigError.field(source, "camera.bit_depth", v, "must be 8, 10, 12, 14 or 16")
-        kw["bit_depth"] = v
+        kw["bit_depth"] = v  # the allowed values: CameraSettings.__post_init__
     if "black_level" in d:
         v = d["black_level"]
         if not _is_number(v) or v < 0:
@@ -267,9 +267,9 @@ def _camera_fields(d: Mapping[str, Any], source: str | None, base: Path | None) 
     for key, allowed in (("trigger", _TRIGGERS), ("backend", tuple(BACKENDS))):
         if key in d:
             v = d[key]
-            if not isinstance(v, str) or v.lower() not in allowed:
+            if not isinstance(v, str):
                 raise ConfigError.field(source, f"camera.{key}", v, f"must be one of {', '.join(allowed)}")
-            kw[key] = v.lower()
+            kw[key] = v.lower() if v.lower() in allowed else v  # a bad value: CameraSettings.__post_init__ says so
     if base is not None and "response" in d:
         v = d["response"]
         if not isinstance(v, str) or not v:
