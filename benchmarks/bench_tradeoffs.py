@@ -72,7 +72,7 @@ def fit_error(samples, wi, wo, f_true, n_starts: int = 4) -> tuple[float, float]
     t0 = time.perf_counter()
     res = fit(samples, MATERIAL["model"], n_starts=n_starts)
     secs = time.perf_counter() - t0
-    return relative_rms(make(res.model, **res.params).eval(wi, wo), f_true), secs
+    return relative_rms(res.model.eval(wi, wo), f_true), secs
 
 
 @dataclass(frozen=True)

@@ -49,16 +49,6 @@ def load_source(path_text: str):
     return s
 
 
-def _fmt(v) -> str:
-    import math
-
-    if isinstance(v, list):
-        return ", ".join(_fmt(x) for x in v)
-    if isinstance(v, float):
-        return "inf" if math.isinf(v) else ("-" if math.isnan(v) else f"{v:.5g}")
-    return str(v)
-
-
 def run(args) -> int:
     import json
     from pathlib import Path
@@ -79,31 +69,16 @@ def run(args) -> int:
             raise ConfigError.field("--fix", "fix", args.fix, "not supported with --select")
         sel = select(samples, cands, criterion=args.criterion, loss=args.loss, seed=args.seed, max_theta_deg=max_theta)
         result, report = sel.winner, sel.to_dict()
-        print(f"{'model':<16} {'k':>3} {sel.criterion:>12} {'rms_rel':>9} {'chi2_red':>9}  status    reason")
-        for r in sel.candidates:
-            if r["status"] == "failed":
-                print(f"{r['model']:<16} {'':>3} {'':>12} {'':>9} {'':>9}  failed    {r['reason']}")
-            else:
-                c2 = "-" if r.get("chi2_red") is None else f"{r['chi2_red']:.4g}"
-                print(f"{r['model']:<16} {r['n_params']:>3} {r['score']:>12.6g} {r['rms_rel']:>9.4f} {c2:>9}  "
-                      f"{r['status']:<9} {r['reason']}")
+        print("\n".join(sel.table_lines()))
         print()
     else:
         result = fit(samples, args.model, loss=args.loss, fixed=fixed, seed=args.seed, max_theta_deg=max_theta)
         report = {**result.to_dict(), "candidates": []}
-    print(f"model {result.model}  loss {result.loss}  samples {result.n_used}  rms_rel {result.rms_rel:.4g}"
-          + (f"  chi2_red {result.chi2_red:.4g}" if result.chi2_red is not None else "")
-          + f"  ({result.method}, {result.seconds:.2f} s)")
-    print(f"{'parameter':<18} {'value':<36} uncertainty")
-    for k, v in result.params.items():
-        print(f"{k:<18} {_fmt(v):<36} {_fmt(result.uncertainty[k]) if k in result.uncertainty else '(fixed)'}")
-    for note in result.notes:
-        print(f"note: {note}")
+    print("\n".join(result.summary_lines()))
     if args.mitsuba:
-        from gonio.brdf import make
         from gonio.io.mitsuba import write_mitsuba
 
-        write_mitsuba(make(result.model, **result.params), args.mitsuba)
+        write_mitsuba(result.model, args.mitsuba)
         print(f"wrote {args.mitsuba} (Mitsuba 3 BSDF)")
     if args.json:
         try:

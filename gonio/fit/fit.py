@@ -548,7 +548,7 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
     except GonioError as exc:
         notes.append(f"the fitted parameters violate a model constraint: {exc}")
     return FitResult(
-        model=L.name, params=params, uncertainty=unc, loss=lossobj.name, cost=float(cost), rms_rel=rms_rel,
+        model_name=L.name, params=params, uncertainty=unc, loss=lossobj.name, cost=float(cost), rms_rel=rms_rel,
         n_used=len(d), n_params=L.n_params, chi2_red=chi2_red, identifiable=ident, method=method,
         n_evals=prob.n_evals, seconds=time.perf_counter() - t0, notes=notes, heuristics=heur,
         dropped=dict(d.dropped), redundancy=redundancy,

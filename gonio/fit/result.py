@@ -30,8 +30,9 @@ class FitResult:
 
     Attributes
     ----------
-    model : str
-        Registry name; ``params`` rebuild it with :func:`gonio.brdf.make`.
+    model_name : str
+        Registry name; ``params`` rebuild it with :func:`gonio.brdf.make`. The evaluable model itself
+        is :attr:`model`.
     params : dict
         Fitted parameters (RGB as 3 floats, shape parameters as floats, choices as strings).
     uncertainty : dict
@@ -49,7 +50,7 @@ class FitResult:
         χ²/(m − k) with the stated uncertainties (None without them).
     """
 
-    model: str
+    model_name: str
     params: dict[str, Any]
     uncertainty: dict[str, Any]
     loss: str
@@ -92,15 +93,65 @@ class FitResult:
         return self.neg2_log_likelihood + self.n_params * math.log(self.n_residuals)
 
     def build(self):
-        """The fitted :class:`gonio.brdf.BRDF` instance."""
+        """The fitted :class:`gonio.brdf.BRDF` instance (a new one at every call; see :attr:`model`)."""
         from gonio.brdf import make
 
-        return make(self.model, source="fit result", **self.params)
+        return make(self.model_name, source="fit result", **self.params)
+
+    @property
+    def model(self):
+        """The fitted model as an evaluable :class:`gonio.brdf.BRDF`: ``result.model.eval(wi, wo)``."""
+        built = self.__dict__.get("_built")
+        if built is None or built[0] != (self.model_name, repr(self.params)):
+            built = ((self.model_name, repr(self.params)), self.build())
+            self.__dict__["_built"] = built
+        return built[1]
+
+    @property
+    def errors(self) -> dict[str, Any]:
+        """Every error measure of the fit by name (the ``error`` object of :meth:`to_dict`)."""
+        return self.to_dict()["error"]
+
+    def to_json(self, path=None, *, force: bool = False) -> str:
+        """The JSON report (as ``gonio fit --json`` writes it); also written to ``path`` when given
+        (an existing file only with ``force=True``)."""
+        import json
+
+        text = json.dumps({**self.to_dict(), "candidates": []}, indent=2, allow_nan=False) + "\n"
+        if path is not None:
+            _write_new(path, text, force)
+        return text
+
+    def to_mitsuba(self, path=None):
+        """The fitted model as a Mitsuba 3 BSDF dict (``mitsuba.load_dict``); also written to ``path``
+        (``.xml`` or ``.json``) when given. Refused with a one-line reason where Mitsuba's plugins cannot
+        reproduce the model (:mod:`gonio.io.mitsuba`)."""
+        from gonio.io import mitsuba
+
+        if path is not None:
+            mitsuba.write_mitsuba(self.model, path)
+        return mitsuba.to_mitsuba_dict(self.model)
+
+    def __repr__(self) -> str:
+        return "\n".join(self.summary_lines())
+
+    def summary_lines(self) -> list[str]:
+        """The human-readable table ``gonio fit`` prints: header, one row per parameter, notes."""
+        head = (f"FitResult: {self.model_name}  loss {self.loss}  samples {self.n_used}  rms_rel {self.rms_rel:.4g}"
+                + (f"  chi2_red {self.chi2_red:.4g}" if self.chi2_red is not None else "")
+                + (f"  ({self.method}, {self.seconds:.2f} s)" if self.method else ""))
+        lines = [head, f"  {'parameter':<18} {'value':<36} uncertainty"]
+        for k, v in self.params.items():
+            u = _fmt(self.uncertainty[k]) if k in self.uncertainty else "(fixed)"
+            lines.append(f"  {k:<18} {_fmt(v):<36} {u}")
+        lines += [f"  note: {n}" for n in self.notes]
+        return lines
+
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON report of ``gonio fit --json`` (without ``candidates``)."""
         return _clean({
-            "model": self.model,
+            "model": self.model_name,
             "params": self.params,
             "uncertainty": self.uncertainty,
             "loss": self.loss,
@@ -115,3 +166,26 @@ class FitResult:
             "dropped": self.dropped,
             "redundancy": list(self.redundancy) if self.redundancy else None,
         })
+
+def _fmt(v) -> str:
+    """A parameter value for a table: 5 significant digits, lists comma-separated, inf, '-' for nan."""
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return ", ".join(_fmt(x) for x in v)
+    if isinstance(v, (float, np.floating)):
+        return "inf" if math.isinf(v) else ("-" if math.isnan(v) else f"{v:.5g}")
+    return str(v)
+
+
+def _write_new(path, text: str, force: bool) -> None:
+    """Write ``text`` to ``path``; an existing file only with ``force`` (one-line ConfigError)."""
+    from pathlib import Path
+
+    from gonio.errors import ConfigError
+
+    p = Path(path)
+    if p.exists() and not force:
+        raise ConfigError.field(None, "output", str(p), "exists (use --force / force=True to overwrite)")
+    try:
+        p.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError.field(None, "output", str(p), f"cannot write ({exc.strerror or exc})") from None

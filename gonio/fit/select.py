@@ -69,6 +69,44 @@ class Selection:
         out["candidates"] = _clean(self.candidates)
         return out
 
+    # The winner's fields, so a Selection reads like the FitResult it chose.
+    model = property(lambda self: self.winner.model, doc="The chosen model, evaluable (``.eval(wi, wo)``).")
+    model_name = property(lambda self: self.winner.model_name)
+    params = property(lambda self: self.winner.params)
+    uncertainty = property(lambda self: self.winner.uncertainty)
+    errors = property(lambda self: self.winner.errors)
+
+    def to_json(self, path=None, *, force: bool = False) -> str:
+        """The JSON report of ``gonio fit --select --json`` (winner, criterion, one row per candidate)."""
+        import json
+
+        from gonio.fit.result import _write_new
+
+        text = json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n"
+        if path is not None:
+            _write_new(path, text, force)
+        return text
+
+    def to_mitsuba(self, path=None):
+        """The chosen model as a Mitsuba 3 BSDF (see :meth:`FitResult.to_mitsuba`)."""
+        return self.winner.to_mitsuba(path)
+
+    def table_lines(self) -> list[str]:
+        """One row per candidate: parameters, score, error, status and why it won or lost."""
+        lines = [f"{'model':<16} {'k':>3} {self.criterion:>12} {'rms_rel':>9} {'chi2_red':>9}  status    reason"]
+        for r in self.candidates:
+            if r["status"] == "failed":
+                lines.append(f"{r['model']:<16} {'':>3} {'':>12} {'':>9} {'':>9}  failed    {r['reason']}")
+            else:
+                c2 = "-" if r.get("chi2_red") is None else f"{r['chi2_red']:.4g}"
+                lines.append(f"{r['model']:<16} {r['n_params']:>3} {r['score']:>12.6g} {r['rms_rel']:>9.4f} {c2:>9}  "
+                             f"{r['status']:<9} {r['reason']}")
+        return lines
+
+    def __repr__(self) -> str:
+        return "\n".join([f"Selection by {self.criterion}" + (f" ({self.adjustment})" if self.adjustment else ""),
+                          *("  " + line for line in self.table_lines()), *self.winner.summary_lines()])
+
 
 def _cv_score(d, model, loss, k, seed, fit_kw) -> tuple[float, float]:
     """Mean held-out ½·mean(r²) over k folds and its standard error."""

@@ -15,7 +15,7 @@ CANDS = ("lambert", "microfacet", "lambert+2ggx")
 def _chosen(sel):
     assert sum(r["status"] == "chosen" for r in sel.candidates) == 1
     assert all("reason" in r for r in sel.candidates)
-    return sel.winner.model
+    return sel.winner.model_name
 
 
 def test_bic_chooses_lambert_for_lambertian_data():

@@ -23,7 +23,7 @@ def session(tmp_path_factory):
 
 def test_selection_on_the_default_session_is_one_lobe_with_the_true_parameters(session):
     sel = select(session)
-    assert sel.winner.model == "microfacet"
+    assert sel.winner.model_name == "microfacet"
     p = sel.winner.params
     assert p["alpha"] == pytest.approx(ALPHA, rel=0.02)
     np.testing.assert_allclose(p["kd"], KD, rtol=0.01)

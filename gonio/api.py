@@ -1,0 +1,64 @@
+"""The public Python API: what a notebook needs, re-exported at the top of the package.
+
+>>> import gonio
+>>> data = gonio.load("session-dir")                  # doctest: +SKIP
+>>> result = gonio.fit(data, "lambert+ggx")           # doctest: +SKIP
+>>> result.model.eval(wi, wo)                         # doctest: +SKIP
+
+Every function here is a thin layer over the module that does the work (:mod:`gonio.io.source`,
+:mod:`gonio.fit.fit`, :mod:`gonio.fit.select`); the ``gonio`` command calls the same functions.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+__all__ = ["load", "as_samples", "fit", "select"]
+
+
+def load(path):
+    """Read any source gonio knows — a session directory, a MERL ``.binary``, a gonio NPZ or CSV
+    export, ... — as a :class:`gonio.io.source.Measured` (samples, table, metadata, ``eval``/``lookup``).
+
+    Raises :class:`gonio.errors.DataError` with one line naming the path and what is wrong with it.
+    """
+    from gonio.io.source import load_source
+
+    return load_source(path)
+
+
+def as_samples(data):
+    """The :class:`gonio.samples.SampleSet` behind ``data``: a SampleSet itself, a
+    :class:`~gonio.io.source.Measured`, or a path that :func:`load` reads."""
+    from gonio.samples import SampleSet
+
+    if isinstance(data, SampleSet):
+        return data
+    if isinstance(data, (str, Path)):
+        data = load(data)
+    to_samples = getattr(data, "to_samples", None)
+    if to_samples is None:
+        raise TypeError(f"expected a path, a gonio.load() result or a SampleSet, not {type(data).__name__}")
+    return to_samples()
+
+
+def fit(data, model: str = "microfacet", **options):
+    """Fit one model (a :func:`gonio.brdf.make` name, sums such as ``"lambert+2ggx"``) to ``data``
+    (see :func:`as_samples`); ``options`` as :func:`gonio.fit.fit.fit` (``loss``, ``fixed``, ``seed``,
+    ``max_theta_deg``, ...). Returns a :class:`gonio.fit.result.FitResult`: ``.model`` (evaluable),
+    ``.params``, ``.uncertainty``, ``.errors``, ``.to_json()``, ``.to_mitsuba()``."""
+    from gonio.fit.fit import fit as fit_samples
+
+    return fit_samples(as_samples(data), model, **options)
+
+
+def select(data, candidates: Sequence[str] | None = None, **options):
+    """Fit the ``candidates`` (default :data:`gonio.fit.select.DEFAULT_CANDIDATES`) and keep the
+    simplest one the data support; ``options`` as :func:`gonio.fit.select.select`. Returns a
+    :class:`gonio.fit.select.Selection` (``.winner``, one row per candidate, and the winner's
+    ``.model``, ``.params``, ``.uncertainty``, ``.errors``)."""
+    from gonio.fit.select import DEFAULT_CANDIDATES
+    from gonio.fit.select import select as select_samples
+
+    return select_samples(as_samples(data), tuple(candidates) if candidates else DEFAULT_CANDIDATES, **options)
