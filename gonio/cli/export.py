@@ -3,7 +3,11 @@ per-sample CSV, or a self-describing NPZ archive (samples + table + metadata).""
 
 from __future__ import annotations
 
+from gonio.cli import many
+
 FORMATS = ("merl", "csv", "npz")
+#: File name ending of each format, for batch outputs.
+SUFFIX = {"merl": ".binary", "csv": ".csv", "npz": ".npz"}
 
 
 def add_tabulation_options(p) -> None:
@@ -32,14 +36,43 @@ def register(sub) -> None:
                        description="Export a session directory (or an NPZ export, or a MERL file) as a MERL "
                                    "binary table, a per-sample CSV (BRDF in 1/sr) or an NPZ archive with "
                                    "samples, table and metadata.")
-    p.add_argument("source", metavar="DIR", help="session directory (or .npz export / MERL .binary)")
+    p.add_argument("source", metavar="DIR", nargs="+",
+                   help="session directory (or .npz export / MERL .binary); several, a directory of them or a "
+                        "glob export each one (in parallel) into the directory -o names")
     p.add_argument("--format", required=True, choices=FORMATS, help="output format")
-    p.add_argument("-o", "--output", required=True, metavar="PATH", help="output file")
+    p.add_argument("-o", "--output", required=True, metavar="PATH",
+                   help="output file (several sources: a directory receiving SOURCE-NAME.EXT each)")
+    many.add_options(p)
     add_tabulation_options(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    paths = many.sources(args)
+    if many.is_batch(args, paths):
+        out_dir = many.output_dir("-o", args.output)
+        opts = {k: v for k, v in vars(args).items() if k not in ("func", "source", "output")}
+        opts["out_dir"] = str(out_dir)
+        return many.run("export", args, export_row, paths, opts, ["source", "status", "output", "error"])
+    args.source = str(paths[0])
+    return run_one(args)
+
+
+def export_row(source: str, opts: dict) -> dict:
+    """Export one source of a batch into ``opts["out_dir"]``; its summary row."""
+    import argparse
+    import contextlib
+    import io
+    from pathlib import Path
+
+    out = Path(opts["out_dir"]) / (Path(source).name.removesuffix(Path(source).suffix) + SUFFIX[opts["format"]])
+    ns = argparse.Namespace(**{k: v for k, v in opts.items() if k != "out_dir"}, source=source, output=str(out))
+    with contextlib.redirect_stdout(io.StringIO()):
+        run_one(ns)
+    return {"output": str(out)}
+
+
+def run_one(args) -> int:
     from gonio.errors import ConfigError, DataError
     from gonio.io.csv import write_csv
     from gonio.io.merl import write_merl

@@ -3,12 +3,16 @@ session directory or a MERL ``.binary`` and print a table."""
 
 from __future__ import annotations
 
+from gonio.cli import many
+
 
 def register(sub) -> None:
     p = sub.add_parser("fit", help="fit a BRDF model (or choose one) to a session or a MERL file",
                        description="Fit an analytic BRDF model to measured samples (a session directory or a "
                                    "MERL .binary file), or choose among candidates with --select.")
-    p.add_argument("source", metavar="SOURCE", help="session directory or MERL .binary file")
+    p.add_argument("source", metavar="SOURCE", nargs="+",
+                   help="session directory or data file (MERL .binary, gonio .npz/.csv, ...); several, a "
+                        "directory of them or a glob fit each one (in parallel) and print a summary")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--model", default="microfacet", help="model to fit (see `gonio models`; sums such as "
                                                           "lambert+2ggx); default microfacet")
@@ -22,7 +26,10 @@ def register(sub) -> None:
     p.add_argument("--max-theta", type=float, default=80.0, help="grazing cutoff for θi, θo in degrees (default 80)")
     p.add_argument("--all-angles", action="store_true", help="no grazing cutoff")
     p.add_argument("--seed", type=int, default=0, help="seed of the multi-start (default 0)")
-    p.add_argument("--json", metavar="OUT", help="write the result as JSON")
+    p.add_argument("--json", metavar="OUT", help="write the result as JSON (several sources: a directory "
+                                                 "receiving SOURCE-NAME.json each)")
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    many.add_options(p)
     p.add_argument("--mitsuba", metavar="OUT.xml|OUT.json",
                    help="also write the fitted model as a Mitsuba 3 BSDF (XML element or load_dict JSON) where "
                         "Mitsuba reproduces it exactly: lambert, microfacet/ggx/beckmann lobes with f0 = 1, their sums")
@@ -30,59 +37,81 @@ def register(sub) -> None:
 
 
 def load_source(path_text: str):
-    """SampleSet of a session directory, an NPZ export or a MERL file (:func:`gonio.io.source.load_source`).
+    """SampleSet of any source (:func:`gonio.api.as_samples`)."""
+    from gonio.api import as_samples
 
-    Tables (MERL) become samples at the measured cell centres; a MERL file has no uncertainties, so
-    sigma is dropped there (the ``auto`` loss is then cosine-weighted L2, not χ² on invented sigmas).
-    """
-    import numpy as np
-
-    from gonio.io.source import load_source as load
-    from gonio.samples import SampleSet
-
-    src = load(path_text)
-    if src.samples is not None:
-        return src.samples
-    s = src.table.to_samples()
-    if src.table.sigma is None:
-        s = SampleSet(s.wi, s.wo, s.f, np.full_like(s.f, np.nan), n_pixels=s.n_pixels)
-    return s
+    return as_samples(path_text)
 
 
-def run(args) -> int:
-    import json
-    from pathlib import Path
-
+def _options(args) -> dict:
+    """What every source's fit needs, as plain data (sent to worker processes)."""
     from gonio.cli.models import _parse_param
     from gonio.errors import ConfigError
-    from gonio.fit import fit
-    from gonio.fit.select import DEFAULT_CANDIDATES, select
 
     if not args.all_angles and not 0.0 < args.max_theta <= 90.0:
         raise ConfigError.field("--max-theta", "max_theta", args.max_theta, "must be in (0, 90] degrees")
-    samples = load_source(args.source)
     fixed = dict(_parse_param(t) for t in args.fix)
-    max_theta = None if args.all_angles else args.max_theta
-    if args.select:
-        cands = tuple(c.strip() for c in args.candidates.split(",")) if args.candidates else DEFAULT_CANDIDATES
-        if fixed:
-            raise ConfigError.field("--fix", "fix", args.fix, "not supported with --select")
-        sel = select(samples, cands, criterion=args.criterion, loss=args.loss, seed=args.seed, max_theta_deg=max_theta)
-        result, report = sel.winner, sel.to_dict()
+    if args.select and fixed:
+        raise ConfigError.field("--fix", "fix", args.fix, "not supported with --select")
+    cands = tuple(c.strip() for c in args.candidates.split(",")) if args.candidates else None
+    return {"select": args.select, "model": args.model, "candidates": cands, "criterion": args.criterion,
+            "loss": args.loss, "fixed": fixed, "seed": args.seed,
+            "max_theta_deg": None if args.all_angles else args.max_theta, "force": args.force}
+
+
+def fit_one(source: str, opts: dict):
+    """Fit (or select) for one source: ``(FitResult, Selection or None)``."""
+    from gonio import api
+
+    kw = {"loss": opts["loss"], "seed": opts["seed"], "max_theta_deg": opts["max_theta_deg"]}
+    if opts["select"]:
+        sel = api.select(source, opts["candidates"], criterion=opts["criterion"], **kw)
+        return sel.winner, sel
+    return api.fit(source, opts["model"], fixed=opts["fixed"], **kw), None
+
+
+def fit_row(source: str, opts: dict) -> dict:
+    """One summary row of a batch fit; writes ``json_dir/NAME.json`` when asked."""
+    from pathlib import Path
+
+    result, sel = fit_one(source, opts)
+    if opts.get("json_dir"):
+        target = Path(opts["json_dir"]) / f"{Path(source).name}.json"
+        (sel or result).to_json(target, force=opts["force"])
+    return {"model": result.model_name, "n_used": result.n_used, "rms_rel": result.rms_rel,
+            "chi2_red": result.chi2_red, "seconds": round(result.seconds, 3),
+            "params": "; ".join(f"{k}={v}" for k, v in result.params.items()), "notes": " | ".join(result.notes)}
+
+
+def run(args) -> int:
+    paths = many.sources(args)
+    if many.is_batch(args, paths):
+        opts = _options(args)
+        if args.mitsuba:
+            from gonio.errors import ConfigError
+
+            raise ConfigError.field("--mitsuba", "mitsuba", args.mitsuba, "takes one source (fit each one alone)")
+        opts["json_dir"] = str(many.output_dir("--json", args.json, required=False) or "") or None
+        return many.run("fit", args, fit_row, paths, opts,
+                        ["source", "status", "model", "n_used", "rms_rel", "chi2_red", "seconds", "params", "error"])
+    args.source = str(paths[0])
+    return run_one(args)
+
+
+def run_one(args) -> int:
+    opts = _options(args)
+    result, sel = fit_one(args.source, opts)
+    if sel is not None:
         print("\n".join(sel.table_lines()))
         print()
-    else:
-        result = fit(samples, args.model, loss=args.loss, fixed=fixed, seed=args.seed, max_theta_deg=max_theta)
-        report = {**result.to_dict(), "candidates": []}
     print("\n".join(result.summary_lines()))
+    # the result is written before any optional export that can refuse the model
+    if args.json:
+        (sel or result).to_json(args.json, force=args.force)
+        print(f"wrote {args.json}")
     if args.mitsuba:
         from gonio.io.mitsuba import write_mitsuba
 
         write_mitsuba(result.model, args.mitsuba)
         print(f"wrote {args.mitsuba} (Mitsuba 3 BSDF)")
-    if args.json:
-        try:
-            Path(args.json).write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
-        except OSError as exc:
-            raise ConfigError.field("--json", "json", args.json, f"cannot write ({exc.strerror or exc})") from None
     return 0

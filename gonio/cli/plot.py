@@ -3,6 +3,8 @@ export, or a MERL binary), optionally with a fitted model (``--model FIT.json`` 
 
 from __future__ import annotations
 
+from gonio.cli import many
+
 KINDS = ("polar", "inplane", "coverage", "residual")
 
 
@@ -11,15 +13,19 @@ def register(sub) -> None:
                        description="Polar slice at fixed incidence, in-plane curve with error bars and a fitted "
                                    "model, coverage of the sampled directions, or residuals after a fit. "
                                    "Needs matplotlib (pip install 'gonio[plots]').")
-    p.add_argument("source", metavar="DIR", help="session directory, .npz export, or MERL .binary")
+    p.add_argument("source", metavar="DIR", nargs="+",
+                   help="session directory, .npz export, or MERL .binary; several, a directory of them or a glob "
+                        "plot each one (in parallel) into the directory -o names")
     p.add_argument("--kind", required=True, choices=KINDS, help="what to plot")
-    p.add_argument("-o", "--output", required=True, metavar="FILE.png", help="output image")
+    p.add_argument("-o", "--output", required=True, metavar="FILE.png",
+                   help="output image (several sources: a directory receiving SOURCE-NAME-KIND.png each)")
     p.add_argument("--theta-i", type=float, default=None, metavar="DEG",
                    help="incidence angle of polar/inplane plots (default: the most measured one; 45 for tables)")
     p.add_argument("--tol", type=float, default=2.5, metavar="DEG",
                    help="angular tolerance selecting the incidence and the plane (default 2.5)")
     p.add_argument("--model", metavar="FIT.json", help="fitted model to overlay (JSON of `gonio fit --json`)")
     p.add_argument("--linear", action="store_true", help="linear instead of log BRDF axis (inplane)")
+    many.add_options(p)
     p.set_defaults(func=run)
 
 
@@ -46,6 +52,31 @@ def load_model(path):
 
 
 def run(args) -> int:
+    paths = many.sources(args)
+    if many.is_batch(args, paths):
+        out_dir = many.output_dir("-o", args.output)
+        opts = {k: v for k, v in vars(args).items() if k not in ("func", "source", "output")}
+        opts["out_dir"] = str(out_dir)
+        return many.run("plot", args, plot_row, paths, opts, ["source", "status", "output", "error"])
+    args.source = str(paths[0])
+    return run_one(args)
+
+
+def plot_row(source: str, opts: dict) -> dict:
+    """Plot one source of a batch into ``opts["out_dir"]``; its summary row."""
+    import argparse
+    import contextlib
+    import io
+    from pathlib import Path
+
+    out = Path(opts["out_dir"]) / f"{Path(source).name}-{opts['kind']}.png"
+    ns = argparse.Namespace(**{k: v for k, v in opts.items() if k != "out_dir"}, source=source, output=str(out))
+    with contextlib.redirect_stdout(io.StringIO()):
+        run_one(ns)
+    return {"output": str(out)}
+
+
+def run_one(args) -> int:
     from gonio import plots
     from gonio.errors import ConfigError
     from gonio.io.source import load_source

@@ -1,0 +1,167 @@
+"""Many sources at once: expand paths and globs, run one function per source on the local cores or a
+Dask cluster, and collect one summary row per source.
+
+A failing source is a row with ``status = "failed"`` and its one-line error; it never stops the
+others. Rows come back in the order of the sources, whatever order the workers finish in, so a
+parallel run prints and writes exactly what a serial one does.
+"""
+
+from __future__ import annotations
+
+import csv
+import glob
+import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from gonio.errors import ConfigError, GonioError
+from gonio.progress import progress
+
+__all__ = ["expand_sources", "default_jobs", "run_batch", "write_summary_csv", "format_table"]
+
+#: File name endings that are read as data sources when a directory of them is given.
+DATA_SUFFIXES = (".binary", ".npz", ".csv", ".bsdf")
+
+
+def _is_session(p: Path) -> bool:
+    return (p / "manifest.json").is_file()
+
+
+def expand_sources(specs: Sequence[str]) -> list[Path]:
+    """Paths of every source named by ``specs``: files, session directories, directories holding
+    data files or sessions (their entries, sorted), and glob patterns (``*``, ``?``, ``[``). Duplicates
+    are dropped; a name that matches nothing is a one-line :class:`ConfigError`."""
+    out: list[Path] = []
+    for spec in specs:
+        if any(c in spec for c in "*?[") and not Path(spec).exists():
+            matches = sorted(glob.glob(spec))
+            if not matches:
+                raise ConfigError.field(None, "SOURCE", spec, "matches no file or directory")
+            paths = [Path(m) for m in matches]
+        else:
+            paths = [Path(spec)]
+        for p in paths:
+            if p.is_dir() and not _is_session(p):
+                inner = sorted(q for q in p.iterdir()
+                               if (q.is_file() and q.suffix.lower() in DATA_SUFFIXES) or (q.is_dir() and _is_session(q)))
+                out.extend(inner if inner else [p])  # an empty or foreign directory: let the reader say why
+            else:
+                out.append(p)
+    seen, unique = set(), []
+    for p in out:
+        key = os.path.abspath(p)
+        if key not in seen:
+            seen.add(key)
+            unique.append(p)
+    return unique
+
+
+def default_jobs() -> int:
+    """The cores this process may use (its CPU affinity where the OS tells it)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def _guarded(fn: Callable[..., dict], source: str, options: dict) -> dict:
+    """``fn(source, options)`` as a row; a gonio error (bad input, hardware, data) becomes a failed row."""
+    try:
+        row = dict(fn(source, options))
+        row.setdefault("status", "ok")
+    except GonioError as exc:
+        row = {"status": "failed", "error": str(exc)}
+    except Exception as exc:  # one source's bug must not lose the others' results; the row says what
+        row = {"status": "failed", "error": f"{type(exc).__name__}: {exc}"}
+    return {"source": source, **row}
+
+
+def run_batch(fn: Callable[[str, dict], dict], sources: Sequence[Path | str], options: dict, *,
+              jobs: int | None = None, scheduler: str | None = None, desc: str = "") -> list[dict]:
+    """One row per source from ``fn(str(source), options)`` (a module-level function, so it can be
+    sent to another process), in the order of ``sources``.
+
+    ``scheduler`` (``tcp://host:port``) runs them on a Dask distributed cluster (``pip install
+    'gonio[dask]'``); else ``jobs`` worker processes on this machine (default: every core; 1 runs in
+    this process).
+    """
+    names = [str(s) for s in sources]
+    if scheduler:
+        return _run_dask(fn, names, options, scheduler, desc)
+    jobs = default_jobs() if jobs is None else jobs
+    if jobs < 1:
+        raise ConfigError.field("--jobs", "jobs", jobs, "must be at least 1")
+    jobs = min(jobs, len(names))
+    if jobs <= 1:
+        return [_guarded(fn, s, options) for s in progress(names, total=len(names), desc=desc, unit="source")]
+    rows: list[dict | None] = [None] * len(names)
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = {pool.submit(_guarded, fn, s, options): k for k, s in enumerate(names)}
+        for fut in progress(as_completed(futures), total=len(futures), desc=desc, unit="source"):
+            rows[futures[fut]] = fut.result()
+    return rows  # type: ignore[return-value]
+
+
+def _run_dask(fn, names: list[str], options: dict, scheduler: str, desc: str) -> list[dict]:
+    try:
+        from distributed import Client, as_completed as dask_completed
+    except ImportError:
+        raise ConfigError.field("--scheduler", "scheduler", scheduler,
+                                "needs Dask: pip install 'gonio[dask]'") from None
+    try:
+        client = Client(scheduler, timeout="10s")
+    except (OSError, TimeoutError) as exc:
+        raise ConfigError.field("--scheduler", "scheduler", scheduler, f"cannot connect ({exc})") from None
+    try:
+        futures = [client.submit(_guarded, fn, s, options, key=f"gonio-{k}-{os.getpid()}-{id(options)}")
+                   for k, s in enumerate(names)]
+        index = {f.key: k for k, f in enumerate(futures)}
+        rows: list[dict | None] = [None] * len(names)
+        for fut in progress(dask_completed(futures), total=len(futures), desc=desc, unit="source"):
+            rows[index[fut.key]] = fut.result()
+        return rows  # type: ignore[return-value]
+    finally:
+        client.close()
+
+
+def _columns(rows: list[dict]) -> list[str]:
+    cols: list[str] = []
+    for r in rows:
+        for k in r:
+            if k not in cols:
+                cols.append(k)
+    return cols
+
+
+def _cell(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.5g}"
+    if isinstance(v, (list, tuple)):
+        return " ".join(_cell(x) for x in v)
+    return "" if v is None else str(v)
+
+
+def format_table(rows: list[dict], columns: Sequence[str] | None = None) -> list[str]:
+    """Rows as an aligned text table (one line per row, a header first)."""
+    cols = list(columns or _columns(rows))
+    cells = [[_cell(r.get(c)) for c in cols] for r in rows]
+    width = [max([len(c)] + [len(row[j]) for row in cells]) for j, c in enumerate(cols)]
+    out = ["  ".join(c.ljust(width[j]) for j, c in enumerate(cols)).rstrip()]
+    out += ["  ".join(v.ljust(width[j]) for j, v in enumerate(row)).rstrip() for row in cells]
+    return out
+
+
+def write_summary_csv(path: Path | str, rows: list[dict]) -> Path:
+    """The summary rows as CSV (a header of every key that occurs; lists space-separated)."""
+    p = Path(path)
+    cols = _columns(rows)
+    try:
+        with open(p, "w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow(cols)
+            for r in rows:
+                w.writerow([_cell(r.get(c)) for c in cols])
+    except OSError as exc:
+        raise ConfigError.field("--summary", "summary", str(p), f"cannot write ({exc.strerror or exc})") from None
+    return p
