@@ -60,6 +60,22 @@ def _incidence(samples: SampleSet, theta_i_deg: float | None, tol_deg: float, wh
     return mask
 
 
+def _require_positive(values: np.ndarray, what: str, hint: str = "") -> None:
+    """A log-scale plot of a table with no positive value would show a uniform floor: refuse it."""
+    if not np.any(np.nan_to_num(values, nan=0.0) > 0):
+        raise DataError(f"{what}: the table holds no positive value here (all zero or not measured): "
+                        f"nothing to show on a log scale{hint}")
+
+
+def _polar_axis_style(ax) -> None:
+    """θ rings every 30° with small labels set off the data, so they do not run together."""
+    ax.set_rlim(0, 90)
+    ax.set_rticks([30, 60, 90])
+    ax.set_rlabel_position(112.5)
+    ax.tick_params(axis="y", labelsize=7)
+    ax.tick_params(axis="x", labelsize=7, pad=1)
+
+
 def _relative_azimuth(samples: SampleSet) -> np.ndarray:
     _, pi_, _, po = samples.angles()
     return np.mod(po - pi_, 2 * np.pi)
@@ -84,10 +100,11 @@ def polar_slice(*, samples: SampleSet | None = None, table=None, theta_i_deg: fl
         to, dphi = np.meshgrid(np.radians(np.arange(0.5, 89, 1.0)), np.radians(np.arange(0, 361, 2.0)), indexing="ij")
         wi = from_spherical(np.radians(ti), 0.0)
         val = table.lookup(np.broadcast_to(wi, to.shape + (3,)), from_spherical(to, dphi), "trilinear").mean(axis=-1)
+        _require_positive(val, title or "polar plot")
         art = ax.pcolormesh(dphi, np.degrees(to), np.log10(np.maximum(val, 1e-6)), shading="auto", cmap="viridis")
     else:
         raise ValueError("polar_slice needs samples or a table")
-    ax.set_rlim(0, 90)
+    _polar_axis_style(ax)
     ax.set_title(f"{title + ': ' if title else ''}BRDF at {ti:.1f}° incidence (radius θo, angle φo − φi)")
     fig.colorbar(art, ax=ax, label="log10 BRDF (1/sr), mean of R,G,B", shrink=0.8)
     return fig
@@ -127,6 +144,8 @@ def inplane(*, samples: SampleSet | None = None, table=None, model=None, theta_i
     wi, wo = _inplane_dirs(theta_i_deg, grid)
     if table is not None:
         v = table.lookup(wi, wo, "trilinear")
+        if log:
+            _require_positive(v, title or "in-plane plot", hint="; try --linear")
         for c, colour in enumerate(_RGB):
             ax.plot(grid, v[:, c], "-", color=colour, lw=1.0, alpha=0.6 if model is not None else 1.0,
                     label=f"table {'RGB'[c]}")
@@ -154,8 +173,8 @@ def coverage(*, samples: SampleSet | None = None, table=None, title: str = ""):
         for k, (t, p, name) in enumerate(((ti, pi_, "wi (light)"), (to, po, "wo (camera)"))):
             ax = fig.add_subplot(1, 3, k + 1, projection="polar")
             ax.scatter(p, np.degrees(t), s=3, alpha=0.5, color=("tab:orange", "tab:blue")[k])
-            ax.set_rlim(0, 90)
-            ax.set_title(f"{name}: {len(t)} samples")
+            _polar_axis_style(ax)
+            ax.set_title(f"{name}: {len(t)} samples", pad=14, fontsize=10)
         th, _, td, _ = half_diff_from_dirs(samples.wi, samples.wo)
         ax = fig.add_subplot(1, 3, 3)
         _, _, _, img = ax.hist2d(np.degrees(td), np.degrees(th), bins=[45, 45], range=[[0, 90], [0, 90]],
@@ -204,6 +223,7 @@ def residual(*, samples: SampleSet, model, title: str = ""):
     x = np.linspace(-4 * lim, 4 * lim, 200)
     ax.plot(x, np.exp(-0.5 * x**2) / np.sqrt(2 * np.pi), "k--", lw=1, label="N(0, 1)")
     ax.set_xlabel("(f − model) / σ")
+    ax.set_ylabel("probability density")
     ax.legend()
     if title:
         fig.suptitle(title)

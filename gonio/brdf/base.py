@@ -47,6 +47,8 @@ class Param:
             if value not in self.choices:
                 raise ConfigError.field(source, field, value, f"must be one of {', '.join(self.choices)}")
             return value
+        if _not_numeric(value):  # True is not 1, "0.5" is not 0.5: a TOML or JSON typo, refused
+            raise ConfigError.field(source, field, value, "must be a number (not a string or a boolean)")
         try:
             arr = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError):
@@ -65,6 +67,17 @@ class Param:
             arr.setflags(write=False)
             return arr
         return float(arr)
+
+
+def _not_numeric(value: Any) -> bool:
+    """Booleans and strings (also inside a list) are not numbers, though NumPy would convert them."""
+    if isinstance(value, (bool, np.bool_, str, bytes)):
+        return True
+    if isinstance(value, (list, tuple)):
+        return any(_not_numeric(v) for v in value)
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "bUSO" and (value.dtype.kind != "O" or any(_not_numeric(v) for v in value.flat))
+    return False
 
 
 class BRDF:

@@ -360,6 +360,8 @@ def run_measure(args) -> int:
     rig_text, rig_where = read_rig_text(rig_src)
     rig = load_rig(text=rig_text, source=rig_where)
     material = _material(args.material) if (args.sim or args.material) else None
+    if material is not None and material.defaulted:
+        print(material.defaults_note())
     adaptive = None
     if args.plan == "adaptive":
         from gonio.cli.plan import adaptive_from_args

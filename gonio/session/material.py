@@ -14,11 +14,12 @@ A material file is TOML::
 A sum of lobes names its parameters ``lobe.param``; dotted keys (``diffuse.albedo = 0.3``, i.e. nested
 tables, at any depth) and quoted keys (``"diffuse.albedo" = 0.3``) are the same.
 
-The simulated sample's material must be *complete*: every parameter of the model is given (a missing
-one is not filled with the model's default: ``model = "microfacet"`` with only ``kd`` would silently
-run with ks = 1, alpha = 0.1, f0 = 1). Every error is a :class:`gonio.errors.ConfigError` whose
-one-line message names the file, the field(s) and the value: missing and unknown parameters are
-listed all at once; types and ranges are the model's own checks (``make(..., source=file)``).
+A parameter left out takes the model's default (``gonio models`` lists them) — never silently:
+:attr:`Material.defaulted` names them, ``gonio measure`` prints them, and the manifest records the
+complete parameter set the sample was simulated with. A parameter without a default must be given.
+Every error is a :class:`gonio.errors.ConfigError` whose one-line message names the file, the
+field(s) and the value: missing and unknown parameters are listed all at once; types and ranges are
+the model's own checks (``make(..., source=file)``).
 """
 
 from __future__ import annotations
@@ -44,6 +45,15 @@ class Material:
     params: Mapping[str, Any] = field(default_factory=dict)
     label: str = ""
     source: str = "<material>"
+    #: Parameters the file left out, filled with the model's defaults (already in ``params``).
+    defaulted: tuple[str, ...] = ()
+
+    def defaults_note(self) -> str:
+        """One line naming the defaulted parameters and their values ('' when the file gave all)."""
+        if not self.defaulted:
+            return ""
+        vals = ", ".join(f"{k} = {self.params[k]}" for k in self.defaulted)
+        return f"material {self.source}: not given, the model's defaults are used: {vals}"
 
     def brdf(self):
         """The :class:`gonio.brdf.base.BRDF` object (validates the parameters)."""
@@ -56,8 +66,8 @@ class Material:
         return {"model": self.model, "params": dict(self.params), "label": self.label}
 
 
-def _model_params(model: str, source: str) -> tuple[str, ...]:
-    """The parameter names of the model registered as ``model`` (unknown model: ConfigError from make)."""
+def _model_params(model: str, source: str) -> dict:
+    """The parameter specs of the model registered as ``model`` (unknown model: ConfigError from make)."""
     from gonio.brdf import MODELS, is_sum_name, lobe_sum, make
 
     cls = MODELS.get(model)
@@ -68,7 +78,7 @@ def _model_params(model: str, source: str) -> tuple[str, ...]:
             cls = None
     if cls is None:
         make(model, source=source)  # raises the registry's one-line error naming the model
-    return tuple(cls.PARAMS)
+    return dict(cls.PARAMS)
 
 
 def _flatten(params: Mapping[str, Any], source: str, prefix: str = "") -> dict[str, Any]:
@@ -88,8 +98,9 @@ def _flatten(params: Mapping[str, Any], source: str, prefix: str = "") -> dict[s
 def material_from_dict(data: Mapping[str, Any], source: str = "<material>", *, complete: bool = True) -> Material:
     """Check a parsed material table and build the BRDF once (so bad parameters fail here).
 
-    With ``complete`` (material files), every parameter of the model must be given; ``complete=False``
-    only for materials recorded by older sessions, which ran with the model's defaults filled in.
+    Parameters left out take the model's defaults and are listed in :attr:`Material.defaulted`
+    (``complete``: a parameter without a default is an error; ``complete=False`` leaves that to the
+    model, for materials recorded by older sessions).
     """
     if not isinstance(data, Mapping):
         raise ConfigError.field(source, "material", data, "must be a table")
@@ -108,16 +119,20 @@ def material_from_dict(data: Mapping[str, Any], source: str = "<material>", *, c
     label = data.get("label", "")
     if not isinstance(label, str):
         raise ConfigError.field(source, "label", label, "must be a string")
-    names = _model_params(model, source)
+    specs = _model_params(model, source)
+    names = tuple(specs)
     unknown = [k for k in params if k not in names]
     if unknown:
         raise ConfigError(f"{source}: params: unknown parameter{'s' if len(unknown) > 1 else ''} "
                           f"{', '.join(unknown)} (model {model!r} takes {', '.join(names)})")
-    missing = [k for k in names if k not in params]
-    if missing and complete:
-        raise ConfigError(f"{source}: params: missing {', '.join(missing)} (the simulated sample needs every "
-                          f"parameter of model {model!r}: {', '.join(names)})")
-    m = Material(model=model, params=dict(params), label=label or model, source=source)
+    required = [k for k in names if k not in params and specs[k].default is None]
+    if required and complete:
+        raise ConfigError(f"{source}: params: missing {', '.join(required)} (no default in model {model!r}, "
+                          f"which takes {', '.join(names)})")
+    defaulted = tuple(k for k in names if k not in params and specs[k].default is not None)
+    full = {**params, **{k: specs[k].default for k in defaulted}}
+    full = {k: full[k] for k in names if k in full}  # the model's order
+    m = Material(model=model, params=full, label=label or model, source=source, defaulted=defaulted)
     m.brdf()  # unknown model, missing or bad parameter -> ConfigError naming source and field
     return m
 

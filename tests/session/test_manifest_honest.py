@@ -82,7 +82,6 @@ def test_npz_export_carries_the_detector_solid_angle(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("params, message", [
-    ({"kd": [0.3, 0.1, 0.1]}, "mat.toml: params: missing ks, alpha, f0, distribution (the simulated sample"),
     ({"kd": [0.3, 0.1, 0.1], "ks": 1, "alpha": 0.1, "f0": 0.04, "distribution": "ggx", "foo": 1, "bar": 2},
      "mat.toml: params: unknown parameters foo, bar (model 'microfacet' takes kd, ks, alpha, f0, distribution)"),
     ({"kd": "red", "ks": 1, "alpha": 0.1, "f0": 0.04, "distribution": "ggx"}, "mat.toml: microfacet.kd = 'red'"),
@@ -98,14 +97,15 @@ def test_material_from_an_old_manifest_may_be_partial():
     assert m.brdf().params["ks"] is not None
 
 
-def test_material_file_with_missing_parameter_fails_measure_in_one_line(tmp_path, capsys):
+def test_material_file_with_missing_parameters_uses_and_states_the_defaults(tmp_path, capsys):
     f = tmp_path / "m.toml"
     f.write_text('model = "microfacet"\n[params]\nkd = [0.3, 0.1, 0.05]\n')
-    assert main(["measure", "--sim", *SMALL, "--material", str(f), "--out", str(tmp_path / "s")]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"gonio measure: error: {f}: params: missing ks, alpha, f0, distribution (the simulated sample "
-                   "needs every parameter of model 'microfacet': kd, ks, alpha, f0, distribution)"]
-    assert not (tmp_path / "s").exists()
+    assert main(["measure", "--sim", *SMALL, "--material", str(f), "--out", str(tmp_path / "s")]) == 0
+    out = capsys.readouterr().out
+    assert f"material {f}: not given, the model's defaults are used: ks = 1.0, alpha = 0.1, f0 = 1.0, " \
+           "distribution = ggx" in out
+    recorded = json.loads((tmp_path / "s" / "manifest.json").read_text())["material"]["params"]
+    assert recorded == {"kd": [0.3, 0.1, 0.05], "ks": 1.0, "alpha": 0.1, "f0": 1.0, "distribution": "ggx"}
 
 
 def test_plan_parameter_error_has_one_prefix(capsys):
