@@ -73,6 +73,8 @@ class SimRigConfig:
     warmup_depth: float = 0.05
     warmup_tau: float = 120.0
     pd_noise: float = 0.002
+    #: How the host reaches the camera: ``direct`` (in-process) or ``gige`` (sim.gige_camera over GigE Vision).
+    camera_link: str = "direct"
 
     def to_dict(self) -> dict:
         return dict(self.__dict__)

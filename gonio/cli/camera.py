@@ -26,9 +26,15 @@ def register(sub) -> None:
 
     def common(sp):
         where = sp.add_mutually_exclusive_group(required=True)
-        where.add_argument("--camera", metavar="N", help="camera index or device path (OpenCV)")
+        where.add_argument("--camera", metavar="N|ID", help="camera index or device path (OpenCV); with --backend "
+                                                             "aravis a GenICam device id (gonio camera list) or "
+                                                             "gige://ADDRESS")
         where.add_argument("--sim", action="store_true", help="the simulated camera (8-bit gamma by default)")
-        sp.add_argument("--backend", default="v4l2", help="OpenCV backend: any, v4l2, gstreamer, ffmpeg, aravis")
+        sp.add_argument("--backend", default="v4l2", help="OpenCV backend: any, v4l2, gstreamer, ffmpeg; or aravis: "
+                                                          "GenICam (GigE Vision / USB3 Vision) through Aravis")
+        sp.add_argument("--pixel-format", default="Mono16", help="aravis: Mono8..Mono16, RGB8, BayerRG8, ... "
+                                                                 "(default Mono16)")
+        sp.add_argument("--gain-unit", default="dB", choices=("dB", "raw"), help="aravis: how the camera counts gain")
         sp.add_argument("--exposure-unit", type=float, default=1e-4,
                         help="seconds per CAP_PROP_EXPOSURE unit (V4L2: 1e-4)")
         sp.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for a frame")
@@ -38,6 +44,8 @@ def register(sub) -> None:
         sp.add_argument("--seed", type=int, default=0, help="simulated noise seed")
         sp.set_defaults(func=run)
 
+    ls = csub.add_parser("list", help="the GenICam cameras Aravis discovers (GigE Vision, USB3 Vision)")
+    ls.set_defaults(func=run_list)
     i = csub.add_parser("info", help="resolution, backend, whether manual exposure is accepted")
     common(i)
     c = csub.add_parser("capture", help="save one raw frame (PNG: 8/16-bit; or .npy)")
@@ -66,6 +74,10 @@ def _open(args):
     backend = args.backend.lower()
     if backend not in BACKENDS:
         raise ConfigError.field("--backend", "backend", args.backend, f"must be one of {', '.join(BACKENDS)}")
+    if backend == "aravis":
+        from gonio.rig.aravis import AravisCamera
+
+        return AravisCamera(args.camera, RealClock(), pixel_format=args.pixel_format, gain_unit=args.gain_unit)
     if not args.exposure_unit > 0:
         raise ConfigError.field("--exposure-unit", "exposure_unit", args.exposure_unit, "must be positive")
     # raw frames: no linearization here (the response is what `response` measures)
@@ -153,6 +165,19 @@ def run(args) -> int:
         return _response(cam, sorted(exposures), args)
     finally:
         cam.close()
+
+
+def run_list(args) -> int:
+    from gonio.rig.aravis import list_devices
+
+    devices = list_devices()
+    if not devices:
+        print("no GenICam camera found (GigE Vision cameras must be on a reachable subnet; USB3 Vision cameras "
+              "need the udev rules of aravis)")
+        return 1
+    for d in devices:
+        print(f"{d['id']:<32} {d['protocol']:<11} {d['vendor']} {d['model']} serial {d['serial']} at {d['address']}")
+    return 0
 
 
 def _info(cam, args) -> int:

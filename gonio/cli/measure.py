@@ -59,6 +59,10 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the simulation and of the plan ordering")
     p.add_argument("--sim-resolution", default=DEFAULT_SIM_RESOLUTION, metavar="WxH",
                    help=f"simulated camera resolution (default {DEFAULT_SIM_RESOLUTION})")
+    p.add_argument("--sim-camera", choices=("direct", "gige"), default="direct",
+                   help="gige: the simulated camera is served as a GigE Vision device on 127.0.0.1 and read "
+                        "through gonio's Aravis backend, an 8-bit RGB8 sensor (needs gir1.2-aravis-0.8 and "
+                        "gonio[genicam]); direct (default): called in-process")
     p.add_argument("--out", metavar="DIR", help="new session directory (default ./gonio-session-YYYYmmdd-HHMMSS)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.set_defaults(func=run_measure)
@@ -264,11 +268,16 @@ def _sim_session(store, plan, manifest, quiet: bool) -> int:
     config = SimRigConfig.from_dict(manifest["sim"])
     where = f"{store.directory}/manifest.json"
     rig = _manifest_rig(manifest, where)
-    with SimRig(rig, material.brdf(), config=config, layout=_layout(manifest)) as sim:
+    import contextlib
+
+    with SimRig(rig, material.brdf(), config=config, layout=_layout(manifest)) as sim, contextlib.ExitStack() as stack:
         calibration = _manifest_calibration(manifest, where, fallback=sim.calibration)
         devices = None
         try:
-            devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+            camera = sim.camera
+            if getattr(config, "camera_link", "direct") == "gige":  # the sim camera behind a real GigE Vision link
+                camera = _gige_sim_camera(sim, stack)
+            devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, camera, sim.clock)
             return _run_session(store, plan, devices, calibration, sim.layout, before_pose=sim.begin_pose,
                                 quiet=quiet, resume_cmd=f"gonio resume {store.directory}")
         except BaseException as exc:
@@ -280,6 +289,24 @@ def _sim_session(store, plan, manifest, quiet: bool) -> int:
                 devices.close()
 
 
+def _gige_sim_camera(sim, stack):
+    """``sim.camera`` served as a GigE Vision camera on the loopback interface (:mod:`sim.gige_camera`)
+    and opened through gonio's Aravis backend, as a GenICam camera on a rig would be."""
+    from gonio.errors import HardwareError
+    from gonio.plugins import plugin
+    from gonio.rig.aravis import AravisCamera
+
+    try:
+        server = stack.enter_context(plugin("sim.gige_camera").GigECameraServer(sim.camera))
+    except (ImportError, ValueError, OSError) as exc:
+        raise HardwareError(f"--sim-camera gige: cannot serve the simulated camera over GigE Vision ({exc})") from None
+    cal = sim.calibration
+    camera = AravisCamera(server.device, sim.clock, pixel_format="RGB8", black_level=sim.sensor.black_level,
+                          gain_unit="raw", width=cal.width, height=cal.height)
+    stack.callback(camera.close)
+    return camera
+
+
 def _layout(manifest):
     """The session's target layout (sessions recorded before ``target`` existed: the default one)."""
     from gonio.pipeline.target import TargetLayout
@@ -287,7 +314,7 @@ def _layout(manifest):
     return TargetLayout.from_dict(manifest.get("target", {}), source="manifest target")
 
 
-def _open_hw_devices(rig, hw: dict, settings, clock):
+def _open_hw_devices(rig, hw: dict, settings, clock, size: tuple[int, int] | None = None):
     """Check and open a rig's devices before anything is written: the serial ports exist, the camera opens,
     every servo answers, the controller handshakes. On any failure nothing stays open and the error (one
     line) names the device."""
@@ -301,7 +328,8 @@ def _open_hw_devices(rig, hw: dict, settings, clock):
         port = str(hw[key])
         if "://" not in port and not os.path.exists(port):  # pyserial URLs (socket://, rfc2217://) are not paths
             raise HardwareError(f"{option} {port}: no such device", device=port)
-    camera = open_camera(hw["camera"], settings, clock)
+    width, height = size or (None, None)
+    camera = open_camera(hw["camera"], settings, clock, width=width, height=height)
     try:
         devices = open_devices(rig, hw["servo_port"], hw["controller_port"], camera, clock)
     except BaseException:
@@ -329,7 +357,7 @@ def _hw_session(store, plan, manifest, rig, calibration, quiet: bool, devices=No
         if devices is None:
             where = f"{store.directory} manifest calibration"
             devices = _open_hw_devices(rig, manifest["hardware"], _camera_settings(manifest.get("calibration"), where),
-                                       RealClock())
+                                       RealClock(), size=(calibration.width, calibration.height))
         return _run_session(store, plan, devices, calibration, _layout(manifest), before_pose=None, quiet=quiet,
                             resume_cmd=f"gonio resume {store.directory}")
     except BaseException as exc:
@@ -389,7 +417,8 @@ def run_measure(args) -> int:
         SimRigConfig = plugin("sim.rig").SimRigConfig
 
         w, h = _resolution(args.sim_resolution)
-        config = SimRigConfig.at_resolution(w, h, seed=args.seed)
+        link = {} if args.sim_camera == "direct" else {"camera_link": "gige", "bit_depth": 8}
+        config = SimRigConfig.at_resolution(w, h, seed=args.seed, **link)
         manifest["sim"] = config.to_dict()
         manifest["calibration"] = _calibration_dict(config.calibration())
         _record_detector(manifest, config.calibration(), rig, pinhole=True)
@@ -406,7 +435,11 @@ def run_measure(args) -> int:
 
     # the devices are opened before the session directory exists: a rig that does not start leaves nothing
     description.camera.check_session(args.calibration)
-    devices = _open_hw_devices(rig, manifest["hardware"], description.camera, RealClock())
+    devices = _open_hw_devices(rig, manifest["hardware"], description.camera, RealClock(),
+                               size=(calibration.width, calibration.height))
+    identity = getattr(devices.camera, "identity", None)
+    if callable(identity):  # what the camera says it is (vendor, model, serial, ...)
+        manifest["hardware"]["camera_identity"] = identity()
     try:
         store = SessionStore.create(out, manifest)
     except BaseException:

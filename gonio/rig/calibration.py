@@ -20,7 +20,13 @@ A ``CAMERA.toml`` (``gonio measure --calibration``)::
     #   response = "RESPONSE.npz"   (from `gonio camera response`; relative to this file)
     trigger = "none"           # or "controller": the rig controller fires each exposure
     exposure_unit = 1e-4       # seconds per CAP_PROP_EXPOSURE unit (V4L2: 100 µs)
-    backend = "v4l2"           # any, v4l2, gstreamer, ffmpeg, aravis
+    backend = "v4l2"           # any, v4l2, gstreamer, ffmpeg (OpenCV), or aravis (GenICam, below)
+
+A GenICam camera (GigE Vision / USB3 Vision, :mod:`gonio.rig.aravis`) sets ``backend = "aravis"``,
+``linear = true`` and ``pixel_format`` (``Mono8``...``Mono16``, ``RGB8``, ``BayerRG8``...; its bit depth
+is implied and ``bit_depth``, if given, must match), optionally ``gain_unit = "dB"`` (SFNC, default)
+or ``"raw"``; ``gonio measure --camera`` then names the device (``gonio camera list``) or
+``gige://ADDRESS``.
 
 A non-linear camera is usable in a session only through its inverse response curve
 (:class:`ResponseCurve`, Debevec & Malik, SIGGRAPH 1997): frames are mapped through it to linear
@@ -43,7 +49,8 @@ from gonio.rig.interfaces import Frame
 __all__ = ["ResponseCurve", "CameraSettings", "CameraDescription", "load_camera_calibration", "LinearizedCamera",
            "BACKENDS", "LINEARIZED_BIT_DEPTH"]
 
-#: ``[camera] backend`` names → ``cv2.CAP_*`` API preference (values as in OpenCV's videoio).
+#: ``[camera] backend`` names → ``cv2.CAP_*`` API preference (values as in OpenCV's videoio). ``aravis``
+#: is gonio's own GenICam backend (:mod:`gonio.rig.aravis`), not OpenCV's (absent from its pip wheels).
 BACKENDS = {"any": 0, "v4l2": 200, "gstreamer": 1800, "ffmpeg": 1900, "aravis": 2100}
 #: Bit depth of frames linearized through a response curve (uint16, full scale = the 8-bit value 255).
 LINEARIZED_BIT_DEPTH = 16
@@ -51,7 +58,9 @@ LINEARIZED_BIT_DEPTH = 16
 _LENS_KEYS = {"aperture_diameter_m", "f_number", "focal_length_m"}
 _TOP_KEYS = {"width", "height", "focal_px", "K", "dist", "noise", "camera", "radiometric_scale"} | _LENS_KEYS
 _NOISE_KEYS = {"dn_per_electron", "read_noise_e", "full_well_e"}
-_CAMERA_KEYS = {"linear", "bit_depth", "black_level", "response", "trigger", "exposure_unit", "backend"}
+_CAMERA_KEYS = {"linear", "bit_depth", "black_level", "response", "trigger", "exposure_unit", "backend",
+                "pixel_format", "gain_unit"}
+_GAIN_UNITS = ("dB", "raw")
 _TRIGGERS = ("none", "controller")
 
 
@@ -181,6 +190,10 @@ class CameraSettings:
     trigger: str = "none"
     exposure_unit: float = 1e-4
     backend: str = "v4l2"
+    #: GenICam pixel format (``backend = "aravis"`` only).
+    pixel_format: str | None = None
+    #: How a GenICam camera's Gain register counts (``backend = "aravis"`` only).
+    gain_unit: str = "dB"
 
     def __post_init__(self):
         if self.bit_depth not in (8, 10, 12, 14, 16):
@@ -189,6 +202,22 @@ class CameraSettings:
             raise ConfigError.field(None, "camera.trigger", self.trigger, f"must be one of {', '.join(_TRIGGERS)}")
         if self.backend not in BACKENDS:
             raise ConfigError.field(None, "camera.backend", self.backend, f"must be one of {', '.join(BACKENDS)}")
+        if self.gain_unit not in _GAIN_UNITS:
+            raise ConfigError.field(None, "camera.gain_unit", self.gain_unit, f"must be one of {', '.join(_GAIN_UNITS)}")
+        if self.backend == "aravis":
+            from gonio.rig.aravis import PIXEL_FORMATS
+
+            if self.pixel_format not in PIXEL_FORMATS:
+                raise ConfigError.field(None, "camera.pixel_format", self.pixel_format,
+                                        f"a GenICam camera needs one of {', '.join(PIXEL_FORMATS)}")
+            if not self.linear:
+                raise ConfigError.field(None, "camera.linear", self.linear, "GenICam raw pixel formats are linear: "
+                                        "set linear = true")
+            if self.bit_depth != PIXEL_FORMATS[self.pixel_format][0]:
+                raise ConfigError.field(None, "camera.bit_depth", self.bit_depth,
+                                        f"{self.pixel_format} has {PIXEL_FORMATS[self.pixel_format][0]} bits")
+        elif self.pixel_format is not None:
+            raise ConfigError.field(None, "camera.pixel_format", self.pixel_format, "is for backend = \"aravis\"")
 
     @property
     def backend_id(self) -> int:
@@ -206,6 +235,8 @@ class CameraSettings:
     def to_dict(self) -> dict:
         d = {"linear": self.linear, "bit_depth": self.bit_depth, "black_level": self.black_level,
              "trigger": self.trigger, "exposure_unit": self.exposure_unit, "backend": self.backend}
+        if self.backend == "aravis":
+            d.update(pixel_format=self.pixel_format, gain_unit=self.gain_unit)
         if self.response is not None:
             d["response"] = self.response.to_dict()
         return d
@@ -264,6 +295,16 @@ def _camera_fields(d: Mapping[str, Any], source: str | None, base: Path | None) 
         if not _is_number(v) or v <= 0:
             raise ConfigError.field(source, "camera.exposure_unit", v, "must be a positive number of seconds")
         kw["exposure_unit"] = float(v)
+    if d.get("backend") == "aravis" and "pixel_format" in d and "bit_depth" not in d:
+        from gonio.rig.aravis import PIXEL_FORMATS
+
+        if d["pixel_format"] in PIXEL_FORMATS:  # the format implies the depth
+            kw["bit_depth"] = PIXEL_FORMATS[d["pixel_format"]][0]
+    for key in ("pixel_format", "gain_unit"):
+        if key in d:
+            if not isinstance(d[key], str):
+                raise ConfigError.field(source, f"camera.{key}", d[key], "must be a string")
+            kw[key] = d[key]
     for key, allowed in (("trigger", _TRIGGERS), ("backend", tuple(BACKENDS))):
         if key in d:
             v = d[key]

@@ -228,8 +228,16 @@ class OpenCVCamera:
             self._pending = None
 
 
-def open_camera(device: int | str, settings, clock: Clock, **kw) -> OpenCVCamera:
-    """An :class:`OpenCVCamera` configured by a :class:`gonio.rig.calibration.CameraSettings`."""
+def open_camera(device: int | str, settings, clock: Clock, *, width: int | None = None, height: int | None = None,
+                **kw):
+    """The camera a :class:`gonio.rig.calibration.CameraSettings` describes: a GenICam camera through
+    Aravis (``backend = "aravis"``, :class:`gonio.rig.aravis.AravisCamera`, region ``width`` × ``height``
+    from the calibration) or an :class:`OpenCVCamera`."""
+    if settings.backend == "aravis":
+        from gonio.rig.aravis import AravisCamera
+
+        return AravisCamera(str(device), clock, pixel_format=settings.pixel_format, black_level=settings.black_level,
+                            gain_unit=settings.gain_unit, width=width, height=height, **kw)
     return OpenCVCamera(device, clock, backend=settings.backend_id, exposure_unit=settings.exposure_unit,
                         linear=settings.linear, bit_depth=settings.bit_depth, black_level=settings.black_level,
                         response=settings.response, **kw)
