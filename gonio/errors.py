@@ -1,4 +1,4 @@
-"""The one exception hierarchy of gonio (DESIGN.md §3).
+"""The one exception hierarchy of gonio (docs/architecture.md §3).
 
 Every error a user can cause or a device can raise is a :class:`GonioError`; the CLI turns each into a
 one-line message and a non-zero exit code, never a traceback.

@@ -1,4 +1,4 @@
-"""Directions, frames and angle parametrizations (DESIGN.md §2). Pure, vectorized over ``(..., 3)``.
+"""Directions, frames and angle parametrizations (docs/architecture.md §3). Pure, vectorized over ``(..., 3)``.
 
 Conventions
 -----------

@@ -1,6 +1,6 @@
 """Parts of the source tree that gonio finds through package metadata, never by importing them by name.
 
-DESIGN.md §1: ``gonio`` never imports ``sim``; the simulator is selected through configuration. The
+docs/architecture.md §1: ``gonio`` never imports ``sim``; the simulator is selected through configuration. The
 command line's ``--sim`` switches and ``gonio bench`` find the simulator and the benchmarks through
 the entry points ``pyproject.toml`` declares (``[project.entry-points."gonio.plugins"]``), so the
 dependency points from ``sim`` to ``gonio`` only, and an installation without them says so in one line.

@@ -1,4 +1,4 @@
-"""DESIGN.md §1: gonio never imports sim (nor the benchmarks); they are found through gonio.plugins."""
+"""docs/architecture.md §1: gonio never imports sim (nor the benchmarks); they are found through gonio.plugins."""
 
 from __future__ import annotations
 

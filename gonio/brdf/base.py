@@ -1,4 +1,4 @@
-"""The BRDF model contract shared by every model in :mod:`gonio.brdf` (DESIGN.md §2, §6).
+"""The BRDF model contract shared by every model in :mod:`gonio.brdf` (docs/architecture.md §3, §6).
 
 A model is a small immutable object: ``eval(wi, wo) -> ndarray[..., 3]`` in 1/sr (RGB), ``params``
 (a dict), ``bounds()`` for fitting, and a name in the registry (:func:`gonio.brdf.make`).

@@ -91,7 +91,7 @@ def _sim_camera(args):
     from gonio.pipeline.target import CameraCalibration, TargetLayout
     from gonio.plugins import plugin
 
-    simcam, SimClock = plugin("sim.camera"), plugin("sim.clock").SimClock  # DESIGN §1: found, not imported
+    simcam, SimClock = plugin("sim.camera"), plugin("sim.clock").SimClock  # docs/architecture.md §1: found, not imported
     SensorModel, SimCamera, SimScene = simcam.SensorModel, simcam.SimCamera, simcam.SimScene
 
     w, h = _resolution(args.sim_resolution)

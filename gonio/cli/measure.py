@@ -2,7 +2,7 @@
 
 ``gonio measure --sim`` builds the virtual rig (:mod:`sim.rig`: servo-bus and controller emulators on
 pseudo-terminals, driven through the real dynamixel-sdk and pyserial, a rendering camera, a simulated
-clock). This module is the *configuration boundary*: gonio never imports ``sim`` (DESIGN.md §1); for
+clock). This module is the *configuration boundary*: gonio never imports ``sim`` (docs/architecture.md §1); for
 ``--sim``/resuming a simulated session it finds the simulator through the ``gonio.plugins`` entry points
 (:mod:`gonio.plugins`); everything below it (runner, drivers, pipeline) gets device paths, a camera and a
 clock and cannot tell simulation from hardware.
@@ -260,7 +260,7 @@ def _sim_session(store, plan, manifest, quiet: bool) -> int:
     from gonio.session.runner import open_devices
     from gonio.plugins import plugin
 
-    simrig = plugin("sim.rig")  # DESIGN §1: gonio never imports sim; the simulator is found by configuration
+    simrig = plugin("sim.rig")  # docs/architecture.md §1: gonio never imports sim; the simulator is found by configuration
     SimRig, SimRigConfig = simrig.SimRig, simrig.SimRigConfig
 
     material = material_from_dict({k: v for k, v in manifest["material"].items() if k in ("model", "params", "label")},

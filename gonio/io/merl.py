@@ -1,5 +1,5 @@
 """The MERL isotropic BRDF binary format (Matusik, Pfister, Brand, McMillan, "A Data-Driven Reflectance
-Model", SIGGRAPH 2003; layout as in the reference reader ``BRDFRead.cpp`` and DESIGN.md §2).
+Model", SIGGRAPH 2003; layout as in the reference reader ``BRDFRead.cpp`` and docs/architecture.md §3).
 
 Layout
 ------
@@ -63,7 +63,7 @@ def grid_coords(theta_h, theta_d, phi_d) -> tuple[np.ndarray, np.ndarray, np.nda
     """Continuous grid coordinates of half/difference angles (radians): cell ``i`` covers ``[i, i+1)``.
 
     ``uθh = sqrt(θh / (π/2)) · 90``, ``uθd = θd / (π/2) · 90``, ``uφd = (φd mod π) / π · 180``
-    (DESIGN.md §2; Matusik et al. 2003). Not clamped; φd is folded by reciprocity.
+    (docs/architecture.md §3; Matusik et al. 2003). Not clamped; φd is folded by reciprocity.
     """
     th = np.asarray(theta_h, dtype=np.float64)
     td = np.asarray(theta_d, dtype=np.float64)
@@ -170,7 +170,7 @@ class MerlTable:
         edges and periodic in φd (reciprocity: cell 179 neighbours cell 0). Not-measured corners
         are left out and the remaining weights renormalized.
 
-        Not-measured cells give NaN; below the horizon the value is 0 (DESIGN.md §2).
+        Not-measured cells give NaN; below the horizon the value is 0 (docs/architecture.md §3).
         """
         wi = np.asarray(wi, dtype=np.float64)
         wo = np.asarray(wo, dtype=np.float64)

@@ -204,7 +204,7 @@ def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_positio
     # directions: mean over all sample pixels of the tile (saturated ones included: same geometry)
     wi_t = vec_mean(wi, in_s)
     wo_t = vec_mean(wo, in_s)
-    if not flat:  # into the mounted sample's frame (DESIGN.md §2: z = its normal)
+    if not flat:  # into the mounted sample's frame (docs/architecture.md §3: z = its normal)
         wi_t, wo_t = to_local(wi_t, frame), to_local(wo_t, frame)
     with np.errstate(invalid="ignore", divide="ignore"):
         f = fsum / n[:, None]

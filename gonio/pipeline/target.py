@@ -5,7 +5,7 @@ the sample patch and the white reference patch are.
 
 Frames
 ------
-*Sample frame* (= world frame of the simulation, DESIGN.md §2): origin at the sample centre,
+*Sample frame* (= world frame of the simulation, docs/architecture.md §3): origin at the sample centre,
 z = sample normal, x = reference direction. *Board frame* (OpenCV's ChArUco object points):
 origin at the board's top-left corner, x along the image columns, y along the rows, z into the
 board. The board is mounted with its centre on the sample centre, so
@@ -15,7 +15,7 @@ board. The board is mounted with its centre on the sample centre, so
 :class:`SampleMount`) has its own local frame, ``X_world = M X_patch`` (M 4×4 affine); its normal is
 M's inverse-transpose applied to z (lecture notes 000, "Note on normals and spaces"), its x axis
 M·x made orthogonal to the normal. A flat mount (M = I) makes it the sample frame itself. The
-BRDF samples' wi/wo are expressed in this frame (DESIGN.md §2: z = the sample's normal).
+BRDF samples' wi/wo are expressed in this frame (docs/architecture.md §3: z = the sample's normal).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Measurement plans: which poses to measure, in which order, and how long it will take.
 
-A :class:`Plan` is data (DESIGN.md §6): ordered poses ``(θi, φi, θo, φo)`` in radians, capture settings,
+A :class:`Plan` is data (docs/architecture.md §7): ordered poses ``(θi, φi, θo, φo)`` in radians, capture settings,
 the generator and its parameters, and the poses dropped as unreachable with their reasons. Build one
 with :func:`make_plan` (generators in :data:`GENERATORS`), estimate its lab time with
 :func:`estimate_plan`, or grow one adaptively with :func:`gonio.plan.adaptive.adaptive_plan` (measure, fit, add poses

@@ -1,4 +1,4 @@
-"""The :class:`Plan` data type: ordered poses + capture settings + how they were made (DESIGN.md §6,
+"""The :class:`Plan` data type: ordered poses + capture settings + how they were made (docs/architecture.md §7,
 "plans are data").
 
 A plan is computed, inspected, estimated and checked against the rig's limits before anything moves.

@@ -1,4 +1,4 @@
-"""Small capability interfaces of the rig's devices (DESIGN.md §1, §6).
+"""Small capability interfaces of the rig's devices (docs/architecture.md §1, §7).
 
 Each device kind is a :class:`typing.Protocol` with a few methods; a real implementation and a
 simulated twin satisfy the same protocol, so the session runner cannot tell them apart. Every

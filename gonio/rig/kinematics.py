@@ -6,7 +6,7 @@ joint-angle array, last axis):
 
 ``layout = "arms"`` (the default; ``gonio/rig/rigs/default.toml``, joints :data:`JOINT_NAMES`):
 
-* the sample lies flat at the origin of its local frame (DESIGN.md §2: z = normal, x = reference
+* the sample lies flat at the origin of its local frame (docs/architecture.md §3: z = normal, x = reference
   direction); it does not move;
 * a *light arm* and a *camera arm* are concentric arcs (radii ``light_arm_radius_m`` >
   ``camera_arm_radius_m``) that each turn about z (joint ``<arm>_az``) and carry a carriage along

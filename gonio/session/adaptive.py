@@ -1,4 +1,4 @@
-"""Adaptive measurement sessions: a loop *around* the session runner (DESIGN.md §1: plans are data, the
+"""Adaptive measurement sessions: a loop *around* the session runner (docs/architecture.md §1: plans are data, the
 runner never decides what to measure).
 
 Round *k*'s poses are a :class:`~gonio.plan.Plan` computed by :class:`gonio.plan.adaptive.AdaptivePlanner`

@@ -1,5 +1,5 @@
 """The session runner: executes a :class:`gonio.plan.Plan` against the rig's interfaces, one pose at a
-time, appending each result to the session store. It never decides *what* to measure (DESIGN.md §1).
+time, appending each result to the session store. It never decides *what* to measure (docs/architecture.md §1).
 
 Per session: check the devices (controller status: E-stop and interlock clear; the servos were scanned
 and configured when the axes were opened, :func:`open_devices`), warm the light up (photodiode read on

@@ -1,5 +1,5 @@
 """The crash-safe session store: a directory with a self-describing manifest and an append-only,
-checksummed samples file (DESIGN.md §3: nothing measured is lost).
+checksummed samples file (docs/architecture.md §3: nothing measured is lost).
 
 Layout of a session directory::
 
@@ -48,7 +48,7 @@ SAMPLES = "samples.jsonl"
 #: The fields of a run's summary kept in the manifest's ``runs`` list (one entry per run, see ``finish``).
 RUN_KEYS = ("status", "poses", "samples", "lab_time_s", "wall_time_s")
 STORE_FORMAT = 1
-#: What the stored ``f`` values are (DESIGN.md §2).
+#: What the stored ``f`` values are (docs/architecture.md §3).
 COSINE_CONVENTION = "BRDF, not BRDF*cos"
 UNITS = {"angles": "rad", "f": "1/sr", "sigma": "1/sr", "time": "s", "exposure": "s", "length": "m"}
 _DTYPES = {"<f8", "<i8"}
