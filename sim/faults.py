@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-KINDS = ("drop", "corrupt", "delay", "garbage", "truncate")
+KINDS = ("drop", "corrupt", "delay", "garbage", "truncate", "short")
 
 
 @dataclass
@@ -25,6 +25,10 @@ class LinkFaults:
     drop_rate, corrupt_rate, delay_rate, garbage_rate, truncate_rate : float
         Probability per reply of: no reply at all; one bit flipped; reply sent ``delay_s`` late;
         random bytes sent before the reply; reply cut short.
+    short_rate : float
+        Probability of a reply that is *well formed but short*: re-framed by the emulator with fewer
+        parameter bytes and a valid checksum (:meth:`apply`'s ``reframe``), so only a receiver that checks
+        the length against its request notices; without ``reframe`` it is truncated.
     delay_s : float
         Lateness of a delayed reply, real seconds.
     seed : int
@@ -36,6 +40,7 @@ class LinkFaults:
     delay_rate: float = 0.0
     garbage_rate: float = 0.0
     truncate_rate: float = 0.0
+    short_rate: float = 0.0
     delay_s: float = 0.25
     seed: int = 0
     _queue: deque = field(default_factory=deque, repr=False)
@@ -58,14 +63,16 @@ class LinkFaults:
                 return self._queue.popleft()
             u = self._rng.random()
         for kind, rate in (("drop", self.drop_rate), ("corrupt", self.corrupt_rate), ("delay", self.delay_rate),
-                           ("garbage", self.garbage_rate), ("truncate", self.truncate_rate)):
+                           ("garbage", self.garbage_rate), ("truncate", self.truncate_rate),
+                           ("short", self.short_rate)):
             if u < rate:
                 return kind
             u -= rate
         return None
 
-    def apply(self, reply: bytes) -> tuple[float, bytes] | None:
-        """Decide the fate of ``reply``: ``None`` (dropped) or ``(delay_seconds, bytes_to_send)``."""
+    def apply(self, reply: bytes, reframe=None) -> tuple[float, bytes] | None:
+        """Decide the fate of ``reply``: ``None`` (dropped) or ``(delay_seconds, bytes_to_send)``.
+        ``reframe(reply, keep)`` rebuilds a reply with only ``keep`` of its payload bytes (for ``short``)."""
         kind = self._draw()
         if kind is None or not reply:
             return 0.0, reply
@@ -80,6 +87,10 @@ class LinkFaults:
                 i = int(self._rng.integers(len(b)))
                 b[i] ^= 1 << int(self._rng.integers(8))
                 return 0.0, bytes(b)
+            if kind == "short" and reframe is not None:
+                short = reframe(reply, self._rng)
+                if short is not None:
+                    return 0.0, short
             if kind == "garbage":
                 return 0.0, self._rng.integers(0, 256, int(self._rng.integers(1, 8)), dtype=np.uint8).tobytes() + reply
             return 0.0, reply[: int(self._rng.integers(len(reply)))]  # truncate

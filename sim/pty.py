@@ -99,6 +99,10 @@ class PtyServer:
         """Handle bytes from the host (called on the reader thread)."""
         raise NotImplementedError
 
+    #: ``reframe(reply, rng) -> bytes | None``: a well-formed but shorter reply (the ``short`` link fault);
+    #: None: the protocol has no such notion and ``short`` faults truncate.
+    reframe = None
+
     def on_idle(self) -> None:
         """Called about every 50 ms of real time when no bytes arrive (watchdogs, timers)."""
 
@@ -106,7 +110,7 @@ class PtyServer:
         """Send ``reply`` to the host, through the link faults unless ``faults`` is False."""
         if self.silent or not reply:
             return
-        fate = self.faults.apply(reply) if faults else (0.0, reply)
+        fate = self.faults.apply(reply, self.reframe) if faults else (0.0, reply)
         if fate is None:
             return
         delay, data = fate

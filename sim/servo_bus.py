@@ -256,6 +256,17 @@ class ServoBus(PtyServer):
         s = self.servos.get(dxl_id)
         return s if s is not None and s.online else None
 
+    @staticmethod
+    def reframe(reply: bytes, rng) -> bytes | None:
+        """The ``short`` link fault: the same status packet with 1..all of its parameter bytes removed and a
+        *valid* CRC (only a host that checks the length against its request notices)."""
+        pkts = P.Parser().feed(reply)
+        if len(pkts) != 1 or pkts[0].inst != P.INST_STATUS or len(pkts[0].params) < 2:
+            return None
+        error, params = pkts[0].params[0], pkts[0].params[1:]
+        keep = int(rng.integers(0, len(params)))
+        return P.status(pkts[0].dxl_id, error, params[:keep])
+
     def _reply(self, s: SimServo, error: int, params: bytes = b"", *, kind: str = "other") -> None:
         level = s.peek("status_return_level")
         if kind == "ping" or level >= 2 or (level == 1 and kind == "read"):

@@ -48,9 +48,30 @@ def _parse_ids(text: str | None):
                 ids.append(int(part))
     except ValueError:
         raise ConfigError.field("--ids", "ids", text, "expected IDs like 1-10 or 1,3,5") from None
-    if not ids or any(not 0 <= i <= 252 for i in ids):
+    if not ids or any(not 0 <= i <= 252 for i in ids) or len(ids) > 253:
         raise ConfigError.field("--ids", "ids", text, "IDs must be in 0..252")
     return ids
+
+
+def _check_numbers(args) -> None:
+    """Every number of the command line in its range, before a byte is sent (one line each)."""
+    import math
+
+    from gonio.errors import ConfigError
+    from gonio.rig.dynamixel import MAX_ID
+
+    if not (math.isfinite(args.latency_ms) and 0 < args.latency_ms <= 1000):
+        raise ConfigError.field("--latency-ms", "latency_ms", args.latency_ms, "must be in (0, 1000] ms")
+    if args.servo_command != "move":
+        return
+    if not 0 <= args.id <= MAX_ID:
+        raise ConfigError.field("--id", "id", args.id, f"servo IDs are 0..{MAX_ID} (253-255 are reserved/broadcast)")
+    if not (math.isfinite(args.deg) and 0.0 <= args.deg <= 360.0):
+        raise ConfigError.field("--deg", "deg", args.deg, "raw angle must be in [0, 360]")
+    if not (math.isfinite(args.timeout) and 0 < args.timeout <= 3600):
+        raise ConfigError.field("--timeout", "timeout", args.timeout, "must be in (0, 3600] seconds")
+    if not 0 <= args.tolerance <= 4095:
+        raise ConfigError.field("--tolerance", "tolerance", args.tolerance, "must be in 0..4095 ticks")
 
 
 def _model_name(number: int) -> str:
@@ -70,6 +91,7 @@ def run(args) -> int:
 
     if not os.path.exists(args.port):
         raise ConfigError.field("--port", "port", args.port, "no such serial device")
+    _check_numbers(args)
     ids = _parse_ids(getattr(args, "ids", None))
     with DynamixelBus(args.port, args.baud, latency_timer_ms=args.latency_ms) as bus:
         if args.servo_command in ("scan", "read"):
@@ -92,8 +114,6 @@ def run(args) -> int:
                       f"{'on' if torque else 'off':<6}  {'0x%02X' % err if err else '-'}")
             return 0
         # move
-        if not 0.0 <= args.deg <= 360.0:
-            raise ConfigError.field("--deg", "deg", args.deg, "raw angle must be in [0, 360]")
         model = bus.ping(args.id)
         table = table_for_model_number(model)
         if table is None:

@@ -36,8 +36,10 @@ from gonio.errors import ChecksumError, ConfigError, HardwareError, HardwareTime
 from gonio.rig.control_table import ControlTable, load_control_table, table_for_model_number
 from gonio.rig.kinematics import trapezoid_time
 
-__all__ = ["DynamixelBus", "DynamixelAxes", "AxisConfig", "describe_hardware_error", "BAUD_RATES"]
+__all__ = ["DynamixelBus", "DynamixelAxes", "AxisConfig", "describe_hardware_error", "BAUD_RATES", "MAX_ID"]
 
+#: Largest servo ID of Protocol 2.0 (253 is reserved, 254 is the broadcast ID).
+MAX_ID = 252
 #: Baud rates the SDK's PortHandler accepts.
 BAUD_RATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600, 1000000, 1152000,
               2000000, 2500000, 3000000, 3500000, 4000000)
@@ -52,6 +54,60 @@ def describe_hardware_error(bits: int) -> str:
     """Names of the Hardware Error Status(70) bits set in ``bits`` (e-manual, "Shutdown(63)")."""
     names = [name for bit, name in _HW_BITS.items() if bits & bit]
     return ", ".join(names) or f"unknown (0x{bits:02X})"
+
+
+#: Bytes of a status packet around its parameters: header 4 + ID + LEN 2 + INST + ERR + CRC 2 (e-manual,
+#: "Protocol 2.0 Status Packet").
+_STATUS_OVERHEAD = 11
+_INST_STATUS = 0x55
+
+
+def _status_ok(rxpacket, dxl_id: int, n_params: int) -> bool:
+    """A status packet (already unstuffed, CRC checked by the SDK) answers a request to ``dxl_id`` that
+    expects ``n_params`` parameter bytes: right ID, instruction 0x55, length field and size consistent."""
+    if rxpacket is None or len(rxpacket) != _STATUS_OVERHEAD + n_params:
+        return False
+    length = rxpacket[sdk.PKT_LENGTH_L] | (rxpacket[sdk.PKT_LENGTH_H] << 8)
+    return rxpacket[sdk.PKT_ID] == dxl_id and rxpacket[sdk.PKT_INSTRUCTION] == _INST_STATUS and length == n_params + 4
+
+
+class _CheckedPacketHandler(sdk.Protocol2PacketHandler):
+    """The SDK's Protocol 2.0 handler, with every status packet checked before a value is taken from it.
+
+    The SDK checks the CRC and the ID, but not that the packet carries the number of parameter bytes
+    the request asked for: a short status packet with a valid CRC gives a value assembled from the CRC
+    bytes, or an ``IndexError`` in the SDK. Here such a packet is ``COMM_RX_CORRUPT`` (retried by
+    :meth:`DynamixelBus.transact`), so no value is ever built from a malformed reply.
+    """
+
+    def readRx(self, port, dxl_id, length):  # noqa: N802 - SDK name; used by GroupSyncRead
+        while True:
+            rxpacket, result = self.rxPacket(port, False)
+            if result != sdk.COMM_SUCCESS or rxpacket[sdk.PKT_ID] == dxl_id:
+                break
+        if result != sdk.COMM_SUCCESS:
+            return [], result, 0
+        if not _status_ok(rxpacket, dxl_id, length):
+            return [], sdk.COMM_RX_CORRUPT, 0
+        return list(rxpacket[sdk.PKT_PARAMETER0 + 1: sdk.PKT_PARAMETER0 + 1 + length]), result, rxpacket[sdk.PKT_ERROR]
+
+    def readTxRx(self, port, dxl_id, address, length):  # noqa: N802 - SDK name
+        data, result, error = super().readTxRx(port, dxl_id, address, length)
+        if result == sdk.COMM_SUCCESS and len(data) != length:
+            return [], sdk.COMM_RX_CORRUPT, 0
+        return data, result, error
+
+    def txRxPacket(self, port, txpacket):  # noqa: N802 - SDK name
+        rxpacket, result, error = super().txRxPacket(port, txpacket)
+        if result != sdk.COMM_SUCCESS or rxpacket is None:
+            return rxpacket, result, error
+        inst = txpacket[sdk.PKT_INSTRUCTION]
+        expect = {sdk.INST_PING: 3}.get(inst, 0)
+        if inst == sdk.INST_READ:
+            expect = txpacket[sdk.PKT_PARAMETER0 + 2] | (txpacket[sdk.PKT_PARAMETER0 + 3] << 8)
+        if not _status_ok(rxpacket, txpacket[sdk.PKT_ID], expect):
+            return None, sdk.COMM_RX_CORRUPT, 0
+        return rxpacket, result, error
 
 
 class _Port(sdk.PortHandler):
@@ -80,7 +136,7 @@ class DynamixelBus:
     """
 
     def __init__(self, port: str, baud: int = 1_000_000, *, latency_timer_ms: float = 16.0, retries: int = 3,
-                 late_reply_window_s: float = 0.1):
+                 late_reply_window_s: float = 0.3):
         if baud not in BAUD_RATES:
             raise ConfigError.field("--baud", "baud", baud, f"not supported; use one of {', '.join(map(str, BAUD_RATES))}")
         self.port_name = port
@@ -88,7 +144,7 @@ class DynamixelBus:
         self.retries = int(retries)
         self.late_reply_window_s = float(late_reply_window_s)
         self._port = _Port(port, latency_timer_ms)
-        self._ph = sdk.PacketHandler(2.0)
+        self._ph = _CheckedPacketHandler()
         self._lock = threading.RLock()
         self._sync_reads: dict[tuple, sdk.GroupSyncRead] = {}
         self.stats = {"transactions": 0, "retries": 0, "recoveries": 0}
@@ -128,17 +184,30 @@ class DynamixelBus:
         self._port.clearPort()
         self._port.is_using = False
 
+    def _flush_stale(self) -> None:
+        """Drop bytes that arrived between transactions (a reply later than the recovery window): the SDK
+        would take them as the answer to the next request."""
+        if self._port.getBytesAvailable():
+            self.stats["stale_flushes"] = self.stats.get("stale_flushes", 0) + 1
+            self._port.clearPort()
+
     def transact(self, what: str, dxl_id: int | None, fn: Callable[[], tuple], *, alarm_ok: bool = False):
         """Run ``fn`` (an SDK call returning ``(..., result, error)`` or ``(..., result)``) under the
         lock with retries; returns ``fn``'s output. Alarms raise :class:`ServoAlarm` unless ``alarm_ok``."""
+        if dxl_id is not None and (isinstance(dxl_id, bool) or not isinstance(dxl_id, int) or not 0 <= dxl_id <= MAX_ID):
+            raise ConfigError.field(None, "servo id", dxl_id, f"must be an integer in 0..{MAX_ID}")
         last = sdk.COMM_RX_TIMEOUT
         for attempt in range(self.retries + 1):
             with self._lock:
                 if not self._port.is_open:
                     raise HardwareError(f"{self.port_name}: port is not open", device=self.port_name)
-                out = fn()
+                self._flush_stale()
+                try:
+                    out = fn()
+                    result, error = self._result(out)
+                except (IndexError, ValueError, TypeError, KeyError):  # the SDK choking on a malformed reply
+                    out, result, error = None, sdk.COMM_RX_CORRUPT, 0
                 self.stats["transactions"] += 1
-                result, error = self._result(out)
                 if result in _RETRYABLE:
                     last = result
                     self.stats["retries"] += attempt < self.retries
@@ -185,21 +254,39 @@ class DynamixelBus:
         model, _, _ = self.transact("ping", dxl_id, lambda: self._ph.ping(self._port, dxl_id), alarm_ok=True)
         return model
 
-    def scan(self, ids: Iterable[int] | None = None) -> dict[int, int]:
+    def scan(self, ids: Iterable[int] | None = None, *, attempts: int = 1,
+             faults: dict[int, str] | None = None) -> dict[int, int]:
         """``{id: model number}`` of the servos that answer: broadcast ping (waits its full window,
-        about a second) when ``ids`` is None, else one ping per ID (no retries)."""
+        about a second) when ``ids`` is None, else pings per ID, each servo that did not answer pinged
+        again up to ``attempts`` times in all (a noisy link loses a ping now and then). ``faults``, if
+        given, receives for every servo still missing what its last ping met: ``"no answer"`` or
+        ``"corrupted replies"``."""
         if ids is None:
             data, _, _ = self.transact("broadcast ping", None, lambda: self._broadcast(), alarm_ok=True)
             return {i: v[0] for i, v in sorted(data.items())}
-        found = {}
-        for i in ids:
-            with self._lock:
-                model, result, _ = self._ph.ping(self._port, i)
-                self.stats["transactions"] += 1
-                if result == sdk.COMM_SUCCESS:
-                    found[i] = model
-                elif result != sdk.COMM_RX_TIMEOUT:
-                    self._recover()
+        found: dict[int, int] = {}
+        last: dict[int, str] = {}
+        pending = list(ids)
+        for _ in range(max(1, int(attempts))):
+            for i in pending:
+                with self._lock:
+                    self._flush_stale()
+                    try:
+                        model, result, _ = self._ph.ping(self._port, i)
+                    except (IndexError, ValueError, TypeError):
+                        model, result = 0, sdk.COMM_RX_CORRUPT
+                    self.stats["transactions"] += 1
+                    if result == sdk.COMM_SUCCESS:
+                        found[i] = model
+                    else:
+                        last[i] = "no answer" if result == sdk.COMM_RX_TIMEOUT else "corrupted replies"
+                        if result != sdk.COMM_RX_TIMEOUT:
+                            self._recover()
+            pending = [i for i in pending if i not in found]
+            if not pending:
+                break
+        if faults is not None:
+            faults.update({i: last[i] for i in pending})
         return found
 
     def _broadcast(self):

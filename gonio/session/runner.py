@@ -92,7 +92,7 @@ class Devices:
 
 
 def open_devices(rig, servo_port: str, controller_port: str, camera, clock, *, latency_timer_ms: float = 50.0,
-                 watchdog: float = 30.0, auto_recover: int = 1) -> Devices:
+                 watchdog: float = 30.0, auto_recover: int = 1, scan_attempts: int = 4) -> Devices:
     """Open the servo bus (scan: every joint's servo must answer; then configure) and the controller
     (handshake, watchdog period). ``watchdog`` must exceed the longest move plus settle, in lab seconds."""
     from gonio.rig.controller import RigController
@@ -101,10 +101,13 @@ def open_devices(rig, servo_port: str, controller_port: str, camera, clock, *, l
     bus = DynamixelBus(servo_port, rig.baud, latency_timer_ms=latency_timer_ms).open()
     try:
         ids = [j.servo_id for j in rig.joints]
-        found = bus.scan(ids)
-        missing = [f"{j.name} (ID {j.servo_id})" for j in rig.joints if j.servo_id not in found]
+        faults: dict[int, str] = {}
+        found = bus.scan(ids, attempts=scan_attempts, faults=faults)
+        missing = [f"{j.name} (ID {j.servo_id}: {faults.get(j.servo_id, 'no answer')})"
+                   for j in rig.joints if j.servo_id not in found]
         if missing:
-            raise HardwareError(f"{servo_port}: servos not answering: {', '.join(missing)}", device=servo_port)
+            raise HardwareError(f"{servo_port}: servos not answering after {scan_attempts} pings each: "
+                                f"{', '.join(missing)}", device=servo_port)
         axes = DynamixelAxes.from_rig(rig, bus, clock, auto_recover=auto_recover)
     except BaseException:
         bus.close()
