@@ -56,7 +56,12 @@ class ControllerError(HardwareError):
     """The rig controller answered with an error code (see firmware_protocol/SPEC.md)."""
 
 
-class EmergencyStop(HardwareError):
+class SafetyStop(HardwareError):
+    """A condition under which nothing may move: the session stops at once (no retry), and is resumed by
+    a person once the cause is gone."""
+
+
+class EmergencyStop(SafetyStop):
     """The E-stop is pressed or an interlock is open: nothing may move or light up."""
 
 

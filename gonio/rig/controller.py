@@ -237,8 +237,11 @@ class RigController:
                 if err == fp.ERR_NOT_READY and name != "HELLO" and self._recover_reset():
                     continue
                 what = fp.ERROR_NAMES.get(err, f"0x{err:02X}")
-                cls = EmergencyStop if err == fp.ERR_ESTOP else ControllerError
-                raise cls(f"{self.device}: {name} refused: {what} (code {err})", device=self.device, code=err)
+                if err == fp.ERR_ESTOP:  # say what a person must do, not the wire's error name
+                    raise EmergencyStop(f"{self.device}: E-stop pressed or enclosure interlock open ({name} refused)",
+                                        device=self.device, code=err)
+                raise ControllerError(f"{self.device}: {name} refused: {what} (code {err})", device=self.device,
+                                      code=err)
             raise ControllerError(f"{self.device}: {name} refused: NOT_READY again after re-handshake",
                                   device=self.device, code=fp.ERR_NOT_READY)
 

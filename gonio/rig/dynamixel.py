@@ -387,13 +387,14 @@ class DynamixelAxes:
     poll_s : polling period while settling
     max_blind_s : longest wait between polls during a long move (alarms are seen this late at worst)
     auto_recover : reboots allowed per move to clear an alarm (0 = raise :class:`ServoAlarm`)
+    clear_alarms : reboot servos that report a hardware error when configuring (else ServoAlarm)
     configure : write the configuration and enable torque now
     torque_off_on_close : by default the joints keep holding on :meth:`close` (arms do not drop)
     """
 
     def __init__(self, bus: DynamixelBus, axes: Sequence[AxisConfig], clock, *, tolerance_ticks: int = 3,
                  poll_s: float = 0.02, max_blind_s: float = 0.5, auto_recover: int = 0, configure: bool = True,
-                 torque_off_on_close: bool = False):
+                 torque_off_on_close: bool = False, clear_alarms: bool = False):
         if len({a.name for a in axes}) != len(axes) or len({a.servo_id for a in axes}) != len(axes):
             raise ConfigError.field(None, "axes", [a.name for a in axes], "joint names and servo IDs must be unique")
         self.bus = bus
@@ -405,6 +406,10 @@ class DynamixelAxes:
         self.max_blind_s = float(max_blind_s)
         self.auto_recover = int(auto_recover)
         self.torque_off_on_close = torque_off_on_close
+        #: Reboot servos found with a hardware error when configuring (a session started by a person);
+        #: what was cleared is kept in :attr:`cleared_alarms` (``{joint: bits}``).
+        self.clear_alarms = bool(clear_alarms)
+        self.cleared_alarms: dict[str, int] = {}
         self._tables = {a.name: load_control_table(a.model) for a in axes}
         self._ids = [a.servo_id for a in axes]
         self._table = self._tables[axes[0].name]  # sync reads/writes need one layout (all X series share it)
@@ -443,8 +448,13 @@ class DynamixelAxes:
                 raise ConfigError.field(None, f"{name}.model", a.model,
                                         f"servo {a.servo_id} reports model number {model} "
                                         f"({known.model if known else 'unknown'}), expected {t.model_number}")
-            if self.bus.read(a.servo_id, t, "hardware_error_status", alarm_ok=True):
-                self.bus.raise_alarm(a.servo_id)
+            bits = self.bus.read(a.servo_id, t, "hardware_error_status", alarm_ok=True)
+            if bits and not self.clear_alarms:
+                self.bus.raise_alarm(a.servo_id, bits)
+            if bits:  # a person started the session after removing the cause: reboot clears the alarm
+                self.bus.reboot(a.servo_id)
+                self.clock.sleep(0.1)
+                self.cleared_alarms[name] = bits
             self.bus.write(a.servo_id, t, "torque_enable", 0)
             lo, hi = sorted((self.to_ticks(name, a.lower), self.to_ticks(name, a.upper)))
             mode = 3 if 0 <= lo and hi <= t.position_max else 4
@@ -484,6 +494,12 @@ class DynamixelAxes:
         for i in self._ids:
             state[i].update(motion[i])
         return state
+
+    def alarms(self) -> dict[str, int]:
+        """``{joint: Hardware Error Status bits}`` of every servo reporting one (one sync read)."""
+        state = self.bus.sync_read(self._table, "hardware_error_status", "hardware_error_status", self._ids)
+        return {n: state[a.servo_id]["hardware_error_status"] for n, a in self.axes.items()
+                if state[a.servo_id]["hardware_error_status"]}
 
     def positions(self) -> dict[str, float]:
         """Measured joint angles (radians) now."""

@@ -48,7 +48,8 @@ from typing import Callable, TextIO
 
 import numpy as np
 
-from gonio.errors import ConfigError, EmergencyStop, GonioError, HardwareError, ServoAlarm, UnreachablePose
+from gonio.errors import (ConfigError, EmergencyStop, GonioError, HardwareError, SafetyStop, ServoAlarm,
+                          UnreachablePose)
 from gonio.plan.labtime import SessionTiming, dark_exposures, session_lab_time
 from gonio.rig.interfaces import Frame
 
@@ -92,9 +93,14 @@ class Devices:
 
 
 def open_devices(rig, servo_port: str, controller_port: str, camera, clock, *, latency_timer_ms: float = 50.0,
-                 watchdog: float = 30.0, auto_recover: int = 1, scan_attempts: int = 4) -> Devices:
+                 watchdog: float = 30.0, auto_recover: int = 0, scan_attempts: int = 4,
+                 clear_alarms: bool = True) -> Devices:
     """Open the servo bus (scan: every joint's servo must answer; then configure) and the controller
-    (handshake, watchdog period). ``watchdog`` must exceed the longest move plus settle, in lab seconds."""
+    (handshake, watchdog period). ``watchdog`` must exceed the longest move plus settle, in lab seconds.
+
+    Servo alarms: a servo found with a hardware error when the session starts is rebooted
+    (``clear_alarms``: a person started or resumed the session after the stop told them to remove the
+    cause); an alarm during the session stops it (``auto_recover`` = 0: no reboot behind anyone's back)."""
     from gonio.rig.controller import RigController
     from gonio.rig.dynamixel import DynamixelAxes, DynamixelBus
 
@@ -108,7 +114,7 @@ def open_devices(rig, servo_port: str, controller_port: str, camera, clock, *, l
         if missing:
             raise HardwareError(f"{servo_port}: servos not answering after {scan_attempts} pings each: "
                                 f"{', '.join(missing)}", device=servo_port)
-        axes = DynamixelAxes.from_rig(rig, bus, clock, auto_recover=auto_recover)
+        axes = DynamixelAxes.from_rig(rig, bus, clock, auto_recover=auto_recover, clear_alarms=clear_alarms)
     except BaseException:
         bus.close()
         raise
@@ -265,8 +271,33 @@ class SessionRunner:
         st = self.dev.controller.status()
         if st.estop or st.interlock_open:
             what = "E-stop is pressed" if st.estop else "enclosure interlock is open"
-            raise EmergencyStop(f"rig controller: {what}: release it and run the command again",
-                                device="rig controller")
+            raise EmergencyStop(f"rig controller: {what}: release it, then resume", device="rig controller")
+
+    def safety_check(self) -> None:
+        """Before every move: the controller's E-stop and interlock (first: after an E-stop not one byte
+        goes to a servo), then every servo's Hardware Error Status (over-temperature, overload, input
+        voltage, electrical shock, encoder). Either stops the session (:class:`SafetyStop`, no retry)."""
+        from gonio.rig.dynamixel import describe_hardware_error
+
+        self.check_devices()
+        alarms_of = getattr(self.dev.axes, "alarms", None)
+        alarms = alarms_of() if callable(alarms_of) else {}
+        if alarms:
+            name, bits = next(iter(alarms.items()))
+            raise SafetyStop(f"servo of joint {name}: {describe_hardware_error(bits)} (Hardware Error Status "
+                             f"0x{bits:02X}): remove the cause (load, heat, supply), then resume", device=name)
+
+    def _precise(self, exc: SafetyStop) -> SafetyStop:
+        """A command the controller refused (E-stop *or* interlock) restated with the actual cause."""
+        if not isinstance(exc, EmergencyStop):
+            return exc
+        try:
+            self.check_devices()
+        except EmergencyStop as precise:
+            return precise
+        except HardwareError:
+            pass
+        return exc
 
     def warm_up(self) -> float:
         """Switch the light on and wait (lab time, watchdog fed) until the photodiode is stable.
@@ -295,10 +326,13 @@ class SessionRunner:
     def _move(self, index: int) -> tuple[dict, dict]:
         """Solve nearest the current joints, move, settle, verify; returns (target, measured)."""
         rig, axes, ctl, st = self.dev.rig, self.dev.axes, self.dev.controller, self.settings
+        self.safety_check()
         current = axes.positions()
         target = rig.solve(*self.plan.poses[index], current=current)
         tol = math.radians(st.joint_tolerance_deg)
         for attempt in range(st.move_retries + 1):
+            if attempt:
+                self.safety_check()
             ctl.heartbeat()
             axes.move_to(target, timeout=st.move_timeout)
             ctl.wait(self.plan.capture.settle)  # settle with the watchdog fed
@@ -343,6 +377,7 @@ class SessionRunner:
                                     camera_pose_hint=CameraPose(R, -R @ position), plan=self.bracket,
                                     meter_exposure=self.plan.capture.exposures[0],
                                     nominal=(rig.camera_pose(planned)[0], rig.light_position(planned)))
+        self.check_devices()  # an E-stop during the capture: the frames are not of a lit sample, keep nothing
         w3, l3 = time.perf_counter(), self.clock.now()
         capture_wall = self.camera.wall - cam_w
         timing = {"move_lab": l1 - l0, "move_wall": w1 - w0, "dark_lab": l2 - l1, "dark_wall": w2 - w1,
@@ -433,7 +468,8 @@ class SessionRunner:
                 else:
                     if self._stop.is_set():
                         result.status = "interrupted"
-            except EmergencyStop as exc:
+            except SafetyStop as exc:
+                exc = self._precise(exc)
                 result.status, result.error = f"error: {exc}", exc
             except HardwareError as exc:
                 result.status, result.error = f"error: {exc}", exc
@@ -484,7 +520,7 @@ class SessionRunner:
                 samples, meta, timing = self._measure(k)
                 meta["attempts"] = attempt + 1
                 return samples, meta, timing
-            except EmergencyStop:
+            except (SafetyStop, ServoAlarm):  # a person must look at it: no retry, no reboot
                 raise
             except (UnreachablePose, BoardNotFound, ConfigError) as exc:
                 result.skipped.append((k, str(exc)))

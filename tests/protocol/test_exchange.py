@@ -102,7 +102,7 @@ def test_error_reply_becomes_emergency_stop_with_code():
         # SET_LIGHT seq 3 -> ERROR seq 3 code ESTOP (4) for request 0x03
         (h("00 05 03 03 03 01 04 80 46 13 00"), h("00 08 FF 03 02 04 03 B8 42 00")),
     ])
-    with pytest.raises(EmergencyStop, match="SET_LIGHT refused: ESTOP") as e:
+    with pytest.raises(EmergencyStop, match=r"E-stop pressed or enclosure interlock open \(SET_LIGHT refused\)") as e:
         ctl.set_light(True, 0.5)
     assert e.value.code == 4
     port.assert_all_used()

@@ -27,7 +27,6 @@ def test_session_under_faults_completes_with_nothing_lost_or_duplicated(tmp_path
     servo_faults = LinkFaults(corrupt_rate=0.01, seed=11)
     controller_faults = LinkFaults(corrupt_rate=0.01, seed=12)
     hooks = {
-        2: lambda s: s.sim.trip("light_el"),  # overload alarm: next move finds it, reboots, re-issues
         4: lambda s: s.sim.power_cycle_servos(),  # torque off, RAM lost: settings restored, move re-issued
         6: lambda s: s.sim.reset_controller(),  # brown-out: re-handshake, light back on (warm-up drift)
     }
