@@ -53,6 +53,7 @@ def register(sub) -> None:
     c.add_argument("--exposure", type=float, required=True, help="exposure, seconds")
     c.add_argument("--gain", type=float, default=1.0, help="analogue gain (default 1)")
     c.add_argument("-o", "--output", required=True, metavar="FRAME.png|.npy")
+    c.add_argument("--force", action="store_true", help="overwrite an existing output file")
     r = csub.add_parser("response", help="capture a bracket of a static scene and recover the inverse response")
     common(r)
     r.add_argument("--exposures", required=True, metavar="S,S,...", help="bracket, seconds (at least 3, e.g. "
@@ -60,6 +61,7 @@ def register(sub) -> None:
     r.add_argument("--gain", type=float, default=1.0, help="analogue gain (default 1)")
     r.add_argument("--samples", type=int, default=100, help="pixels sampled by the Debevec solver")
     r.add_argument("-o", "--output", required=True, metavar="RESPONSE.npz")
+    r.add_argument("--force", action="store_true", help="overwrite an existing output file")
 
 
 def _open(args):
@@ -142,7 +144,11 @@ def _save_frame(path: str, frame) -> None:
 
 def run(args) -> int:
     from gonio.errors import ConfigError
+    from gonio.io.outputs import check_output
 
+    if getattr(args, "output", None):  # before the camera is opened
+        check_output(args.output, option="-o", force=args.force,
+                     suffixes=(".png", ".npy") if args.camera_command == "capture" else (".npz",))
     cam = _open(args)
     try:
         if args.camera_command == "info":

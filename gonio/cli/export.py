@@ -42,6 +42,7 @@ def register(sub) -> None:
     p.add_argument("--format", required=True, choices=FORMATS, help="output format")
     p.add_argument("-o", "--output", required=True, metavar="PATH",
                    help="output file (several sources: a directory receiving SOURCE-NAME.EXT each)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output file")
     many.add_options(p)
     add_tabulation_options(p)
     p.set_defaults(func=run)
@@ -81,9 +82,12 @@ def run_one(args) -> int:
     from gonio.samples import SampleSet
     from gonio.tabulate import tabulate
 
+    from gonio.io.outputs import check_output
+
     kwargs = tabulation_kwargs(args)
+    out = str(check_output(args.output, option="-o", force=args.force,
+                           suffixes=None if args.format == "merl" else (f".{args.format}",)))
     src = load_source(args.source)
-    out = args.output
     if src.samples is None and args.format == "csv":
         raise ConfigError.field("--format", "format", "csv",
                                 f"{src.path} is a MERL table without samples; use --format merl or npz")

@@ -99,7 +99,12 @@ def run(args) -> int:
 
 
 def run_one(args) -> int:
+    from gonio.io.outputs import check_output
+
     opts = _options(args)
+    for option, value in (("--json", args.json), ("--mitsuba", args.mitsuba)):
+        if value:  # refused before minutes of fitting, not after
+            check_output(value, option=option, force=args.force)
     result, sel = fit_one(args.source, opts)
     if sel is not None:
         print("\n".join(sel.table_lines()))
@@ -111,7 +116,9 @@ def run_one(args) -> int:
         print(f"wrote {args.json}")
     if args.mitsuba:
         from gonio.io.mitsuba import write_mitsuba
+        from gonio.io.outputs import check_output
 
-        write_mitsuba(result.model, args.mitsuba)
+        write_mitsuba(result.model, check_output(args.mitsuba, option="--mitsuba", force=args.force,
+                                                 suffixes=(".xml", ".json")))
         print(f"wrote {args.mitsuba} (Mitsuba 3 BSDF)")
     return 0

@@ -182,6 +182,7 @@ def register(sub) -> None:
                    help="cap on the seconds spent ordering (default: none, so the order is reproducible)")
     p.add_argument("--estimate", action="store_true", help="print lab time, lower bound and raster baseline")
     p.add_argument("--out", metavar="PLAN.json", help="write the plan as JSON")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
     p.set_defaults(func=run)
 
 
@@ -268,7 +269,9 @@ def _write(args, plan) -> None:
     from gonio.errors import ConfigError
 
     if args.out:
-        out = Path(args.out)
+        from gonio.io.outputs import check_output
+
+        out = check_output(args.out, option="--out", force=getattr(args, "force", False), suffixes=(".json",))
         data = json.dumps(plan.to_dict()) + "\n"
         try:
             tmp = out.with_name(f".{out.name}.tmp")

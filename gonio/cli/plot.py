@@ -25,6 +25,7 @@ def register(sub) -> None:
                    help="angular tolerance selecting the incidence and the plane (default 2.5)")
     p.add_argument("--model", metavar="FIT.json", help="fitted model to overlay (JSON of `gonio fit --json`)")
     p.add_argument("--linear", action="store_true", help="linear instead of log BRDF axis (inplane)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output file")
     many.add_options(p)
     p.set_defaults(func=run)
 
@@ -85,6 +86,9 @@ def run_one(args) -> int:
         raise ConfigError.field("--tol", "tol", args.tol, "must be in (0, 45] degrees")
     if args.theta_i is not None and not 0.0 <= args.theta_i < 90.0:
         raise ConfigError.field("--theta-i", "theta_i", args.theta_i, "must be in [0, 90) degrees")
+    from gonio.io.outputs import check_output
+
+    check_output(args.output, option="-o", force=args.force, suffixes=(".png", ".pdf", ".svg"))
     plots.figure(1, 1)  # fail early, with the install hint, when matplotlib is missing
     model = load_model(args.model) if args.model else None
     src = load_source(args.source)

@@ -12,6 +12,7 @@ def register(sub) -> None:
                                    "write the MERL binary.")
     p.add_argument("source", metavar="DIR", help="session directory (or .npz export)")
     p.add_argument("-o", "--output", metavar="TABLE.binary", help="also write the table as a MERL binary")
+    p.add_argument("--force", action="store_true", help="overwrite an existing -o file")
     add_tabulation_options(p)
     p.set_defaults(func=run)
 
@@ -30,6 +31,8 @@ def run(args) -> int:
     tab = tabulate(src.samples, source=str(src.path), **kwargs)
     print(tab.summary())
     if args.output:
-        write_merl(args.output, tab.table)
+        from gonio.io.outputs import check_output
+
+        write_merl(check_output(args.output, option="-o", force=args.force), tab.table)
         print(f"wrote {args.output}")
     return 0

@@ -177,14 +177,12 @@ def _fmt(v) -> str:
 
 
 def _write_new(path, text: str, force: bool) -> None:
-    """Write ``text`` to ``path``; an existing file only with ``force`` (one-line ConfigError)."""
-    from pathlib import Path
-
+    """Write ``text`` to ``path`` (:func:`gonio.io.outputs.check_output`: not into a session, an existing
+    file only with ``force``; one-line ConfigError)."""
     from gonio.errors import ConfigError
+    from gonio.io.outputs import check_output
 
-    p = Path(path)
-    if p.exists() and not force:
-        raise ConfigError.field(None, "output", str(p), "exists (use --force / force=True to overwrite)")
+    p = check_output(path, option="output", force=force)
     try:
         p.write_text(text, encoding="utf-8")
     except OSError as exc:

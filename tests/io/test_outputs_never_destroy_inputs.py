@@ -1,0 +1,63 @@
+"""No output lands on a session's own files; an existing file is not overwritten without --force; the fit
+result is written before an optional export that can fail."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+
+import pytest
+
+from gonio.cli.main import main
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    d = tmp_path_factory.mktemp("out") / "s"
+    assert main(["measure", "--sim", "--plan", "in_plane", "--theta-i", "30", "--theta-o-step", "20", "--quiet",
+                 "--out", str(d)]) == 0
+    return d
+
+
+def _digest(d):
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(d.iterdir())}
+
+
+@pytest.mark.parametrize("argv", [
+    ["export", "{s}", "--format", "npz", "-o", "{s}/samples.jsonl"],
+    ["export", "{s}", "--format", "npz", "-o", "{s}/x.npz"],
+    ["export", "{s}", "--format", "csv", "-o", "{s}/manifest.json"],
+    ["export", "{s}", "--format", "merl", "-o", "{link}"],
+    ["fit", "{s}", "--model", "lambert", "--json", "{s}/manifest.json"],
+    ["fit", "{s}", "--model", "lambert", "--json", "{s}/../s/samples.jsonl"],
+    ["plot", "{s}", "--kind", "coverage", "-o", "{s}/cov.png"],
+    ["plan", "in_plane", "--out", "{s}/manifest.json"],
+    ["tabulate", "{s}", "-o", "{s}/t.binary"],
+])
+def test_no_output_lands_in_a_session(session, tmp_path, capsys, argv):
+    link = tmp_path / "innocent.binary"
+    os.symlink(session / "samples.jsonl", link)  # a link pointing into the session
+    before = _digest(session)
+    code = main([a.format(s=session, link=link) for a in argv])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "session" in err[0], err
+    assert _digest(session) == before  # nothing changed, nothing added
+
+
+def test_existing_file_needs_force_and_the_fit_json_comes_first(session, tmp_path, capsys):
+    out = tmp_path / "t.csv"
+    out.write_text("precious\n")
+    assert main(["export", str(session), "--format", "csv", "-o", str(out)]) == 2
+    assert "exists (use --force" in capsys.readouterr().err and out.read_text() == "precious\n"
+    assert main(["export", str(session), "--format", "csv", "-o", str(out), "--force"]) == 0
+    assert out.read_text().startswith("theta_i_deg")
+    # --mitsuba refuses a model it cannot represent exactly: the JSON result is already written
+    fit_json = tmp_path / "fit.json"
+    code = main(["fit", str(session), "--model", "microfacet", "--json", str(fit_json),
+                 "--mitsuba", str(tmp_path / "m.xml")])
+    assert json.loads(fit_json.read_text())["model"] == "microfacet"
+    assert code == 0 or not (tmp_path / "m.xml").exists()
+    # an output option that names an existing file is refused before the fit runs, not after
+    assert main(["fit", str(session), "--model", "microfacet", "--json", str(fit_json)]) == 2
+    assert "exists" in capsys.readouterr().err
