@@ -50,6 +50,12 @@ class LinkFaults:
     def __post_init__(self):
         self._rng = np.random.default_rng(self.seed)
 
+    def reseed(self, seed) -> None:
+        """Restart the generator of random faults from ``seed`` (a Generator or anything
+        ``numpy.random.default_rng`` takes; :meth:`sim.rig.SimRig.begin_pose` gives each pose its own)."""
+        with self._lock:
+            self._rng = np.random.default_rng(seed)
+
     def inject_next(self, kind: str, times: int = 1) -> None:
         """Apply fault ``kind`` (one of :data:`KINDS`) to the next ``times`` replies."""
         if kind not in KINDS:

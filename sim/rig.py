@@ -18,10 +18,14 @@ Configuration boundary: ``gonio`` never imports ``sim``; only ``gonio/cli/measur
 module, lazily, for ``--sim``. The host code learns it is simulated only through the device paths and
 the :class:`SimClock` it is given.
 
-Camera and photodiode noise are reproducible per pose: :meth:`SimRig.begin_pose` reseeds the camera's
-and the controller emulator's generators from ``(seed, pose index)``, so a pose measured in a resumed
-session gives the same frames (up to the servo position noise and the exposure choice) as in an
-uninterrupted one.
+Every noise source is reproducible per pose (:func:`sim.seeding.pose_rng`): :meth:`SimRig.begin_pose`
+reseeds the camera's noise, the photodiode's noise and the link faults from ``(seed, pose index,
+source)``; the servo encoder noise restarts at every arrival from ``(seed, servo, goal)``; every dark
+set (one light-off period) restarts the camera noise from ``(seed, "dark")``. So a pose measured in a
+resumed session gives bit for bit the frames, readings and samples of an uninterrupted one, provided
+the deterministic, path-dependent physics is off or equal: the backlash (which side of the play the
+last move left the load on) and the light's warm-up drift (lab time since switch-on) —
+``SimRigConfig(backlash_ticks=0, warmup_depth=0)``, what the bit-identity tests use.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from sim.camera import SensorModel, SimCamera, SimScene
 from sim.clock import SimClock
 from sim.controller import ControllerEmulator
 from sim.faults import LinkFaults
+from sim.seeding import SETUP, pose_rng
 from sim.servo_bus import HW_OVERLOAD, ServoBus
 
 __all__ = ["SimRig", "SimRigConfig", "RigCamera", "RecordingServoBus", "DEFAULT_MATERIAL", "PARK_DEG"]
@@ -145,9 +150,14 @@ class RigCamera:
 
     def __init__(self, simrig: "SimRig"):
         self._rig = simrig
+        self._dark = False
 
     def capture(self, exposure: float, gain: float = 1.0, *, timeout: float = 10.0) -> Frame:
         r = self._rig
+        dark = r.controller.light_output() == 0.0
+        if dark and not self._dark:  # a new light-off period (a dark set): the same noise every time
+            r.sim_camera.reseed(pose_rng(r.config.seed, SETUP, "dark"))
+        self._dark = dark
         joints = r.actual_joints()
         position, R = r.rig.camera_pose(joints)
         r.sim_camera.set_pose(CameraPose(R, -R @ position))
@@ -268,11 +278,16 @@ class SimRig:
 
     # -- per-pose hook and faults ---------------------------------------------------------------
     def begin_pose(self, index: int) -> None:
-        """Reseed the camera noise and the controller's photodiode noise from ``(seed, index)`` so a
-        pose's frames and photodiode readings do not depend on what was captured before it
-        (reproducible across interrupted and resumed sessions)."""
-        self.sim_camera.reseed([int(self.config.seed), int(index)])
-        self.controller.reseed([int(self.config.seed), int(index), 1])
+        """Reseed the camera noise, the photodiode noise and the link faults from ``(seed, index)``
+        (:func:`sim.seeding.pose_rng`) so a pose's frames and readings do not depend on what was simulated
+        before it (bit-identical across interrupted and resumed sessions)."""
+        seed, index = int(self.config.seed), int(index)
+        self.camera._dark = self.controller.light_output() == 0.0  # the pose's frames keep the pose's noise
+        self.sim_camera.reseed(pose_rng(seed, index, "camera"))
+        self.controller.reseed(pose_rng(seed, index, "photodiode"))
+        for stream, faults in (("servo_faults", self.servo_bus.faults), ("controller_faults", self.controller.faults)):
+            if faults is not None:
+                faults.reseed(pose_rng(seed, index, stream))
 
     def trip(self, joint: str, bits: int = HW_OVERLOAD) -> None:
         """Raise a hardware error (default overload) on the servo of ``joint``."""

@@ -42,6 +42,7 @@ from gonio.rig.kinematics import trapezoid_progress, trapezoid_time
 from sim import dxl_packet as P
 from sim.faults import LinkFaults
 from sim.pty import PtyServer
+from sim.seeding import SETUP, pose_rng, position_key
 
 #: Hardware Error Status bits (e-manual, "Shutdown(63)").
 HW_INPUT_VOLTAGE, HW_OVERHEATING, HW_ENCODER, HW_ELECTRICAL_SHOCK, HW_OVERLOAD = 0x01, 0x04, 0x08, 0x10, 0x20
@@ -51,10 +52,13 @@ class SimServo:
     """One emulated servo: its control table memory and its motion on the clock."""
 
     def __init__(self, dxl_id: int, model: str, clock, *, rng: np.random.Generator, noise_ticks: float = 0.3,
-                 backlash_ticks: float = 0.0, position: float = 2048.0):
+                 backlash_ticks: float = 0.0, position: float = 2048.0, seed: int | None = None):
         self.table: ControlTable = load_control_table(model)
         self.clock = clock
         self.rng = rng
+        #: with a seed, the encoder noise restarts at every arrival from (seed, ID, goal) (sim.seeding): the
+        #: readings at rest do not depend on how many reads the move before took (bit-identical resume)
+        self.seed = seed
         self.noise_ticks = float(noise_ticks)
         self.backlash_ticks = float(backlash_ticks)
         self.mem = bytearray(self.table.size)
@@ -128,6 +132,8 @@ class SimServo:
             if done:
                 self.horn, self._move = start + dist, None
                 vel = 0.0
+                if self.seed is not None:
+                    self.rng = pose_rng(self.seed, 0, "encoder", self.dxl_id, position_key(self.horn))
             traj_v = float(vel)
         else:
             traj_v = 0.0
@@ -219,10 +225,10 @@ class ServoBus(PtyServer):
                  faults: LinkFaults | None = None, positions=None):
         super().__init__("servo-bus", faults)
         self.clock = clock or RealClock()
-        rng = np.random.default_rng(seed)
         positions = positions or {}
-        self.servos = {int(i): SimServo(int(i), m, self.clock, rng=rng, noise_ticks=noise_ticks,
-                                        backlash_ticks=backlash_ticks, position=positions.get(i, 2048.0))
+        self.servos = {int(i): SimServo(int(i), m, self.clock, rng=pose_rng(seed, SETUP, "encoder", int(i)),
+                                        noise_ticks=noise_ticks, backlash_ticks=backlash_ticks,
+                                        position=positions.get(i, 2048.0), seed=seed)
                        for i, m in dict(servos).items()}
         self._parser = P.Parser()
         self._lock = threading.RLock()

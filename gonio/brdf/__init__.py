@@ -9,10 +9,12 @@ from __future__ import annotations
 
 from typing import Any
 
+from gonio.brdf.abc import ABCMicrofacet, ABCSmooth
 from gonio.brdf.ashikhmin_shirley import AshikhminShirley
 from gonio.brdf.base import BRDF, Param
 from gonio.brdf.blinn_phong import BlinnPhong
 from gonio.brdf.cook_torrance import CookTorrance
+from gonio.brdf.gtr import GTR
 from gonio.brdf.lafortune import Lafortune
 from gonio.brdf.lambert import Lambert
 from gonio.brdf.lobes import PRESETS, is_sum_name, lobe_sum
@@ -27,6 +29,7 @@ MODELS: dict[str, type[BRDF]] = {
     cls.name: cls
     for cls in (Lambert, Phong, BlinnPhong, CookTorrance, Microfacet, Ward, Lafortune, OrenNayar, AshikhminShirley)
 }
+MODELS.update({cls.name: cls for cls in (ABCMicrofacet, ABCSmooth, GTR)})  # models for real measurements (issue 14)
 MODELS.update({name: lobe_sum(name) for name in PRESETS})
 
 
