@@ -76,8 +76,6 @@ def register(sub) -> None:
     r.add_argument("--camera", help="override the recorded camera (hardware)")
     r.add_argument("--rig", metavar="RIG.toml", help="the rig file that bounds the joint limits (default: the one "
                    "the session recorded); a manifest edit can never widen the limits beyond it")
-    r.add_argument("--rig", metavar="RIG.toml", help="the rig file that bounds the joint limits (default: the one "
-                   "the session recorded); a manifest edit can never widen the limits beyond it")
     r.add_argument("--quiet", action="store_true", help="no progress line")
     r.set_defaults(func=run_resume)
 
