@@ -32,7 +32,8 @@ import numpy as np
 
 from gonio.errors import DataError
 from gonio.geometry import half_diff_from_dirs
-from gonio.io.merl import N_CELLS, N_PHI_D, N_THETA_D, SHAPE, MerlTable, cell_directions, grid_index
+from gonio.io.merl import N_CELLS, N_PHI_D, N_THETA_D, SHAPE, MerlTable, cell_directions
+from gonio.io.merl_index import reference_index
 from gonio.samples import SampleSet
 
 __all__ = ["IsotropyCheck", "Tabulation", "check_isotropy", "tabulate", "DEFAULT_FILL_DEG"]
@@ -119,7 +120,7 @@ def check_isotropy(samples: SampleSet, *, tol: float = 0.1, max_fraction: float 
     if len(s) < 2:
         return IsotropyCheck(False, 0, 0.0, 0.0, tol, max_fraction)
     th, ph, td, pd = half_diff_from_dirs(s.wi, s.wo)
-    i_h, i_d, i_p = grid_index(th, td, pd)
+    i_h, i_d, i_p = reference_index(s.wi, s.wo)  # the cell the MERL reference reader reads there
     return _check_isotropy(s, i_p + N_PHI_D * (i_d + N_THETA_D * i_h), ph, tol, max_fraction, min_cells)
 
 
@@ -280,7 +281,7 @@ def tabulate(samples: SampleSet, *, fill_deg: float = DEFAULT_FILL_DEG, include_
     if len(s) == 0:
         raise DataError(f"{source}: no usable samples to tabulate ({n_flagged} flagged, {n_invalid} invalid)")
     th, ph, td, pd = half_diff_from_dirs(s.wi, s.wo)
-    i_h, i_d, i_p = grid_index(th, td, pd)
+    i_h, i_d, i_p = reference_index(s.wi, s.wo)  # the cell the MERL reference reader reads there
     cell = i_p + N_PHI_D * (i_d + N_THETA_D * i_h)
     iso = _check_isotropy(s, cell, ph, isotropy_tol, _MAX_FRACTION, _MIN_CELLS)
     if iso.anisotropic and not force_isotropic:

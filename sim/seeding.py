@@ -21,6 +21,7 @@ __all__ = ["pose_rng", "STREAMS", "SETUP"]
 
 #: Noise sources of the simulator, each its own stream (a name's position is never reused).
 STREAMS = ("camera", "photodiode", "encoder", "servo_faults", "controller_faults", "dark")
+# (index 0, the camera, takes no stream word; every other index is >= 1, so no key is a prefix + zeros of another)
 #: Pseudo pose index of what happens outside any pose (start-up, dark sets): ``pose_rng(seed, SETUP, ...)``.
 SETUP = -1
 
@@ -31,18 +32,21 @@ def _key(value) -> int:
             raise ValueError(f"unknown noise stream {value!r}; known: {', '.join(STREAMS)}")
         return STREAMS.index(value)
     v = int(value)
-    return v if v >= 0 else (1 << 32) + v  # SeedSequence takes non-negative integers only
+    return v if v >= 0 else (1 << 64) + v  # SeedSequence takes non-negative integers only
 
 
 def pose_rng(seed: int, pose_index: int, stream: str, *extra) -> np.random.Generator:
     """A fresh generator for noise source ``stream`` at plan pose ``pose_index`` of a session seeded
     ``seed`` (``extra`` integers split a stream further, e.g. per servo ID or per exposure).
 
-    ``SeedSequence(entropy=seed, spawn_key=(stream, pose, *extra))``: the same arguments always give the
-    same numbers; different arguments give independent streams (Salmon et al. 2011 / O'Neill's PCG64
-    with SeedSequence hashing, numpy.random documentation, "Seeding and entropy")."""
-    key = (_key(stream), _key(pose_index), *(_key(e) for e in extra))
-    return np.random.default_rng(np.random.SeedSequence(entropy=_key(seed), spawn_key=key))
+    ``SeedSequence([seed, pose])`` for the camera, ``SeedSequence([seed, pose, k, *extra])`` for the k-th
+    other stream (k ≥ 1: the camera's and the photodiode's streams are the ones ``SimRig.begin_pose`` used
+    before this module existed, so earlier sessions' noise is unchanged): the same arguments always give
+    the same numbers; different arguments give independent streams (O'Neill's PCG64 seeded through
+    SeedSequence's entropy hashing, numpy.random documentation, "Seeding and entropy")."""
+    k = _key(stream)
+    words = [_key(seed), _key(pose_index)] + ([k, *(_key(e) for e in extra)] if k or extra else [])
+    return np.random.default_rng(np.random.SeedSequence(words))
 
 
 def position_key(ticks: float) -> int:

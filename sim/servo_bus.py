@@ -56,9 +56,11 @@ class SimServo:
         self.table: ControlTable = load_control_table(model)
         self.clock = clock
         self.rng = rng
-        #: with a seed, the encoder noise restarts at every arrival from (seed, ID, goal) (sim.seeding): the
-        #: readings at rest do not depend on how many reads the move before took (bit-identical resume)
+        #: with a seed, a servo at rest after a move reads one noise value drawn at the arrival from
+        #: (seed, ID, goal) (sim.seeding): the readings at rest do not depend on how many reads the move
+        #: before took, or on the other servos (bit-identical resume); while moving, per-read noise
         self.seed = seed
+        self._rest_noise: float | None = None
         self.noise_ticks = float(noise_ticks)
         self.backlash_ticks = float(backlash_ticks)
         self.mem = bytearray(self.table.size)
@@ -132,15 +134,21 @@ class SimServo:
             if done:
                 self.horn, self._move = start + dist, None
                 vel = 0.0
-                if self.seed is not None:
-                    self.rng = pose_rng(self.seed, 0, "encoder", self.dxl_id, position_key(self.horn))
+                if self.seed is not None:  # at rest: one reading noise until the next move, from (seed, ID, goal)
+                    self._rest_noise = float(pose_rng(self.seed, 0, "encoder", self.dxl_id,
+                                                      position_key(self.horn)).normal(0.0, self.noise_ticks))
             traj_v = float(vel)
         else:
             traj_v = 0.0
         half = 0.5 * self.backlash_ticks
         self.joint_ticks = min(max(self.joint_ticks, self.horn - half), self.horn + half)
         offset = self.peek("homing_offset")
-        measured = int(round(self.horn + self.rng.normal(0.0, self.noise_ticks))) if self.noise_ticks else round(self.horn)
+        if not self.noise_ticks:
+            measured = round(self.horn)
+        elif self._move is None and self._rest_noise is not None:
+            measured = int(round(self.horn + self._rest_noise))
+        else:
+            measured = int(round(self.horn + self.rng.normal(0.0, self.noise_ticks)))
         self.poke("present_position", measured + offset)
         self.poke("position_trajectory", int(round(self.horn)) + offset)
         vunits = int(round(traj_v * 60.0 / self.table.ticks_per_rev / self.table.velocity_unit_rpm))

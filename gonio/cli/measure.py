@@ -172,7 +172,16 @@ def _manifest_rig(manifest, where: str):
         return load_rig(src)
     if hashlib.sha256(str(text).encode("utf-8")).hexdigest() != rec.get("sha256"):
         raise DataError(f"{where}: rig.toml does not match its rig.sha256 (the manifest was altered)")
-    return load_rig(text=str(text), source=f"{where} rig")
+    rig = load_rig(text=str(text), source=f"{where} rig")
+    # rig.sha256 is an integrity check, not authentication: an edited manifest must never widen the
+    # limits that guard the arms. Where the rig file the session names still exists, no joint may go
+    # beyond its limits (or move faster), whatever the manifest says.
+    src = rec.get("source") or rec.get("name")
+    try:
+        declared = load_rig(src.removeprefix("rigs/").removesuffix(".toml") if str(src).startswith("rigs/") else src)
+    except Exception:  # noqa: BLE001 - the file moved or never existed here: the recorded copy stands
+        return rig
+    return rig.within(declared)
 
 
 def _manifest_calibration(manifest, where: str, fallback=None):
@@ -265,8 +274,8 @@ def _sim_session(store, plan, manifest, quiet: bool) -> int:
 
     material = material_from_dict({k: v for k, v in manifest["material"].items() if k in ("model", "params", "label")},
                                   source="manifest material", complete=False)
-    config = SimRigConfig.from_dict(manifest["sim"])
     where = f"{store.directory}/manifest.json"
+    config = SimRigConfig.from_dict(_checked_sim(manifest.get("sim"), where))
     rig = _manifest_rig(manifest, where)
     import contextlib
 
@@ -305,6 +314,38 @@ def _gige_sim_camera(sim, stack):
                           gain_unit="raw", width=cal.width, height=cal.height)
     stack.callback(camera.close)
     return camera
+
+
+#: The simulated rig's settings a manifest may hold, with their ranges (a crafted manifest must not
+#: make the simulator allocate a 100,000-pixel-wide frame or take a table for a number).
+_SIM_RANGES = {"seed": (0, 2 ** 32 - 1, int), "width": (64, 4096, int), "height": (48, 4096, int),
+               "focal_px": (1.0, 1e5, float), "bit_depth": (8, 16, int), "light_intensity": (1e-6, 1e6, float),
+               "servo_noise_ticks": (0.0, 100.0, float), "backlash_ticks": (0.0, 100.0, float),
+               "warmup_depth": (0.0, 1.0, float), "warmup_tau": (0.0, 1e5, float), "pd_noise": (0.0, 1.0, float)}
+
+
+def _checked_sim(sim, where: str) -> dict:
+    """The manifest's ``sim`` section, every field checked for type and range (DataError naming it)."""
+    from gonio.errors import DataError
+
+    if not isinstance(sim, dict):
+        raise DataError(f"{where}: sim = {str(sim)[:40]}: expected the simulated rig's settings (an object)")
+    out = {}
+    for key, value in sim.items():
+        if key == "camera_link":
+            if value not in ("direct", "gige"):
+                raise DataError(f"{where}: sim.camera_link = {str(value)[:40]!r}: expected 'direct' or 'gige'")
+            out[key] = value
+            continue
+        if key not in _SIM_RANGES:
+            continue  # a newer gonio's setting: ignored, as SimRigConfig.from_dict does
+        lo, hi, kind = _SIM_RANGES[key]
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and lo <= value <= hi
+        if not ok or (kind is int and not isinstance(value, int)):
+            raise DataError(f"{where}: sim.{key} = {str(value)[:40]}: expected {'an integer' if kind is int else 'a number'} "
+                            f"in [{lo:g}, {hi:g}]")
+        out[key] = value
+    return out
 
 
 def _layout(manifest):
@@ -473,13 +514,13 @@ def _nothing_to_resume(d) -> bool:
     """If every pose of the session in ``d`` is stored (and an adaptive session has stopped adapting), say
     so and return True without counting a resume (a session not marked completed is marked so)."""
     from gonio.plan.plan import Plan
-    from gonio.session.store import MANIFEST, SAMPLES, SessionStore, _read_manifest, scan_samples
+    from gonio.session.store import MANIFEST, SessionStore, _read_manifest, _samples_path, scan_samples
 
     manifest = _read_manifest(d)
     plan = Plan.from_dict(manifest.get("plan"), source=str(d / MANIFEST))
-    scan = scan_samples(d / manifest.get("samples_file", SAMPLES))
+    scan = scan_samples(_samples_path(d, manifest))
     adapting = isinstance(manifest.get("adaptive"), dict) and manifest["adaptive"].get("stop") is None
-    if adapting or scan.torn is not None or any(k not in scan.records for k in range(len(plan))):
+    if adapting or scan.torn is not None or scan.damaged or any(k not in scan.records for k in range(len(plan))):
         return False
     if manifest.get("exit_status") != "completed":
         SessionStore.open(d, resume=False).finish("completed")
@@ -500,6 +541,11 @@ def run_resume(args) -> int:
     if _nothing_to_resume(d):
         return 0
     store = SessionStore.open(d)
+    if store.repaired is not None:
+        q = store.repaired["quarantined"]
+        where = ", ".join("line %s" % r["line"] for r in q[:5])
+        print(f"repaired {d}: {len(q)} damaged record(s) moved to quarantine.jsonl ({where}); their poses are "
+              "measured again", file=sys.stderr)
     manifest = store.manifest
     try:
         plan = Plan.from_dict(manifest.get("plan"), source=str(d / MANIFEST))

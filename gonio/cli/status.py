@@ -15,22 +15,27 @@ def session_status(directory) -> dict:
     """The facts ``gonio status`` prints, as a dict (read-only; nothing in DIR changes)."""
     from pathlib import Path
 
-    from gonio.session.store import SAMPLES, _read_manifest, scan_samples
+    from gonio.session.store import _killed_run, _read_manifest, _samples_path, scan_samples
 
     d = Path(directory)
     manifest = _read_manifest(d)
-    scan = scan_samples(d / manifest.get("samples_file", SAMPLES))
+    scan = scan_samples(_samples_path(d, manifest))
     plan = manifest.get("plan") or {}
-    n_plan = plan.get("n_poses", len(plan.get("poses", ()))) if isinstance(plan, dict) else None
+    from gonio.session.records import MAX_POSE
+
+    n_plan = plan.get("n_poses", len(plan.get("poses", ()) or ())) if isinstance(plan, dict) else None
+    if isinstance(n_plan, bool) or not isinstance(n_plan, int) or not 0 <= n_plan <= MAX_POSE:
+        n_plan = None  # a crafted or damaged plan: unknown, not a loop over 10**30 poses
     done = set(scan.records)
     # per-record lab clock (the runner writes meta["lab_time_s"]); a finished run also leaves its total
     lab = [m.get("lab_time_s", m.get("lab_time")) for _, m in scan.records.values()]
     lab = [t for t in lab if isinstance(t, (int, float))]
     last_run = manifest.get("last_run") if isinstance(manifest.get("last_run"), dict) else {}
     runs = [r.get("lab_time_s") for r in manifest.get("runs") or () if isinstance(r, dict)]
-    runs = [t for t in runs if isinstance(t, (int, float))]
-    if runs:  # every finished run (the first and each resume) recorded its lab time: the session's total
-        lab_time = float(sum(runs))
+    runs = [t for t in runs if isinstance(t, (int, float)) and not isinstance(t, bool)]
+    current = _killed_run(manifest, scan)  # a run in progress or killed: its records' lab time so far
+    if runs or current is not None:  # every finished (or killed) run recorded its lab time: the session's total
+        lab_time = float(sum(runs)) + (current["lab_time_s"] if current else 0.0)
     elif manifest.get("exit_status"):  # older sessions kept the last run's only
         lab_time = last_run.get("lab_time_s", manifest.get("lab_time"))
     else:
@@ -43,13 +48,15 @@ def session_status(directory) -> dict:
         "samples": sum(len(s) for s, _ in scan.records.values()),
         "remaining": None if n_plan is None else sum(1 for i in range(n_plan) if i not in done),
         "lab_time": lab_time,  # seconds, summed over the finished runs
-        "lab_time_runs": len(runs),  # how many runs that sum covers (0: older session, or none finished)
+        "lab_time_runs": len(runs) + (current is not None),  # runs that sum covers (0: older session)
         "exit_status": manifest.get("exit_status"),
         "started": manifest.get("started"),
         "stopped": manifest.get("stopped"),
         "resumes": len(manifest.get("resumes", [])),
         "duplicates": scan.n_duplicates,
         "torn": scan.torn,
+        "damaged": scan.describe_damage() if scan.damaged else None,
+        "n_damaged": len(scan.damaged),
     }
 
 
@@ -93,4 +100,7 @@ def run(args) -> int:
         print(f"note: {s['duplicates']} pose(s) recorded more than once; the last record of each is used")
     if s["torn"]:
         print(f"note: torn last record ({s['torn']}); it will be dropped on resume and the pose re-measured")
+    if s["n_damaged"]:
+        print(f"note: {s['n_damaged']} damaged record(s): {s['damaged']}; every other sample is used; "
+              f"`gonio repair {args.dir}` (or resume) moves them to quarantine.jsonl and their poses are measured again")
     return 0

@@ -14,8 +14,9 @@ little-endian float64: all red, then all green, then all blue. ``value = stored 
 each clamped to its range; flat index = iφd + 180·(iθd + 90·iθh). Negative stored values mark
 cells that were not measured; in memory they are NaN.
 
-Angles come from :func:`gonio.geometry.half_diff_from_dirs` (Rusinkiewicz 1998); φh is ignored, so a
-table holds an *isotropic* BRDF.
+Angles are the Rusinkiewicz (1998) half/difference angles as the reference reader computes them
+(:mod:`gonio.io.merl_index`: the cell of a direction pair is the one ``BRDFRead.cpp`` reads, bit for
+bit); φh is ignored, so a table holds an *isotropic* BRDF.
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from gonio.errors import DataError
-from gonio.geometry import dirs_from_half_diff, half_diff_from_dirs
+from gonio.geometry import dirs_from_half_diff
+from gonio.io.merl_index import directions_from_angles, half_diff_index, reference_half_diff, reference_index
 from gonio.samples import SampleSet
 
 __all__ = [
@@ -75,18 +77,15 @@ def grid_coords(theta_h, theta_d, phi_d) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def grid_index(theta_h, theta_d, phi_d) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Clamped integer cell indices ``(iθh, iθd, iφd)`` of half/difference angles (radians)."""
-    u_h, u_d, u_p = grid_coords(theta_h, theta_d, phi_d)
-    i_h = np.clip(np.floor(u_h), 0, N_THETA_H - 1).astype(np.intp)
-    i_d = np.clip(np.floor(u_d), 0, N_THETA_D - 1).astype(np.intp)
-    i_p = np.clip(np.floor(u_p), 0, N_PHI_D - 1).astype(np.intp)
-    return i_h, i_d, i_p
+    """Clamped integer cell indices ``(iθh, iθd, iφd)`` of half/difference angles (radians), computed
+    exactly as the reference reader computes them (:func:`gonio.io.merl_index.half_diff_index`)."""
+    return half_diff_index(theta_h, theta_d, phi_d)
 
 
 def flat_index(wi, wo) -> np.ndarray:
-    """Flat MERL cell index ``iφd + 180·(iθd + 90·iθh)`` of direction pairs (any shape ``(..., 3)``)."""
-    th, _, td, pd = half_diff_from_dirs(wi, wo)
-    i_h, i_d, i_p = grid_index(th, td, pd)
+    """Flat MERL cell index ``iφd + 180·(iθd + 90·iθh)`` of direction pairs (any shape ``(..., 3)``):
+    the cell the reference reader ``BRDFRead.cpp`` reads (:func:`gonio.io.merl_index.reference_index`)."""
+    i_h, i_d, i_p = reference_index(wi, wo)
     return i_p + N_PHI_D * (i_d + N_THETA_D * i_h)
 
 
@@ -162,8 +161,9 @@ class MerlTable:
     def lookup(self, wi, wo, method: str = "trilinear") -> np.ndarray:
         """BRDF (1/sr, RGB) at direction pairs ``wi``, ``wo`` of shape ``(..., 3)``.
 
-        ``method="nearest"``: the value of the cell holding the pair (the MERL reference lookup,
-        reproducing published values cell for cell).
+        ``method="nearest"``: the value of the cell the MERL reference reader (``BRDFRead.cpp``,
+        ``lookup_brdf_val``) reads for the pair, bit for bit, boundaries included
+        (:mod:`gonio.io.merl_index`; e.g. an in-plane pair with φd = π is cell 179, with φd = 0 cell 0).
         ``method="trilinear"`` (default; benchmarks/report/REPORT.md "MERL lookup": ~16× less error than
         nearest for ~2.6× the time): trilinear interpolation between the 8 surrounding cell centres in
         index space ``(uθh − ½, uθd − ½, uφd − ½)`` (see :func:`grid_coords`), clamped at the θh/θd
@@ -175,16 +175,22 @@ class MerlTable:
         wi = np.asarray(wi, dtype=np.float64)
         wo = np.asarray(wo, dtype=np.float64)
         wi, wo = np.broadcast_arrays(wi, wo)
-        th, _, td, pd = half_diff_from_dirs(wi, wo)
-        if method == "nearest":
-            i_h, i_d, i_p = grid_index(th, td, pd)
-            out = self.values[i_h, i_d, i_p]
-        elif method == "trilinear":
-            out = self._trilinear(*grid_coords(th, td, pd))
-        else:
+        if method not in ("nearest", "trilinear"):
             raise ValueError(f"MerlTable.lookup: method = {method!r}: must be 'nearest' or 'trilinear'")
+        th, _, td, pd = reference_half_diff(wi, wo)
+        if method == "nearest":
+            i_h, i_d, i_p = half_diff_index(th, td, pd)
+            out = self.values[i_h, i_d, i_p]
+        else:
+            out = self._trilinear(*grid_coords(th, td, pd))
         above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
         return np.where(above[..., None], out, 0.0)
+
+    def lookup_angles(self, theta_i, phi_i, theta_o, phi_o, method: str = "trilinear") -> np.ndarray:
+        """:meth:`lookup` at angles (radians), the directions built as the reference reader builds
+        them, so ``method="nearest"`` returns exactly what ``lookup_brdf_val(θi, φi, θo, φo)`` returns."""
+        wi, wo = directions_from_angles(theta_i, phi_i, theta_o, phi_o)
+        return self.lookup(wi, wo, method=method)
 
     def _trilinear(self, u_h, u_d, u_p) -> np.ndarray:
         def edge(u, n):

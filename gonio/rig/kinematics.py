@@ -167,6 +167,22 @@ class Rig:
     layout: str = "arms"
     light_azimuth: float = 0.0
 
+    def within(self, other: "Rig") -> "Rig":
+        """This rig with every joint's limits, speed and acceleration no wider than ``other``'s joint of
+        the same name (and the larger arm-separation margin): what a session may do when its recorded
+        rig (``self``) and the rig file (``other``) disagree. Joints ``other`` lacks are kept."""
+        from dataclasses import replace
+
+        theirs = {j.name: j for j in other.joints}
+        joints = []
+        for j in self.joints:
+            o = theirs.get(j.name)
+            if o is not None:
+                j = replace(j, lower=max(j.lower, o.lower), upper=min(j.upper, o.upper),
+                            max_speed=min(j.max_speed, o.max_speed), max_accel=min(j.max_accel, o.max_accel))
+            joints.append(j)
+        return replace(self, joints=tuple(joints), min_separation=max(self.min_separation, other.min_separation))
+
     # -- joint arrays ------------------------------------------------------------------------------
     @property
     def names(self) -> tuple[str, ...]:

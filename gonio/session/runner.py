@@ -397,6 +397,7 @@ class SessionRunner:
             "board_found": res.board is not None,
             "darks_refreshed": darks,
             "lab_time_s": float(self.clock.now()),
+            "run_lab_time_s": float(self.clock.now() - self._lab0),  # lab time of this run so far
             "timing": timing,
         }
         return res.samples, meta, timing
@@ -425,6 +426,7 @@ class SessionRunner:
     def run(self) -> RunResult:
         """Measure every remaining pose; always ends with ``store.finish(status)``."""
         wall0, lab0 = time.perf_counter(), self.clock.now()
+        self._lab0 = lab0
         remaining = [int(k) for k in self.store.remaining(self.plan)]
         done = set(int(k) for k in self.store.done_poses())
         result = RunResult(status="completed")

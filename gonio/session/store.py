@@ -6,32 +6,33 @@ Layout of a session directory::
     manifest.json    what/why/how and how it ended; replaced atomically (tmp + fsync + rename)
     samples.jsonl    one record per measured pose, appended, flushed and fsynced per record
 
-A record is one line ``CCCCCCCC <payload>\\n``: the CRC-32 (ISO-HDLC, :func:`zlib.crc32`) of the payload
-bytes as 8 lowercase hex digits, a space, and the payload, a JSON object::
+Records are described in :mod:`gonio.session.records` (and docs/formats.md §1).
 
-    {"pose": 17, "n": 1, "cols": {"wi": ["<f8", [1, 3], "<base64>"], ...}, "meta": {...}}
+The directory is untrusted input: only the fixed names above (and ``quarantine.jsonl``) are ever opened,
+always with ``O_NOFOLLOW`` (a symlink is refused, never followed), with sizes bounded; the manifest's
+``samples_file`` must be ``samples.jsonl``.
 
-Array columns are the columns of :class:`gonio.samples.SampleSet`, stored as base64 of their
-little-endian bytes so float64 values (NaN included) round-trip bit for bit; ``meta`` holds per-pose
-data (measured joint angles, exposures, photodiode value, lab-clock timestamps). No pickle.
-
-Crash rules: a record counts only when its newline is on disk. On :meth:`SessionStore.open` a torn or
-corrupted *last* record (the one being written when the process died) is dropped and the file is cut
-back to the last good record; a bad record anywhere else is a :class:`DataError` naming the file and
-line. A pose recorded twice (re-measured) keeps its *last* record: samples are never duplicated.
+Crash rules: a record counts only when its newline is on disk. A session directory is created
+atomically (built under a hidden name beside it, then renamed into place), so a kill leaves either
+nothing or a resumable session. On :meth:`SessionStore.open` a torn last line (the write a crash
+interrupted) is dropped and the file cut back to the last complete line; a damaged line anywhere
+(flipped bits, stray newlines, crafted fields) is copied to ``quarantine.jsonl`` and removed from
+``samples.jsonl`` (:meth:`SessionStore.repair`), so every good sample is kept and only the damaged
+records' poses are measured again. A pose recorded twice (re-measured) keeps its *last* record:
+samples are never duplicated. A run killed before it recorded its end gets its ``runs`` entry on the
+next open, from its records' lab times, so the session's lab time survives the kill.
 """
 
 from __future__ import annotations
 
-import base64
 import errno
 import fcntl
 import json
 import math
 import os
+import secrets
+import stat
 import time
-import zlib
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -39,9 +40,10 @@ import numpy as np
 
 from gonio.errors import ConfigError, DataError
 from gonio.samples import SampleSet
+from gonio.session.records import MAX_POSE, ScanResult, _jsonable, decode_record, encode_record, scan_bytes
 
-__all__ = ["SessionStore", "load_session", "scan_samples", "ScanResult", "MANIFEST", "SAMPLES",
-           "STORE_FORMAT", "COSINE_CONVENTION"]
+__all__ = ["SessionStore", "load_session", "scan_samples", "ScanResult", "MANIFEST", "SAMPLES", "QUARANTINE",
+           "STORE_FORMAT", "COSINE_CONVENTION", "encode_record", "decode_record", "read_file_nofollow"]
 
 MANIFEST = "manifest.json"
 SAMPLES = "samples.jsonl"
@@ -51,27 +53,10 @@ STORE_FORMAT = 1
 #: What the stored ``f`` values are (docs/architecture.md §3).
 COSINE_CONVENTION = "BRDF, not BRDF*cos"
 UNITS = {"angles": "rad", "f": "1/sr", "sigma": "1/sr", "time": "s", "exposure": "s", "length": "m"}
-_DTYPES = {"<f8", "<i8"}
 
 
 def _wall() -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%S%z")
-
-
-def _jsonable(obj: Any) -> Any:
-    if hasattr(obj, "to_dict") and callable(obj.to_dict):  # e.g. a gonio.plan.Plan
-        return _jsonable(obj.to_dict())
-    if isinstance(obj, Mapping):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return repr(obj)  # "nan"/"inf": keep the file standard JSON
-    return obj
 
 
 def _fsync_dir(path: Path) -> None:
@@ -86,111 +71,138 @@ def write_json_atomic(path: Path, obj: Mapping[str, Any]) -> None:
     """Write ``obj`` as JSON to ``path`` atomically: a temporary file, fsync, rename, fsync the directory."""
     tmp = path.with_name(f".{path.name}.tmp")
     data = (json.dumps(_jsonable(obj), indent=1, allow_nan=False) + "\n").encode()
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    _write_new_file(tmp, data)
+    os.replace(tmp, path)  # replaces a link itself, never its target
     _fsync_dir(path.parent)
 
 
-# -- records ---------------------------------------------------------------------------------------
-def encode_record(pose_index: int, samples: SampleSet, meta: Mapping[str, Any]) -> bytes:
-    """One record line (with its newline) for ``samples`` of plan pose ``pose_index``."""
-    cols = {}
-    for name, arr in samples.to_dict().items():
-        a = np.ascontiguousarray(arr)
-        a = a.astype(a.dtype.newbyteorder("<"), copy=False)
-        cols[name] = [a.dtype.str, list(a.shape), base64.b64encode(a.tobytes()).decode("ascii")]
-    payload = json.dumps({"pose": int(pose_index), "n": len(samples), "cols": cols, "meta": _jsonable(meta)},
-                         separators=(",", ":"), allow_nan=False).encode()
-    return b"%08x " % zlib.crc32(payload) + payload + b"\n"
-
-
-def decode_record(line: bytes) -> tuple[int, SampleSet, dict]:
-    """Inverse of :func:`encode_record` for a line without its newline; ``ValueError`` says what is wrong."""
-    if len(line) < 10 or line[8:9] != b" ":
-        raise ValueError("no checksum field")
+def _write_new_file(path: Path, data: bytes) -> None:
+    """Write ``data`` to a new file at ``path`` (an old file or link of that name is removed first;
+    ``O_EXCL | O_NOFOLLOW``: nothing outside the directory is ever written through a planted link)."""
     try:
-        crc = int(line[:8], 16)
-    except ValueError:
-        raise ValueError("checksum field is not hexadecimal") from None
-    payload = line[9:]
-    if zlib.crc32(payload) != crc:
-        raise ValueError("CRC-32 mismatch")
-    obj = json.loads(payload)
-    pose, n, cols = int(obj["pose"]), int(obj["n"]), obj["cols"]
-    arrays = {}
-    for name, (dtype, shape, b64) in cols.items():
-        if dtype not in _DTYPES:
-            raise ValueError(f"column {name!r} has dtype {dtype!r}")
-        arr = np.frombuffer(base64.b64decode(b64, validate=True), dtype=np.dtype(dtype)).reshape(shape)
-        arrays[name] = arr.astype(arr.dtype.newbyteorder("="))
-    samples = SampleSet.from_dict(arrays, source="record")
-    if len(samples) != n:
-        raise ValueError(f"record says {n} samples, holds {len(samples)}")
-    return pose, samples, dict(obj.get("meta", {}))
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view):]
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
-@dataclass
-class ScanResult:
-    """What :func:`scan_samples` found in a samples file."""
+# -- reading, never through a link -------------------------------------------------------------------
+#: Largest manifest accepted, bytes.
+MAX_MANIFEST = 64 * 1024 * 1024
+#: Largest samples file read into memory, bytes.
+MAX_SAMPLES_FILE = 8 * 1024 ** 3
+QUARANTINE = "quarantine.jsonl"
 
-    records: dict[int, tuple[SampleSet, dict]] = field(default_factory=dict)  #: pose -> last record
-    n_records: int = 0  #: good records, duplicates included
-    n_duplicates: int = 0  #: records that replaced an earlier record of the same pose
-    good_end: int = 0  #: byte offset just after the last good record
-    torn: str | None = None  #: why the last record was dropped, if it was
 
-    def samples(self) -> SampleSet:
-        """All samples, one record per pose, in pose order; ``pose`` column = the pose index."""
-        sets = []
-        for pose in sorted(self.records):
-            s = self.records[pose][0]
-            sets.append(SampleSet(**{**s.to_dict(), "pose": np.full(len(s), pose, dtype=np.int64)}))
-        return SampleSet.concat(sets) if sets else SampleSet.empty()
+def read_file_nofollow(path: Path, limit: int, what: str) -> bytes:
+    """The bytes of a regular file at ``path``, opened with ``O_NOFOLLOW`` (a link is refused, not
+    followed) and at most ``limit`` bytes; :class:`DataError` naming the file otherwise."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise DataError(f"{path}: {what} is missing") from None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise DataError(f"{path}: is a symbolic link; a session's files are never followed through links") from None
+        raise DataError(f"{path}: cannot read {what}: {exc.strerror}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise DataError(f"{path}: {what} is not a regular file")
+        if st.st_size > limit:
+            raise DataError(f"{path}: {what} of {st.st_size} bytes is larger than {limit}")
+        chunks, left = [], st.st_size + 1
+        while left > 0:
+            chunk = os.read(fd, min(left, 1 << 24))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            left -= len(chunk)
+        data = b"".join(chunks)
+        if len(data) > limit:
+            raise DataError(f"{path}: {what} is larger than {limit} bytes")
+        return data
+    finally:
+        os.close(fd)
 
 
 def scan_samples(path: Path) -> ScanResult:
-    """Read and check a samples file. A bad last record is reported in ``torn``; a bad record before
-    it raises :class:`DataError` naming the file and the line."""
+    """Read and check a samples file (:func:`gonio.session.records.scan_bytes`): every good record,
+    the damaged lines with their reasons, and a torn last line."""
+    return scan_bytes(read_file_nofollow(Path(path), MAX_SAMPLES_FILE, "samples file"))
+
+
+def _samples_path(d: Path, manifest: Mapping[str, Any]) -> Path:
+    """``d / samples.jsonl``; a manifest naming any other file is refused (it could point outside)."""
+    name = manifest.get("samples_file", SAMPLES)
+    if name != SAMPLES:
+        raise DataError(f"{d / MANIFEST}: samples_file = {str(name)[:80]!r}: only {SAMPLES!r} inside the session "
+                        "directory is ever read or written")
+    return d / SAMPLES
+
+
+def _quarantine(d: Path, path: Path, scan: ScanResult) -> dict:
+    """Copy the damaged lines to ``quarantine.jsonl`` (appended, fsynced: nothing is thrown away), then
+    replace ``samples.jsonl`` by its good lines (a new file renamed over it). Returns the repair entry."""
+    data = read_file_nofollow(path, MAX_SAMPLES_FILE, "samples file")[: scan.good_end]
+    bad = [(a, b) for _ln, a, b, _why in scan.damaged]
+    qfd = os.open(d / QUARANTINE, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW, 0o644)
     try:
-        data = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise DataError(f"{path}: samples file is missing") from None
-    except OSError as exc:
-        raise DataError(f"{path}: cannot read samples file: {exc.strerror}") from None
-    res = ScanResult()
-    pos, lineno = 0, 0
-    while pos < len(data):
-        lineno += 1
-        nl = data.find(b"\n", pos)
-        if nl < 0:
-            res.torn = f"line {lineno}: incomplete record ({len(data) - pos} bytes, no newline)"
-            break
-        try:
-            pose, samples, meta = decode_record(data[pos:nl])
-        except (ValueError, KeyError, TypeError, DataError) as exc:
-            if data.find(b"\n", nl + 1) < 0 and not data[nl + 1:].strip():
-                res.torn = f"line {lineno}: corrupted last record ({exc})"
-                break
-            raise DataError(f"{path}: line {lineno}: corrupted record ({exc})") from None
-        if pose < 0:
-            raise DataError(f"{path}: line {lineno}: pose index {pose} is negative")
-        res.n_duplicates += pose in res.records
-        res.records[pose] = (samples, meta)
-        res.n_records += 1
-        pos = res.good_end = nl + 1
-    return res
+        for a, b in bad:
+            chunk = data[a:b] if data[a:b].endswith(b"\n") else data[a:b] + b"\n"
+            view = memoryview(chunk)
+            while view:
+                view = view[os.write(qfd, view):]
+        os.fsync(qfd)
+    finally:
+        os.close(qfd)
+    keep, pos = [], 0
+    for a, b in bad:
+        keep.append(data[pos:a])
+        pos = b
+    keep.append(data[pos:])
+    tmp = d / f".{SAMPLES}.repair"
+    _write_new_file(tmp, b"".join(keep))
+    os.replace(tmp, path)
+    _fsync_dir(d)
+    return {"at": _wall(), "quarantined": [{"line": ln, "reason": why} for ln, _a, _b, why in scan.damaged],
+            "file": QUARANTINE}
+
+
+def _killed_run(manifest: Mapping[str, Any], scan: ScanResult) -> dict | None:
+    """The ``runs`` entry of a run that was killed (a ``running`` mark and no recorded end): its poses
+    and samples, and its lab time from its records' ``lab_time_s`` (the lab clock of that run)."""
+    running = manifest.get("running")
+    if not isinstance(running, Mapping) or manifest.get("exit_status") is not None:
+        return None
+    first = running.get("records_before", 0)
+    if isinstance(first, bool) or not isinstance(first, int) or first < 0:
+        first = 0
+    mine = [pose for pose, _ln in scan.order[first:]]
+    times = [scan.records[p][1].get("run_lab_time_s", scan.records[p][1].get("lab_time_s"))
+             for p in mine if p in scan.records]
+    times = [float(t) for t in times if isinstance(t, (int, float)) and not isinstance(t, bool) and math.isfinite(t)]
+    return {"status": "killed", "poses": len(mine), "samples": sum(len(scan.records[p][0]) for p in set(mine)),
+            "lab_time_s": max(times) if times else 0.0, "wall_time_s": None, "stopped": None}
 
 
 def _read_manifest(d: Path) -> dict:
     path = d / MANIFEST
+    if not path.exists() and not path.is_symlink():
+        raise DataError(f"{path}: no session manifest (is {d} a session directory?)")
+    data = read_file_nofollow(path, MAX_MANIFEST, "manifest")
     try:
-        manifest = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise DataError(f"{path}: no session manifest (is {d} a session directory?)") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        manifest = json.loads(data.decode("utf-8"))
+    except RecursionError:
+        raise DataError(f"{path}: unreadable manifest (JSON nested too deeply)") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise DataError(f"{path}: unreadable manifest ({exc})") from None
     if not isinstance(manifest, dict) or manifest.get("format") != STORE_FORMAT:
         got = manifest.get("format") if isinstance(manifest, dict) else type(manifest).__name__
@@ -207,7 +219,7 @@ def load_session(path) -> tuple[dict, SampleSet]:
     if d.is_file() and d.name == MANIFEST:
         d = d.parent
     manifest = _read_manifest(d)
-    scan = scan_samples(d / manifest.get("samples_file", SAMPLES))
+    scan = scan_samples(_samples_path(d, manifest))
     return manifest, scan.samples()
 
 
@@ -227,32 +239,30 @@ class SessionStore:
         self._records = {p: len(s) for p, (s, _m) in scan.records.items()}
         self.n_records = scan.n_records
         self.torn = scan.torn  #: why a torn last record was dropped on open (None if none was)
+        self.repaired: dict | None = None  #: the damaged records moved to quarantine.jsonl on open, if any
 
     # -- construction ---------------------------------------------------------------------------
     @classmethod
     def create(cls, directory, manifest: Mapping[str, Any]) -> "SessionStore":
-        """Start a new session in ``directory`` (created if missing) with ``manifest``.
+        """Start a new session in ``directory`` (which must not exist, or be an empty directory) with
+        ``manifest``, atomically: the session is built in a hidden directory beside it and renamed into
+        place, so a kill at any instant leaves either no session or a complete, resumable one.
 
         The store adds the format, software version, units, cosine convention, start time, the
         samples file name and ``exit_status = None``. Refuses with :class:`ConfigError` (nothing
-        overwritten) a directory that holds another session, is a file, or is not writable.
+        overwritten) a directory that holds anything, a file, or a place that is not writable.
         """
         from gonio import __version__
 
         d = Path(directory)
+        if d.is_symlink():
+            raise ConfigError.field(None, "session directory", str(d), "is a symbolic link; name a new directory")
         if d.exists() and not d.is_dir():
             raise ConfigError.field(None, "session directory", str(d), "exists and is not a directory")
-        for name in (MANIFEST, SAMPLES):
-            if (d / name).exists():
-                raise ConfigError.field(None, "session directory", str(d),
-                                        f"holds another session ({name} exists); choose a new directory or resume it")
-        try:
-            d.mkdir(parents=True, exist_ok=True)
-            fd = os.open(d / SAMPLES, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND, 0o644)
-        except FileExistsError:
-            raise ConfigError.field(None, "session directory", str(d), "holds another session") from None
-        except OSError as exc:
-            raise ConfigError.field(None, "session directory", str(d), f"not writable ({exc.strerror})") from None
+        if d.is_dir() and any(d.iterdir()):
+            held = "holds another session" if (d / MANIFEST).exists() or (d / SAMPLES).exists() else "is not empty"
+            raise ConfigError.field(None, "session directory", str(d),
+                                    f"{held}; choose a new directory (or resume the session)")
         full = {
             "format": STORE_FORMAT,
             "software": {"name": "gonio", "version": __version__},
@@ -265,31 +275,56 @@ class SessionStore:
             "exit_status": None,
             "sample_count": 0,
             "pose_count": 0,
+            "running": {"records_before": 0, "started": _wall()},
         }
         try:
+            d.parent.mkdir(parents=True, exist_ok=True)
+            work = d.parent / f".{d.name}.gonio-new-{os.getpid()}-{secrets.token_hex(4)}"
+            work.mkdir()
+        except OSError as exc:
+            raise ConfigError.field(None, "session directory", str(d), f"not writable ({exc.strerror})") from None
+        fd = -1
+        try:
+            fd = os.open(work / SAMPLES, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND | os.O_NOFOLLOW, 0o644)
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            write_json_atomic(d / MANIFEST, full)
+            write_json_atomic(work / MANIFEST, full)
+            os.fsync(fd)
+            _fsync_dir(work)
+            os.rename(work, d)  # atomic; replaces an empty directory of that name
+            _fsync_dir(d.parent)
         except (OSError, TypeError, ValueError) as exc:
-            os.close(fd)
-            os.unlink(d / SAMPLES)
+            if fd >= 0:
+                os.close(fd)
+            for name in (SAMPLES, MANIFEST, f".{MANIFEST}.tmp"):
+                try:
+                    os.unlink(work / name)
+                except OSError:
+                    pass
+            try:
+                work.rmdir()
+            except OSError:
+                pass
+            if isinstance(exc, OSError) and exc.errno in (errno.ENOTEMPTY, errno.EEXIST):
+                raise ConfigError.field(None, "session directory", str(d), "was created by someone else meanwhile") from None
             why = exc.strerror if isinstance(exc, OSError) else f"manifest is not JSON-able ({exc})"
             raise ConfigError.field(None, "session directory", str(d), f"cannot write the manifest: {why}") from None
-        os.fsync(fd)
-        _fsync_dir(d)
         return cls(d, full, fd, ScanResult())
 
     @classmethod
     def open(cls, directory, *, resume: bool = True) -> "SessionStore":
-        """Reopen a session to resume it: checks every record, drops a torn last record (cutting the
-        file back to the last good record), and marks the manifest as running again (a ``resumes``
-        entry; ``resume=False`` opens it only to record its end, e.g. a session with nothing left)."""
+        """Reopen a session to resume it: checks every record, drops a torn last line (cutting the file
+        back), moves damaged records to ``quarantine.jsonl`` (:meth:`repair`; their poses are measured
+        again), and marks the manifest as running again (a ``resumes`` entry; ``resume=False`` opens it
+        only to record its end, e.g. a session with nothing left). A run that was killed (no recorded
+        end) gets its ``runs`` entry now, from its records' lab time, so the session's lab time keeps it."""
         d = Path(directory)
         manifest = _read_manifest(d)
-        path = d / manifest.get("samples_file", SAMPLES)
+        path = _samples_path(d, manifest)
         try:
-            fd = os.open(path, os.O_RDWR | os.O_APPEND)
+            fd = os.open(path, os.O_RDWR | os.O_APPEND | os.O_NOFOLLOW)
         except OSError as exc:
-            raise DataError(f"{path}: cannot open samples file for appending ({exc.strerror})") from None
+            why = "is a symbolic link" if exc.errno == errno.ELOOP else exc.strerror
+            raise DataError(f"{path}: cannot open samples file for appending ({why})") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
@@ -298,20 +333,46 @@ class SessionStore:
                 raise ConfigError.field(None, "session directory", str(d), "is in use by another process") from None
             raise
         try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise DataError(f"{path}: samples file is not a regular file")
             scan = scan_samples(path)
             if scan.torn is not None:
                 os.ftruncate(fd, scan.good_end)
                 os.fsync(fd)
-            if resume or scan.torn is not None:
-                manifest.setdefault("resumes", []).append(
-                    {"at": _wall(), "previous_exit_status": manifest.get("exit_status"), "dropped_torn_record": scan.torn})
-                manifest["exit_status"] = None
-                manifest["stopped"] = None
+            repaired = None
+            if scan.damaged:
+                repaired = _quarantine(d, path, scan)
+                os.close(fd)
+                fd = os.open(path, os.O_RDWR | os.O_APPEND | os.O_NOFOLLOW)
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                manifest.setdefault("repairs", []).append(repaired)
+            killed = _killed_run(manifest, scan)
+            if killed is not None:
+                manifest["runs"] = [*(manifest.get("runs") or []), killed]
+            if resume or scan.torn is not None or repaired is not None or killed is not None:
+                if resume:
+                    manifest.setdefault("resumes", []).append(
+                        {"at": _wall(), "previous_exit_status": manifest.get("exit_status"), "dropped_torn_record": scan.torn})
+                manifest["exit_status"] = None if resume else manifest.get("exit_status")
+                manifest["stopped"] = None if resume else manifest.get("stopped")
+                manifest["running"] = {"records_before": scan.n_records, "started": _wall()} if resume else None
                 write_json_atomic(d / MANIFEST, manifest)
         except BaseException:
             os.close(fd)
             raise
-        return cls(d, manifest, fd, scan)
+        store = cls(d, manifest, fd, scan)
+        store.repaired = repaired
+        return store
+
+    @classmethod
+    def repair(cls, directory) -> dict | None:
+        """Move damaged records of a session to ``quarantine.jsonl`` and cut a torn last line, without
+        resuming it; returns what was quarantined (None if nothing was damaged)."""
+        store = cls.open(directory, resume=False)
+        try:
+            return store.repaired
+        finally:
+            store.close()
 
     # -- use ------------------------------------------------------------------------------------
     @property
@@ -356,7 +417,9 @@ class SessionStore:
             if plan is None:
                 raise DataError(f"{self.directory / MANIFEST}: no plan in the manifest")
         if isinstance(plan, Mapping):
-            n = int(plan.get("n_poses", len(plan.get("poses", ()))))
+            n = plan.get("n_poses", len(plan.get("poses", ()) or ()))
+            if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= MAX_POSE:
+                raise DataError(f"{self.directory / MANIFEST}: plan.n_poses = {str(n)[:40]}: not a pose count")
         elif isinstance(plan, (int, np.integer)):
             n = int(plan)
         else:
@@ -366,7 +429,7 @@ class SessionStore:
 
     def update_manifest(self, **fields: Any) -> None:
         """Set top-level manifest fields (e.g. calibration results) and rewrite it atomically."""
-        reserved = {"format", "samples_file"} & set(fields)
+        reserved = {"format", "samples_file"} & set(fields)  # the store's own fields
         if reserved:
             raise ConfigError.field(None, "manifest", sorted(reserved)[0], "is managed by the store")
         self._manifest.update(_jsonable(fields))
@@ -383,7 +446,7 @@ class SessionStore:
         if isinstance(run, Mapping):
             entry = {k: run.get(k) for k in RUN_KEYS if k in run}
             fields["runs"] = [*(self._manifest.get("runs") or []), {**entry, "stopped": stopped}]
-        self.update_manifest(**fields, exit_status=str(exit_status), stopped=stopped,
+        self.update_manifest(**fields, exit_status=str(exit_status), stopped=stopped, running=None,
                              sample_count=self.sample_count, pose_count=len(self._records))
         self.close()
 

@@ -136,27 +136,33 @@ def test_torn_last_record_at_every_byte_offset(fast_dir):
     assert same(load_session(d)[1], expected([0, 1, 2]))
 
 
-def test_corrupted_last_record_is_dropped(tmp_path):
+def test_corrupted_last_record_is_quarantined(tmp_path):
     d = make(tmp_path, poses=(0, 1, 2))
     data = bytearray((d / SAMPLES).read_bytes())
     data[-40] ^= 0x04
     (d / SAMPLES).write_bytes(bytes(data))
     store = SessionStore.open(d)
-    assert store.done_poses() == {0, 1} and "corrupted last record" in store.torn and "line 3" in store.torn
+    assert store.done_poses() == {0, 1} and store.torn is None
+    assert [q["line"] for q in store.repaired["quarantined"]] == [3]
     store.close()
+    assert (d / "quarantine.jsonl").read_bytes() == bytes(data[data.rindex(b"\n", 0, len(data) - 1) + 1:])
 
 
 @pytest.mark.parametrize("offset", [0, 5, 9, 60, -30])
-def test_bit_flip_in_the_middle_is_a_data_error(tmp_path, offset):
+def test_bit_flip_in_the_middle_keeps_every_good_record_and_quarantines_the_bad_one(tmp_path, offset):
     d = make(tmp_path, poses=(0, 1, 2))
     data = bytearray((d / SAMPLES).read_bytes())
     line2 = data.index(b"\n") + 1
     end2 = data.index(b"\n", line2)
     data[(line2 + offset) if offset >= 0 else (end2 + offset)] ^= 0x10
     (d / SAMPLES).write_bytes(bytes(data))
-    for fn in (load_session, SessionStore.open):
-        with pytest.raises(DataError, match=rf"{SAMPLES}: line 2: corrupted record"):
-            fn(d)
+    manifest, samples = load_session(d)  # read-only: the good records, nothing changed
+    assert sorted(set(samples.pose.tolist())) == [0, 2] and (d / SAMPLES).read_bytes() == bytes(data)
+    store = SessionStore.open(d)
+    assert store.done_poses() == {0, 2} and [q["line"] for q in store.repaired["quarantined"]] == [2]
+    store.close()
+    assert (d / "quarantine.jsonl").read_bytes() == bytes(data[line2:end2 + 1])  # kept, not deleted
+    assert (d / SAMPLES).read_bytes() == bytes(data[:line2] + data[end2 + 1:])
 
 
 def test_refuses_a_directory_holding_a_session(tmp_path):
@@ -186,7 +192,7 @@ def test_refuses_unwritable_and_file_paths(tmp_path):
 def test_unjsonable_manifest_leaves_nothing(tmp_path):
     with pytest.raises(ConfigError, match="JSON"):
         SessionStore.create(tmp_path / "s", {"bad": object()})
-    assert list((tmp_path / "s").iterdir()) == []
+    assert list(tmp_path.iterdir()) == []  # no session, no half-built directory beside it
 
 
 def test_one_writer_at_a_time(tmp_path):
