@@ -12,9 +12,10 @@ SUFFIX = {"merl": ".binary", "csv": ".csv", "npz": ".npz"}
 
 def add_tabulation_options(p) -> None:
     """Options shared by ``gonio export`` and ``gonio tabulate``."""
-    p.add_argument("--fill-deg", type=float, default=None, metavar="DEG",
-                   help="fill empty cells by interpolation within DEG degrees of measured cells "
-                        "(default 2; 0 = no filling)")
+    p.add_argument("--fill", "--fill-deg", dest="fill_deg", type=float, default=0.0, metavar="DEG",
+                   help="fill empty cells by interpolation within DEG degrees of measured cells (default 0: "
+                        "nothing is filled, every value in the table was measured; a filled table says so in "
+                        "the printed summary, the NPZ metadata and the MERL export's sidecar OUT.json)")
     p.add_argument("--include-flagged", action="store_true",
                    help="also tabulate samples with quality flags (saturated, low signal, ...)")
     p.add_argument("--force-isotropic", action="store_true",
@@ -23,11 +24,10 @@ def add_tabulation_options(p) -> None:
 
 def tabulation_kwargs(args) -> dict:
     from gonio.errors import ConfigError
-    from gonio.tabulate import DEFAULT_FILL_DEG
 
-    fill = DEFAULT_FILL_DEG if args.fill_deg is None else args.fill_deg
+    fill = 0.0 if args.fill_deg is None else args.fill_deg
     if not (fill >= 0 and fill < 180):
-        raise ConfigError.field("--fill-deg", "fill_deg", fill, "must be in [0, 180) degrees")
+        raise ConfigError.field("--fill", "fill_deg", fill, "must be in [0, 180) degrees")
     return {"fill_deg": fill, "include_flagged": args.include_flagged, "force_isotropic": args.force_isotropic}
 
 
@@ -77,33 +77,39 @@ def run_one(args) -> int:
     from gonio.errors import ConfigError, DataError
     from gonio.io.csv import write_csv
     from gonio.io.merl import write_merl
+    from gonio.io.merl_sidecar import build_sidecar, sidecar_path, write_sidecar
     from gonio.io.npz import build_metadata, write_npz
+    from gonio.io.outputs import check_output
     from gonio.io.source import load_source
     from gonio.samples import SampleSet
     from gonio.tabulate import tabulate
 
-    from gonio.io.outputs import check_output
-
     kwargs = tabulation_kwargs(args)
     out = str(check_output(args.output, option="-o", force=args.force,
                            suffixes=None if args.format == "merl" else (f".{args.format}",)))
+    if args.format == "merl":  # refused before any work, like the main output
+        check_output(sidecar_path(out), option="-o (its sidecar)", force=args.force)
     src = load_source(args.source)
     if src.samples is None and args.format == "csv":
         raise ConfigError.field("--format", "format", "csv",
                                 f"{src.path} is a MERL table without samples; use --format merl or npz")
     table, extra, tab = src.table, {}, None
-    if src.samples is not None and (args.format == "merl" or src.table is None):
+    # CSV holds the samples as they are: nothing is tabulated for it
+    if src.samples is not None and args.format != "csv" and (args.format == "merl" or src.table is None):
         try:
             tab = tabulate(src.samples, source=str(src.path), **kwargs)
             table = tab.table
             extra["tabulation"] = {"fill_deg": tab.fill_deg, "n_measured": tab.n_measured,
-                                   "n_filled": tab.n_filled, "isotropy": tab.isotropy.describe()}
+                                   "n_filled": tab.n_filled, "filled": tab.n_filled > 0,
+                                   "isotropy": tab.isotropy.describe()}
         except DataError as exc:
             if args.format == "merl":
                 raise
             extra["table_omitted"] = str(exc)  # e.g. anisotropic: the NPZ keeps the 4-D samples only
     if args.format == "merl":
         write_merl(out, table)
+        side = write_sidecar(sidecar_path(out), build_sidecar(table, source=str(src.path), tabulation=tab,
+                                                              manifest=src.manifest))
     elif args.format == "csv":
         write_csv(out, src.samples)
     else:
@@ -111,8 +117,14 @@ def run_one(args) -> int:
         write_npz(out, samples, build_metadata(src.manifest, source=str(src.path), **extra), table)
     n = len(src.samples) if src.samples is not None else 0
     print(f"wrote {out} ({args.format}, {n} samples)")
+    if args.format == "merl":
+        print(f"wrote {side} (what the table holds: source, measured and filled cells)")
     if tab is not None:
         print(tab.summary())
+        if tab.n_filled:
+            print(f"FILLED: {tab.n_filled} of the table's cells were not measured but interpolated within "
+                  f"{tab.fill_deg:g} deg (--fill); listed in the sidecar, which gonio reads (it does not fit "
+                  "them); other readers of the binary cannot tell them from measurements")
     if "table_omitted" in extra:
         print(f"note: no table in the archive: {extra['table_omitted']}")
     return 0

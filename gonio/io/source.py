@@ -1,11 +1,18 @@
 """Open whatever the data commands are pointed at: a session directory (through
-:func:`gonio.session.store.load_session`), an NPZ export (:mod:`gonio.io.npz`) or a MERL binary
-(:mod:`gonio.io.merl`)."""
+:func:`gonio.session.store.load_session`), an NPZ export (:mod:`gonio.io.npz`), a gonio CSV export
+(:mod:`gonio.io.csv`), an RGL material ``.bsdf`` (:mod:`gonio.io.powitacq`) or a MERL binary
+(:mod:`gonio.io.merl`, with its sidecar :mod:`gonio.io.merl_sidecar` when present).
+
+The file's content decides how it is read (:mod:`gonio.io.sniff`); a file whose content is not what its
+name ends in (``.binary`` holding a Git LFS pointer, ``.csv`` holding HTML, ...) is refused in one line
+naming what it looks like."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import numpy as np
 
 from gonio.errors import DataError
 from gonio.io.merl import MerlTable
@@ -28,6 +35,10 @@ class Measured:
     manifest: dict = field(default_factory=dict)
     samples: SampleSet | None = None
     table: MerlTable | None = None
+    #: (90, 90, 180) bool: table cells interpolated, not measured (from a MERL export's sidecar), or None
+    filled: np.ndarray | None = None
+    #: an evaluable measured BRDF that is neither samples nor a table (an RGL ``.bsdf`` material), or None
+    brdf: object = None
 
     @property
     def metadata(self) -> dict:
@@ -38,13 +49,19 @@ class Measured:
         """The measured values as samples: the session's own, or one per measured table cell (at its
         centre, φh = 0). A table without uncertainties gives σ = NaN (fits then use an unweighted loss,
         not χ² on invented σ)."""
-        import numpy as np
 
         if self.samples is not None:
             return self.samples
+        if self.table is None and self.brdf is not None:
+            return self.brdf.to_samples()
         if self.table is None:
             raise DataError(f"{self.path}: holds neither samples nor a table")
-        s = self.table.to_samples()
+        table = self.table
+        if self.filled is not None and self.filled.any():  # interpolated cells are not measurements
+            values = table.values.copy()
+            values[self.filled] = np.nan
+            table = MerlTable(values, table.sigma, table.count)
+        s = table.to_samples()
         if self.table.sigma is None:
             s = SampleSet(s.wi, s.wo, s.f, np.full_like(s.f, np.nan), n_pixels=s.n_pixels)
         return s
@@ -53,6 +70,8 @@ class Measured:
         """The MERL table: the source's own, or the samples tabulated without filling (cached)."""
         if self.table is not None:
             return self.table
+        if self.brdf is not None:
+            return self.brdf.to_table()
         cached = self.__dict__.get("_tabulated")
         if cached is None:
             from gonio.tabulate import tabulate
@@ -67,7 +86,10 @@ class Measured:
         return self.tabulated().lookup(wi, wo, method=method)
 
     def eval(self, wi, wo):
-        """Same as :meth:`lookup` with trilinear interpolation: a measured BRDF evaluates like a model."""
+        """Same as :meth:`lookup` with trilinear interpolation: a measured BRDF evaluates like a model
+        (an RGL material evaluates its own tensor: :meth:`gonio.io.powitacq.PowitacqBRDF.eval`)."""
+        if self.brdf is not None:
+            return self.brdf.eval(wi, wo)
         return self.lookup(wi, wo)
 
     def __repr__(self) -> str:
@@ -76,6 +98,10 @@ class Measured:
             parts.append(f"{len(self.samples)} samples")
         if self.table is not None:
             parts.append(f"table {int(self.table.measured.sum())} cells measured")
+        if self.filled is not None and self.filled.any():
+            parts.append(f"{int(self.filled.sum())} of them filled by interpolation")
+        if self.brdf is not None:
+            parts.append(repr(self.brdf))
         mat = self.manifest.get("material") if isinstance(self.manifest, dict) else None
         if isinstance(mat, dict) and isinstance(mat.get("model"), str):
             parts.append(f"material {mat['model']}")
@@ -86,10 +112,15 @@ class Measured:
 Source = Measured
 
 
-def load_source(path) -> Measured:
-    """Load a session directory, an ``.npz`` export, or a MERL binary (any other file).
+_BY_SUFFIX = {".npz": "npz", ".csv": "csv", ".bsdf": "bsdf", ".binary": "merl", ".merl": "merl"}
 
-    Raises :class:`DataError` naming ``path`` when it does not exist or cannot be read.
+
+def load_source(path) -> Measured:
+    """Load a session directory or a data file: MERL binary, gonio NPZ or CSV export, RGL ``.bsdf``.
+
+    The content decides the reader (:func:`gonio.io.sniff.sniff`); a file named for one format
+    (``.npz``, ``.csv``, ``.bsdf``, ``.binary``/``.merl``) whose content is another, or a file of no
+    format gonio reads, is one :class:`DataError` line naming what it looks like.
     """
     p = Path(path)
     if p.is_dir():
@@ -101,12 +132,34 @@ def load_source(path) -> Measured:
         return Measured(p, "session", dict(manifest), samples, None)
     if not p.exists():
         raise DataError(f"{p}: no such session directory or data file")
-    if p.suffix.lower() == ".npz":
+    from gonio.io.sniff import KIND_NAMES, sniff
+
+    try:
+        kind, looks = sniff(p)
+    except OSError as exc:
+        raise DataError(f"{p}: cannot read ({exc.strerror or exc})") from None
+    expected = _BY_SUFFIX.get(p.suffix.lower())
+    if kind == "other" or (expected is not None and kind != expected):
+        wanted = KIND_NAMES[expected] if expected else "a data file gonio reads (MERL, NPZ, CSV, .bsdf)"
+        raise DataError(f"{p}: not {wanted}: it looks like {looks}")
+    if kind == "npz":
         from gonio.io.npz import read_npz
 
         content = read_npz(p)
         manifest = content.metadata.get("manifest") or {}
         return Measured(p, "npz", dict(manifest), content.samples, content.table)
-    from gonio.io.merl import read_merl
+    if kind == "csv":
+        from gonio.io.csv import read_csv
 
-    return Measured(p, "merl", {}, None, read_merl(p))
+        return Measured(p, "csv", {}, read_csv(p), None)
+    if kind == "bsdf":
+        from gonio.io.powitacq import read_bsdf
+
+        brdf = read_bsdf(p)
+        return Measured(p, "bsdf", {"description": brdf.description, "isotropic": brdf.isotropic}, brdf=brdf)
+    from gonio.io.merl import read_merl
+    from gonio.io.merl_sidecar import filled_mask, read_sidecar, sidecar_path
+
+    table = read_merl(p)
+    side = read_sidecar(sidecar_path(p))
+    return Measured(p, "merl", dict(side or {}), None, table, filled=filled_mask(side))
