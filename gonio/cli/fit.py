@@ -105,7 +105,7 @@ def run_one(args) -> int:
     from gonio.io.outputs import check_output
 
     opts = _options(args)
-    opts["progress"] = True  # one source: a progress bar on a terminal (gonio[progress], tqdm)
+    opts["progress"] = True  # one source: a progress bar on a terminal (tqdm)
     for option, value in (("--json", args.json), ("--mitsuba", args.mitsuba)):
         if value:  # refused before minutes of fitting, not after
             check_output(value, option=option, force=args.force)

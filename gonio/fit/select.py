@@ -179,7 +179,7 @@ def _anisotropy(data):
 
 
 def _progress(total: int, enabled: bool, desc: str):
-    """A tqdm progress bar on stderr (optional dependency ``gonio[progress]``), or a silent stand-in."""
+    """A tqdm progress bar on stderr (a core dependency), or a silent stand-in."""
     if enabled:
         try:
             from tqdm import tqdm
