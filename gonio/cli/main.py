@@ -6,12 +6,13 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 
 from gonio import __version__
 from gonio.errors import GonioError
 
 #: Subcommand modules under gonio.cli, in the order ``--help`` lists them.
-COMMANDS = ["models", "servo", "controller", "camera", "measure", "fit", "tabulate", "export", "plot", "plan", "status", "repair", "bench"]
+COMMANDS = ["models", "servo", "controller", "camera", "measure", "fit", "tabulate", "export", "plot", "plan", "status", "repair", "report", "bench"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -26,6 +27,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _warning_line(message, category, filename, lineno, file=None, line=None) -> None:
+    print(f"gonio: warning: {message}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -33,7 +38,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():  # a library warning (e.g. damaged records skipped) is one line
+            warnings.simplefilter("default")
+            warnings.showwarning = _warning_line
+            return int(args.func(args) or 0)
     except GonioError as exc:
         print(f"gonio {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code

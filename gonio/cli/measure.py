@@ -74,6 +74,8 @@ def register(sub) -> None:
     r.add_argument("--servo-port", help="override the recorded servo port (hardware)")
     r.add_argument("--controller-port", help="override the recorded controller port (hardware)")
     r.add_argument("--camera", help="override the recorded camera (hardware)")
+    r.add_argument("--rig", metavar="RIG.toml", help="the rig file that bounds the joint limits (default: the one "
+                   "the session recorded); a manifest edit can never widen the limits beyond it")
     r.add_argument("--quiet", action="store_true", help="no progress line")
     r.set_defaults(func=run_resume)
 
@@ -155,32 +157,49 @@ def _warn(msg: str) -> None:
     print(f"gonio: warning: {msg}", file=sys.stderr)
 
 
-def _manifest_rig(manifest, where: str):
+def _manifest_rig(manifest, where: str, rig_file: str | None = None):
     """The session's rig, from the manifest's copy of its TOML (checked against its SHA-256); a manifest
-    written before the copy existed falls back to the recorded source, with a warning line."""
+    written before the copy existed falls back to the recorded source, with a warning line.
+
+    The copy is bounded by the rig file (``rig_file``, i.e. ``gonio resume --rig``, else the file the
+    session names): rig.sha256 is an integrity check, not authentication, so an edited manifest must never
+    widen the limits that guard the arms. Limits and speeds are intersected (:meth:`Rig.within`); the
+    angle-to-tick mapping of every joint (servo ID, model, gear ratio, zero offset, direction), which also
+    sets the servos' own EEPROM position limits, must be the file's; without a readable rig file nothing
+    can bound the copy, and the resume is refused in one line."""
     import hashlib
 
-    from gonio.errors import DataError
+    from gonio.errors import ConfigError, DataError
     from gonio.rig.kinematics import load_rig
 
     rec = manifest.get("rig") or {}
+    if not isinstance(rec, dict):
+        raise DataError(f"{where}: rig = {str(rec)[:40]!r}: must be an object")
     text = rec.get("toml")
     if text is None:
-        src = rec.get("source") or rec.get("name") or "default"
-        _warn(f"{where}: rig has no recorded description (older session): using the current {src!r}, "
+        src = rig_file or rec.get("source") or rec.get("name") or "default"
+        _warn(f"{where}: rig has no recorded description (older session): using the current {str(src)!r}, "
               f"which may differ from the one measured with")
-        return load_rig(src)
+        return load_rig(str(src))
     if hashlib.sha256(str(text).encode("utf-8")).hexdigest() != rec.get("sha256"):
         raise DataError(f"{where}: rig.toml does not match its rig.sha256 (the manifest was altered)")
     rig = load_rig(text=str(text), source=f"{where} rig")
-    # rig.sha256 is an integrity check, not authentication: an edited manifest must never widen the
-    # limits that guard the arms. Where the rig file the session names still exists, no joint may go
-    # beyond its limits (or move faster), whatever the manifest says.
-    src = rec.get("source") or rec.get("name")
+    src = rig_file or rec.get("source") or rec.get("name")
     try:
         declared = load_rig(src.removeprefix("rigs/").removesuffix(".toml") if str(src).startswith("rigs/") else src)
-    except Exception:  # noqa: BLE001 - the file moved or never existed here: the recorded copy stands
-        return rig
+    except (ConfigError, DataError, OSError, TypeError, AttributeError) as exc:
+        raise DataError(f"{where}: the rig file {str(src)[:80]!r} cannot be read ({str(exc)[:120]}); it bounds the "
+                        "joint limits of a resumed session: gonio resume DIR --rig RIG.toml") from None
+    theirs = {j.name: j for j in declared.joints}
+    for j in rig.joints:
+        o = theirs.get(j.name)
+        if o is None:
+            raise DataError(f"{where}: joint {j.name} is not in the rig file {str(src)!r}")
+        for key in ("servo_id", "model", "gear_ratio", "zero_offset_deg", "direction"):
+            if getattr(j, key) != getattr(o, key):
+                raise DataError(f"{where}: joint {j.name}: {key} = {getattr(j, key)!r} in the session's rig but "
+                                f"{getattr(o, key)!r} in the rig file {str(src)!r}: the rig changed since the session "
+                                "started (or the manifest was edited); start a new session")
     return rig.within(declared)
 
 
@@ -264,7 +283,7 @@ def _run_session(store, plan, devices, calibration, layout, *, before_pose, quie
     return result.error.exit_code if result.error is not None else 3
 
 
-def _sim_session(store, plan, manifest, quiet: bool) -> int:
+def _sim_session(store, plan, manifest, quiet: bool, rig_file: str | None = None) -> int:
     from gonio.session.material import material_from_dict
     from gonio.session.runner import open_devices
     from gonio.plugins import plugin
@@ -272,11 +291,16 @@ def _sim_session(store, plan, manifest, quiet: bool) -> int:
     simrig = plugin("sim.rig")  # docs/architecture.md §1: gonio never imports sim; the simulator is found by configuration
     SimRig, SimRigConfig = simrig.SimRig, simrig.SimRigConfig
 
-    material = material_from_dict({k: v for k, v in manifest["material"].items() if k in ("model", "params", "label")},
-                                  source="manifest material", complete=False)
+    from gonio.errors import DataError
+
     where = f"{store.directory}/manifest.json"
+    m = manifest.get("material")
+    if not isinstance(m, dict):
+        raise DataError(f"{where}: material = {str(m)[:40]!r}: must be an object (model, params, label)")
+    material = material_from_dict({k: v for k, v in m.items() if k in ("model", "params", "label")},
+                                  source="manifest material", complete=False)
     config = SimRigConfig.from_dict(_checked_sim(manifest.get("sim"), where))
-    rig = _manifest_rig(manifest, where)
+    rig = _manifest_rig(manifest, where, rig_file)
     import contextlib
 
     with SimRig(rig, material.brdf(), config=config, layout=_layout(manifest)) as sim, contextlib.ExitStack() as stack:
@@ -556,7 +580,7 @@ def run_resume(args) -> int:
                   + ("; then adapting from the stored samples" if adapting else ""), file=sys.stderr)
         mode = manifest.get("mode")
         if mode == "sim":
-            return _sim_session(store, plan, manifest, args.quiet)
+            return _sim_session(store, plan, manifest, args.quiet, rig_file=args.rig)
         if mode != "hardware":
             raise DataError(f"{d / MANIFEST}: mode = {mode!r}: expected 'sim' or 'hardware'")
         hw = dict(manifest["hardware"])
@@ -565,7 +589,7 @@ def run_resume(args) -> int:
                 hw[key] = getattr(args, key)
         manifest["hardware"] = hw
         where = str(d / MANIFEST)
-        rig = _manifest_rig(manifest, where)
+        rig = _manifest_rig(manifest, where, args.rig)
         calib = _manifest_calibration(manifest, where)
         return _hw_session(store, plan, manifest, rig, calib, args.quiet)
     except BaseException:

@@ -220,6 +220,13 @@ def load_session(path) -> tuple[dict, SampleSet]:
         d = d.parent
     manifest = _read_manifest(d)
     scan = scan_samples(_samples_path(d, manifest))
+    if scan.damaged:  # every good sample is kept; say what was skipped (one line through the CLI)
+        import warnings
+
+        manifest["damaged_records"] = [{"line": ln, "bytes": [a, b], "reason": why} for ln, a, b, why in scan.damaged]
+        warnings.warn(f"{_samples_path(d, manifest)}: {len(scan.damaged)} damaged record(s) skipped: "
+                      f"{scan.describe_damage()}; `gonio repair {d}` quarantines them and `gonio resume {d}` "
+                      "measures their poses again", stacklevel=2)
     return manifest, scan.samples()
 
 
