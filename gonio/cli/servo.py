@@ -95,7 +95,7 @@ def run(args) -> int:
     ids = _parse_ids(getattr(args, "ids", None))
     with DynamixelBus(args.port, args.baud, latency_timer_ms=args.latency_ms) as bus:
         if args.servo_command in ("scan", "read"):
-            found = bus.scan(ids)
+            found = bus.scan(ids, attempts=3)  # a lost ping is not a missing servo
             if not found:
                 raise HardwareTimeout(f"{args.port}: no servo answered at {args.baud} baud"
                                       + (f" (IDs {getattr(args, 'ids')})" if ids else ""), device=args.port)

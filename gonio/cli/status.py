@@ -61,25 +61,6 @@ def session_status(directory) -> dict:
     }
 
 
-def describe_material(m) -> str:
-    """A manifest's material for people: ``label (model: name = value, ...)``."""
-    if not isinstance(m, dict) or not m:
-        return "unknown"
-    label, model = m.get("label") or "", m.get("model")
-    params = m.get("params") if isinstance(m.get("params"), dict) else {}
-
-    def fmt(v):
-        if isinstance(v, list):
-            return "(" + ", ".join(fmt(x) for x in v) + ")"
-        return f"{v:.4g}" if isinstance(v, float) else str(v)
-
-    inner = ", ".join(f"{k} = {fmt(v)}" for k, v in params.items())
-    if not isinstance(model, str):
-        return label or "unknown"
-    body = f"{model}: {inner}" if inner else model
-    return f"{label} ({body})" if label and label != model else body
-
-
 def _failed_poses(manifest) -> list[tuple[int, str]]:
     """``(pose, reason)`` of the poses the last run could not measure for bad camera frames, from its
     summary (checked: a hand-edited manifest gives what is readable, never a traceback)."""
@@ -92,6 +73,8 @@ def _failed_poses(manifest) -> list[tuple[int, str]]:
 
 
 def run(args) -> int:
+    from gonio.session.material import describe_material
+
     s = session_status(args.dir)
     print(f"session {args.dir}: material {describe_material(s['material'])}, plan {s['plan'] or 'unknown'}")
     print(f"plan poses:   {s['plan_poses'] if s['plan_poses'] is not None else 'unknown'}")

@@ -32,7 +32,7 @@ from gonio.config import read_toml
 from gonio.errors import ConfigError
 
 
-__all__ = ["Material", "load_material", "material_from_dict"]
+__all__ = ["Material", "load_material", "material_from_dict", "describe_material"]
 
 _KEYS = {"label", "model", "params"}
 
@@ -140,3 +140,22 @@ def material_from_dict(data: Mapping[str, Any], source: str = "<material>", *, c
 def load_material(path: str | Path) -> Material:
     """Read and check a material TOML file."""
     return material_from_dict(read_toml(path, "--material"), str(path))
+
+
+def describe_material(m) -> str:
+    """A manifest's material for people: ``label (model: name = value, ...)``."""
+    if not isinstance(m, dict) or not m:
+        return "unknown"
+    label, model = m.get("label") or "", m.get("model")
+    params = m.get("params") if isinstance(m.get("params"), dict) else {}
+
+    def fmt(v):
+        if isinstance(v, list):
+            return "(" + ", ".join(fmt(x) for x in v) + ")"
+        return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+    inner = ", ".join(f"{k} = {fmt(v)}" for k, v in params.items())
+    if not isinstance(model, str):
+        return label or "unknown"
+    body = f"{model}: {inner}" if inner else model
+    return f"{label} ({body})" if label and label != model else body

@@ -1,0 +1,81 @@
+"""``gonio report DIR|FILE… -o REPORT.html`` and ``gonio view DIR|FILE…``: a material on one page
+(:mod:`gonio.report`, :mod:`gonio.viewer`)."""
+
+from __future__ import annotations
+
+
+def _common(p) -> None:
+    p.add_argument("source", metavar="DIR|FILE", nargs="+", help="sessions or data files (several: one comparison)")
+    p.add_argument("--model", action="append", default=[], metavar="FIT.json",
+                   help="fitted model(s) to show (gonio fit --json; repeatable); default: fit --fit MODELS now")
+    p.add_argument("--fit", default="microfacet", metavar="MODELS",
+                   help="comma-separated models fitted on the fly when no --model is given (default microfacet)")
+    p.add_argument("--max-theta", type=float, default=80.0, help="grazing cutoff of the on-the-fly fits (deg)")
+
+
+def register(sub) -> None:
+    r = sub.add_parser("report", help="one self-contained HTML page: coverage, slices, fits, lit spheres",
+                       description="Write a self-contained HTML report (no network needed to open it).")
+    _common(r)
+    r.add_argument("-o", "--output", required=True, metavar="REPORT.html")
+    r.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    r.set_defaults(func=run_report)
+    v = sub.add_parser("view", help="the report, interactive, in the browser (served on 127.0.0.1)",
+                       description="Serve the report with sliders for the light direction and the incidence angle "
+                                   "on 127.0.0.1; Ctrl-C stops it. Reads only: nothing is written.")
+    _common(v)
+    v.add_argument("--port", type=int, default=0, help="port (default: a free one)")
+    v.add_argument("--no-browser", action="store_true", help="do not open the default browser")
+    v.set_defaults(func=run_view)
+
+
+def _entries(args):
+    from gonio.errors import ConfigError
+    from gonio.report import load_entries
+
+    if not 0.0 < args.max_theta <= 90.0:
+        raise ConfigError.field("--max-theta", "max_theta", args.max_theta, "must be in (0, 90] degrees")
+    models = [m.strip() for m in args.fit.split(",") if m.strip()]
+    return load_entries(args.source, args.model, fit_models=models, fit_kw={"max_theta_deg": args.max_theta})
+
+
+def run_report(args) -> int:
+    from pathlib import Path
+
+    from gonio.errors import ConfigError
+    from gonio.io.outputs import check_output
+    from gonio.report import build_report
+
+    out = check_output(args.output, option="-o", force=args.force, suffixes=(".html", ".htm"))
+    page = build_report(_entries(args), title="gonio report: " + ", ".join(Path(s).name for s in args.source))
+    try:
+        out.write_text(page, encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError.field(None, "-o", str(out), f"cannot write ({exc.strerror or exc})") from None
+    print(f"wrote {out} ({len(page) / 1e6:.1f} MB, self-contained)")
+    return 0
+
+
+def run_view(args) -> int:
+    import webbrowser
+
+    from gonio.errors import ConfigError
+    from gonio.viewer import make_server
+
+    if not 0 <= args.port <= 65535:
+        raise ConfigError.field("--port", "port", args.port, "must be in 0..65535")
+    try:
+        server = make_server(_entries(args), port=args.port)
+    except OSError as exc:
+        raise ConfigError.field("--port", "port", args.port, f"cannot listen ({exc.strerror or exc})") from None
+    url = f"http://127.0.0.1:{server.server_address[1]}/"
+    print(f"gonio view: serving {url} (Ctrl-C to stop)", flush=True)
+    if not args.no_browser:
+        webbrowser.open(url)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        print("gonio view: stopped")
+    finally:
+        server.server_close()
+    return 0

@@ -1,0 +1,303 @@
+"""A material on one page: the self-contained HTML report of ``gonio report`` and the page ``gonio view``
+serves.
+
+For each input (a session directory, a MERL table, an NPZ/CSV export) the report shows what was
+measured and how (manifest summary: rig, plan, lab time, flags), the coverage of the directions, BRDF
+slices in the plane of incidence at several incidence angles (measured points with ±1σ bars, the table
+and the fitted models as curves), the residuals of each fitted model, a table of its parameters with
+uncertainties and the notes of the fit (parameters on a bound, not identified), and lit spheres
+(:mod:`gonio.render`): the measured data and each model under the same lights, side by side, with a
+relative-error image. Several inputs give one comparison page.
+
+Figures are Plotly (https://plotly.com/python/), whose JavaScript is embedded once in the page, so the
+file opens without a network; sphere images are embedded PNGs. ``pip install 'gonio[report]'``.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from gonio.errors import ConfigError
+from gonio.geometry import from_spherical
+
+__all__ = ["Entry", "load_entries", "build_report", "sphere_panel", "slice_figure", "LIGHT_ANGLES_DEG"]
+
+#: Light polar angles (degrees from the view axis) of the sphere panels.
+LIGHT_ANGLES_DEG = (0.0, 35.0, 70.0)
+#: Incidence angles of the slices (degrees), for tables and for samples (nearest measured).
+SLICE_THETA_I_DEG = (15.0, 30.0, 45.0, 60.0)
+
+
+def _plotly():
+    try:
+        import plotly.graph_objects as go
+        import plotly.offline
+    except ImportError:
+        raise ConfigError("the report and the viewer need Plotly: pip install 'gonio[report]'") from None
+    return go, plotly.offline
+
+
+@dataclass
+class Entry:
+    """One input of a report: the measured data and the models fitted to it (name → FitResult)."""
+
+    name: str
+    data: object  # gonio.io.source.Measured
+    fits: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+
+
+def load_entries(sources: Sequence[str], fit_files: Sequence[str] = (), *, fit_models: Sequence[str] = ("microfacet",),
+                 fit_kw: dict | None = None) -> list[Entry]:
+    """Read every source (:func:`gonio.load`); attach the models of ``fit_files`` (``gonio fit --json``;
+    all of them apply to every source) or, without them, fit ``fit_models`` now."""
+    import gonio
+    from gonio.brdf import make
+
+    entries = []
+    given = []
+    for f in fit_files:
+        try:
+            report = json.loads(Path(f).read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise ConfigError.field("--model", "model", f, f"cannot read the fit JSON ({exc})") from None
+        if not isinstance(report, dict) or not isinstance(report.get("model"), str):
+            raise ConfigError.field("--model", "model", f, "not a gonio fit --json result")
+        given.append((f"{report['model']} ({Path(f).name})", make(report["model"], source=f, **report.get("params", {})),
+                      report))
+    for src in sources:
+        data = gonio.load(src)
+        e = Entry(Path(src).name or str(src), data)
+        if given:
+            e.fits = {label: (model, rep) for label, model, rep in given}
+        else:
+            for m in fit_models:
+                try:
+                    r = gonio.fit(data, m, **(fit_kw or {}))
+                    e.fits[m] = (r.model, {**r.to_dict(), "uncertainty": r.uncertainty})
+                except Exception as exc:  # noqa: BLE001 - a failed fit is shown, not fatal to the report
+                    e.notes.append(f"fit of {m} failed: {exc}")
+        entries.append(e)
+    return entries
+
+
+# -- figures ------------------------------------------------------------------------------------------
+def _inplane(theta_i_deg: float, n: int = 179):
+    t = np.linspace(-89.0, 89.0, n)
+    wo = from_spherical(np.radians(np.abs(t)), np.where(t >= 0, np.pi, 0.0))
+    wi = np.broadcast_to(from_spherical(np.radians(theta_i_deg), 0.0), wo.shape)
+    return t, wi, wo
+
+
+def _nearest_incidences(samples, k: int = 4) -> list[float]:
+    ti = np.round(np.degrees(samples.angles()[0]))
+    vals, counts = np.unique(ti, return_counts=True)
+    chosen: list[float] = []
+    for v in vals[np.argsort(-counts, kind="stable")]:  # most measured first, at least 5° apart
+        if all(abs(v - c) >= 5.0 for c in chosen):
+            chosen.append(float(v))
+        if len(chosen) == k:
+            break
+    return sorted(chosen)
+
+
+def slice_figure(entry: Entry, theta_i_deg: float, tol_deg: float = 2.5):
+    """The BRDF in the plane of incidence at θi: measured samples (±1σ), table, models; log scale."""
+    go, _ = _plotly()
+    fig = go.Figure()
+    colours = ("#d62728", "#2ca02c", "#1f77b4")
+    data = entry.data
+    if data.samples is not None and len(data.samples):
+        s = data.samples
+        ti, pi_, to, po = s.angles()
+        dphi = np.mod(po - pi_, 2 * np.pi)
+        sel = (np.abs(np.degrees(ti) - theta_i_deg) <= tol_deg) & (
+            (np.abs(np.sin(dphi)) <= np.sin(np.radians(tol_deg))) | (to < np.radians(tol_deg)))
+        x = np.degrees(to[sel]) * np.where(np.cos(dphi[sel]) < 0, 1.0, -1.0)
+        for c, name in enumerate("RGB"):
+            fig.add_trace(go.Scatter(x=x, y=s.f[sel, c], mode="markers", name=f"measured {name}",
+                                     marker=dict(color=colours[c], size=5),
+                                     error_y=dict(type="data", array=s.sigma[sel, c], visible=True)))
+    t, wi, wo = _inplane(theta_i_deg)
+    if data.table is not None:
+        v = data.table.lookup(wi, wo)
+        for c, name in enumerate("RGB"):
+            fig.add_trace(go.Scatter(x=t, y=v[:, c], mode="lines", name=f"table {name}",
+                                     line=dict(color=colours[c], width=1)))
+    for label, (model, _rep) in entry.fits.items():
+        v = model.eval(wi, wo)
+        for c, name in enumerate("RGB"):
+            fig.add_trace(go.Scatter(x=t, y=v[:, c], mode="lines", name=f"{label} {name}",
+                                     line=dict(color=colours[c], dash="dash")))
+    fig.update_layout(title=f"{entry.name}: plane of incidence, θi = {theta_i_deg:g}°", height=360,
+                      xaxis_title="θo (deg), positive on the specular side", yaxis_title="BRDF (1/sr)",
+                      yaxis_type="log", margin=dict(l=60, r=20, t=50, b=50))
+    return fig
+
+
+def coverage_figure(entry: Entry):
+    go, _ = _plotly()
+    s = entry.data.samples
+    fig = go.Figure()
+    if s is None or not len(s):
+        fig.update_layout(title=f"{entry.name}: a table (no samples to map)", height=300)
+        return fig
+    ti, pi_, to, po = s.angles()
+    fig.add_trace(go.Scatterpolar(r=np.degrees(ti), theta=np.degrees(pi_), mode="markers", name="wi (light)",
+                                  marker=dict(size=4, color="#ff7f0e")))
+    fig.add_trace(go.Scatterpolar(r=np.degrees(to), theta=np.degrees(po), mode="markers", name="wo (camera)",
+                                  marker=dict(size=4, color="#1f77b4")))
+    fig.update_layout(title=f"{entry.name}: {len(s)} samples (radius θ, angle φ, degrees)", height=380,
+                      polar=dict(radialaxis=dict(range=[0, 90], tickvals=[30, 60, 90])))
+    return fig
+
+
+def residual_figure(entry: Entry):
+    go, _ = _plotly()
+    s = entry.data.samples
+    fig = go.Figure()
+    if s is None or not len(s) or not entry.fits:
+        fig.update_layout(title=f"{entry.name}: no residuals (no samples or no model)", height=300)
+        return fig
+    for label, (model, _rep) in entry.fits.items():
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.where(s.sigma > 0, (s.f - model.eval(s.wi, s.wo)) / s.sigma, np.nan).mean(axis=1)
+        r = r[np.isfinite(r)]
+        fig.add_trace(go.Histogram(x=np.clip(r, -20, 20), name=label, opacity=0.6, nbinsx=60, histnorm="probability density"))
+    fig.update_layout(title=f"{entry.name}: residuals (f − model)/σ, mean of R, G, B", barmode="overlay", height=320,
+                      xaxis_title="(f − model) / σ", yaxis_title="probability density")
+    return fig
+
+
+def _png(img: np.ndarray) -> str:
+    import cv2
+
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(img[..., ::-1]))
+    return "data:image/png;base64," + base64.b64encode(buf.tobytes()).decode("ascii")
+
+
+def sphere_images(brdf, theta_deg: float, phi_deg: float = 0.0, *, size: int = 96, white=None):
+    """(radiance, 8-bit image) of ``brdf`` on a sphere lit from (θ, φ) (degrees)."""
+    from gonio.render import light_from_angles, render_sphere, tonemap
+
+    r = render_sphere(brdf, [light_from_angles(theta_deg, phi_deg)], size=size)
+    return r.radiance, tonemap(r.radiance, white=white), r
+
+
+def sphere_panel(entry: Entry, *, size: int = 96) -> str:
+    """HTML table: one row per light angle; the measured data, each model, and |model − data| / data."""
+    data = entry.data
+    measured = data if (data.table is not None or (data.samples is not None and len(data.samples) > 2000)) else None
+    rows = []
+    head = ["light θ"] + (["measured"] if measured is not None else []) + list(entry.fits) + \
+        ([f"error of {k}" for k in entry.fits] if measured is not None else [])
+    for theta in LIGHT_ANGLES_DEG:
+        cells = [f"{theta:g}°"]
+        ref = None
+        if measured is not None:
+            try:
+                rad, img, r = sphere_images(measured, theta, size=size)
+                ref, white = rad, None
+                cells.append(f'<img class="sphere" alt="measured, light at {theta:g} deg" src="{_png(img)}">'
+                             + (f"<br><small>{r.missing} px not measured</small>" if r.missing else ""))
+            except Exception as exc:  # noqa: BLE001 - e.g. anisotropic samples that do not tabulate
+                cells.append(f"<small>{html.escape(str(exc))[:120]}</small>")
+                ref = None
+        errs = []
+        for label, (model, _rep) in entry.fits.items():
+            rad, img, _r = sphere_images(model, theta, size=size,
+                                         white=float(np.percentile(ref[ref > 0], 99.5)) if ref is not None and np.any(ref > 0) else None)
+            cells.append(f'<img class="sphere" alt="{html.escape(label)}, light at {theta:g} deg" src="{_png(img)}">')
+            if ref is not None:
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    rel = np.where(ref > 0, np.abs(rad - ref) / ref, 0.0).mean(axis=-1)
+                heat = np.clip(rel / 0.5, 0, 1)  # 0 .. 50 % relative error
+                err_img = np.stack([255 * heat, 255 * (1 - heat) * (heat > 0), 0 * heat], axis=-1).astype(np.uint8)
+                errs.append(f'<img class="sphere" alt="error of {html.escape(label)}" src="{_png(err_img)}"><br>'
+                            f"<small>median {100 * float(np.median(rel[ref.sum(-1) > 0])) if np.any(ref.sum(-1) > 0) else 0:.1f} %</small>")
+        cells += errs
+        rows.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
+    return ('<table class="spheres"><tr>' + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"
+            + "".join(rows) + "</table><p><small>Error images: |model − measured| / measured, black = 0, "
+            "red = 50 % or more.</small></p>")
+
+
+def fit_table(entry: Entry) -> str:
+    rows = []
+    for label, (_model, rep) in entry.fits.items():
+        unc = rep.get("uncertainty") or {}
+        err = rep.get("error") or {}
+        params = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(_fmt(v))}</td><td>{html.escape(_fmt(unc.get(k)))}</td></tr>"
+                         for k, v in (rep.get("params") or {}).items())
+        notes = "".join(f"<li>{html.escape(str(n))}</li>" for n in rep.get("notes") or [])
+        rows.append(f"<h4>{html.escape(label)}</h4><p>relative RMS error {_fmt(err.get('rms_rel'))}, "
+                    f"χ²/dof {_fmt(err.get('chi2_red'))}</p><table class='params'><tr><th>parameter</th><th>value</th>"
+                    f"<th>standard uncertainty</th></tr>{params}</table>" + (f"<ul>{notes}</ul>" if notes else ""))
+    return "".join(rows) or "<p>No model fitted.</p>"
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, (list, tuple)):
+        return ", ".join(_fmt(x) for x in v)
+    if isinstance(v, float):
+        return f"{v:.5g}"
+    return str(v)
+
+
+def summary_html(entry: Entry) -> str:
+    m = entry.data.manifest if isinstance(entry.data.manifest, dict) else {}
+    items = [("kind", entry.data.kind), ("path", str(entry.data.path))]
+    if entry.data.samples is not None:
+        s = entry.data.samples
+        items.append(("samples", f"{len(s)} ({int(np.count_nonzero(s.flags))} flagged)"))
+    if m:
+        plan = m.get("plan") if isinstance(m.get("plan"), dict) else {}
+        rig = m.get("rig") if isinstance(m.get("rig"), dict) else {}
+        runs = [r.get("lab_time_s") for r in m.get("runs") or [] if isinstance(r, dict)]
+        lab = sum(t for t in runs if isinstance(t, (int, float)))
+        from gonio.session.material import describe_material
+
+        items += [("material", describe_material(m.get("material"))), ("rig", str(rig.get("name", "–"))),
+                  ("plan", f"{plan.get('generator', '–')}, {plan.get('n_poses', '–')} poses"),
+                  ("lab time", f"{lab:.0f} s" if runs else "–"), ("exit status", str(m.get("exit_status")))]
+    items += [("note", n) for n in entry.notes]
+    return "<table class='summary'>" + "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}</td></tr>"
+                                               for k, v in items) + "</table>"
+
+
+def slice_angles(entry: Entry) -> list[float]:
+    s = entry.data.samples
+    return _nearest_incidences(s) if s is not None and len(s) else list(SLICE_THETA_I_DEG)
+
+
+STYLE = """body{font-family:sans-serif;margin:1.5em;max-width:1400px}h2{border-bottom:1px solid #ccc}
+table{border-collapse:collapse}td,th{padding:3px 8px;text-align:left;vertical-align:top}
+table.spheres img.sphere{width:128px;height:128px;image-rendering:pixelated;background:#000}
+.figure{display:inline-block;width:48%;min-width:420px}"""
+
+
+def build_report(entries: Sequence[Entry], *, title: str = "gonio report", extra_html: str = "") -> str:
+    """The whole page as one HTML string (Plotly's JavaScript inlined: no network needed)."""
+    go, offline = _plotly()
+    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
+             f"<style>{STYLE}</style><script type='text/javascript'>{offline.get_plotlyjs()}</script></head><body>",
+             f"<h1>{html.escape(title)}</h1>"]
+    for k, e in enumerate(entries):
+        figs = [coverage_figure(e), *(slice_figure(e, t) for t in slice_angles(e)), residual_figure(e)]
+        parts.append(f"<section class='entry' id='entry-{k}'><h2>{html.escape(e.name)}</h2>{summary_html(e)}")
+        parts.append("<h3>Coverage, slices and residuals</h3>")
+        for j, fig in enumerate(figs):
+            parts.append(f"<div class='figure' id='fig-{k}-{j}'>"
+                         + fig.to_html(full_html=False, include_plotlyjs=False, div_id=f"plot-{k}-{j}") + "</div>")
+        parts.append(f"<h3>Fitted models</h3>{fit_table(e)}<h3>Rendered spheres</h3>{sphere_panel(e)}</section>")
+    parts.append(extra_html + "</body></html>")
+    return "".join(parts)

@@ -1,0 +1,195 @@
+"""Lit spheres (gonio.render), the self-contained HTML report and the interactive viewer, opened in a real
+headless browser (Debian's Chromium driven by Playwright). Screenshots are kept in the test's temp dir."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import signal
+import subprocess
+import sys
+import threading
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gonio.brdf import make
+from gonio.cli.main import main
+from gonio.io.merl import MerlTable, cell_directions, write_merl
+from gonio.lights import DirectionalLight, PointLight, SpotLight
+from gonio.render import light_from_angles, render_sphere, sphere_points, tonemap
+
+REPO = Path(__file__).resolve().parents[2]
+CHROMIUM = "/usr/bin/chromium"
+ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+        "--disable-component-update", "--disable-sync"]
+
+
+# -- the renderer ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("theta, phi", [(0, 0), (40, 30), (75, 200)])
+def test_lambertian_sphere_follows_the_cosine_law(theta, phi):
+    albedo = np.array([0.5, 0.3, 0.2])
+    light = light_from_angles(theta, phi, irradiance=2.0)
+    r = render_sphere(make("lambert", albedo=albedo), [light], size=64)
+    mask, n = sphere_points(64)
+    expected = albedo / np.pi * 2.0 * np.maximum(0.0, n @ -light.direction)[..., None] * mask[..., None]
+    assert np.max(np.abs(r.radiance - expected)) < 1e-6 and r.missing == 0
+    assert np.all(r.radiance[~mask] == 0)
+
+
+def test_lights_add_and_a_spot_light_lights_only_its_cone():
+    m = make("lambert", albedo=0.8)
+    a, b = light_from_angles(20), PointLight([0.0, 0.0, 1.0], 0.3)
+    both = render_sphere(m, [a, b], size=48).radiance
+    assert np.allclose(both, render_sphere(m, [a], size=48).radiance + render_sphere(m, [b], size=48).radiance)
+    spot = SpotLight([0.0, 0.0, 1.0], [0.0, 0.0, -1.0], 1.0, hotspot=np.radians(2), falloff=np.radians(3))
+    img = render_sphere(m, [spot], size=64).radiance.sum(-1)
+    mask, n = sphere_points(64)
+    r_xy = np.hypot(n[..., 0], n[..., 1]) * 0.05  # the sphere's radius is 5 cm, the spot 1 m away
+    assert np.all(img[mask & (r_xy > np.tan(np.radians(3.2)) * 0.96)] == 0)
+    assert np.all(img[mask & (r_xy < np.tan(np.radians(1.5)) * 0.95)] > 0)
+
+
+def test_a_measured_table_renders_like_its_model_and_ambient_is_lambert_exact():
+    model = make("lambert+ggx", **{"diffuse.albedo": [0.4, 0.3, 0.2], "lobe1.alpha": 0.3, "lobe1.f0": 0.9})
+    wi, wo, *_ = cell_directions()
+    v = model.eval(wi, wo)
+    v[(wi[..., 2] <= 0) | (wo[..., 2] <= 0)] = np.nan
+    table = MerlTable(v)
+    lights = [light_from_angles(30, 0), light_from_angles(60, 120, 0.5)]
+    a, b = render_sphere(table, lights, size=64), render_sphere(model, lights, size=64)
+    lit = b.radiance.sum(-1) > 1e-3 * b.radiance.sum(-1).max()
+    rel = np.abs(a.radiance - b.radiance)[lit] / b.radiance[lit]
+    assert np.median(rel) < 0.02
+    amb = render_sphere(make("lambert", albedo=0.6), [], size=32, ambient=2.0)
+    assert np.allclose(amb.radiance[amb.mask], 0.6 * 2.0)
+    img = tonemap(b.radiance)
+    assert img.dtype == np.uint8 and img.max() == 255 and img[~b.mask].max() == 0
+
+
+# -- report and viewer in a real browser ------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("report")
+    session = d / "session"
+    assert main(["measure", "--sim", "--plan", "in_plane", "--theta-i", "30", "--theta-o-step", "20", "--quiet",
+                 "--out", str(session)]) == 0
+    wi, wo, *_ = cell_directions()
+    v = make("microfacet", kd=0.2, ks=0.6, alpha=0.2, f0=0.9).eval(wi, wo)
+    v[(wi[..., 2] <= 0) | (wo[..., 2] <= 0)] = np.nan
+    write_merl(d / "table.binary", MerlTable(v))
+    return session, d / "table.binary"
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if not os.path.exists(CHROMIUM):
+        pytest.skip("needs Debian's chromium (installed by .ci/run)")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is part of gonio[dev]")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        yield b
+        b.close()
+
+
+def _open(browser, url, *, offline: bool):
+    ctx = browser.new_context(viewport={"width": 1300, "height": 1500})
+    if offline:  # networking off: anything but the file itself is refused
+        ctx.route("**/*", lambda route: route.continue_() if route.request.url.startswith("file:") else route.abort())
+    page = ctx.new_page()
+    errors = []
+    page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(url)
+    page.wait_for_load_state("load")
+    return ctx, page, errors
+
+
+def _digest(d: Path):
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(d.iterdir())}
+
+
+def test_report_is_self_contained_and_every_figure_renders(inputs, browser, tmp_path, capsys):
+    session, table = inputs
+    before = _digest(session)
+    out = tmp_path / "report.html"
+    assert main(["report", str(session), str(table), "-o", str(out)]) == 0
+    assert "wrote" in capsys.readouterr().out
+    text = out.read_text()
+    import re
+
+    assert not re.search(r"<(script|link|img)[^>]+(src|href)=[\"']https?:", text)  # nothing fetched from a network
+    ctx, page, errors = _open(browser, out.as_uri(), offline=True)
+    try:
+        page.wait_for_timeout(500)
+        n_fig = page.locator("div.figure").count()
+        assert n_fig >= 2 * 3  # per input: coverage, slices, residuals
+        for k in range(n_fig):
+            fig = page.locator("div.figure").nth(k)
+            assert fig.locator(".main-svg").count() > 0, f"figure {k} did not render"
+        spheres = page.locator("img.sphere")
+        assert spheres.count() >= 2 * 3
+        widths = page.evaluate("Array.from(document.querySelectorAll('img.sphere')).map(i => i.naturalWidth)")
+        assert min(widths) > 0
+        assert not errors, errors
+        shot = tmp_path / "report.png"
+        page.screenshot(path=str(shot), full_page=True)
+        print(f"report screenshot: {shot}")
+    finally:
+        ctx.close()
+    assert _digest(session) == before  # the report only reads
+
+
+def test_viewer_sliders_rerender_and_nothing_is_written(inputs, browser, tmp_path):
+    from gonio.report import load_entries
+    from gonio.viewer import make_server
+
+    session, _table = inputs
+    before = _digest(session)
+    server = make_server(load_entries([str(session)]), port=0)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    url = f"http://127.0.0.1:{server.server_address[1]}/"
+    try:
+        ctx, page, errors = _open(browser, url, offline=False)
+        try:
+            page.wait_for_function("document.getElementById('live-0-1').naturalWidth > 0")
+            src0 = page.get_attribute("#live-0-1", "src")
+            png0 = urllib.request.urlopen(url.rstrip("/") + src0).read()
+            page.fill("#theta-0", "70")
+            page.dispatch_event("#theta-0", "input")
+            page.wait_for_function(f"document.getElementById('live-0-1').src.indexOf('theta=70') >= 0")
+            src1 = page.get_attribute("#live-0-1", "src")
+            png1 = urllib.request.urlopen(url.rstrip("/") + src1).read()
+            assert src1 != src0 and png1 != png0  # the rendered sphere changed with the light
+            page.fill("#ti-0", "50")
+            page.dispatch_event("#ti-0", "input")
+            page.wait_for_function("document.getElementById('live-slice-0').querySelector('.main-svg') !== null")
+            assert not errors, errors
+            page.screenshot(path=str(tmp_path / "viewer.png"))
+            print(f"viewer screenshot: {tmp_path / 'viewer.png'}")
+        finally:
+            ctx.close()
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert _digest(session) == before
+
+
+def test_view_command_serves_and_stops_cleanly_on_ctrl_c(inputs):
+    session, _ = inputs
+    proc = subprocess.Popen([sys.executable, "-m", "gonio.cli.main", "view", str(session), "--no-browser"],
+                            cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("gonio view: serving http://127.0.0.1:"), line
+        url = line.split()[3]
+        assert b"<html" in urllib.request.urlopen(url, timeout=30).read()
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0 and "stopped" in out and "Traceback" not in err
