@@ -91,7 +91,10 @@ def fit_one(source: str, opts: dict):
 
     kw = {"loss": opts["loss"], "seed": opts["seed"], "max_theta_deg": opts["max_theta_deg"]}
     if opts["select"]:
-        sel = api.select(source, opts["candidates"], criterion=opts["criterion"], **kw)
+        import sys
+
+        sel = api.select(source, opts["candidates"], criterion=opts["criterion"],
+                         progress=opts.get("progress", False) and sys.stderr.isatty(), **kw)
         return sel.winner, sel
     return api.fit(source, opts["model"], fixed=opts["fixed"], **kw), None
 
@@ -129,6 +132,7 @@ def run_one(args) -> int:
     from gonio.io.outputs import check_output
 
     opts = _options(args)
+    opts["progress"] = True  # one source: a progress bar on a terminal (tqdm)
     renderers = (("--pbrt", args.pbrt, ".pbrt"), ("--gltf", args.gltf, ".gltf"))
     for option, value, suffix in renderers:
         if value:
