@@ -33,6 +33,12 @@ def register(sub) -> None:
     p.add_argument("--mitsuba", metavar="OUT.xml|OUT.json",
                    help="also write the fitted model as a Mitsuba 3 BSDF (XML element or load_dict JSON) where "
                         "Mitsuba reproduces it exactly: lambert, microfacet/ggx/beckmann lobes with f0 = 1, their sums")
+    p.add_argument("--pbrt", metavar="OUT.pbrt", help="also write the fitted model as a pbrt-v4 material (diffuse, "
+                   "conductor, mix); refused unless exact or --approx")
+    p.add_argument("--gltf", metavar="OUT.gltf", help="also write the fitted model as a glTF 2.0 material on a sphere "
+                   "(metallic-roughness + KHR_materials_specular/ior; Blender imports it); refused unless exact or --approx")
+    p.add_argument("--approx", action="store_true", help="write the closest renderer material where it cannot "
+                   "reproduce the model exactly, printing its error (default: refuse, naming the reason)")
     p.set_defaults(func=run)
 
 
@@ -43,6 +49,26 @@ def load_source(path_text: str):
     return as_samples(path_text)
 
 
+def resolve_fixed(model: str, fixed: dict) -> dict:
+    """``--fix`` names as ``gonio fit`` prints them, mapped onto ``model``'s parameters: a full name
+    (``lobe1.f0``, ``diffuse.albedo``) is itself; a bare name (``f0``, ``alpha``, ``albedo``) that the
+    model does not have as such names that parameter of every lobe having it (``f0=1`` on lambert+2ggx
+    fixes lobe1.f0 and lobe2.f0: a tied f0 applies to all lobes). Anything else is one line listing the
+    model's parameters."""
+    from gonio.errors import ConfigError
+    from gonio.fit.layout import model_class
+
+    params = list(model_class(model).PARAMS)
+    out: dict = {}
+    for name, value in fixed.items():
+        targets = [name] if name in params else [p for p in params if p.rsplit(".", 1)[-1] == name]
+        if not targets:
+            raise ConfigError.field("--fix", f"{model}.{name}", value,
+                                    f"unknown parameter; {model} has {', '.join(params)}")
+        out.update({t: value for t in targets})
+    return out
+
+
 def _options(args) -> dict:
     """What every source's fit needs, as plain data (sent to worker processes)."""
     from gonio.cli.models import _parse_param
@@ -50,9 +76,9 @@ def _options(args) -> dict:
 
     if not args.all_angles and not 0.0 < args.max_theta <= 90.0:
         raise ConfigError.field("--max-theta", "max_theta", args.max_theta, "must be in (0, 90] degrees")
-    fixed = dict(_parse_param(t) for t in args.fix)
-    if args.select and fixed:
+    if args.select and args.fix:
         raise ConfigError.field("--fix", "fix", args.fix, "not supported with --select")
+    fixed = resolve_fixed(args.model, dict(_parse_param(t) for t in args.fix)) if args.fix else {}
     cands = tuple(c.strip() for c in args.candidates.split(",")) if args.candidates else None
     return {"select": args.select, "model": args.model, "candidates": cands, "criterion": args.criterion,
             "loss": args.loss, "fixed": fixed, "seed": args.seed,
@@ -65,7 +91,10 @@ def fit_one(source: str, opts: dict):
 
     kw = {"loss": opts["loss"], "seed": opts["seed"], "max_theta_deg": opts["max_theta_deg"]}
     if opts["select"]:
-        sel = api.select(source, opts["candidates"], criterion=opts["criterion"], **kw)
+        import sys
+
+        sel = api.select(source, opts["candidates"], criterion=opts["criterion"],
+                         progress=opts.get("progress", False) and sys.stderr.isatty(), **kw)
         return sel.winner, sel
     return api.fit(source, opts["model"], fixed=opts["fixed"], **kw), None
 
@@ -87,10 +116,11 @@ def run(args) -> int:
     paths = many.sources(args)
     if many.is_batch(args, paths):
         opts = _options(args)
-        if args.mitsuba:
-            from gonio.errors import ConfigError
+        for option, value in (("--mitsuba", args.mitsuba), ("--pbrt", args.pbrt), ("--gltf", args.gltf)):
+            if value:
+                from gonio.errors import ConfigError
 
-            raise ConfigError.field("--mitsuba", "mitsuba", args.mitsuba, "takes one source (fit each one alone)")
+                raise ConfigError.field(option, option.lstrip("-"), value, "takes one source (fit each one alone)")
         opts["json_dir"] = str(many.output_dir("--json", args.json, required=False) or "") or None
         return many.run("fit", args, fit_row, paths, opts,
                         ["source", "status", "model", "n_used", "rms_rel", "chi2_red", "seconds", "params", "error"])
@@ -102,6 +132,11 @@ def run_one(args) -> int:
     from gonio.io.outputs import check_output
 
     opts = _options(args)
+    opts["progress"] = True  # one source: a progress bar on a terminal (tqdm)
+    renderers = (("--pbrt", args.pbrt, ".pbrt"), ("--gltf", args.gltf, ".gltf"))
+    for option, value, suffix in renderers:
+        if value:
+            check_output(value, option=option, force=args.force, suffixes=(suffix,))
     for option, value in (("--json", args.json), ("--mitsuba", args.mitsuba)):
         if value:  # refused before minutes of fitting, not after
             check_output(value, option=option, force=args.force)
@@ -121,4 +156,12 @@ def run_one(args) -> int:
         write_mitsuba(result.model, check_output(args.mitsuba, option="--mitsuba", force=args.force,
                                                  suffixes=(".xml", ".json")))
         print(f"wrote {args.mitsuba} (Mitsuba 3 BSDF)")
+    for option, value, _ in renderers:
+        if value:
+            from gonio.io.gltf import write_gltf
+            from gonio.io.pbrt import write_pbrt
+
+            write = write_pbrt if option == "--pbrt" else write_gltf
+            ex = write(result.model, value, approx=args.approx, option=option)
+            print(f"wrote {value} ({ex.describe()})")
     return 0

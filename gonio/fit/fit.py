@@ -28,7 +28,7 @@ import numpy as np
 from gonio.errors import ConfigError, DataError, GonioError
 from gonio.fit.data import DEFAULT_MAX_THETA_DEG, FitData, prepare
 from gonio.fit.kernels import jacobian_for, profile_for
-from gonio.fit.layout import CHANNELS, Layout, SubSpace, auto_tied, make_basis, model_class
+from gonio.fit.layout import CHANNELS, Layout, SubSpace, auto_tied, make_basis, model_class, separated
 from gonio.fit.losses import LOSSES, Loss, get_loss
 from gonio.fit.result import FitResult
 from gonio.fit.solve import Projection, ProfiledProjection, jtj_from_elements, shared_weights
@@ -37,9 +37,11 @@ METHODS = ("auto", "varpro", "plain")
 
 
 def resolve_loss(loss: str, data: FitData) -> Loss:
-    """``auto`` is χ² when every sample has an uncertainty, else cosine-weighted L2."""
+    """``auto`` is χ² when every sample has an uncertainty, else the robust loss (the cube-root error
+    linearized at the data, :mod:`gonio.fit.losses`): a cosine-weighted L2 lets a metal's specular peak,
+    10⁵× the diffuse level, decide everything (chrome's diffuse albedo came out 1 instead of 0.003)."""
     if loss == "auto":
-        return LOSSES["chi2" if data.sigma is not None else "cosine"]
+        return LOSSES["chi2" if data.sigma is not None else "robust"]
     obj = get_loss(loss, source="--loss")
     if obj.needs_sigma and data.sigma is None:
         raise ConfigError.field("--loss", "loss", loss,
@@ -387,7 +389,7 @@ def _uncertainty(prob: _Problem, p: np.ndarray, cost: float, notes: list[str], A
 def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = None,
         free: tuple[str, ...] = (), max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG, n_starts: int = 3, seed: int = 0,
         method: str = "auto", kernel: str | None = "auto", use_flagged: bool = False,
-        max_nfev: int | None = None) -> FitResult:
+        max_nfev: int | None = None, report: bool = True, start: dict | None = None) -> FitResult:
     """Fit the model ``model`` to ``data``.
 
     Parameters
@@ -414,6 +416,13 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
         Solver (see the module docstring).
     kernel : "auto" or None
         Use a precomputed-geometry kernel of :mod:`gonio.fit.kernels` when one exists for the model.
+    start : dict
+        Parameters of an earlier fit of the same model (e.g. on a subset of these data): the shape search
+        is replaced by a local refinement from them (a warm start; :func:`gonio.fit.select.select` refits
+        its winner on all samples this way).
+    report : bool
+        Also compute the error measures of :mod:`gonio.fit.metrics` and the directional-albedo check of
+        :mod:`gonio.fit.energy` (about a second on a full MERL table; selection skips them for losers).
 
     Returns
     -------
@@ -438,9 +447,12 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
     if 3 * len(d) <= L.n_params:
         raise DataError(f"{d.source}: {len(d)} usable samples ({3 * len(d)} values) cannot determine "
                         f"{L.n_params} parameters of {L.name}; need at least {L.n_params // 3 + 1} samples")
-    kw = dict(n_starts=n_starts, seed=seed, method=method, kernel=kernel, max_nfev=max_nfev)
+    kw = dict(n_starts=n_starts, seed=seed, method=method, kernel=kernel, max_nfev=max_nfev, start=start)
     r = _fit_layout(d, L, lossobj, **kw)
     weak = [t for t in L.tied if not r.uncertainty[t] <= TIED_MAX_SE]  # inf, or too wide; nan = on a bound
+    # f0 multiplies ks: with ks pinned at a bound, f0 looks determined only because the bound fixes the product
+    hit = bound_report(cls, r.params, r.uncertainty)
+    weak += [t for t in L.tied if t not in weak and _partner(t, "ks") in hit]
     if weak:
         L2 = Layout(cls, {**fixed, **{t: 1.0 for t in weak}}, [t for t in tied if t not in weak])
         optimum = None
@@ -455,14 +467,68 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
             r2.method = r.method
         why = ", ".join(f"{t} = {r.params[t]:.3g} " + ("on its upper bound" if not np.isfinite(r.uncertainty[t])
                                                         and abs(r.params[t] - 1.0) <= 1e-7
+                                                        else f"with {_partner(t, 'ks')} on a bound" if _partner(t, "ks") in hit
                                                         else f"± {r.uncertainty[t]:.2g}") for t in weak)
         r2.notes.insert(0, f"not identifiable from these data: {why} (the angular range does not separate the "
                            f"Fresnel rise from ks); held at 1, so ks is the specular reflectance ks·F")
         r2.n_evals += r.n_evals
         r2.identifiable = False
         r = r2
+    r.at_bound = bound_report(cls, r.params, r.uncertainty)
+    if r.at_bound:
+        r.notes.append("at or near a bound of its range: " + "; ".join(
+            f"{k} ({', '.join(f'{c} {w}' for c, w in v.items())})" for k, v in r.at_bound.items()))
+    if report:
+        add_report(r, d)
     r.seconds = time.perf_counter() - t0
     return r
+
+
+def _partner(name: str, other: str) -> str:
+    """The parameter ``other`` of the same term as ``name`` (``lobe1.f0`` -> ``lobe1.ks``, ``f0`` -> ``ks``)."""
+    return f"{name.rsplit('.', 1)[0]}.{other}" if "." in name else other
+
+
+#: A value within this fraction of its range (or, for ranges searched in log space, within this factor
+#: of its lower bound) of a bound is reported as at the bound.
+NEAR_BOUND = 1e-3
+
+
+def bound_report(cls, params: dict, uncertainty: dict) -> dict:
+    """Fitted parameters at or near a bound: name -> {channel ("r", "g", "b") or "value": "lower 0"}."""
+    out: dict = {}
+    for name, unc in uncertainty.items():
+        spec = cls.PARAMS.get(name)
+        if spec is None or spec.kind == "choice":
+            continue
+        vals = np.atleast_1d(np.asarray(params[name], dtype=np.float64))
+        lo, hi = float(spec.lo), float(spec.hi)
+        span = hi - lo if np.isfinite(hi) else max(abs(lo), 1.0)
+        logscale = lo > 0 and np.isfinite(hi) and hi / lo > 100
+        hits = {}
+        for j, v in enumerate(vals):
+            key = CHANNELS[j] if vals.size == 3 else "value"
+            near_lo = (v <= lo * (1 + 10 * NEAR_BOUND)) if logscale else (v - lo <= NEAR_BOUND * span)
+            if near_lo:
+                hits[key] = f"lower {lo:g}"
+            elif np.isfinite(hi) and hi - v <= NEAR_BOUND * span:
+                hits[key] = f"upper {hi:g}"
+        if hits:
+            out[name] = hits
+    return out
+
+
+def add_report(r: FitResult, d: FitData) -> None:
+    """Fill ``r.metrics`` (:mod:`gonio.fit.metrics`) and ``r.energy`` (:mod:`gonio.fit.energy`); a note
+    when the fitted parameters do not conserve energy."""
+    from gonio.fit.energy import albedo_check
+    from gonio.fit.metrics import metrics
+
+    r.metrics = metrics(r.model, d)
+    r.energy = albedo_check(r.model)
+    if not r.energy["ok"]:
+        r.notes.append(f"not energy conserving: directional albedo {r.energy['albedo_max']:.3g} > 1 at "
+                       f"theta_i = {r.energy['theta_deg']:g} deg")
 
 
 #: A tied parameter (f0) whose standard uncertainty exceeds this is reported as not identifiable and
@@ -471,7 +537,7 @@ TIED_MAX_SE = 0.2
 
 
 def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method, kernel, max_nfev,
-                optimum: tuple[np.ndarray, np.ndarray] | None = None) -> FitResult:
+                optimum: tuple[np.ndarray, np.ndarray] | None = None, start: dict | None = None) -> FitResult:
     """One fit of the layout ``L`` (free, tied and fixed parameters decided) to prepared data.
 
     ``optimum = (colour, shape)`` skips the search: the caller knows the minimizer already (a tied
@@ -508,9 +574,13 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
             basis_ = basis_ or make_basis(L, data_, use_kernels=kernel == "auto", seed=seed)
             return Projection(basis_, np.ascontiguousarray(w_), data_.y, L.colour_lo, L.colour_hi)
 
-        space = L if profile is None else SubSpace(L, [j for j, n in enumerate(L.shape) if n != profile.tied])
+        space = (separated(L) or L) if profile is None else SubSpace(L, [j for j, n in enumerate(L.shape) if n != profile.tied])
         proj = projection(d, w, basis)
-        if len(d) > COARSE_N and space.S:
+        names = [L.shape[j] for j in (space.keep if isinstance(space, SubSpace) else range(L.S))]
+        if start is not None and space.S and all(n in start for n in names):
+            s0 = np.array([float(np.mean(start[n])) for n in names])
+            shape, colour, cost = _refine(proj, space, space.to_u(s0))
+        elif len(d) > COARSE_N and space.S:
             idx = np.sort(rng.choice(len(d), COARSE_N, replace=False))
             proj_s = projection(d.subset(idx), w[idx])
             shape_s, _, _ = _search_shape(proj_s, space, rng, n_starts)

@@ -363,3 +363,74 @@ def make_basis(layout: Layout, data, use_kernels: bool = True, seed: int = 0):
     if getattr(layout.cls, "PARTS", None):
         return SumBasis(layout, data, use_kernels, seed)
     return Basis(layout, data, kernel_for(layout) if use_kernels else None, seed)
+
+
+#: Smallest ratio of widths between the broad and the narrow one of two repeated lobes (a sum such as
+#: ``lambert+2ggx``): lobes closer than that would be told apart by colour only.
+LOBE_RATIO_MIN = 2.0
+_WIDTHS = ("alpha", "roughness")
+
+
+class SeparatedLobes(_SearchMap):
+    """The search space of a layout whose sum repeats a lobe, with the lobes separated by *shape*: the
+    width (α, roughness) of each repeated lobe after the first is searched as its ratio to the previous
+    one's, at least :data:`LOBE_RATIO_MIN` (log-scaled). Without it a two-lobe fit of a coloured material
+    may split the lobes by channel — one red, one blue, equal widths — instead of a narrow and a broad
+    lobe (issue 14). Same search API as :class:`Layout`; :func:`separated` builds it when it applies."""
+
+    def __init__(self, layout: Layout, chains: list[list[int]]):
+        self.layout = layout
+        self.chains = chains
+        self.S = layout.S
+        self.shape_lo, self.shape_hi = layout.shape_lo, layout.shape_hi
+
+    def search_space(self):
+        u_lo, u_hi, is_log = (a.copy() for a in self.layout.search_space())
+        for chain in self.chains:
+            for prev, j in zip(chain, chain[1:]):
+                u_lo[j] = np.log(LOBE_RATIO_MIN)
+                u_hi[j] = max(np.log(self.shape_hi[j] / max(self.shape_lo[prev], 1e-300)), u_lo[j] + 1e-6)
+                is_log[j] = True
+        return u_lo, u_hi, is_log
+
+    def to_shape(self, u):
+        u = np.asarray(u, dtype=np.float64)
+        base = u.copy()
+        _, _, is_log = self.layout.search_space()
+        for chain in self.chains:
+            for j in chain[1:]:
+                base[j] = np.log(self.shape_lo[j]) if is_log[j] else self.shape_lo[j]  # placeholder
+        s = self.layout.to_shape(base)
+        for chain in self.chains:
+            for prev, j in zip(chain, chain[1:]):
+                s[j] = np.clip(s[prev] * np.exp(u[j]), self.shape_lo[j], self.shape_hi[j])
+        return s
+
+    def to_u(self, s):
+        s = np.asarray(s, dtype=np.float64)
+        u = self.layout.to_u(s)
+        lo, hi, _ = self.search_space()
+        for chain in self.chains:
+            for prev, j in zip(chain, chain[1:]):
+                u[j] = np.clip(np.log(max(s[j] / max(s[prev], 1e-300), 1e-300)), lo[j], hi[j])
+        return u
+
+    def default_shape(self):
+        s = self.layout.default_shape()
+        for chain in self.chains:
+            for prev, j in zip(chain, chain[1:]):
+                s[j] = min(max(s[j], 4.0 * s[prev]), self.shape_hi[j])
+        return s
+
+
+def separated(layout: Layout) -> SeparatedLobes | None:
+    """:class:`SeparatedLobes` for a sum that repeats a lobe with a free width parameter, else None."""
+    parts = getattr(layout.cls, "PARTS", ())
+    groups: dict[tuple, list[int]] = {}
+    for slot, cls, fixed in parts:
+        for w in _WIDTHS:
+            name = f"{slot}.{w}"
+            if name in layout.shape:
+                groups.setdefault((cls, tuple(sorted(dict(fixed).items())), w), []).append(layout.shape.index(name))
+    chains = [idx for idx in groups.values() if len(idx) > 1]
+    return SeparatedLobes(layout, chains) if chains else None

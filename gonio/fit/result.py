@@ -69,6 +69,14 @@ class FitResult:
     #: For sums of lobes: largest |correlation| between parameters of two different terms and their
     #: names, ``(|ρ|, a, b)``; near 1 the data cannot tell the terms apart (see :mod:`gonio.fit.select`).
     redundancy: tuple | None = None
+    #: Parameters at or near a bound of their range: name -> {channel or "value": "lower 0" / "upper 1"}
+    #: (:func:`gonio.fit.fit.bound_report`). Such a value has no standard uncertainty and may mean the
+    #: model cannot represent the data (e.g. a diffuse albedo of 1 under a specular peak).
+    at_bound: dict = field(default_factory=dict)
+    #: Error measures users compare fits with (:mod:`gonio.fit.metrics`): ``cbrt_rel``, ``image_rel``.
+    metrics: dict = field(default_factory=dict)
+    #: Directional-albedo check (:func:`gonio.fit.energy.albedo_check`): ``albedo_max``, ``theta_deg``, ``ok``.
+    energy: dict = field(default_factory=dict)
 
     @property
     def n_residuals(self) -> int:
@@ -143,7 +151,16 @@ class FitResult:
         lines = [head, f"  {'parameter':<18} {'value':<36} uncertainty"]
         for k, v in self.params.items():
             u = _fmt(self.uncertainty[k]) if k in self.uncertainty else "(fixed)"
-            lines.append(f"  {k:<18} {_fmt(v):<36} {u}")
+            b = self.at_bound.get(k)
+            flag = "  AT BOUND: " + ", ".join(f"{c} {w}" for c, w in b.items()) if b else ""
+            lines.append(f"  {k:<18} {_fmt(v):<36} {u}{flag}")
+        if self.metrics:
+            lines.append("  error: " + "  ".join(f"{k} {_fmt(v)}" for k, v in self.metrics.items())
+                         + "  (cube-root cosine-weighted, Ngan et al. 2005; rendered spheres)")
+        if self.energy:
+            e = self.energy
+            lines.append(f"  energy: max directional albedo {e['albedo_max']:.4g} at theta_i {e['theta_deg']:g} deg"
+                         + ("" if e["ok"] else "  VIOLATES energy conservation (> 1)"))
         lines += [f"  note: {n}" for n in self.notes]
         return lines
 
@@ -156,7 +173,7 @@ class FitResult:
             "uncertainty": self.uncertainty,
             "loss": self.loss,
             "error": {"cost": self.cost, "rms_rel": self.rms_rel, "chi2_red": self.chi2_red,
-                      "aic": self.aic, "bic": self.bic},
+                      "aic": self.aic, "bic": self.bic, **self.metrics},
             "n_used": self.n_used,
             "n_params": self.n_params,
             "identifiable": self.identifiable,
@@ -165,6 +182,9 @@ class FitResult:
             "heuristics": self.heuristics,
             "dropped": self.dropped,
             "redundancy": list(self.redundancy) if self.redundancy else None,
+            "at_bound": self.at_bound,
+            "metrics": self.metrics,
+            "energy": self.energy,
         })
 
 def _fmt(v) -> str:

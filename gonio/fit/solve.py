@@ -128,30 +128,31 @@ class Projection:
                     G1[k, l] = G1[l, k] = wb[k] @ cols[l]
             b = np.stack([x @ self.y for x in wb])
             return np.broadcast_to(G1, (3, K, K)), b.T, self._c0
-        t = self.y - f0
-        K = len(cols)
-        G = np.empty((3, K, K))
-        b = np.empty((3, K))
-        c0 = np.empty(3)
-        for c in range(3):
-            wc = self.w[:, c]
-            Bc = np.stack([(B if B.ndim == 1 else B[:, c]) for B in cols], axis=1)
-            WB = Bc * wc[:, None]
-            G[c] = Bc.T @ WB
-            b[c] = WB.T @ t[:, c]
-            c0[c] = t[:, c] @ (wc * t[:, c])
+        t = np.asarray(self.y) - np.asarray(f0)
+        n = t.shape[0]
+        # (N, 3, K) at once; einsum's own loops (no threaded BLAS for these thin products: on a busy machine
+        # its threads cost more than the flops)
+        Bst = np.stack([np.broadcast_to(B[:, None] if B.ndim == 1 else B, (n, 3)) for B in cols], axis=-1)
+        WB = Bst * self.w[:, :, None]
+        G = np.einsum("nck,ncl->ckl", WB, Bst)
+        b = np.einsum("nck,nc->ck", WB, t)
+        c0 = np.einsum("nc,nc,nc->c", t, self.w, t)
         return G, b, c0
 
     def __call__(self, shape) -> tuple[float, np.ndarray]:
         self.n_evals += 1
         G, b, c0 = self.normal_equations(shape)
-        colour = np.empty((b.shape[1], 3))
-        cost = 0.0
-        for c in range(3):
-            a = bounded_lsq(G[c], b[c], self.lo, self.hi)
-            colour[:, c] = a
-            cost += 0.5 * max(c0[c] - 2.0 * b[c] @ a + a @ G[c] @ a, 0.0)
-        return cost, colour
+        G = np.ascontiguousarray(np.broadcast_to(G, (3,) + G.shape[-2:]))
+        with np.errstate(all="ignore"):
+            try:
+                a = np.linalg.solve(G, b[..., None])[..., 0]  # the three channels at once
+                ok = np.isfinite(a).all(-1) & (a >= self.lo).all(-1) & (a <= self.hi).all(-1)
+            except np.linalg.LinAlgError:
+                a, ok = np.zeros_like(b), np.zeros(3, dtype=bool)
+        if not ok.all():  # exact active-set solution where a bound is active (Lawson & Hanson 1974)
+            a[~ok] = bounded_lsq_batch(G[~ok], b[~ok], self.lo, self.hi)
+        q = c0 - 2.0 * np.einsum("ck,ck->c", b, a) + np.einsum("ck,ckl,cl->c", a, G, a)
+        return float(0.5 * np.maximum(q, 0.0).sum()), a.T.copy()
 
 
 def weighted_gram(elems, w: np.ndarray, yT: np.ndarray | None = None):

@@ -26,7 +26,7 @@ def test_fit_merl_recovers_parameters_and_writes_json(merl_ggx, tmp_path, capsys
     assert main(["fit", str(merl_ggx), "--model", "microfacet", "--json", str(out)]) == 0
     report = json.loads(out.read_text())
     assert set(report) >= {"model", "params", "uncertainty", "loss", "error", "candidates"}
-    assert report["model"] == "microfacet" and report["loss"] == "cosine"
+    assert report["model"] == "microfacet" and report["loss"] == "robust"
     assert report["params"]["alpha"] == pytest.approx(0.12, rel=0.02)
     np.testing.assert_allclose(report["params"]["kd"], [0.2, 0.3, 0.1], rtol=0.01)
     assert "alpha" in capsys.readouterr().out

@@ -1,0 +1,99 @@
+"""Error measures users compare BRDF fits with, whatever loss the fit minimized.
+
+* :func:`cbrt_error` — the cube-root cosine-weighted RMS error
+  E = √( Σ (∛(f_m cos θi) − ∛(f cos θi))² / Σ (∛(f cos θi))² ), relative, over samples and channels:
+  the cosine-weighted error of Ngan, Durand & Matusik, "Experimental Analysis of BRDF Models", EGSR 2005
+  (their Eq. 3) taken on cube roots of the values, the compression Forés, Ferwerda & Gu (CIC 2012) found
+  closest to perceived differences, so a metal's specular peak does not decide everything.
+* :func:`image_error` — the relative RMS difference of rendered images: a sphere seen from +z under one
+  distant point light at each of a few light–view angles (the lecture notes' "Phong examples",
+  ``004_6b0fa14dcb48ed2f.txt``), pixel radiance L = f(wi, wo) cos θi per unit irradiance, rendered once
+  with the model and once with the measurement itself (each pixel takes the nearest measured sample in
+  Rusinkiewicz's (h, d) coordinates, φh ignored: isotropic), over the pixels where the measurement has
+  a sample within :data:`IMAGE_MAX_GAP` and θi, θo are within the fit's range.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gonio.geometry import frame_from_normal, half_diff_from_dirs, to_local
+
+__all__ = ["cbrt_error", "image_error", "metrics", "IMAGE_ANGLES_DEG", "IMAGE_PIXELS", "IMAGE_MAX_GAP"]
+
+#: Light–view angles of the rendered spheres (degrees).
+IMAGE_ANGLES_DEG = (0.0, 30.0, 60.0)
+#: Sphere image size (pixels on a side).
+IMAGE_PIXELS = 64
+#: Largest distance in (h, d) coordinates (≈ radians) between a pixel's geometry and its measured sample.
+IMAGE_MAX_GAP = 0.03
+
+
+def cbrt_error(m: np.ndarray, y: np.ndarray, cos_i: np.ndarray) -> float:
+    """Relative cube-root cosine-weighted RMS error of model values ``m`` against data ``y`` (N, 3)."""
+    c = cos_i[:, None]
+    a, b = np.cbrt(m * c), np.cbrt(y * c)
+    return float(np.sqrt(np.sum((a - b) ** 2) / max(np.sum(b * b), 1e-300)))
+
+
+def _hd_coords(wi, wo) -> np.ndarray:
+    """Points (N, 5) in which Euclidean distance ≈ angular distance of isotropic geometries: the half
+    vector in the (x, z) plane and the difference vector, folded to φd ∈ [0, π) (reciprocity)."""
+    th, _, td, pd = half_diff_from_dirs(wi, wo)
+    pd = np.mod(pd, np.pi)
+    return np.stack([np.sin(th), np.cos(th), np.sin(td) * np.cos(pd), np.sin(td) * np.sin(pd), np.cos(td)], axis=-1)
+
+
+def sphere_geometry(angle_deg: float, pixels: int = IMAGE_PIXELS):
+    """``(wi, wo, mask)`` of the pixels of a sphere seen from +z, lit from ``angle_deg`` off the view
+    direction in the x–z plane, in each pixel's local frame (z = the sphere's normal)."""
+    u = (np.arange(pixels) + 0.5) / pixels * 2.0 - 1.0
+    x, y = np.meshgrid(u, -u)
+    inside = x * x + y * y < 1.0
+    n = np.stack([x[inside], y[inside], np.sqrt(1.0 - x[inside] ** 2 - y[inside] ** 2)], axis=-1)
+    a = np.radians(angle_deg)
+    frame = frame_from_normal(n, np.array([1.0, 0.0, 0.0]))
+    wi = to_local(np.array([np.sin(a), 0.0, np.cos(a)]), frame)
+    wo = to_local(np.array([0.0, 0.0, 1.0]), frame)
+    return wi, wo, inside
+
+
+def image_error(model, data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS, _tree=None) -> float | None:
+    """Relative RMS difference √(Σ (L_model − L_data)² / Σ L_data²) of the sphere images (module
+    docstring); ``None`` when the data cover no pixel."""
+    tree = _tree if _tree is not None else data_tree(data)
+    cmin = float(min(data.cos_i.min(), data.cos_o.min()))
+    num = den = 0.0
+    for angle in angles_deg:
+        wi, wo, _ = sphere_geometry(angle, pixels)
+        ok = (wi[:, 2] >= cmin) & (wo[:, 2] >= cmin)
+        wi, wo = wi[ok], wo[ok]
+        if not len(wi):
+            continue
+        dist, idx = tree.query(_hd_coords(wi, wo), distance_upper_bound=IMAGE_MAX_GAP)
+        hit = np.isfinite(dist)
+        if not hit.any():
+            continue
+        c = wi[hit, 2][:, None]
+        lm = model.eval(wi[hit], wo[hit]) * c
+        ld = data.y[idx[hit]] * c
+        num += float(np.sum((lm - ld) ** 2))
+        den += float(np.sum(ld * ld))
+    return None if den == 0.0 else float(np.sqrt(num / den))
+
+
+def data_tree(data):
+    """k-d tree of the data's geometry in the coordinates of :func:`image_error` (cached on the data)."""
+    from scipy.spatial import cKDTree
+
+    cache = data.__dict__.setdefault("_kernel_cache", {})
+    if "hd_tree" not in cache:
+        cache["hd_tree"] = cKDTree(_hd_coords(data.wi, data.wo))
+    return cache["hd_tree"]
+
+
+def metrics(model, data, values: np.ndarray | None = None) -> dict[str, float | None]:
+    """Both measures of ``model`` on prepared ``data`` (:class:`gonio.fit.data.FitData`):
+    ``{"cbrt_rel": ..., "image_rel": ...}``."""
+    m = model.eval(data.wi, data.wo) if values is None else values
+    return {"cbrt_rel": cbrt_error(m, data.y, data.cos_i), "image_rel": image_error(model, data)}

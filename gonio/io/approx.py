@@ -1,0 +1,124 @@
+"""What renderer exports share: a fitted model as a diffuse term plus microfacet lobes, the error of a
+renderer's material against the model, and the rule "exact, or approximate only when asked".
+
+A renderer material is written *exactly* when its published formulas reproduce the model (relative
+error below :data:`EXACT`); otherwise it is the closest material of the target under a fixed mapping,
+and it is written only with ``approx=True`` (``--approx``), its error printed; without it the export is
+refused in one line with the reason and the error it would have.
+
+The error is the cosine-weighted relative RMS difference over direction pairs ``wi``, ``wo`` drawn
+cosine-distributed over the upper hemisphere (fixed seed, :data:`N_PAIRS` pairs)::
+
+    e = sqrt(Σ (f_target − f_model)²) / sqrt(Σ f_model²)       (all three channels)
+
+— the error of the reflected radiance under uniform lighting, as a renderer would show it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gonio.errors import ConfigError
+
+__all__ = ["Lobe", "Decomposed", "decompose", "direction_pairs", "relative_error", "Exported", "EXACT", "N_PAIRS"]
+
+#: Relative error below which an export counts as exact (float64 round-off of the formulas).
+EXACT = 1e-9
+N_PAIRS = 8192
+
+
+@dataclass(frozen=True)
+class Lobe:
+    """One microfacet lobe: ``ks · D G F_schlick(f0) / (4 cosθi cosθo)`` (gonio.brdf.microfacet)."""
+
+    ks: np.ndarray
+    alpha: float
+    f0: np.ndarray
+    distribution: str
+
+
+@dataclass(frozen=True)
+class Decomposed:
+    """A model as ``diffuse/π + Σ lobes``."""
+
+    diffuse: np.ndarray
+    lobes: tuple[Lobe, ...]
+
+
+def _rgb(v) -> np.ndarray:
+    return np.broadcast_to(np.asarray(v, dtype=np.float64), (3,)).copy()
+
+
+def decompose(model, target: str) -> Decomposed:
+    """``model`` as a diffuse term plus microfacet lobes; :class:`ConfigError` naming ``target`` for a
+    model that is not such a sum (Phong, Ward, ...: no renderer counterpart to approximate from)."""
+    from gonio.brdf.lambert import Lambert
+    from gonio.brdf.lobes import Sum
+    from gonio.brdf.microfacet import Microfacet
+
+    diffuse, lobes = np.zeros(3), []
+    stack = [model]
+    while stack:
+        m = stack.pop(0)
+        if isinstance(m, Sum):
+            stack = list(m.parts) + stack
+        elif isinstance(m, Lambert):
+            diffuse = diffuse + _rgb(m.albedo)
+        elif isinstance(m, Microfacet):
+            diffuse = diffuse + _rgb(m.kd)
+            if np.any(_rgb(m.ks) > 0):
+                lobes.append(Lobe(_rgb(m.ks), float(m.alpha), _rgb(m.f0), str(m.distribution)))
+        else:
+            raise ConfigError.field(target, "model", m.name,
+                                    "has no counterpart to export: exportable are lambert, microfacet/ggx/beckmann "
+                                    "lobes and their sums")
+    return Decomposed(diffuse, tuple(lobes))
+
+
+def direction_pairs(n: int = N_PAIRS, seed: int = 12345) -> tuple[np.ndarray, np.ndarray]:
+    """Cosine-distributed ``wi``, ``wo`` (n, 3) over the upper hemisphere (Malley's method)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(2):
+        u1, u2 = rng.random(n), rng.random(n)
+        r, phi = np.sqrt(u1), 2 * np.pi * u2
+        out.append(np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1 - u1, 1e-12))], axis=-1))
+    return out[0], out[1]
+
+
+def relative_error(f_target: np.ndarray, f_model: np.ndarray) -> float:
+    """The module docstring's e."""
+    num = float(np.sqrt(np.sum((f_target - f_model) ** 2)))
+    den = float(np.sqrt(np.sum(f_model ** 2)))
+    return num / den if den > 0 else (0.0 if num == 0 else float("inf"))
+
+
+@dataclass
+class Exported:
+    """A renderer material: its text, its relative error against the model, why it is not exact."""
+
+    target: str
+    text: str
+    error: float
+    reasons: list[str] = field(default_factory=list)
+
+    @property
+    def exact(self) -> bool:
+        return self.error < EXACT
+
+    def check(self, approx: bool, option: str) -> "Exported":
+        """Self if exact or ``approx``; else the one-line refusal (reasons and error named)."""
+        if self.exact or approx:
+            return self
+        why = "; ".join(dict.fromkeys(self.reasons)) or "its formulas differ from the model's"
+        raise ConfigError.field(option, self.target, f"relative error {self.error:.3g}",
+                                f"cannot represent the model exactly ({why}); pass --approx to write the closest "
+                                f"{self.target} material anyway")
+
+    def describe(self) -> str:
+        if self.exact:
+            return f"{self.target}: exact (relative error {self.error:.1e})"
+        return (f"{self.target}: APPROXIMATION, cosine-weighted relative RMS error {100 * self.error:.2f} % "
+                f"({'; '.join(dict.fromkeys(self.reasons))})")

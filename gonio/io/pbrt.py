@@ -1,0 +1,168 @@
+"""Export a fitted model as a pbrt-v4 scene-file material (``MakeNamedMaterial`` blocks: ``diffuse``,
+``conductor``, ``mix``), with the approximation error printed where pbrt cannot reproduce the model.
+
+pbrt-v4's materials (Pharr, Jakob, Humphreys, *Physically Based Rendering*, 4th ed., 2023, ch. 9;
+pbrt-v4 ``materials.h``/``bxdfs.h``):
+
+* ``diffuse``: f = R/π, R clamped to [0, 1]. A lambert term is this exactly.
+* ``conductor`` with ``spectrum reflectance r`` (eta = 1, k = 2√r/√(1 − r), so F(0) = r),
+  ``roughness α`` with ``remaproughness false``: f = D(h) F(|wo·h|) G(wo, wi) / (4 cosθi cosθo) with
+  Trowbridge-Reitz D (= GGX), the *height-correlated* Smith G = 1/(1 + Λ(wo) + Λ(wi)),
+  Λ(w) = (√(1 + α² tan²θ) − 1)/2, and the exact Fresnel equations of a conductor
+  (``FrComplex``: r∥ = (η cos θi − cos θt)/(η cos θi + cos θt), r⊥ = (cos θi − η cos θt)/(cos θi + η cos θt),
+  F = (|r∥|² + |r⊥|²)/2, sin²θt = sin²θi/η², η = eta + i k).
+* ``mix`` of two named materials with ``amount`` a: material 1 is chosen with probability a, so the
+  expected BRDF is (1 − a)·m0 + a·m1 (``MixMaterial::ChooseMaterial``).
+
+A gonio sum ``diffuse/π + Σ ks·D·G·F_schlick(f0)/(4 cosθi cosθo)`` becomes a mix of one diffuse and one
+conductor per lobe with weights (w_d = max diffuse, w_k = mean ks; a black diffuse fills 1 − Σw). The
+lobes are approximations (pbrt's G is height-correlated, gonio's separable; its Fresnel is a
+conductor's, not Schlick's; Trowbridge-Reitz only): :mod:`gonio.io.approx` measures the error.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gonio.io.approx import Exported, decompose, direction_pairs, relative_error
+
+__all__ = ["pbrt_terms", "pbrt_eval", "to_pbrt", "write_pbrt", "fr_complex"]
+
+
+def fr_complex(cos_i, eta) -> np.ndarray:
+    """pbrt-v4's ``FrComplex`` (unpolarized Fresnel reflectance of a conductor, complex eta)."""
+    c = np.clip(np.asarray(cos_i, dtype=np.float64), 0.0, 1.0)[..., None]
+    eta = np.asarray(eta, dtype=np.complex128)
+    sin2_i = 1.0 - c * c
+    sin2_t = sin2_i / (eta * eta)
+    cos_t = np.sqrt(1.0 - sin2_t)
+    r_parl = (eta * c - cos_t) / (eta * c + cos_t)
+    r_perp = (c - eta * cos_t) / (c + eta * cos_t)
+    return (np.abs(r_parl) ** 2 + np.abs(r_perp) ** 2) / 2.0
+
+
+def _conductor(r, alpha, wi, wo) -> np.ndarray:
+    r = np.minimum(np.asarray(r, dtype=np.float64), 0.9999)
+    k = 2.0 * np.sqrt(r) / np.sqrt(1.0 - r)
+    h = wi + wo
+    h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
+    a2 = alpha * alpha
+    cos2 = h[..., 2] ** 2
+    tan2 = (1.0 - cos2) / np.maximum(cos2, 1e-300)
+    d = 1.0 / (np.pi * a2 * cos2 * cos2 * (1.0 + tan2 / a2) ** 2)
+
+    def lam(w):
+        c2 = w[..., 2] ** 2
+        t2 = (1.0 - c2) / np.maximum(c2, 1e-300)
+        return (np.sqrt(1.0 + a2 * t2) - 1.0) / 2.0
+
+    g = 1.0 / (1.0 + lam(wo) + lam(wi))
+    f = fr_complex(np.abs(np.sum(wo * h, axis=-1)), 1.0 + 1j * k)
+    return (d * g / (4.0 * wi[..., 2] * wo[..., 2]))[..., None] * f
+
+
+def pbrt_eval(terms, wi, wo) -> np.ndarray:
+    """Expected f (1/sr, RGB) of the flattened mix ``[(weight, "diffuse", {"reflectance"}) |
+    (weight, "conductor", {"reflectance", "roughness"})]`` (module docstring), 0 below the horizon."""
+    wi = np.asarray(wi, dtype=np.float64)
+    wo = np.asarray(wo, dtype=np.float64)
+    above = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+    total = np.zeros(wi.shape[:-1] + (3,))
+    for w, kind, p in terms:
+        if kind == "diffuse":
+            v = np.broadcast_to(np.clip(p["reflectance"], 0, 1) / np.pi, total.shape)
+        else:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                v = _conductor(p["reflectance"], p["roughness"], wi, wo)
+        total = total + w * v
+    return np.where(above[..., None], np.nan_to_num(total), 0.0)
+
+
+def pbrt_terms(model) -> tuple[list, list[str]]:
+    """The weighted terms of the closest pbrt-v4 material and why it is not exact."""
+    dec = decompose(model, "pbrt")
+    reasons: list[str] = []
+    terms = []
+    d = dec.diffuse
+    if np.any(d > 0):
+        w = float(np.max(d))
+        terms.append([w, "diffuse", {"reflectance": d / w}])
+    for lobe in dec.lobes:
+        w = float(np.mean(lobe.ks))
+        if w <= 0:
+            continue
+        r = lobe.ks * lobe.f0 / w
+        if np.any(r >= 0.9999):
+            reasons.append("normal-incidence reflectance clipped below 1")
+        terms.append([w, "conductor", {"reflectance": np.minimum(r, 0.9999), "roughness": lobe.alpha}])
+    if dec.lobes:
+        reasons.append("pbrt's conductor has height-correlated Smith G and a conductor's Fresnel, gonio's lobe "
+                       "separable G and Schlick's")
+    if any(lb.distribution != "ggx" for lb in dec.lobes):
+        reasons.append("pbrt has Trowbridge-Reitz (GGX) only; Beckmann lobes exported with the same alpha")
+    if any(np.ptp(lb.ks) > 0 for lb in dec.lobes):
+        reasons.append("a lobe's weight is grey in a mix; coloured ks went into its reflectance")
+    total = sum(t[0] for t in terms)
+    if total > 1:
+        reasons.append(f"the terms' weights add up to {total:.3g} > 1: scaled down to 1")
+        for t in terms:
+            t[0] /= total
+    elif total < 1 and terms and not (len(terms) == 1 and terms[0][1] == "diffuse"):
+        terms.append([1.0 - total, "diffuse", {"reflectance": np.zeros(3)}])
+    if len(terms) == 1 and terms[0][1] == "diffuse":  # a lambert alone: the albedo itself, exact
+        terms = [[1.0, "diffuse", {"reflectance": d}]]
+        if np.any(d > 1):
+            reasons.append("reflectance clipped to 1")
+    if not terms:
+        terms = [[1.0, "diffuse", {"reflectance": np.zeros(3)}]]
+    return [tuple(t) for t in terms], reasons
+
+
+def _fmt(v) -> str:
+    return " ".join(f"{float(x):.9g}" for x in np.atleast_1d(v))
+
+
+def _text(terms, name: str) -> str:
+    lines = [f"# pbrt-v4 material written by gonio: use it with  NamedMaterial \"{name}\""]
+    names = []
+    for k, (_, kind, p) in enumerate(terms):
+        n = name if len(terms) == 1 else f"{name}-{k}"
+        names.append(n)
+        if kind == "diffuse":
+            lines.append(f'MakeNamedMaterial "{n}" "string type" "diffuse" "rgb reflectance" [ {_fmt(p["reflectance"])} ]')
+        else:
+            lines.append(f'MakeNamedMaterial "{n}" "string type" "conductor" "rgb reflectance" [ {_fmt(p["reflectance"])} ]'
+                         f' "float roughness" {p["roughness"]:.9g} "bool remaproughness" false')
+    if len(terms) > 1:  # nest: mix(T_k, rest) with amount = mass(rest) / mass(T_k..)
+        weights = [t[0] for t in terms]
+        inner = names[-1]
+        for k in range(len(terms) - 2, -1, -1):
+            mass = sum(weights[k:])
+            amount = (mass - weights[k]) / mass
+            n = name if k == 0 else f"{name}-mix{k}"
+            lines.append(f'MakeNamedMaterial "{n}" "string type" "mix" "string materials" [ "{names[k]}" "{inner}" ]'
+                         f' "float amount" {amount:.9g}')
+            inner = n
+    return "\n".join(lines) + "\n"
+
+
+def to_pbrt(model, name: str = "gonio") -> Exported:
+    """The pbrt-v4 material text, with its error against ``model``."""
+    terms, reasons = pbrt_terms(model)
+    wi, wo = direction_pairs()
+    err = relative_error(pbrt_eval(terms, wi, wo), model.eval(wi, wo))
+    return Exported("pbrt-v4", _text(terms, name), err, reasons)
+
+
+def write_pbrt(model, path, *, approx: bool = False, option: str = "--pbrt") -> Exported:
+    """Write ``model`` as ``path`` (.pbrt); refused unless exact or ``approx``."""
+    from pathlib import Path
+
+    from gonio.errors import ConfigError
+
+    ex = to_pbrt(model, name=Path(path).stem).check(approx, option)
+    try:
+        Path(path).write_text(ex.text, encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError.field(option, "pbrt", str(path), f"cannot write ({exc.strerror or exc})") from None
+    return ex

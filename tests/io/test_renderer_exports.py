@@ -1,0 +1,256 @@
+"""pbrt-v4 and glTF 2.0 exports, evaluated here with the targets' published formulas (written in this
+file from the glTF 2.0 spec's Appendix B + KHR_materials_specular/KHR_materials_ior, and pbrt-v4's
+diffuse/conductor/mix materials), against the model: exact where the export says exact, and the printed
+error is the true error where it says approximation. Also gonio fit --gltf/--pbrt/--approx and --fix names."""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+
+import numpy as np
+import pytest
+
+from gonio.brdf import make
+from gonio.cli.main import main
+from gonio.errors import ConfigError
+from gonio.geometry import from_spherical
+from gonio.io.csv import write_csv
+from gonio.io.gltf import to_gltf
+from gonio.io.pbrt import to_pbrt
+from gonio.samples import SampleSet
+
+
+def pairs(n=3000, seed=5):
+    rng = np.random.default_rng(seed)
+    wi = from_spherical(np.arccos(rng.uniform(0.05, 1, n)), rng.uniform(0, 2 * np.pi, n))
+    wo = from_spherical(np.arccos(rng.uniform(0.05, 1, n)), rng.uniform(0, 2 * np.pi, n))
+    return wi, wo
+
+
+# --- glTF 2.0, Appendix B (+ KHR_materials_specular, KHR_materials_ior) --------------------------------
+def gltf_reference(doc: dict, wi, wo) -> np.ndarray:
+    m = doc["materials"][0]
+    pbr = m["pbrMetallicRoughness"]
+    base = np.array(pbr.get("baseColorFactor", [1, 1, 1, 1])[:3])
+    metallic = pbr.get("metallicFactor", 1.0)
+    alpha = pbr.get("roughnessFactor", 1.0) ** 2
+    ext = m.get("extensions", {})
+    spec = ext.get("KHR_materials_specular", {}).get("specularFactor", 1.0)
+    spec_col = np.array(ext.get("KHR_materials_specular", {}).get("specularColorFactor", [1, 1, 1]))
+    ior = ext.get("KHR_materials_ior", {}).get("ior", 1.5)
+    out = np.zeros(wi.shape[:-1] + (3,))
+    for n in range(len(wi)):
+        L, V = wi[n], wo[n]
+        H = (L + V) / np.linalg.norm(L + V)
+        NdotL, NdotV, NdotH, VdotH = L[2], V[2], H[2], V @ H
+        D = alpha ** 2 / (np.pi * (NdotH ** 2 * (alpha ** 2 - 1) + 1) ** 2)
+        G1L = 2 * NdotL / (NdotL + np.sqrt(alpha ** 2 + (1 - alpha ** 2) * NdotL ** 2))
+        G1V = 2 * NdotV / (NdotV + np.sqrt(alpha ** 2 + (1 - alpha ** 2) * NdotV ** 2))
+        Vis = G1L * G1V / (4 * abs(NdotL) * abs(NdotV))
+        ior_f0 = 1.0 if ior == 0 else ((ior - 1) / (ior + 1)) ** 2
+        F0 = (1 - metallic) * (ior_f0 * spec * spec_col) + metallic * base
+        F90 = (1 - metallic) * spec + metallic * 1.0
+        F = F0 + (F90 - F0) * (1 - VdotH) ** 5
+        c_diff = (1 - metallic) * base
+        out[n] = (1 - F) * c_diff / np.pi + F * D * Vis
+    return out
+
+
+GLTF_EXACT = [
+    ("lambert", {"albedo": [0.6, 0.3, 0.1]}),
+    ("microfacet", {"kd": 0.0, "ks": 0.7, "alpha": 0.2, "f0": [0.9, 0.6, 0.3], "distribution": "ggx"}),
+    ("microfacet", {"kd": 0.0, "ks": 1.0, "alpha": 0.4, "f0": [0.95, 0.64, 0.54], "distribution": "ggx"}),
+    ("lambert+ggx", {"diffuse.albedo": 0.0, "lobe1.ks": 0.5, "lobe1.alpha": 0.1, "lobe1.f0": 0.04}),
+]
+
+
+@pytest.mark.parametrize("name, params", GLTF_EXACT, ids=[f"{m[0]}-{i}" for i, m in enumerate(GLTF_EXACT)])
+def test_gltf_exact_where_it_says_exact(name, params):
+    model = make(name, **params)
+    ex = to_gltf(model)
+    assert ex.exact, ex.describe()
+    doc = json.loads(ex.text)
+    wi, wo = pairs(400)
+    np.testing.assert_allclose(gltf_reference(doc, wi, wo), model.eval(wi, wo), rtol=1e-9, atol=1e-12)
+
+
+def test_gltf_approximation_error_is_the_true_error():
+    from gonio.io.approx import direction_pairs, relative_error
+
+    model = make("microfacet", kd=[0.3, 0.2, 0.1], ks=0.8, alpha=0.2, f0=0.04, distribution="ggx")
+    ex = to_gltf(model)
+    assert not ex.exact and "(1 − F)" in ex.describe() and "APPROXIMATION" in ex.describe()
+    wi, wo = direction_pairs()
+    wi, wo = wi[:1500], wo[:1500]
+    independent = relative_error(gltf_reference(json.loads(ex.text), wi, wo), model.eval(wi, wo))
+    assert independent == pytest.approx(ex.error, rel=0.15)  # same metric on a subset of the pairs
+    assert 0 < ex.error < 0.05
+    with pytest.raises(ConfigError, match=r"--gltf: .*cannot represent the model exactly .*pass --approx"):
+        ex.check(False, "--gltf")
+
+
+def test_gltf_document_is_valid_gltf_2():
+    doc = json.loads(to_gltf(make("lambert", albedo=0.5)).text)
+    assert doc["asset"]["version"] == "2.0"
+    assert set(doc["extensionsUsed"]) == {"KHR_materials_specular", "KHR_materials_ior"}
+    buf = doc["buffers"][0]
+    head, data = buf["uri"].split(",", 1)
+    assert head == "data:application/octet-stream;base64"
+    blob = base64.b64decode(data)
+    assert len(blob) == buf["byteLength"]
+    sizes = {5126: 4, 5123: 2}
+    comps = {"VEC3": 3, "SCALAR": 1}
+    for acc in doc["accessors"]:
+        view = doc["bufferViews"][acc["bufferView"]]
+        assert view["byteOffset"] + view["byteLength"] <= len(blob)
+        assert acc["count"] * sizes[acc["componentType"]] * comps[acc["type"]] == view["byteLength"]
+    prim = doc["meshes"][0]["primitives"][0]
+    pos = doc["accessors"][prim["attributes"]["POSITION"]]
+    assert "min" in pos and "max" in pos  # required for POSITION
+    iv = doc["bufferViews"][doc["accessors"][prim["indices"]]["bufferView"]]
+    idx = np.frombuffer(blob[iv["byteOffset"]:iv["byteOffset"] + iv["byteLength"]], "<u2")
+    assert idx.max() < pos["count"] and len(idx) % 3 == 0
+    assert doc["nodes"][doc["scenes"][doc["scene"]]["nodes"][0]]["mesh"] == 0
+
+
+# --- pbrt-v4: diffuse, conductor (Trowbridge-Reitz, height-correlated Smith, FrComplex), mix -------------
+def _fr_complex(cos_i, eta):
+    cos_i = min(max(cos_i, 0.0), 1.0)
+    sin2_i = 1 - cos_i ** 2
+    sin2_t = sin2_i / eta ** 2
+    cos_t = np.sqrt(1 - sin2_t + 0j)
+    r_parl = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+    r_perp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
+    return (abs(r_parl) ** 2 + abs(r_perp) ** 2) / 2
+
+
+def _pbrt_material(mats, name, L, V):
+    kind, p = mats[name]
+    if kind == "diffuse":
+        return np.clip(p["reflectance"], 0, 1) / np.pi
+    if kind == "mix":
+        a, b = p["materials"]
+        return (1 - p["amount"]) * _pbrt_material(mats, a, L, V) + p["amount"] * _pbrt_material(mats, b, L, V)
+    alpha = p["roughness"]
+    H = (L + V) / np.linalg.norm(L + V)
+    cos2 = H[2] ** 2
+    tan2 = (1 - cos2) / cos2
+    D = 1 / (np.pi * alpha ** 2 * cos2 ** 2 * (1 + tan2 / alpha ** 2) ** 2)
+
+    def lam(w):
+        t2 = (1 - w[2] ** 2) / w[2] ** 2
+        return (np.sqrt(1 + alpha ** 2 * t2) - 1) / 2
+
+    G = 1 / (1 + lam(V) + lam(L))
+    out = np.zeros(3)
+    for c, r in enumerate(p["reflectance"]):
+        k = 2 * np.sqrt(r) / np.sqrt(1 - r)
+        out[c] = D * _fr_complex(abs(V @ H), 1 + 1j * k) * G / (4 * L[2] * V[2])
+    return out
+
+
+def parse_pbrt(text: str):
+    mats = {}
+    for line in text.splitlines():
+        if not line.startswith("MakeNamedMaterial"):
+            continue
+        name = re.match(r'MakeNamedMaterial "([^"]+)"', line).group(1)
+        kind = re.search(r'"string type" "(\w+)"', line).group(1)
+        p = {}
+        if m := re.search(r'"rgb reflectance" \[ ([^\]]+) \]', line):
+            p["reflectance"] = np.array([float(x) for x in m.group(1).split()])
+        if m := re.search(r'"float roughness" (\S+)', line):
+            p["roughness"] = float(m.group(1))
+            assert '"bool remaproughness" false' in line
+        if m := re.search(r'"string materials" \[ "([^"]+)" "([^"]+)" \]', line):
+            p["materials"] = (m.group(1), m.group(2))
+        if m := re.search(r'"float amount" (\S+)', line):
+            p["amount"] = float(m.group(1))
+        mats[name] = (kind, p)
+    return mats
+
+
+def pbrt_reference(text, name, wi, wo):
+    mats = parse_pbrt(text)
+    return np.array([_pbrt_material(mats, name, wi[n], wo[n]) for n in range(len(wi))])
+
+
+def test_pbrt_lambert_is_exact():
+    model = make("lambert", albedo=[0.6, 0.3, 0.1])
+    ex = to_pbrt(model, name="paint")
+    assert ex.exact and 'MakeNamedMaterial "paint" "string type" "diffuse"' in ex.text
+    wi, wo = pairs(200)
+    np.testing.assert_allclose(pbrt_reference(ex.text, "paint", wi, wo), model.eval(wi, wo), rtol=1e-9)
+
+
+@pytest.mark.parametrize("name, params", [
+    ("microfacet", {"kd": 0.0, "ks": 1.0, "alpha": 0.3, "f0": [0.95, 0.64, 0.54], "distribution": "ggx"}),
+    ("lambert+2ggx", {"diffuse.albedo": [0.2, 0.1, 0.05], "lobe1.ks": 0.3, "lobe1.alpha": 0.3, "lobe1.f0": 0.9,
+                      "lobe2.ks": 0.2, "lobe2.alpha": 0.08, "lobe2.f0": 0.9}),
+])
+def test_pbrt_approximation_is_what_pbrt_renders_and_its_error_is_true(name, params):
+    from gonio.io.approx import direction_pairs, relative_error
+
+    model = make(name, **params)
+    ex = to_pbrt(model, name="m")
+    assert not ex.exact and "height-correlated" in ex.describe()
+    wi, wo = direction_pairs()
+    wi, wo = wi[:600], wo[:600]
+    ref = pbrt_reference(ex.text, "m", wi, wo)
+    from gonio.io.pbrt import pbrt_eval, pbrt_terms
+
+    np.testing.assert_allclose(pbrt_eval(pbrt_terms(model)[0], wi, wo), ref, rtol=1e-9, atol=1e-12)
+    assert relative_error(ref, model.eval(wi, wo)) == pytest.approx(ex.error, rel=0.25)
+    assert ex.error < 0.15  # the closest material is close
+
+
+# --- CLI ----------------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def plastic_csv(tmp_path_factory):
+    model = make("lambert+ggx", **{"diffuse.albedo": [0.3, 0.2, 0.1], "lobe1.ks": 0.8, "lobe1.alpha": 0.2,
+                                   "lobe1.f0": 0.04})
+    rng = np.random.default_rng(2)
+    ti, to, po = np.meshgrid(np.radians(np.arange(0, 76, 15.0)), np.radians(np.arange(0, 86, 5.0)),
+                             np.radians(np.arange(0, 360, 15.0)), indexing="ij")
+    wi = from_spherical(ti.ravel(), 0 * ti.ravel())
+    wo = from_spherical(to.ravel(), po.ravel())
+    f = model.eval(wi, wo)
+    s = SampleSet(wi, wo, f * (1 + 0.005 * rng.normal(size=f.shape)), 0.005 * f + 1e-5)
+    return write_csv(tmp_path_factory.mktemp("plastic") / "plastic.csv", s)
+
+
+def test_fit_writes_renderer_materials_only_when_exact_or_approx(plastic_csv, tmp_path, capsys):
+    js = tmp_path / "fit.json"
+    code = main(["fit", str(plastic_csv), "--model", "lambert+ggx", "--json", str(js), "--gltf", str(tmp_path / "m.gltf")])
+    err = capsys.readouterr().err
+    assert code == 2 and "cannot represent the model exactly" in err and "--approx" in err and err.count("\n") == 1
+    assert js.exists() and not (tmp_path / "m.gltf").exists()  # the fit is never lost
+    assert main(["fit", str(plastic_csv), "--model", "lambert+ggx", "--approx", "--gltf", str(tmp_path / "m.gltf"),
+                 "--pbrt", str(tmp_path / "m.pbrt")]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"wrote .*m.gltf \(glTF: APPROXIMATION, cosine-weighted relative RMS error \d+\.\d\d %", out)
+    assert re.search(r"wrote .*m.pbrt \(pbrt-v4: APPROXIMATION", out)
+    assert json.loads((tmp_path / "m.gltf").read_text())["asset"]["version"] == "2.0"
+    assert 'NamedMaterial' in (tmp_path / "m.pbrt").read_text()
+    assert main(["fit", str(plastic_csv), "--pbrt", str(tmp_path / "bad.txt")]) == 2
+    assert "must end in .pbrt" in capsys.readouterr().err
+
+
+def test_fix_accepts_the_names_fit_prints(plastic_csv, tmp_path, capsys):
+    for fix in ("f0=0.04", "lobe1.f0=0.04"):
+        js = tmp_path / f"{fix}.json"
+        assert main(["fit", str(plastic_csv), "--model", "lambert+ggx", "--fix", fix, "--json", str(js)]) == 0
+        res = json.loads(js.read_text())
+        assert res["params"]["lobe1.f0"] in (0.04, [0.04, 0.04, 0.04])
+        assert "lobe1.f0" not in res["uncertainty"]
+    capsys.readouterr()
+    assert main(["fit", str(plastic_csv), "--model", "lambert+2ggx", "--fix", "f0=1", "--json",
+                 str(tmp_path / "two.json")]) == 0  # a tied f0 applies to every lobe
+    res = json.loads((tmp_path / "two.json").read_text())
+    assert res["params"]["lobe1.f0"] in (1.0, [1.0, 1.0, 1.0]) and res["params"]["lobe2.f0"] in (1.0, [1.0, 1.0, 1.0])
+    capsys.readouterr()
+    assert main(["fit", str(plastic_csv), "--model", "lambert+ggx", "--fix", "beta=1"]) == 2
+    err = capsys.readouterr().err
+    assert "lambert+ggx.beta" in err and "diffuse.albedo, lobe1.ks, lobe1.alpha, lobe1.f0" in err
