@@ -63,6 +63,8 @@ def register(sub) -> None:
                    help="gige: the simulated camera is served as a GigE Vision device on 127.0.0.1 and read "
                         "through gonio's Aravis backend, an 8-bit RGB8 sensor (needs gir1.2-aravis-0.8 and "
                         "gonio[genicam]); direct (default): called in-process")
+    p.add_argument("--plan-file", metavar="PLAN.json", help="run the plan saved by 'gonio plan NAME --out PLAN.json' "
+                   "(validated and solved again on this rig) instead of generating one")
     p.add_argument("--out", metavar="DIR", help="new session directory (default ./gonio-session-YYYYmmdd-HHMMSS)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.set_defaults(func=run_measure)
@@ -456,7 +458,16 @@ def run_measure(args) -> int:
     if material is not None and material.defaulted:
         print(material.defaults_note())
     adaptive = None
-    if args.plan == "adaptive":
+    if getattr(args, "plan_file", None):
+        given = [k for k, v in vars(args).items() if k.startswith("plan_") and k != "plan_file" and v is not None]
+        if args.plan != DEFAULT_PLAN or given:
+            raise ConfigError.field("--plan-file", "plan_file", args.plan_file,
+                                    "runs a saved plan: give it without --plan or plan parameters")
+        from gonio.io.plan_file import read_plan_file
+
+        plan = read_plan_file(args.plan_file, rig)
+        print(f"plan {args.plan_file}: {plan.generator}, {len(plan)} poses")
+    elif args.plan == "adaptive":
         from gonio.cli.plan import adaptive_from_args
         from gonio.session.adaptive import new_adaptive_manifest
 
