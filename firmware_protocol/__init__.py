@@ -8,7 +8,7 @@ from pathlib import Path
 
 from firmware_protocol.codec import (  # noqa: F401
     BY_NAME, MESSAGES, PROTOCOL_MAJOR, PROTOCOL_MINOR, Decoder, Frame, Message, ProtocolError, Reject,
-    crc16, decode_frame, decode_message, encode_frame, encode_message,
+    crc32c, decode_frame, decode_message, encode_frame, encode_message,
 )
 
 HERE = Path(__file__).resolve().parent

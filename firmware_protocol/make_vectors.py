@@ -1,9 +1,9 @@
 """Regenerate ``vectors.json`` (``python -m firmware_protocol.make_vectors``).
 
 Run only when the protocol changes, and review the diff by hand: the vectors are the contract both
-codecs are tested against; the CRC check value and the COBS examples in them are independent of this
-codec (Rocksoft catalogue; Cheshire & Baker 1999), and tests/protocol re-derives the frames with a
-bit-by-bit CRC and a hand-written stuffing rule.
+codecs are tested against; the CRC check values and the COBS examples in them are independent of this
+codec (Rocksoft catalogue "CRC-32/ISCSI"; RFC 3720 §B.4's 32-byte examples; Cheshire & Baker 1999),
+and tests/protocol re-derives the frames with a bit-by-bit CRC and a hand-written stuffing rule.
 """
 
 from __future__ import annotations
@@ -26,8 +26,12 @@ def _stream(description: str, data: bytes) -> dict:
 
 
 def _raw_body(type_: int, seq: int, length: int, payload: bytes) -> bytes:
-    head = bytes((type_, seq, length)) + payload
-    return head + struct.pack("<H", c.crc16(head))
+    return bytes((type_, seq, length)) + payload
+
+
+def _wire_of_encoded(enc: bytes) -> bytes:
+    """00 | enc | check bytes of enc | 00: a segment whose check is right whatever enc holds."""
+    return b"\x00" + c.segment_of(enc) + b"\x00"
 
 
 def build() -> dict:
@@ -64,11 +68,10 @@ def build() -> dict:
     status = c.encode_message("STATUS", 6)
     light = c.encode_message("SET_LIGHT", 2, on=1, level=65535)
     hb0 = c.encode_message("HEARTBEAT", 0)
-    body = bytearray(c.frame_body(c.SET_LIGHT, 2, bytes([1, 0xFF, 0xFF])))
-    flip_payload = bytearray(body)
-    flip_payload[4] ^= 0x01
-    flip_crc = bytearray(body)
-    flip_crc[-1] ^= 0x80
+    flip_payload = bytearray(light)
+    flip_payload[5] ^= 0x01
+    flip_check = bytearray(light)
+    flip_check[-2] ^= 0x01
     streams = [
         _stream("one frame", status),
         _stream("two frames back to back", light + status),
@@ -76,13 +79,15 @@ def build() -> dict:
         _stream("empty segments (repeated delimiters) are ignored", b"\x00\x00\x00" + status + b"\x00\x00"),
         _stream("garbage without zero bytes before a frame: one reject, then the frame",
                 b"\x13\x37\xAB" + status),
-        _stream("payload bit flipped -> crc", b"\x00" + c.cobs_encode(bytes(flip_payload)) + b"\x00" + status),
-        _stream("CRC bit flipped -> crc", b"\x00" + c.cobs_encode(bytes(flip_crc)) + b"\x00"),
-        _stream("LEN field disagrees with the frame size (CRC valid) -> length",
-                b"\x00" + c.cobs_encode(_raw_body(c.SET_LIGHT, 2, 2, bytes([1, 0xFF, 0xFF]))) + b"\x00"),
-        _stream("decoded frame shorter than 5 bytes -> length", b"\x00" + c.cobs_encode(b"\x06\x06\x00") + b"\x00"),
-        _stream("COBS block overruns the segment -> cobs", b"\x00\x05\x01\x02\x00" + status),
-        _stream("more than 70 bytes without a delimiter -> one overflow, then resync",
+        _stream("payload bit flipped -> crc", bytes(flip_payload) + status),
+        _stream("check byte bit flipped -> crc", bytes(flip_check)),
+        _stream("check byte with its high bit cleared -> crc", light[:-2] + bytes([light[-2] & 0x7F]) + b"\x00"),
+        _stream("LEN field disagrees with the frame size (check valid) -> length",
+                _wire_of_encoded(c.cobs_encode(_raw_body(c.SET_LIGHT, 2, 2, bytes([1, 0xFF, 0xFF]))))),
+        _stream("decoded body shorter than 3 bytes -> length", _wire_of_encoded(c.cobs_encode(b"\x06\x06"))),
+        _stream("COBS block overruns the segment (check valid) -> cobs", _wire_of_encoded(b"\x05\x01\x02") + status),
+        _stream("segment too short to hold the check -> crc", b"\x00\x81\x82\x83\x00" + status),
+        _stream("more than 73 bytes without a delimiter -> one overflow, then resync",
                 bytes(range(1, 101)) + status),
         _stream("truncated frame, then a complete one", light[:5] + status),
         _stream("a zero byte inside a frame splits it into two rejects",
@@ -91,8 +96,8 @@ def build() -> dict:
         _stream("frame of unknown type is still a valid frame (the message layer answers UNKNOWN_TYPE)",
                 c.encode_frame(0x42, 1, b"\x01\x02")),
         _stream("largest frame: 64-byte payload", c.encode_frame(0x10, 3, bytes(range(64)))),
-        _stream("65-byte payload encodes to 71 bytes -> overflow",
-                b"\x00" + c.cobs_encode(_raw_body(0x10, 3, 65, bytes(range(1, 66)))) + b"\x00"),
+        _stream("65-byte payload encodes to 74 bytes -> overflow",
+                _wire_of_encoded(c.cobs_encode(_raw_body(0x10, 3, 65, bytes(range(1, 66)))))),
     ]
     encode_errors = [
         {"name": "SET_LIGHT", "values": {"on": 2, "level": 0}, "field": "on"},
@@ -109,8 +114,9 @@ def build() -> dict:
     ]
     return {
         "protocol": {"major": c.PROTOCOL_MAJOR, "minor": c.PROTOCOL_MINOR},
-        "crc": [{"data": b"123456789".hex(), "crc": 0x29B1}, {"data": "", "crc": 0xFFFF},
-                {"data": "0606" + "00", "crc": c.crc16(b"\x06\x06\x00")}],
+        "crc": [{"data": b"123456789".hex(), "crc": 0xE3069283}, {"data": "", "crc": 0x00000000},
+                {"data": "00" * 32, "crc": 0x8A9136AA}, {"data": "ff" * 32, "crc": 0x62A8AB43},
+                {"data": "04060106", "crc": c.crc32c(b"\x04\x06\x01\x06")}],
         "cobs": [{"data": "00", "encoded": "0101"}, {"data": "0000", "encoded": "010101"},
                  {"data": "11220033", "encoded": "03112202" + "33"}, {"data": "11223344", "encoded": "0511223344"},
                  {"data": "11000000", "encoded": "0211010101"}],

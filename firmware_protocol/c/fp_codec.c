@@ -1,19 +1,45 @@
 /* fp_codec.c - see fp_codec.h and ../SPEC.md. C99, no dynamic memory. */
 #include "fp_codec.h"
 
-uint16_t fp_crc16(const uint8_t *data, size_t n)
+uint32_t fp_crc32c(const uint8_t *data, size_t n)
 {
-    /* CRC-16/CCITT-FALSE, bitwise (a 512-byte table is an option if flash allows). */
-    uint16_t crc = 0xFFFFu;
+    /* CRC-32C, bitwise, reflected (a 1 KiB table is an option where flash allows). */
+    uint32_t crc = 0xFFFFFFFFul;
     size_t i;
     int b;
     for (i = 0; i < n; ++i) {
-        crc ^= (uint16_t)((uint16_t)data[i] << 8);
+        crc ^= data[i];
         for (b = 0; b < 8; ++b) {
-            crc = (crc & 0x8000u) ? (uint16_t)((crc << 1) ^ 0x1021u) : (uint16_t)(crc << 1);
+            crc = (crc & 1u) ? (crc >> 1) ^ 0x82F63B78ul : crc >> 1;
         }
     }
-    return crc;
+    return crc ^ 0xFFFFFFFFul;
+}
+
+static void put_check(uint8_t *k, uint32_t crc)
+{
+    unsigned i;
+    for (i = 0; i < FP_CHECK_SIZE; ++i) {
+        k[i] = (uint8_t)(0x80u | ((crc >> (7u * i)) & 0x7Fu));
+    }
+}
+
+/* 1 and the CRC in *crc if k holds a valid check encoding, else 0. */
+static int get_check(const uint8_t *k, uint32_t *crc)
+{
+    unsigned i;
+    uint32_t v = 0;
+    for (i = 0; i < FP_CHECK_SIZE; ++i) {
+        if (k[i] < 0x80u) {
+            return 0;
+        }
+        v |= (uint32_t)(k[i] & 0x7Fu) << (7u * i);
+    }
+    if (k[FP_CHECK_SIZE - 1u] & 0x70u) {
+        return 0;
+    }
+    *crc = v;
+    return 1;
 }
 
 void fp_put_u16(uint8_t *p, uint16_t v)
@@ -45,9 +71,8 @@ size_t fp_encode(const fp_frame *f, uint8_t *out, size_t cap)
     uint8_t body[FP_MAX_FRAME];
     size_t n, i, o, code_at;
     uint8_t code;
-    uint16_t crc;
 
-    if (f->len > FP_MAX_PAYLOAD || cap < (size_t)f->len + FP_MIN_FRAME + 3u) {
+    if (f->len > FP_MAX_PAYLOAD || cap < (size_t)f->len + FP_MIN_FRAME + 1u + FP_CHECK_SIZE + 2u) {
         return 0;
     }
     body[0] = f->type;
@@ -57,11 +82,8 @@ size_t fp_encode(const fp_frame *f, uint8_t *out, size_t cap)
         body[3 + i] = f->payload[i];
     }
     n = 3u + f->len;
-    crc = fp_crc16(body, n);
-    fp_put_u16(&body[n], crc);
-    n += 2u;
 
-    /* 00 | COBS(body) | 00 ; blocks never reach 254 bytes since n <= 69 */
+    /* 00 | COBS(body) | check | 00 ; blocks never reach 254 bytes since n <= 67 */
     o = 0;
     out[o++] = 0x00u;
     code_at = o++;
@@ -77,6 +99,8 @@ size_t fp_encode(const fp_frame *f, uint8_t *out, size_t cap)
         }
     }
     out[code_at] = code;
+    put_check(&out[o], fp_crc32c(&out[1], o - 1u)); /* the CRC of the encoded bytes */
+    o += FP_CHECK_SIZE;
     out[o++] = 0x00u;
     return o;
 }
@@ -86,11 +110,16 @@ fp_result fp_decode_segment(const uint8_t *seg, size_t n, fp_frame *out)
     uint8_t body[FP_MAX_FRAME];
     size_t i = 0, m = 0, j, k;
     uint8_t code;
-    uint16_t crc;
+    uint32_t crc;
 
     if (n > FP_MAX_ENCODED) {
         return FP_REJ_OVERFLOW;
     }
+    if (n < FP_CHECK_SIZE + 1u || !get_check(&seg[n - FP_CHECK_SIZE], &crc) ||
+        crc != fp_crc32c(seg, n - FP_CHECK_SIZE)) {
+        return FP_REJ_CRC;
+    }
+    n -= FP_CHECK_SIZE; /* the COBS bytes */
     while (i < n) {
         code = seg[i];
         j = i + code;
@@ -113,10 +142,6 @@ fp_result fp_decode_segment(const uint8_t *seg, size_t n, fp_frame *out)
     }
     if (m < FP_MIN_FRAME) {
         return FP_REJ_LENGTH;
-    }
-    crc = fp_crc16(body, m - 2u);
-    if (crc != fp_get_u16(&body[m - 2u])) {
-        return FP_REJ_CRC;
     }
     if ((size_t)body[2] != m - FP_MIN_FRAME) {
         return FP_REJ_LENGTH;

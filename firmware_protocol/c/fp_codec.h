@@ -1,8 +1,10 @@
 /*
  * fp_codec.h - C99 codec of the gonio rig-controller protocol (see ../SPEC.md, normative).
  *
- * Frame on the wire:  00 | COBS( TYPE SEQ LEN PAYLOAD[LEN] CRC16_LE ) | 00
- * CRC-16/CCITT-FALSE: poly 0x1021, init 0xFFFF, no reflection, xorout 0, over TYPE..PAYLOAD.
+ * Frame on the wire:  00 | E | K | 00,   E = COBS( TYPE SEQ LEN PAYLOAD[LEN] ),
+ *                     K = CRC-32C(E) in five bytes: 0x80 | bits 0-6, 7-13, 14-20, 21-27, 28-31.
+ * CRC-32C (Castagnoli, iSCSI): reflected poly 0x82F63B78, init and xorout 0xFFFFFFFF. The check covers
+ * the bytes on the wire, so every pattern of up to 5 flipped bits is detected (SPEC.md section 2.5).
  *
  * No malloc, no globals, fixed buffers: a decoder is one struct of ~80 bytes the firmware owns.
  */
@@ -12,14 +14,15 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define FP_PROTOCOL_MAJOR 1u
+#define FP_PROTOCOL_MAJOR 2u
 #define FP_PROTOCOL_MINOR 0u
 
 #define FP_MAX_PAYLOAD 64u
-#define FP_MIN_FRAME 5u                                /* TYPE SEQ LEN CRC16 */
-#define FP_MAX_FRAME (FP_MIN_FRAME + FP_MAX_PAYLOAD)   /* 69 */
-#define FP_MAX_ENCODED (FP_MAX_FRAME + 1u)             /* 70: COBS adds one byte */
-#define FP_MAX_WIRE (FP_MAX_ENCODED + 2u)              /* 72: with both delimiters */
+#define FP_MIN_FRAME 3u                                /* body: TYPE SEQ LEN */
+#define FP_MAX_FRAME (FP_MIN_FRAME + FP_MAX_PAYLOAD)   /* 67 */
+#define FP_CHECK_SIZE 5u                               /* CRC-32C in five 7-bit groups */
+#define FP_MAX_ENCODED (FP_MAX_FRAME + 1u + FP_CHECK_SIZE) /* 73: COBS adds one byte, then the check */
+#define FP_MAX_WIRE (FP_MAX_ENCODED + 2u)              /* 75: with both delimiters */
 
 /* message types (SPEC.md section 4); replies are request | FP_REPLY_BIT */
 #define FP_REPLY_BIT 0x80u
@@ -71,8 +74,8 @@ typedef enum {
     FP_OK = 1,        /* *out holds a valid frame */
     FP_REJ_OVERFLOW,  /* segment longer than FP_MAX_ENCODED */
     FP_REJ_COBS,      /* a COBS block overruns the segment */
-    FP_REJ_LENGTH,    /* decoded size outside 5..69, or LEN != size - 5 */
-    FP_REJ_CRC        /* CRC mismatch */
+    FP_REJ_LENGTH,    /* decoded size outside 3..67, or LEN != size - 3 */
+    FP_REJ_CRC        /* check bytes malformed or CRC-32C mismatch */
 } fp_result;
 
 typedef struct {
@@ -81,7 +84,7 @@ typedef struct {
     int overflow;
 } fp_decoder;
 
-uint16_t fp_crc16(const uint8_t *data, size_t n);
+uint32_t fp_crc32c(const uint8_t *data, size_t n);
 
 /* Encode frame f into out (capacity cap); returns bytes written (<= FP_MAX_WIRE) or 0 if f->len is
  * too large or cap too small. */

@@ -2,12 +2,12 @@
  * fp_test.c - host test program of the C codec (built and run by tests/protocol/test_c_codec.py).
  *
  *   fp_test vectors FILE      check every line of FILE (a line format converted from vectors.json):
- *       C <datahex|-> <crc-decimal>
+ *       C <datahex|-> <crc32c-decimal>
  *       E <type> <seq> <payloadhex|-> <wirehex>
  *       S <wirehex> <nevents> <event>...    event = F:<type>:<seq>:<payloadhex|-> | R:<verdict>
  *   fp_test fuzz SEED N       N seeded random cases (valid frames mutated by bit flips, inserted,
  *                             deleted and random bytes, arbitrary noise); checks that the decoder never
- *                             accepts an inconsistent frame, that a frame with 1..3 flipped bits is never
+ *                             accepts an inconsistent frame, that a frame with 1..5 flipped bits is never
  *                             accepted, and that the next valid frame is always decoded (resync).
  *   fp_test bench N           decode N frames (benchmarks/bench_protocol.py), print frames, bytes, seconds.
  * Prints "PASS <n>" and exits 0, or prints each failure and exits 1.
@@ -100,11 +100,12 @@ static int run_vectors(const char *path)
         if (nt == 0) continue;
         if (tok[0][0] == 'C' && nt == 3) {
             long n = parse_hex(tok[1], data, sizeof data);
-            unsigned got = fp_crc16(data, (size_t)(n < 0 ? 0 : n)), want = (unsigned)strtoul(tok[2], NULL, 10);
+            unsigned long got = (unsigned long)fp_crc32c(data, (size_t)(n < 0 ? 0 : n)),
+                          want = strtoul(tok[2], NULL, 10);
             if (n < 0 || got != want) {
                 char g[16], w[16];
-                sprintf(g, "%u", got);
-                sprintf(w, "%u", want);
+                sprintf(g, "%lu", got);
+                sprintf(w, "%lu", want);
                 fail(lineno, "crc", g, w);
             }
         } else if (tok[0][0] == 'E' && nt == 5) {
@@ -187,9 +188,9 @@ static int run_fuzz(unsigned long seed, long iterations)
         orig.len = (uint8_t)(rnd() % (FP_MAX_PAYLOAD + 1u));
         for (i = 0; i < orig.len; ++i) orig.payload[i] = (uint8_t)(rnd() % 4u == 0u ? 0u : rnd());
         n = fp_encode(&orig, wire, sizeof wire);
-        if (mode == 0) {            /* 1..3 bit flips anywhere */
-            size_t pos[3];
-            flips = 1 + (int)(rnd() % 3u);
+        if (mode == 0) {            /* 1..5 bit flips anywhere */
+            size_t pos[5];
+            flips = 1 + (int)(rnd() % 5u);
             for (k = 0; k < (size_t)flips; ++k) { /* distinct bits: a bit flipped twice is no error */
                 size_t q;
                 int again;

@@ -94,6 +94,8 @@ def run_one(args) -> int:
     src = load_source(args.source)
     title = src.path.name
     samples, table = src.samples, src.table
+    if samples is None and table is None:  # an evaluable material (RGL .bsdf): its samples on a grid
+        samples = src.to_samples()
     if args.kind == "polar":
         fig = plots.polar_slice(samples=samples, table=table if samples is None else None,
                                 theta_i_deg=args.theta_i, tol_deg=args.tol, title=title)

@@ -8,13 +8,20 @@ from firmware_protocol import codec as c
 
 
 def crc_bitwise(data: bytes) -> int:
-    """CRC-16/CCITT-FALSE written out from its definition (poly 0x1021, init 0xFFFF, MSB first)."""
-    crc = 0xFFFF
+    """CRC-32C written out from its definition: polynomial 0x1EDC6F41, reflected (LSB first), init and
+    final XOR 0xFFFFFFFF."""
+    poly = int(f"{0x1EDC6F41:032b}"[::-1], 2)  # the normal form, bit-reversed
+    crc = 0xFFFFFFFF
     for byte in data:
-        for bit in range(7, -1, -1):
-            fb = ((crc >> 15) ^ (byte >> bit)) & 1
-            crc = ((crc << 1) & 0xFFFF) ^ (0x1021 if fb else 0)
-    return crc
+        for bit in range(8):
+            fb = (crc ^ (byte >> bit)) & 1
+            crc = (crc >> 1) ^ (poly if fb else 0)
+    return crc ^ 0xFFFFFFFF
+
+
+def check_by_hand(crc: int) -> bytes:
+    """SPEC.md §2.2's check bytes: seven CRC bits per byte, least significant first, high bit set."""
+    return bytes(0x80 | ((crc >> s) & 0x7F) for s in (0, 7, 14, 21, 28))
 
 
 def cobs_by_hand(data: bytes) -> bytes:
@@ -23,10 +30,11 @@ def cobs_by_hand(data: bytes) -> bytes:
 
 
 def test_crc_check_values(vectors):
-    assert crc_bitwise(b"123456789") == 0x29B1  # the catalogue check value: our reference is right
+    assert crc_bitwise(b"123456789") == 0xE3069283  # the catalogue check value: our reference is right
+    assert crc_bitwise(bytes(32)) == 0x8A9136AA and crc_bitwise(b"\xff" * 32) == 0x62A8AB43  # RFC 3720 B.4
     for v in vectors["crc"]:
         data = bytes.fromhex(v["data"])
-        assert c.crc16(data) == v["crc"] == crc_bitwise(data)
+        assert c.crc32c(data) == v["crc"] == crc_bitwise(data)
 
 
 def test_cobs_examples(vectors):
@@ -51,9 +59,9 @@ def test_message_vectors(vectors, i):
     # independent derivation of the same bytes from the spec's words
     spec = c.BY_NAME[v["name"]]
     payload = struct.pack("<" + "".join(f.fmt for f in spec.fields), *[v["values"][f.name] for f in spec.fields])
-    head = bytes([spec.code, v["seq"], len(payload)]) + payload
-    body = head + crc_bitwise(head).to_bytes(2, "little")
-    assert wire == b"\x00" + cobs_by_hand(body) + b"\x00"
+    body = bytes([spec.code, v["seq"], len(payload)]) + payload
+    enc = cobs_by_hand(body)
+    assert wire == b"\x00" + enc + check_by_hand(crc_bitwise(enc)) + b"\x00"
     msg = c.decode_message(c.decode_frame(wire))
     assert (msg.name, msg.seq, dict(msg.values)) == (v["name"], v["seq"], v["values"])
 
@@ -126,3 +134,38 @@ def test_every_single_and_double_bit_flip_of_every_vector_is_rejected(vectors):
             events = c.Decoder().feed(bytes(b) + tail)
             frames = [e for e in events if isinstance(e, c.Frame)]
             assert frames == [c.Frame(c.HEARTBEAT, 77)], (v["name"], flips)
+
+
+def _flipped(wire: bytes, bits) -> bytes:
+    w = bytearray(wire)
+    for k in bits:
+        w[k // 8] ^= 1 << (k % 8)
+    return bytes(w)
+
+
+def _accepted(data: bytes) -> list:
+    return [e for e in c.Decoder().feed(data + b"\x00") if isinstance(e, c.Frame)]
+
+
+def test_every_1_and_2_bit_error_of_every_vector_is_detected(vectors):
+    """SPEC.md §2.5, exhaustively: for every vector frame, every single and every pair of flipped bits
+    anywhere on the wire (delimiters included) yields no frame at all."""
+    import itertools
+
+    for v in vectors["messages"]:
+        wire = bytes.fromhex(v["bytes"])
+        n = 8 * len(wire)
+        for k in range(n):
+            assert not _accepted(_flipped(wire, [k])), (v["name"], k)
+        for a, b in itertools.combinations(range(n), 2):
+            assert not _accepted(_flipped(wire, [a, b])), (v["name"], a, b)
+
+
+def test_3_to_5_bit_errors_by_sampling(vectors):
+    rng = __import__("numpy").random.default_rng(5)
+    for v in vectors["messages"]:
+        wire = bytes.fromhex(v["bytes"])
+        for _ in range(300):
+            k = int(rng.integers(3, 6))
+            bits = rng.choice(8 * len(wire), size=k, replace=False)
+            assert not _accepted(_flipped(wire, bits)), (v["name"], sorted(bits))

@@ -26,14 +26,14 @@ def rig():
 
 def test_connect_reports_version_capabilities_and_watchdog(rig):
     emu, ctl, clock = rig
-    assert (ctl.info.major, ctl.info.minor, ctl.info.watchdog_s) == (1, 0, 10.0)
+    assert (ctl.info.major, ctl.info.minor, ctl.info.watchdog_s) == (2, 0, 10.0)
     st = ctl.status()
     assert not st.flags & fp.FLAG_NOT_CONFIGURED and not st.light_on and st.temperature_c == 25.0
 
 
 def test_version_mismatch_and_missing_capability_are_refused():
     clock = SimClock()
-    with ControllerEmulator(clock, major=2) as emu:
+    with ControllerEmulator(clock, major=3) as emu:
         with pytest.raises(ControllerError, match="VERSION") as e:
             RigController.open(emu.path, clock=clock)
         assert e.value.code == fp.ERR_VERSION

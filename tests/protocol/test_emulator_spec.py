@@ -47,17 +47,17 @@ def test_not_configured_until_hello_then_executes(raw):
     assert err(m) == ("ERROR", fp.ERR_NOT_READY, fp.HEARTBEAT) and m.seq == 1
     [m] = r.ask(fp.encode_message("STATUS", 2))
     assert m.name == "STATUS_REPLY" and m["flags"] & fp.FLAG_NOT_CONFIGURED
-    [m] = r.ask(fp.encode_message("HELLO", 3, major=1, minor=7))
-    assert (m.name, m["major"], m["watchdog_ms"]) == ("HELLO_REPLY", 1, fp.DEFAULT_WATCHDOG_MS)
+    [m] = r.ask(fp.encode_message("HELLO", 3, major=2, minor=7))
+    assert (m.name, m["major"], m["watchdog_ms"]) == ("HELLO_REPLY", 2, fp.DEFAULT_WATCHDOG_MS)
     [m] = r.ask(fp.encode_message("HEARTBEAT", 4))
     assert m.name == "HEARTBEAT_REPLY" and m.seq == 4
-    [m] = r.ask(fp.encode_message("HELLO", 5, major=2, minor=0))
+    [m] = r.ask(fp.encode_message("HELLO", 5, major=1, minor=0))  # a version 1 host
     assert err(m) == ("ERROR", fp.ERR_VERSION, fp.HELLO)
 
 
 def test_bad_requests_get_their_error_codes(raw):
     emu, r = raw
-    r.ask(fp.encode_message("HELLO", 1, major=1, minor=0))
+    r.ask(fp.encode_message("HELLO", 1, major=2, minor=0))
     [m] = r.ask(fp.encode_frame(0x42, 2, b"\x01"))
     assert err(m) == ("ERROR", fp.ERR_UNKNOWN_TYPE, 0x42)
     [m] = r.ask(fp.encode_frame(fp.SET_LIGHT, 3, b"\x01\xff"))
@@ -71,7 +71,7 @@ def test_bad_requests_get_their_error_codes(raw):
 
 def test_duplicate_is_answered_from_cache_and_hello_clears_it(raw):
     emu, r = raw
-    r.ask(fp.encode_message("HELLO", 1, major=1, minor=0))
+    r.ask(fp.encode_message("HELLO", 1, major=2, minor=0))
     trig = fp.encode_message("TRIGGER", 9, exposure_us=10)
     [a] = r.ask(trig)
     [b] = r.ask(trig)  # same type, seq and payload: a retry
@@ -79,7 +79,7 @@ def test_duplicate_is_answered_from_cache_and_hello_clears_it(raw):
     emu.clock.sleep(1.0)
     [c] = r.ask(fp.encode_message("TRIGGER", 9, exposure_us=11))  # same seq, other payload: new command
     assert c["count"] == 2
-    r.ask(fp.encode_message("HELLO", 10, major=1, minor=0))
+    r.ask(fp.encode_message("HELLO", 10, major=2, minor=0))
     emu.clock.sleep(1.0)
     [d] = r.ask(fp.encode_message("TRIGGER", 9, exposure_us=11))  # after HELLO the cache is empty
     assert d["count"] == 3
@@ -87,14 +87,14 @@ def test_duplicate_is_answered_from_cache_and_hello_clears_it(raw):
 
 def test_busy_while_pulse_high_and_corrupted_frames_are_not_answered(raw):
     emu, r = raw
-    r.ask(fp.encode_message("HELLO", 1, major=1, minor=0))
+    r.ask(fp.encode_message("HELLO", 1, major=2, minor=0))
     r.ask(fp.encode_message("TRIGGER", 2, exposure_us=1_000_000))
     [m] = r.ask(fp.encode_message("TRIGGER", 3, exposure_us=10))
     assert err(m) == ("ERROR", fp.ERR_BUSY, fp.TRIGGER)
     bad = bytearray(fp.encode_message("HEARTBEAT", 4))
     bad[2] ^= 0x01
     assert r.ask(bytes(bad) + b"\x13\x37\x00", expect=0) == []
-    assert emu._decoder.rejects["crc"] == 1
+    assert emu._decoder.rejects["crc"] == 2  # the flipped frame, and the garbage (too short to hold a check)
 
 
 def test_pyserial_url_opens_and_own_echo_is_never_a_reply():

@@ -57,10 +57,10 @@ class ScriptedPort:
         assert self.used == len(self.pairs), f"only {self.used} of {len(self.pairs)} exchanges happened"
 
 
-HELLO = h("00 05 01 01 02 01 03 B8 90 00")
-HELLO_REPLY = h("00 05 81 01 0B 01 02 1F 01 05 01 40 10 27 01 03 FB 81 00")
-SET_WATCHDOG_10S = h("00 06 07 02 04 10 27 01 03 3D F2 00")
-SET_WATCHDOG_REPLY = h("00 06 87 02 04 10 27 01 03 C4 59 00")
+HELLO = h("00 05 01 01 02 02 01 90 88 E8 AF 87 00")
+HELLO_REPLY = h("00 05 81 01 0B 02 02 1F 01 05 01 40 10 27 01 01 8B BB F5 F8 8F 00")
+SET_WATCHDOG_10S = h("00 06 07 02 04 10 27 01 01 E7 A2 E1 A3 88 00")
+SET_WATCHDOG_REPLY = h("00 06 87 02 04 10 27 01 01 93 BF D9 88 87 00")
 HANDSHAKE = [(HELLO, HELLO_REPLY), (SET_WATCHDOG_10S, SET_WATCHDOG_REPLY)]
 
 
@@ -74,15 +74,15 @@ def connected(pairs, **kw):
 def test_session_reads_like_the_spec():
     ctl, port = connected([
         # SET_LIGHT seq 3: on=1, level=32768 (0.5)      -> SET_LIGHT_REPLY echoes it
-        (h("00 05 03 03 03 01 04 80 46 13 00"), h("00 05 83 03 03 01 04 80 66 C7 00")),
+        (h("00 05 03 03 03 01 02 80 8B D1 8B C4 86 00"), h("00 05 83 03 03 01 02 80 DD BE A9 A4 87 00")),
         # STATUS seq 4                                   -> flags LIGHT_ON, level 32768, 25.37 °C, 123.456 s
-        (h("00 03 06 04 03 F8 B2 00"), h("00 05 86 04 0E 04 01 07 80 E9 09 40 E2 01 03 10 27 01 03 2B CB 00")),
+        (h("00 03 06 04 01 B6 AC D7 B8 84 00"), h("00 05 86 04 0E 04 01 07 80 E9 09 40 E2 01 03 10 27 01 01 9D DD DA C9 82 00")),
         # TRIGGER seq 5: 20000 µs                        -> TRIGGER_REPLY count 1
-        (h("00 06 05 05 04 20 4E 01 03 8C 73 00"), h("00 06 85 05 08 20 4E 01 02 01 01 01 03 9C DD 00")),
+        (h("00 06 05 05 04 20 4E 01 01 9A 8D 9E BA 85 00"), h("00 06 85 05 08 20 4E 01 02 01 01 01 01 C7 CD F3 84 8B 00")),
         # READ_PHOTODIODE seq 6: 16 samples              -> mean 0.987654, sem 0.0005
-        (h("00 07 04 06 01 10 91 DD 00"), h("00 08 84 06 09 10 06 12 0F 03 F4 01 01 03 54 D4 00")),
+        (h("00 05 04 06 01 10 D5 FF A4 A2 83 00"), h("00 08 84 06 09 10 06 12 0F 03 F4 01 01 01 C0 D8 C4 FC 81 00")),
         # HEARTBEAT seq 7                                -> HEARTBEAT_REPLY
-        (h("00 03 02 07 03 6B 3B 00"), h("00 03 82 07 02 31 01 00")),
+        (h("00 03 02 07 01 B5 B5 B3 E9 8E 00"), h("00 03 82 07 01 F6 DB AE B0 86 00")),
     ])
     assert isinstance(ctl, RigControllerProtocol)
     assert ctl.info.capabilities == 0x1F and ctl.info.watchdog_s == 10.0
@@ -100,7 +100,7 @@ def test_session_reads_like_the_spec():
 def test_error_reply_becomes_emergency_stop_with_code():
     ctl, port = connected([
         # SET_LIGHT seq 3 -> ERROR seq 3 code ESTOP (4) for request 0x03
-        (h("00 05 03 03 03 01 04 80 46 13 00"), h("00 08 FF 03 02 04 03 B8 42 00")),
+        (h("00 05 03 03 03 01 02 80 8B D1 8B C4 86 00"), h("00 06 FF 03 02 04 03 81 99 B3 F5 8E 00")),
     ])
     with pytest.raises(EmergencyStop, match=r"E-stop pressed or enclosure interlock open \(SET_LIGHT refused\)") as e:
         ctl.set_light(True, 0.5)
@@ -110,11 +110,11 @@ def test_error_reply_becomes_emergency_stop_with_code():
 
 def test_late_reply_with_old_seq_is_discarded():
     """A reply whose seq is not the request's is never taken as its answer."""
-    stale = h("00 05 83 03 03 01 04 80 66 C7 00")  # SET_LIGHT_REPLY seq 3, arriving late
+    stale = h("00 05 83 03 03 01 02 80 DD BE A9 A4 87 00")  # SET_LIGHT_REPLY seq 3, arriving late
     ctl, port = connected([
-        (h("00 03 02 03 03 AF F7 00"), b""),  # HEARTBEAT seq 3: no answer (times out)
+        (h("00 03 02 03 01 E9 F6 9A 9D 8A 00"), b""),  # HEARTBEAT seq 3: no answer (times out)
         # HEARTBEAT seq 3 retried: the late stale reply is flushed; then a proper HEARTBEAT_REPLY
-        (h("00 03 02 03 03 AF F7 00"), stale + h("00 03 82 03 03 F5 CC 00")),
+        (h("00 03 02 03 01 E9 F6 9A 9D 8A 00"), stale + h("00 03 82 03 01 AA 98 87 C4 82 00")),
     ], retries=1)
     ctl.heartbeat()
     port.assert_all_used()
@@ -122,7 +122,7 @@ def test_late_reply_with_old_seq_is_discarded():
 
 
 def test_no_reply_raises_timeout_after_bounded_retries():
-    hb = h("00 03 02 03 03 AF F7 00")
+    hb = h("00 03 02 03 01 E9 F6 9A 9D 8A 00")
     ctl, port = connected([(hb, b"")] * 3, retries=2)
     with pytest.raises(HardwareTimeout, match="no reply to HEARTBEAT .seq 3. after 3 attempts"):
         ctl.heartbeat()
@@ -130,12 +130,12 @@ def test_no_reply_raises_timeout_after_bounded_retries():
 
 
 def test_version_and_capabilities_are_checked():
-    port = ScriptedPort([(HELLO, h("00 08 FF 01 02 07 01 C1 DA 00"))])  # ERROR VERSION for HELLO
+    port = ScriptedPort([(HELLO, h("00 06 FF 01 02 07 01 EE EE DC A0 88 00"))])  # ERROR VERSION for HELLO
     with pytest.raises(ControllerError, match="VERSION") as e:
         RigController(port, clock=SimClock(), timeout=0.05).connect()
     assert e.value.code == 7
     from firmware_protocol import codec as fp
-    no_trigger = fp.encode_message("HELLO_REPLY", 1, major=1, minor=0, capabilities=0x1B, firmware=1,
+    no_trigger = fp.encode_message("HELLO_REPLY", 1, major=2, minor=0, capabilities=0x1B, firmware=1,
                                    max_payload=64, watchdog_ms=10000)
     port = ScriptedPort([(HELLO, no_trigger)])
     with pytest.raises(ControllerError, match="lacks capabilities: trigger"):

@@ -21,7 +21,7 @@ def test_every_worked_example_decodes_to_its_body_and_message():
         assert msg.name == m["label"] and frame.seq == int(m["seq"]), m.group(0)
         assert c.encode_frame(frame.type, frame.seq, frame.payload) == wire
         if m["body"]:
-            assert c.cobs_decode(wire[1:-1]) == bytes.fromhex(m["body"]), m.group(0)
+            assert c.cobs_decode(wire[1:-1 - c.CHECK_SIZE]) == bytes.fromhex(m["body"]), m.group(0)
         names.add(msg.name)
     assert names == set(c.BY_NAME)  # every message type has a worked example
 
@@ -40,4 +40,4 @@ def test_error_code_and_flag_tables_match_codec():
     assert len(bits) == 5 + 7
     for bit, name in bits:
         assert 1 << int(bit) in (getattr(c, f"FLAG_{name}", None), getattr(c, f"CAP_{name}", None)), name
-    assert "0x1021" in SPEC and "0xFFFF" in SPEC and "0x29B1" in SPEC
+    assert "0x1EDC6F41" in SPEC and "0x82F63B78" in SPEC and "0xE3069283" in SPEC and f"MAX_ENCODED = {c.MAX_ENCODED}" in SPEC

@@ -18,7 +18,7 @@ def bench():
 def test_status_reports_protocol_capabilities_and_inputs(bench, capsys):
     assert main(["controller", "status", "--port", bench.path]) == 0
     out = capsys.readouterr().out.splitlines()
-    assert out[0].startswith(f"{bench.path}: protocol 1.") and "watchdog 10 s" in out[0]
+    assert out[0].startswith(f"{bench.path}: protocol 2.") and "watchdog 10 s" in out[0]
     assert out[1] == "capabilities dimming, photodiode, trigger, temperature, interlock"
     assert out[2].split() == ["E-stop", "released"] and out[4].split()[:2] == ["light", "off"]
     bench.set_estop(True)
