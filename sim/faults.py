@@ -100,3 +100,102 @@ class LinkFaults:
             if kind == "garbage":
                 return 0.0, self._rng.integers(0, 256, int(self._rng.integers(1, 8)), dtype=np.uint8).tobytes() + reply
             return 0.0, reply[: int(self._rng.integers(len(reply)))]  # truncate
+
+
+FRAME_KINDS = ("black", "stale", "saturated", "wrong_size", "nan", "timeout")
+
+
+@dataclass
+class FrameFaults:
+    """Faults of the simulated camera, applied to each frame it returns (:meth:`apply`).
+
+    ``black``: every pixel at the black level (a lens cap, a dead trigger, a light that did not fire);
+    ``stale``: the previous frame returned again (a driver that hands out an old buffer); ``saturated``:
+    every pixel at full scale; ``wrong_size``: the frame cropped to half its height; ``nan``: float
+    pixels holding NaN (a broken conversion); ``timeout``: no frame, :class:`~gonio.errors.HardwareTimeout`.
+    Random (per-frame rates from a generator that :meth:`sim.rig.SimRig.begin_pose` reseeds per pose) or
+    scheduled (:meth:`inject_next`). :meth:`from_spec` reads ``"black=0.05,stale=0.01"`` (the CLI's
+    ``--sim-frame-faults``) or ``"black=1"`` (every frame).
+    """
+
+    rates: dict = field(default_factory=dict)
+    seed: int = 0
+    _queue: deque = field(default_factory=deque, repr=False)
+    counts: dict = field(default_factory=lambda: {k: 0 for k in FRAME_KINDS})
+
+    def __post_init__(self):
+        unknown = set(self.rates) - set(FRAME_KINDS)
+        if unknown:
+            raise ValueError(f"unknown frame fault {sorted(unknown)[0]!r}; known: {', '.join(FRAME_KINDS)}")
+        self._rng = np.random.default_rng(self.seed)
+        self._last = None
+
+    @classmethod
+    def from_spec(cls, spec: str, seed: int = 0) -> "FrameFaults":
+        """``"kind=rate,kind=rate"`` (rates in [0, 1]); ValueError naming the bad part."""
+        rates = {}
+        for part in filter(None, (p.strip() for p in str(spec or "").split(","))):
+            kind, _, value = part.partition("=")
+            try:
+                rate = float(value)
+            except ValueError:
+                raise ValueError(f"frame fault {part!r}: expected KIND=RATE") from None
+            if kind not in FRAME_KINDS or not 0.0 <= rate <= 1.0:
+                raise ValueError(f"frame fault {part!r}: KIND one of {', '.join(FRAME_KINDS)}, RATE in [0, 1]")
+            rates[kind] = rate
+        return cls(rates=rates, seed=seed)
+
+    def reseed(self, seed) -> None:
+        self._rng = np.random.default_rng(seed)
+
+    def inject_next(self, kind: str, times: int = 1) -> None:
+        if kind not in FRAME_KINDS:
+            raise ValueError(f"unknown frame fault {kind!r}; known: {', '.join(FRAME_KINDS)}")
+        self._queue.extend([kind] * times)
+
+    def _draw(self) -> str | None:
+        if self._queue:
+            return self._queue.popleft()
+        if not self.rates:
+            return None
+        u = self._rng.random()
+        for kind in FRAME_KINDS:
+            rate = self.rates.get(kind, 0.0)
+            if u < rate:
+                return kind
+            u -= rate
+        return None
+
+    def apply(self, capture):
+        """The frame ``capture()`` returns, or its faulty version (or a timeout)."""
+        import dataclasses
+
+        from gonio.errors import HardwareTimeout
+
+        kind = self._draw()
+        if kind == "timeout":
+            self.counts[kind] += 1
+            raise HardwareTimeout("sim camera: no frame within the capture timeout", device="sim-camera")
+        frame = capture()
+        out = self._fault(kind, frame)
+        self._last = out  # what the host received: a stale frame repeats exactly this
+        return out
+
+    def _fault(self, kind, frame):
+        import dataclasses
+
+        if kind is None:
+            return frame
+        self.counts[kind] += 1
+        px = frame.pixels
+        if kind == "stale" and self._last is not None:
+            return dataclasses.replace(self._last, timestamp=frame.timestamp)
+        if kind == "black":
+            px = np.full_like(px, int(frame.black_level))
+        elif kind == "saturated":
+            px = np.full_like(px, (1 << frame.bit_depth) - 1)
+        elif kind == "wrong_size":
+            px = px[: px.shape[0] // 2].copy()
+        elif kind == "nan":
+            px = np.full(px.shape, np.nan, dtype=np.float32)
+        return dataclasses.replace(frame, pixels=px)

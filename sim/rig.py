@@ -44,7 +44,7 @@ from gonio.rig.kinematics import Rig, load_rig
 from sim.camera import SensorModel, SimCamera, SimScene
 from sim.clock import SimClock
 from sim.controller import ControllerEmulator
-from sim.faults import LinkFaults
+from sim.faults import FrameFaults, LinkFaults
 from sim.seeding import SETUP, pose_rng
 from sim.servo_bus import HW_OVERLOAD, ServoBus
 
@@ -80,6 +80,8 @@ class SimRigConfig:
     pd_noise: float = 0.002
     #: How the host reaches the camera: ``direct`` (in-process) or ``gige`` (sim.gige_camera over GigE Vision).
     camera_link: str = "direct"
+    #: Camera faults, :meth:`sim.faults.FrameFaults.from_spec` (``"black=0.05,stale=0.01"``; empty: none).
+    frame_faults: str = ""
 
     def to_dict(self) -> dict:
         return dict(self.__dict__)
@@ -162,7 +164,7 @@ class RigCamera:
         position, R = r.rig.camera_pose(joints)
         r.sim_camera.set_pose(CameraPose(R, -R @ position))
         r.sim_camera.set_light(r.rig.light_position(joints))
-        return r.sim_camera.capture(exposure, gain, timeout=timeout)
+        return r.frame_faults.apply(lambda: r.sim_camera.capture(exposure, gain, timeout=timeout))
 
     def close(self) -> None:
         self._rig.sim_camera.close()
@@ -191,8 +193,12 @@ class SimRig:
 
     def __init__(self, rig: Rig | str | None = None, material: BRDF | dict | None = None, *,
                  config: SimRigConfig | None = None, layout: TargetLayout | None = None,
-                 servo_faults: LinkFaults | None = None, controller_faults: LinkFaults | None = None):
+                 servo_faults: LinkFaults | None = None, controller_faults: LinkFaults | None = None,
+                 camera_faults: FrameFaults | None = None):
         self.config = cfg = config or SimRigConfig()
+        #: faults of the camera's frames (black, stale, saturated, wrong size, NaN, timeout): ``camera_faults``,
+        #: else the config's ``frame_faults`` spec
+        self.frame_faults = camera_faults or FrameFaults.from_spec(cfg.frame_faults, seed=cfg.seed)
         self.rig = rig if isinstance(rig, Rig) else load_rig(rig)
         if material is None or isinstance(material, dict):
             m = material or DEFAULT_MATERIAL
@@ -288,6 +294,9 @@ class SimRig:
         for stream, faults in (("servo_faults", self.servo_bus.faults), ("controller_faults", self.controller.faults)):
             if faults is not None:
                 faults.reseed(pose_rng(seed, index, stream))
+        if index != getattr(self, "_faults_pose", None):  # a retried pose draws new frame faults, not the same again
+            self._faults_pose = index
+            self.frame_faults.reseed(pose_rng(seed, index, "frame_faults"))
 
     def trip(self, joint: str, bits: int = HW_OVERLOAD) -> None:
         """Raise a hardware error (default overload) on the servo of ``joint``."""

@@ -20,7 +20,7 @@ import numpy as np
 __all__ = ["pose_rng", "STREAMS", "SETUP"]
 
 #: Noise sources of the simulator, each its own stream (a name's position is never reused).
-STREAMS = ("camera", "photodiode", "encoder", "servo_faults", "controller_faults", "dark")
+STREAMS = ("camera", "photodiode", "encoder", "servo_faults", "controller_faults", "dark", "frame_faults")
 # (index 0, the camera, takes no stream word; every other index is >= 1, so no key is a prefix + zeros of another)
 #: Pseudo pose index of what happens outside any pose (start-up, dark sets): ``pose_rng(seed, SETUP, ...)``.
 SETUP = -1

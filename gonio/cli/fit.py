@@ -31,8 +31,9 @@ def register(sub) -> None:
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     many.add_options(p)
     p.add_argument("--mitsuba", metavar="OUT.xml|OUT.json",
-                   help="also write the fitted model as a Mitsuba 3 BSDF (XML element or load_dict JSON) where "
-                        "Mitsuba reproduces it exactly: lambert, microfacet/ggx/beckmann lobes with f0 = 1, their sums")
+                   help="also write the fitted model as a Mitsuba 3 BSDF (XML element or load_dict JSON): exact for "
+                        "lambert, microfacet/ggx/beckmann lobes with f0 = 1 (or within 1e-3 of it) and their sums; "
+                        "Schlick f0 < 1 lobes with --approx (roughconductor with the exact Fresnel equations)")
     p.add_argument("--pbrt", metavar="OUT.pbrt", help="also write the fitted model as a pbrt-v4 material (diffuse, "
                    "conductor, mix); refused unless exact or --approx")
     p.add_argument("--gltf", metavar="OUT.gltf", help="also write the fitted model as a glTF 2.0 material on a sphere "
@@ -153,9 +154,9 @@ def run_one(args) -> int:
         from gonio.io.mitsuba import write_mitsuba
         from gonio.io.outputs import check_output
 
-        write_mitsuba(result.model, check_output(args.mitsuba, option="--mitsuba", force=args.force,
-                                                 suffixes=(".xml", ".json")))
-        print(f"wrote {args.mitsuba} (Mitsuba 3 BSDF)")
+        ex = write_mitsuba(result.model, check_output(args.mitsuba, option="--mitsuba", force=args.force,
+                                                      suffixes=(".xml", ".json")), approx=args.approx)
+        print(f"wrote {args.mitsuba} ({ex.describe()})")
     for option, value, _ in renderers:
         if value:
             from gonio.io.gltf import write_gltf

@@ -25,6 +25,10 @@ DEFAULT_PLAN = "half_diff"
 DEFAULT_SIM_RESOLUTION = "320x240"
 
 
+#: Exit code of a session that ended with poses not measured (bad camera frames): not 0, not an error's.
+INCOMPLETE_EXIT = 6
+
+
 def default_plan_params(name: str = DEFAULT_PLAN) -> dict:
     """The parameters (radians) a plan gets when none are given: its generator's defaults, the one source
     shared with ``gonio plan`` (the default half/difference plan: 38 poses on the default rig, a few seconds
@@ -59,6 +63,9 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the simulation and of the plan ordering")
     p.add_argument("--sim-resolution", default=DEFAULT_SIM_RESOLUTION, metavar="WxH",
                    help=f"simulated camera resolution (default {DEFAULT_SIM_RESOLUTION})")
+    p.add_argument("--sim-frame-faults", default="", metavar="KIND=RATE,...",
+                   help="simulated camera faults per frame: black, stale, saturated, wrong_size, nan, timeout "
+                        "(e.g. black=0.05,stale=0.01; black=1 is a dead camera)")
     p.add_argument("--sim-camera", choices=("direct", "gige"), default="direct",
                    help="gige: the simulated camera is served as a GigE Vision device on 127.0.0.1 and read "
                         "through gonio's Aravis backend, an 8-bit RGB8 sensor (needs gir1.2-aravis-0.8 and "
@@ -281,7 +288,13 @@ def _run_session(store, plan, devices, calibration, layout, *, before_pose, quie
         return 0
     if result.status == "interrupted":
         return 130
-    print(f"gonio: session ended: {result.status}", file=sys.stderr)
+    if result.status.startswith("incomplete"):
+        failed = getattr(result, "failed", [])
+        print(f"gonio: session incomplete: {len(failed)} poses not measured (bad camera frames), e.g. pose "
+              f"{failed[0][0]}: {failed[0][1]}; `gonio status {store.directory}` lists them, "
+              f"`gonio resume {store.directory}` measures them again", file=sys.stderr)
+        return INCOMPLETE_EXIT
+    print(f"gonio: session ended: {result.status}; resume with `gonio resume {store.directory}`", file=sys.stderr)
     return result.error.exit_code if result.error is not None else 3
 
 
@@ -358,6 +371,15 @@ def _checked_sim(sim, where: str) -> dict:
         raise DataError(f"{where}: sim = {str(sim)[:40]}: expected the simulated rig's settings (an object)")
     out = {}
     for key, value in sim.items():
+        if key == "frame_faults":
+            from gonio.plugins import plugin
+
+            try:
+                plugin("sim.rig").FrameFaults.from_spec(value)
+            except (ValueError, TypeError, AttributeError) as exc:
+                raise DataError(f"{where}: sim.frame_faults = {str(value)[:40]!r}: {exc}") from None
+            out[key] = value
+            continue
         if key == "camera_link":
             if value not in ("direct", "gige"):
                 raise DataError(f"{where}: sim.camera_link = {str(value)[:40]!r}: expected 'direct' or 'gige'")
@@ -494,6 +516,12 @@ def run_measure(args) -> int:
 
         w, h = _resolution(args.sim_resolution)
         link = {} if args.sim_camera == "direct" else {"camera_link": "gige", "bit_depth": 8}
+        if args.sim_frame_faults:
+            try:
+                plugin("sim.rig").FrameFaults.from_spec(args.sim_frame_faults)
+            except ValueError as exc:
+                raise ConfigError.field("--sim-frame-faults", "frame faults", args.sim_frame_faults, str(exc)) from None
+            link["frame_faults"] = args.sim_frame_faults
         config = SimRigConfig.at_resolution(w, h, seed=args.seed, **link)
         manifest["sim"] = config.to_dict()
         manifest["calibration"] = _calibration_dict(config.calibration())

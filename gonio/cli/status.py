@@ -55,9 +55,21 @@ def session_status(directory) -> dict:
         "resumes": len(manifest.get("resumes", [])),
         "duplicates": scan.n_duplicates,
         "torn": scan.torn,
+        "failed_poses": [(k, why) for k, why in _failed_poses(manifest) if k not in done],
         "damaged": scan.describe_damage() if scan.damaged else None,
         "n_damaged": len(scan.damaged),
     }
+
+
+def _failed_poses(manifest) -> list[tuple[int, str]]:
+    """``(pose, reason)`` of the poses the last run could not measure for bad camera frames, from its
+    summary (checked: a hand-edited manifest gives what is readable, never a traceback)."""
+    run = manifest.get("last_run")
+    out = []
+    for x in (run.get("failed") if isinstance(run, dict) else None) or ():
+        if isinstance(x, dict) and isinstance(x.get("pose"), int) and not isinstance(x.get("pose"), bool):
+            out.append((x["pose"], str(x.get("reason", ""))[:200]))
+    return out
 
 
 def run(args) -> int:
@@ -81,6 +93,13 @@ def run(args) -> int:
     print(f"started:      {s['started']}; stopped: {s['stopped'] or '-'}; resumed {s['resumes']} time(s)")
     if s["duplicates"]:
         print(f"note: {s['duplicates']} pose(s) recorded more than once; the last record of each is used")
+    if s["failed_poses"]:
+        print(f"failed poses: {len(s['failed_poses'])} not measured, bad camera frames (`gonio resume DIR` "
+              "measures them again):")
+        for k, why in s["failed_poses"][:20]:
+            print(f"  pose {k}: {why}")
+        if len(s["failed_poses"]) > 20:
+            print(f"  ... and {len(s['failed_poses']) - 20} more")
     if s["torn"]:
         print(f"note: torn last record ({s['torn']}); it will be dropped on resume and the pose re-measured")
     if s["n_damaged"]:

@@ -22,10 +22,13 @@ import numpy as np
 
 from gonio.errors import ConfigError
 
-__all__ = ["Lobe", "Decomposed", "decompose", "direction_pairs", "relative_error", "Exported", "EXACT", "N_PAIRS"]
+__all__ = ["Lobe", "Decomposed", "decompose", "direction_pairs", "relative_error", "Exported", "EXACT", "TOLERANCE", "N_PAIRS"]
 
 #: Relative error below which an export counts as exact (float64 round-off of the formulas).
 EXACT = 1e-9
+#: Relative error below which an export is written without --approx (a fitted f0 of 0.9999977 exported
+#: as 1): far below any measurement's noise; its error is printed.
+TOLERANCE = 1e-4
 N_PAIRS = 8192
 
 
@@ -110,7 +113,7 @@ class Exported:
 
     def check(self, approx: bool, option: str) -> "Exported":
         """Self if exact or ``approx``; else the one-line refusal (reasons and error named)."""
-        if self.exact or approx:
+        if self.error < TOLERANCE or approx:
             return self
         why = "; ".join(dict.fromkeys(self.reasons)) or "its formulas differ from the model's"
         raise ConfigError.field(option, self.target, f"relative error {self.error:.3g}",
@@ -120,5 +123,8 @@ class Exported:
     def describe(self) -> str:
         if self.exact:
             return f"{self.target}: exact (relative error {self.error:.1e})"
+        if self.error < TOLERANCE:
+            return (f"{self.target}: within tolerance, relative error {self.error:.1e} "
+                    f"({'; '.join(dict.fromkeys(self.reasons))})")
         return (f"{self.target}: APPROXIMATION, cosine-weighted relative RMS error {100 * self.error:.2f} % "
                 f"({'; '.join(dict.fromkeys(self.reasons))})")

@@ -13,9 +13,14 @@ Exact correspondences (f is the BRDF, both sides):
   the sum exactly (Mitsuba 3 documentation, plugins ``diffuse``, ``roughconductor``, ``blendbsdf``).
 
 Schlick's Fresnel with f0 < 1 has no exact Mitsuba counterpart (its conductor/dielectric plugins use
-the exact Fresnel equations), nor have Phong, Blinn-Phong, Ward, Lafortune, Oren-Nayar, Cook-Torrance
-and Ashikhmin-Shirley as gonio defines them: those are refused with a one-line error rather than
-approximated (fit with ``--fix f0=1`` to get an exportable lobe whose ks carries the reflectance).
+the exact Fresnel equations). Such a lobe is exported, with ``approx=True`` (``--approx``), as the closest
+plugin: ``roughconductor`` with the exact Fresnel equations of a dielectric of the same normal
+reflectance (``eta = (1 + √f0)/(1 − √f0)`` per channel, ``k = 0``: Mitsuba's ``fresnel_conductor``
+reduces to the dielectric one), the same distribution and α, ``specular_reflectance = ks``; the
+cosine-weighted relative error against the model is printed (:mod:`gonio.io.approx`). An f0 within
+:data:`F0_TOLERANCE` of 1 (a fit that printed "1") exports as ``material = "none"``, its error printed.
+Without ``approx`` those are refused with the reason and the error. Phong, Blinn-Phong, Ward,
+Lafortune, Oren-Nayar, Cook-Torrance and Ashikhmin-Shirley have no Mitsuba counterpart: refused.
 """
 
 from __future__ import annotations
@@ -27,7 +32,10 @@ import numpy as np
 
 from gonio.errors import ConfigError
 
-__all__ = ["to_mitsuba_dict", "to_mitsuba_xml", "write_mitsuba"]
+__all__ = ["to_mitsuba_dict", "to_mitsuba_xml", "write_mitsuba", "mitsuba_export", "mitsuba_eval", "F0_TOLERANCE"]
+
+#: |f0 − 1| up to which a lobe exports as F = 1 (``material = "none"``), its (tiny) error printed.
+F0_TOLERANCE = 1e-3
 
 
 def _rgb(v) -> list[float]:
@@ -35,24 +43,39 @@ def _rgb(v) -> list[float]:
     return [float(x) for x in a]
 
 
-def _terms(model, source: str) -> list[tuple[str, dict, list[float]]]:
-    """``(plugin, parameters, reflectance rgb)`` of each additive term of ``model``."""
+def _terms(model, source: str, approx: bool = False, reasons: list | None = None) -> list[tuple[str, dict, list[float]]]:
+    """``(plugin, parameters, reflectance rgb)`` of each additive term of ``model``; ``reasons`` collects
+    why the terms are not exact (approximations are made only with ``approx`` or within tolerance)."""
     from gonio.brdf.lambert import Lambert
     from gonio.brdf.lobes import Sum
     from gonio.brdf.microfacet import Microfacet
 
+    reasons = [] if reasons is None else reasons
     if isinstance(model, Sum):
-        return [t for part in model.parts for t in _terms(part, source)]
+        return [t for part in model.parts for t in _terms(part, source, approx, reasons)]
     if isinstance(model, Lambert):
         return [("diffuse", {}, _rgb(model.albedo))]
     if isinstance(model, Microfacet):
-        if not np.allclose(np.asarray(model.f0, dtype=np.float64), 1.0, rtol=0, atol=1e-12):
+        f0 = np.asarray(_rgb(model.f0))
+        lobe = {"distribution": str(model.distribution), "alpha": float(model.alpha)}
+        if np.all(f0 == 1.0):
+            lobe = {"material": "none", **lobe}
+        elif np.all(np.abs(f0 - 1.0) <= F0_TOLERANCE):
+            reasons.append(f"f0 = {', '.join(f'{x:.7g}' for x in f0)} exported as 1 (within {F0_TOLERANCE:g})")
+            lobe = {"material": "none", **lobe}
+        elif approx:
+            reasons.append("Schlick's Fresnel replaced by the exact Fresnel equations of the same normal "
+                           "reflectance (eta from f0, k = 0)")
+            sq = np.sqrt(np.clip(f0, 0.0, 1.0 - 1e-12))
+            lobe = {**lobe, "eta": {"type": "rgb", "value": [float(x) for x in (1 + sq) / (1 - sq)]},
+                    "k": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}
+        else:
             raise ConfigError.field(source, f"{model.name}.f0", _rgb(model.f0),
-                                    "Schlick's Fresnel with f0 < 1 has no exact Mitsuba 3 plugin; "
-                                    "fit with --fix f0=1 to export")
+                                    "Schlick's Fresnel with f0 < 1 has no exact Mitsuba 3 plugin; pass --approx for "
+                                    "the closest (roughconductor with the exact Fresnel equations, its error printed) "
+                                    "or fit with --fix f0=1")
         terms = [("diffuse", {}, _rgb(model.kd))] if np.any(np.asarray(model.kd) > 0) else []
-        return terms + [("roughconductor", {"material": "none", "distribution": str(model.distribution),
-                                            "alpha": float(model.alpha)}, _rgb(model.ks))]
+        return terms + [("roughconductor", lobe, _rgb(model.ks))]
     raise ConfigError.field(source, "model", model.name,
                             "has no exact Mitsuba 3 counterpart (exportable: lambert, microfacet with f0 = 1, "
                             "and sums of lambert/ggx/beckmann lobes)")
@@ -63,9 +86,12 @@ def _plugin(kind: str, params: dict, rgb: list[float]) -> dict:
     return {"type": kind, **params, key: {"type": "rgb", "value": rgb}}
 
 
-def to_mitsuba_dict(model, source: str = "--mitsuba") -> dict:
-    """The Mitsuba 3 BSDF dictionary (for ``mitsuba.load_dict``) reproducing ``model`` exactly."""
-    terms = [t for t in _terms(model, source) if max(t[2]) > 0] or _terms(model, source)[:1]
+def to_mitsuba_dict(model, source: str = "--mitsuba", approx: bool = False, reasons: list | None = None) -> dict:
+    """The Mitsuba 3 BSDF dictionary (for ``mitsuba.load_dict``) reproducing ``model`` exactly (or, with
+    ``approx``, the closest; ``reasons`` receives why it is not exact)."""
+    reasons = [] if reasons is None else reasons
+    all_terms = _terms(model, source, approx, reasons)
+    terms = [t for t in all_terms if max(t[2]) > 0] or all_terms[:1]
     size = np.array([max(max(rgb), 1e-300) for _, _, rgb in terms])
     p = size / size.sum()  # term weights; each reflectance / p_k, so Σ p_k · (term / p_k) = the sum
 
@@ -84,7 +110,7 @@ def to_mitsuba_dict(model, source: str = "--mitsuba") -> dict:
     return nest(0, 1.0)
 
 
-def to_mitsuba_xml(model, source: str = "--mitsuba") -> str:
+def to_mitsuba_xml(model, source: str = "--mitsuba", approx: bool = False) -> str:
     """The same BSDF as a Mitsuba 3 scene-file ``<bsdf>`` element."""
 
     def emit(d: dict, name: str | None, depth: int) -> list[str]:
@@ -104,16 +130,60 @@ def to_mitsuba_xml(model, source: str = "--mitsuba") -> str:
                 lines.append(f"{pad}    <string name={quoteattr(k)} value={quoteattr(str(v))}/>")
         return lines + [f"{pad}</bsdf>"]
 
-    return "\n".join(emit(to_mitsuba_dict(model, source), None, 0)) + "\n"
+    return "\n".join(emit(to_mitsuba_dict(model, source, approx), None, 0)) + "\n"
 
 
-def write_mitsuba(model, path) -> None:
-    """``path`` ending in ``.xml``: the scene-file element; otherwise the dictionary as JSON."""
+def mitsuba_eval(d: dict, wi, wo) -> np.ndarray:
+    """f (1/sr, RGB) of a BSDF dictionary by the plugins' definitions: ``diffuse`` ρ/π;
+    ``roughconductor`` ks·D·G·F/(4 cosθi cosθo) with Walter et al.'s D and separable Smith G (gonio's
+    microfacet lobe: tests/brdf/test_reference.py checks it against Mitsuba 3's values) and F = 1
+    (``material = "none"``) or the conductor Fresnel equations of ``eta + i k``
+    (:func:`gonio.io.pbrt.fr_complex`); ``blendbsdf`` (1 − w)·bsdf_0 + w·bsdf_1."""
+    from gonio.brdf import make
+    from gonio.io.pbrt import fr_complex
+
+    wi = np.asarray(wi, dtype=np.float64)
+    wo = np.asarray(wo, dtype=np.float64)
+    if d["type"] == "diffuse":
+        return make("lambert", albedo=1.0).eval(wi, wo) * np.asarray(d["reflectance"]["value"])
+    if d["type"] == "roughconductor":
+        lobe = make("microfacet", kd=0.0, ks=1.0, alpha=d["alpha"], f0=1.0, distribution=d["distribution"])
+        v = lobe.eval(wi, wo) * np.asarray(d["specular_reflectance"]["value"])
+        if d.get("material") != "none":
+            h = wi + wo
+            h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
+            eta = np.asarray(d["eta"]["value"]) + 1j * np.asarray(d["k"]["value"])
+            v = v * fr_complex(np.abs(np.sum(wo * h, axis=-1)), eta)
+        return v
+    return (1 - d["weight"]) * mitsuba_eval(d["bsdf_0"], wi, wo) + d["weight"] * mitsuba_eval(d["bsdf_1"], wi, wo)
+
+
+def mitsuba_export(model, path=None, *, approx: bool = False, option: str = "--mitsuba"):
+    """:class:`gonio.io.approx.Exported` for ``model``: the XML (``path`` ending in .xml) or load_dict JSON,
+    its error against the model, why it is not exact. Refused unless exact, within tolerance, or ``approx``."""
+    from pathlib import Path
+
+    from gonio.io.approx import Exported, direction_pairs, relative_error
+
+    reasons: list[str] = []
+    d = to_mitsuba_dict(model, option, approx, reasons)
+    wi, wo = direction_pairs()
+    err = relative_error(mitsuba_eval(d, wi, wo), model.eval(wi, wo))
+    xml = path is not None and Path(path).suffix.lower() == ".xml"
+    text = to_mitsuba_xml(model, option, approx) if xml else json.dumps(d, indent=2) + "\n"
+    ex = Exported("Mitsuba 3", text, err, reasons)
+    return ex.check(approx, option)  # exact, within TOLERANCE, or asked for
+
+
+def write_mitsuba(model, path, *, approx: bool = False):
+    """``path`` ending in ``.xml``: the scene-file element; otherwise the dictionary as JSON. Returns the
+    :class:`gonio.io.approx.Exported` (its :meth:`describe` says exact or the error)."""
     from pathlib import Path
 
     p = Path(path)
-    text = to_mitsuba_xml(model) if p.suffix.lower() == ".xml" else json.dumps(to_mitsuba_dict(model), indent=2) + "\n"
+    ex = mitsuba_export(model, p, approx=approx)
     try:
-        p.write_text(text, encoding="utf-8")
+        p.write_text(ex.text, encoding="utf-8")
     except OSError as exc:
         raise ConfigError.field("--mitsuba", "mitsuba", str(p), f"cannot write ({exc.strerror or exc})") from None
+    return ex

@@ -17,6 +17,7 @@ from gonio.pipeline.dark import DarkCache
 from gonio.pipeline.exposure import CapturePlan, ExposureSettings, plan_bracket
 from gonio.pipeline.hdr import BadFrame, SATURATION_MARGIN, average_frames, check_frame, merge_linear
 from gonio.pipeline.markers import BoardPose, detect_board_pose, to_gray8
+from gonio.pipeline.signal import SignalCheck
 from gonio.pipeline.reflectance import build_roi, reflectance_samples
 from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
 from gonio.rig.interfaces import Camera, Clock, Frame
@@ -92,11 +93,12 @@ class Pipeline:
         self.absolute_scale = absolute_scale
         self.darks = DarkCache(camera, calibration, light=light, clock=clock, n_frames=self.settings.dark_frames,
                                max_age=self.settings.dark_max_age, level=self.settings.light_level,
-                               frame_check=self.check_frame, retries=self.settings.retries)
+                               frame_check=self._check_dark, retries=self.settings.retries)
         self._size_checked = False
         self._size_misses, self._miss_shape = 0, None
         self._board = layout.charuco.board()
         self._next_exposure = self.settings.initial_exposure
+        self._signal = SignalCheck(calibration.noise, self._limit)
 
     def check_frame(self, frame: Frame) -> np.ndarray:
         """:func:`gonio.pipeline.hdr.check_frame`, and until the first frame of the calibrated size (the
@@ -119,10 +121,17 @@ class Pipeline:
                 self._size_checked = True
         return check_frame(frame, self.calib)
 
+    def _check_dark(self, frame: Frame) -> np.ndarray:
+        """:meth:`check_frame` and, for a dark frame, :meth:`SignalCheck.dark_frame` (not stale, not overloaded)."""
+        px = self.check_frame(frame)
+        self._signal.dark_frame(frame, px)
+        return px
+
     # -- capture helpers ----------------------------------------------------------------------
-    def _grab(self, exposure: float, gain: float) -> tuple[Frame, np.ndarray, float, float]:
+    def _grab(self, exposure: float, gain: float, *, meter: bool = False, dark=None) -> tuple[Frame, np.ndarray, float, float]:
         """One checked frame, the light output read right after it and that reading's standard
-        uncertainty (bounded retries on bad frames)."""
+        uncertainty (bounded retries on bad frames; a bracket frame must also show a signal,
+        :mod:`gonio.pipeline.signal`; a metering frame (``meter``) only must not repeat the previous one)."""
         last: Exception | None = None
         for _ in range(self.settings.retries + 1):
             frame = self.camera.capture(exposure, gain)
@@ -131,6 +140,9 @@ class Pipeline:
                                "8-bit frames with gonio.pipeline.hdr.calibrate_response first", device="camera")
             try:
                 px = self.check_frame(frame)
+                if meter:  # against this exposure's dark frame if the session measured it: black, not dim
+                    dark = self.darks.cached(exposure, gain)
+                self._signal(frame, px, levels=not meter, dark=dark)  # black, all-saturated, stale: retaken, then flagged
             except BadFrame as exc:
                 last = exc
                 continue
@@ -164,7 +176,7 @@ class Pipeline:
         flags = 0
         t = self._next_exposure if meter_exposure is None else float(meter_exposure)
         # 1. meter (and locate the board on the metering frame)
-        frame, px, level, _ = self._grab(t, gain)
+        frame, px, level, _ = self._grab(t, gain, meter=True)
         board = cam_pose = None
         for _ in range(st.meter_tries):
             board, cam_pose = self._locate(frame, px, camera_pose_hint)
@@ -181,7 +193,7 @@ class Pipeline:
                 board, cam_pose = self._locate(frame, px, camera_pose_hint)
                 break
             t = t_new
-            frame, px, level, _ = self._grab(t, gain)
+            frame, px, level, _ = self._grab(t, gain, meter=True)
         if cam_pose is None:
             raise BoardNotFound("camera frame: ChArUco board not found (fewer than 6 corners) and no kinematic "
                                 "camera pose given", device="camera")
@@ -197,12 +209,13 @@ class Pipeline:
         # 2. capture the bracket, darks, merge
         stacks, darks, lights = [], [], []
         for t_k, n_k in zip(plan.exposures, plan.frames):
-            grabs = [self._grab(t_k, plan.gain) for _ in range(n_k)]
+            cached = self.darks.cached(t_k, plan.gain)  # the runner measures the dark set before the poses
+            grabs = [self._grab(t_k, plan.gain, dark=cached) for _ in range(n_k)]
+            d = self.darks.get(t_k, plan.gain)
             lv = [g[2] for g in grabs]
             lights.extend(lv)
             stacks.append(average_frames([g[1] for g in grabs], [g[0] for g in grabs], lv, self._limit(grabs[0][0]),
                                          roi.region, light_u=[g[3] for g in grabs]))
-            d = self.darks.get(t_k, plan.gain)
             darks.append((d.mean[roi.region].astype(np.float64), d.var[roi.region].astype(np.float64)))
         hdr = merge_linear(stacks, darks, self.calib.noise)
         lv = np.asarray(lights)
@@ -236,7 +249,7 @@ class Pipeline:
                 t = min(t * es.step**2, es.max_exposure)
             else:
                 break
-            frame, px, level, _ = self._grab(t, gain)
+            frame, px, level, _ = self._grab(t, gain, meter=True)
         scale = frame.exposure * frame.gain * max(level, 1e-12)
         vals = np.maximum(px[roi.region][mask].astype(np.float64) - frame.black_level, 0.5) / scale
         rate_bright = float(np.percentile(vals, 99.9)) * (1.0 if frac_sat <= 0.001 else 4.0)

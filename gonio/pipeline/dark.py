@@ -61,6 +61,11 @@ class DarkCache:
             self._cache[key] = d
         return d
 
+    def cached(self, exposure: float, gain: float = 1.0) -> DarkFrame | None:
+        """The cached dark frame for this exposure and gain if there is a fresh one (never captures)."""
+        d = self._cache.get((float(exposure), float(gain)))
+        return d if d is not None and self._now() - d.time <= self.max_age else None
+
     def refresh(self, exposures, gain: float = 1.0) -> None:
         """Measure the dark frames of every exposure in one light-off period (the light is switched off
         once, not per exposure, and back on at ``level`` afterwards, even on error); replaces the cache."""

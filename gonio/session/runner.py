@@ -67,6 +67,8 @@ class RunnerSettings:
     #: the lab-time cost model's values the runner spends (:mod:`gonio.plan.labtime`): warm-up step,
     #: dark frames per exposure, dark re-measurement age; the estimator uses the same object
     timing: SessionTiming = field(default_factory=SessionTiming)
+    #: poses in a row whose frames stay bad before the session stops (a dead camera is not retried forever)
+    max_failed_in_a_row: int = 3
     warmup_samples: int = 64  #: photodiode samples averaged per reading
     warmup_tolerance: float = 1e-3  #: relative change between readings that counts as stable
     warmup_max: float = 1800.0  #: give up (HardwareError) after this much warm-up
@@ -142,6 +144,9 @@ class RunResult:
     measured: int = 0  #: poses appended in this run
     samples: int = 0  #: samples appended in this run
     skipped: list = field(default_factory=list)  #: (pose index, reason) of poses that could not be measured
+    #: (pose index, reason) of poses whose frames had no usable signal after every retake (black, stale,
+    #: all-saturated, wrong size): not stored; the session ends "incomplete" and resume measures them again
+    failed: list = field(default_factory=list)
     lab_time: float = 0.0
     wall_time: float = 0.0
     timings: list = field(default_factory=list)  #: per-pose dicts of lab and wall seconds
@@ -155,7 +160,8 @@ class RunResult:
         return {"status": self.status, "poses": self.measured, "samples": self.samples, "retries": self.retries,
                 "lab_time_s": self.lab_time, "wall_time_s": self.wall_time,
                 "estimated_lab_time_s": self.estimated_lab_time, "exposure": self.exposure,
-                "skipped": [{"pose": k, "reason": r} for k, r in self.skipped]}
+                "skipped": [{"pose": k, "reason": r} for k, r in self.skipped],
+                "failed": [{"pose": k, "reason": r} for k, r in self.failed]}
 
     @property
     def ok(self) -> bool:
@@ -446,7 +452,7 @@ class SessionRunner:
                 if self._refresh_darks():  # darks first (light off), then one warm-up; still fresh: nothing to say
                     self._say(f"darks measured ({len(self.dark_exposures)} exposures), light stable after "
                               f"{format_lab_time(self.clock.now() - t_warm)} lab")
-                n_todo = 0
+                n_todo = failed_run = 0
                 for k in remaining:
                     if self._stop.is_set():
                         result.status = "interrupted"
@@ -455,7 +461,13 @@ class SessionRunner:
                         continue
                     samples, meta, timing = self._pose_with_retries(k, result)
                     if samples is None:
+                        failed_run = failed_run + 1 if result.failed and result.failed[-1][0] == k else 0
+                        if failed_run >= self.settings.max_failed_in_a_row:
+                            raise HardwareError(f"camera: {failed_run} poses in a row without a usable frame "
+                                                f"({result.failed[-1][1]}): check the camera and the light",
+                                                device="camera")
                         continue
+                    failed_run = 0
                     self.store.append(k, samples, meta)
                     done.add(k)
                     result.measured += 1
@@ -470,6 +482,9 @@ class SessionRunner:
                 else:
                     if self._stop.is_set():
                         result.status = "interrupted"
+                    elif result.failed:  # never "completed" with poses whose frames were bad
+                        result.status = (f"incomplete: {len(result.failed)} poses not measured (bad camera frames: "
+                                         f"{result.failed[0][1]})")
             except SafetyStop as exc:
                 exc = self._precise(exc)
                 result.status, result.error = f"error: {exc}", exc
@@ -512,6 +527,7 @@ class SessionRunner:
     def _pose_with_retries(self, k: int, result: RunResult):
         """``(samples, meta, timing)`` of pose ``k`` or ``(None, None, None)`` if it cannot be measured."""
         from gonio.pipeline.acquire import BoardNotFound
+        from gonio.pipeline.hdr import BadFrame
 
         last: HardwareError | None = None
         for attempt in range(self.settings.pose_retries + 1):
@@ -531,4 +547,8 @@ class SessionRunner:
             except HardwareError as exc:
                 last = exc
                 self._say(f"pose {k}: {exc} (attempt {attempt + 1} of {self.settings.pose_retries + 1})")
+        if isinstance(last, BadFrame):  # retaken and retried: flag the pose, store nothing, go on
+            result.failed.append((k, str(last)))
+            self._say(f"pose {k}: not measured: {last}")
+            return None, None, None
         raise last  # type: ignore[misc]

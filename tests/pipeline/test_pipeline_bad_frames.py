@@ -115,7 +115,7 @@ def test_light_off_is_an_error(bench_factory, lambert):
     bench = bench_factory(lambert)
     pose, light = bench.place(30, 20, 20, 200)
     bench.light.set_light(False)
-    with pytest.raises(HardwareError, match="photodiode|board"):
+    with pytest.raises(HardwareError, match="photodiode|board|black"):
         bench.pipeline.measure(light, camera_pose_hint=pose)
 
 
@@ -143,3 +143,66 @@ def test_dark_frames_are_cached_and_refreshed(bench_factory, lambert):
     bench.pipeline.measure(light, plan=plan)
     assert bench.pipeline.darks.captures == 2 * n  # refreshed on schedule
     assert bench.light.output() > 0  # the light is back on
+
+
+def _uniform(value):
+    def how(frame):
+        v = frame.saturation_level if value == "max" else int(frame.black_level)
+        return dataclasses.replace(frame, pixels=np.full_like(frame.pixels, v))
+    return how
+
+
+def _stale():
+    first = []
+
+    def how(frame):
+        if not first:
+            first.append(frame)
+        return dataclasses.replace(first[0], timestamp=frame.timestamp)
+    return how
+
+
+@pytest.mark.parametrize("how, match", [(_uniform("black"), "black"), (_uniform("max"), "saturated everywhere"),
+                                        (_stale(), "identical to the previous frame")])
+def test_bracket_frames_without_signal_are_retaken_then_refused(bench_factory, lambert, how, match):
+    """Black, all-saturated and repeated frames never become samples: retaken (bounded), then an error."""
+    from gonio.pipeline.acquire import Pipeline
+    from gonio.pipeline.exposure import CapturePlan
+    from gonio.pipeline.signal import FrameSignalError
+
+    bench = bench_factory(lambert)
+    pose, light = bench.place(30, 20, 20, 200)
+    plan = CapturePlan((0.004, 0.016), (1, 1), 1.0)
+    good = bench.pipeline.measure(light, camera_pose_hint=pose, plan=plan)  # darks cached, board found
+    assert len(good.samples.good()) > 0
+    cam = Corrupting(bench.camera, how)
+    p = Pipeline(cam, bench.calib, bench.layout, light=bench.light, clock=bench.clock)
+    p.darks = bench.pipeline.darks
+    calls = []
+    orig = cam.capture
+    cam.capture = lambda *a, **k: calls.append(1) or orig(*a, **k)
+    with pytest.raises(FrameSignalError, match=match):
+        p.measure(light, camera_pose_hint=pose, plan=plan)
+    assert len(calls) <= 1 + p.settings.meter_tries + p.settings.retries + 1 + 8  # bounded retakes
+
+
+def test_one_bad_frame_is_retaken_and_the_sample_is_right(bench_factory, lambert):
+    from gonio.pipeline.acquire import Pipeline
+    from gonio.pipeline.exposure import CapturePlan
+
+    bench = bench_factory(lambert)
+    pose, light = bench.place(30, 20, 20, 200)
+    plan = CapturePlan((0.004, 0.016), (1, 1), 1.0)
+    ref = bench.pipeline.measure(light, camera_pose_hint=pose, plan=plan)
+    seq = iter([False, True, False, False])  # the first bracket frame black, then good ones
+
+    class OneBlack(Corrupting):
+        def capture(self, exposure, gain=1.0, *, timeout=10.0):
+            frame = self.camera.capture(exposure, gain)
+            return _uniform("black")(frame) if next(seq, False) else frame
+
+    p = Pipeline(OneBlack(bench.camera, None), bench.calib, bench.layout, light=bench.light, clock=bench.clock)
+    p.darks = bench.pipeline.darks
+    res = p.measure(light, camera_pose_hint=pose, plan=plan)
+    assert len(res.samples) == len(ref.samples)
+    np.testing.assert_allclose(res.samples.f, ref.samples.f, rtol=0.05)

@@ -1,0 +1,88 @@
+"""Is there a signal in a lit frame? Black, all-saturated and stale (repeated) frames are refused before use.
+
+:func:`gonio.pipeline.hdr.check_frame` checks what a frame *is* (dtype, shape, bit depth, metadata); this
+module checks what it *shows*: every lit frame of a pose holds the white reference and the ChArUco board,
+so a frame whose brightest pixels are at the black level (within the read noise) saw no light (a lens cap,
+a light that did not fire, a trigger that came too early); a frame at full scale nearly everywhere saw
+nothing but overload; and a frame bit-for-bit equal to the previous one is a driver handing out an old
+buffer (two exposures of a real sensor never agree in every pixel: shot and read noise). Any of these is
+a :class:`FrameSignalError` (a :class:`~gonio.pipeline.hdr.BadFrame`): the pipeline retakes the frame a
+bounded number of times, then the session runner flags the pose instead of storing a wrong sample.
+
+Dark frames (light off) are black by design and are not checked here; metering frames are checked for
+repeats, and for black only against a dark frame of their exposure (a dim or saturated metering frame is
+what re-metering is for; without a dark frame "black" and "dim" cannot be told apart). The bracket's
+frames, which the metering put in range, get every check.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+
+from gonio.pipeline.hdr import BadFrame
+
+__all__ = ["FrameSignalError", "SignalCheck", "BLACK_SIGMAS", "SATURATED_FRACTION"]
+
+#: A lit frame is black if not one pixel is more than this many dark-noise standard deviations (EMVA 1288
+#: temporal dark noise, from the calibration's noise model) above the black level: read noise alone reaches
+#: ~4.5 σ in a megapixel, so this is "no photon anywhere", not "dim" (a dim pose is re-metered instead).
+BLACK_SIGMAS = 6.0
+#: A frame is all-saturated if at least this fraction of its pixels is at the linear limit.
+SATURATED_FRACTION = 0.98
+
+
+class FrameSignalError(BadFrame):
+    """A lit frame without a usable signal: black, all-saturated or a repeat of the previous frame."""
+
+
+class SignalCheck:
+    """Checks lit frames one after another (it remembers the previous frame's digest to catch repeats).
+
+    ``noise`` is the calibration's :class:`~gonio.pipeline.target.NoiseModel` (its dark noise sets the black
+    threshold); ``limit(frame)`` the largest raw value on the linear response.
+    """
+
+    def __init__(self, noise, limit):
+        self.noise, self.limit = noise, limit
+        self._last: bytes | None = None
+
+    def dark_frame(self, frame, px: np.ndarray) -> None:
+        """A dark frame (light off) is black by design; it must still be a new frame and not overload."""
+        self(frame, px, levels=False)
+        sub = px[::2, ::2]
+        if np.count_nonzero(sub >= self.limit(frame)) >= SATURATED_FRACTION * sub.size:
+            raise FrameSignalError("camera dark frame: saturated everywhere with the light off", device="camera")
+
+    def __call__(self, frame, px: np.ndarray, *, levels: bool = True, dark=None) -> None:
+        """Raise :class:`FrameSignalError` naming the fault; otherwise remember the frame. ``levels=False``
+        (metering frames, which may be dim or saturated: the pipeline re-meters them) checks repeats only."""
+        digest = hashlib.blake2b(np.ascontiguousarray(px).view(np.uint8), digest_size=16).digest()
+        stale, self._last = digest == self._last, digest
+        sub = px[::2, ::2]
+        if stale and sub.min() != sub.max():  # a uniform frame (black, saturated) repeats legitimately: see below
+            raise FrameSignalError("camera frame: identical to the previous frame (stale: the camera returned an "
+                                   "old buffer)", device="camera")
+        if not levels and dark is None:
+            return
+        sub = sub.astype(np.float64)  # a quarter of the pixels is plenty for both statistics
+        if dark is not None:  # against this exposure's dark frame: dark current is not light
+            mean, var = dark.mean[::2, ::2], dark.var[::2, ::2]
+            z = (sub - mean) / np.sqrt(var + self.noise.variance(0.0, frame.gain))
+            top = float(z.max())
+            black = top <= BLACK_SIGMAS
+            what = f"no pixel more than {top:.1f} σ above its dark frame"
+        else:
+            sigma = float(np.sqrt(self.noise.variance(0.0, frame.gain)))
+            top = float(px.max())
+            black = top <= frame.black_level + max(BLACK_SIGMAS * sigma, 1.0)
+            what = f"brightest pixel {top:.0f} at the black level {frame.black_level:g}"
+        if black:
+            raise FrameSignalError(f"camera frame: black ({what}: no light reached the sensor)", device="camera")
+        if not levels:
+            return
+        limit = self.limit(frame)
+        if np.count_nonzero(sub >= limit) >= SATURATED_FRACTION * sub.size:
+            raise FrameSignalError(f"camera frame: saturated everywhere (≥ {SATURATED_FRACTION:.0%} of the pixels at "
+                                   f"{limit:g})", device="camera")
