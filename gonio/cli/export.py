@@ -109,7 +109,7 @@ def run_one(args) -> int:
     if args.format == "merl":
         write_merl(out, table)
         side = write_sidecar(sidecar_path(out), build_sidecar(table, source=str(src.path), tabulation=tab,
-                                                              manifest=src.manifest))
+                                                              manifest=src.manifest, filled=src.filled))
     elif args.format == "csv":
         write_csv(out, src.samples)
     else:

@@ -43,9 +43,11 @@ def _ranges(mask: np.ndarray) -> list[list[int]]:
     return [[int(a), int(b)] for a, b in zip(edges[::2], edges[1::2])]
 
 
-def build_sidecar(table: MerlTable, *, source: str, tabulation=None, manifest: dict | None = None) -> dict:
+def build_sidecar(table: MerlTable, *, source: str, tabulation=None, manifest: dict | None = None,
+                  filled: np.ndarray | None = None) -> dict:
     """The sidecar content of ``table``; ``tabulation`` is the :class:`gonio.tabulate.Tabulation` it came
-    from (None: the table was read as it is, e.g. a MERL file re-exported)."""
+    from (None: the table was read as it is, e.g. a MERL file re-exported, whose own sidecar's ``filled``
+    cells are carried over)."""
     from gonio import __version__
     from gonio.io.npz import build_metadata
 
@@ -53,6 +55,9 @@ def build_sidecar(table: MerlTable, *, source: str, tabulation=None, manifest: d
     if tabulation is not None and table.count is not None:
         filled = measured & (table.count == 0)
         fill_deg = float(tabulation.fill_deg)
+    elif filled is not None:
+        filled = filled & measured
+        fill_deg = float((manifest or {}).get("fill_deg", 0.0)) if filled.any() else 0.0
     else:
         filled = np.zeros(SHAPE, dtype=bool)
         fill_deg = 0.0

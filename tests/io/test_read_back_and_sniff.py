@@ -79,6 +79,11 @@ def test_filling_is_opt_in_and_announced_and_never_fitted(session, plain, tmp_pa
     # the filled cells are in the table (renderers read them) but not offered to a fit
     assert int(data.table.measured.sum()) == int(base.table.measured.sum()) + side["n_filled"]
     assert len(data.to_samples()) == len(base.to_samples())
+    # a re-export of the filled table keeps saying which cells were filled
+    again = tmp_path / "again.binary"
+    assert main(["export", str(out), "--format", "merl", "-o", str(again)]) == 0
+    side2 = json.loads((tmp_path / "again.binary.json").read_text())
+    assert side2["filled_cells"] == side["filled_cells"] and side2["fill_deg"] == 1.0
     # NPZ metadata says it too
     assert main(["export", str(session), "--format", "npz", "-o", str(tmp_path / "f.npz"), "--fill", "1"]) == 0
     meta = gonio.load(tmp_path / "f.npz")
