@@ -31,6 +31,15 @@ def _warning_line(message, category, filename, lineno, file=None, line=None) -> 
     print(f"gonio: warning: {message}", file=sys.stderr)
 
 
+def _check_common(args) -> None:
+    """Options several commands share, checked once: a seed is what NumPy's generators accept."""
+    from gonio.errors import ConfigError
+
+    seed = getattr(args, "seed", None)
+    if seed is not None and not (isinstance(seed, int) and 0 <= seed < 2 ** 32):
+        raise ConfigError.field(None, "--seed", seed, f"must be an integer in 0..{2 ** 32 - 1}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -38,6 +47,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        _check_common(args)
         with warnings.catch_warnings():  # a library warning (e.g. damaged records skipped) is one line
             warnings.simplefilter("default")
             warnings.showwarning = _warning_line

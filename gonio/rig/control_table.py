@@ -21,6 +21,10 @@ from typing import Mapping
 from gonio.config import parse_toml
 from gonio.errors import ConfigError
 
+#: Baud rates the SDK's PortHandler accepts.
+BAUD_RATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600, 1000000, 1152000,
+              2000000, 2500000, 3000000, 3500000, 4000000)
+
 
 __all__ = ["Field", "ControlTable", "load_control_table", "model_names", "table_for_model_number"]
 

@@ -33,16 +33,13 @@ from typing import Callable, Iterable, Mapping, Sequence
 import dynamixel_sdk as sdk
 
 from gonio.errors import ChecksumError, ConfigError, HardwareError, HardwareTimeout, ServoAlarm
-from gonio.rig.control_table import ControlTable, load_control_table, table_for_model_number
+from gonio.rig.control_table import BAUD_RATES, ControlTable, load_control_table, table_for_model_number
 from gonio.rig.kinematics import trapezoid_time
 
 __all__ = ["DynamixelBus", "DynamixelAxes", "AxisConfig", "describe_hardware_error", "BAUD_RATES", "MAX_ID"]
 
 #: Largest servo ID of Protocol 2.0 (253 is reserved, 254 is the broadcast ID).
 MAX_ID = 252
-#: Baud rates the SDK's PortHandler accepts.
-BAUD_RATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600, 1000000, 1152000,
-              2000000, 2500000, 3000000, 3500000, 4000000)
 _HW_BITS = {0x01: "input voltage", 0x04: "overheating", 0x08: "motor encoder", 0x10: "electrical shock",
             0x20: "overload"}
 _STATUS_ERRORS = {1: "result fail", 2: "instruction error", 3: "CRC error", 4: "data range error",

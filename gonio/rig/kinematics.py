@@ -140,6 +140,21 @@ class Joint:
     kind: str = ""  #: "azimuth", "elevation" or "turntable" (:data:`LAYOUTS`)
 
 
+def _table(src, where, value) -> dict:
+    if not isinstance(value, dict):
+        raise ConfigError.field(src, where, str(value)[:60], "must be a table")
+    return value
+
+
+def _int(src, where, table, key, lo: int, hi: int) -> int:
+    if key not in table:
+        raise ConfigError.field(src, f"{where}.{key}", None, "missing")
+    value = table[key]
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise ConfigError.field(src, f"{where}.{key}", value, f"must be an integer in [{lo}, {hi}]")
+    return value
+
+
 def _num(src, where, table, key, lo=-math.inf, hi=math.inf):
     if key not in table:
         raise ConfigError.field(src, f"{where}.{key}", None, "missing")
@@ -385,7 +400,12 @@ class Rig:
             laz, lel, lok = self._solve_arm(ti, pi_, cur[..., 0], cur[..., 1], 0, 1)
             caz, cel, cok = self._solve_arm(to, po, cur[..., 2], cur[..., 3], 2, 3)
             joints, ok = np.stack([laz, lel, caz, cel], axis=-1), lok & cok
-        wi, wo = dirs_from_angles(ti, pi_, to, po)
+        finite = np.isfinite(ti) & np.isfinite(pi_) & np.isfinite(to) & np.isfinite(po)
+        with np.errstate(invalid="ignore"):
+            wi, wo = dirs_from_angles(*(np.where(finite, a, 0.0) for a in (ti, pi_, to, po)))
+        # a non-finite angle is no pose at all: refused here, whatever the caller checked (the collision
+        # guard must not depend on its callers: a pole solution of an infinite azimuth is not a pose)
+        ok = ok & finite & np.all(np.isfinite(joints), axis=-1)
         code = np.where(ok, self.check_directions(wi, wo), np.int8(1)).astype(np.int8)
         joints = np.where((code == 0)[..., None], joints, np.nan)
         return joints, code
@@ -433,15 +453,21 @@ def load_rig(path: str | Path | None = None, *, text: str | None = None, source:
     else:
         src = source or "<rig text>"
     data = parse_toml(text, src)
-    geo = data.get("geometry", {})
+    geo = _table(src, "geometry", data.get("geometry", {}))
+    bus = _table(src, "bus", data.get("bus", {}))
     layout = data.get("layout", "arms")
-    if layout not in LAYOUTS:
+    if not isinstance(layout, str) or layout not in LAYOUTS:
         raise ConfigError.field(src, "layout", layout, f"must be one of {', '.join(LAYOUTS)}")
     wanted = LAYOUTS[layout]
     names = [n for n, _ in wanted]
     joints_t = data.get("joints", [])
-    by_name = {j.get("name"): (i, j) for i, j in enumerate(joints_t)}
-    if sorted(n for n in by_name if n) != sorted(names) or len(joints_t) != len(names):
+    if not isinstance(joints_t, list) or not all(isinstance(j, dict) for j in joints_t):
+        raise ConfigError.field(src, "joints", str(joints_t)[:60], "must be an array of tables ([[joints]])")
+    for i, j in enumerate(joints_t):
+        if not isinstance(j.get("name"), str):
+            raise ConfigError.field(src, f"joints[{i}].name", j.get("name"), "must be a joint name (a string)")
+    by_name = {j["name"]: (i, j) for i, j in enumerate(joints_t)}
+    if sorted(by_name) != sorted(names) or len(joints_t) != len(names):
         raise ConfigError.field(src, "joints.name", [j.get("name") for j in joints_t],
                                 f"layout {layout!r} needs exactly the joints {', '.join(names)}")
     joints = []
@@ -455,14 +481,17 @@ def load_rig(path: str | Path | None = None, *, text: str | None = None, source:
         lo, hi = _num(src, where, jt, "min_deg", -360, 360), _num(src, where, jt, "max_deg", -360, 360)
         if lo >= hi:
             raise ConfigError.field(src, f"{where}.max_deg", hi, f"must be greater than min_deg = {lo}")
-        sid = int(_num(src, where, jt, "servo_id", 0, 252))
+        sid = _int(src, where, jt, "servo_id", 0, 252)
         if sid in ids:
             raise ConfigError.field(src, f"{where}.servo_id", sid, "used by another joint")
         ids.add(sid)
-        direction = int(jt.get("direction", 1))
-        if direction not in (1, -1):
+        direction = jt.get("direction", 1)
+        if isinstance(direction, bool) or direction not in (1, -1):
             raise ConfigError.field(src, f"{where}.direction", direction, "must be 1 or -1")
-        joints.append(Joint(name=name, servo_id=sid, model=str(jt.get("model", "XM430-W350")),
+        model = jt.get("model", "XM430-W350")
+        if not isinstance(model, str) or not model:
+            raise ConfigError.field(src, f"{where}.model", model, "must be a servo model name (a string)")
+        joints.append(Joint(name=name, servo_id=sid, model=model,
                             gear_ratio=_num(src, where, jt, "gear_ratio", 1e-3, 1e3),
                             zero_offset_deg=_num(src, where, jt, "zero_offset_deg", 0, 360),
                             direction=direction, lower=math.radians(lo), upper=math.radians(hi),
@@ -479,8 +508,16 @@ def load_rig(path: str | Path | None = None, *, text: str | None = None, source:
     elif "light_azimuth_deg" in geo:
         raise ConfigError.field(src, "geometry.light_azimuth_deg", geo["light_azimuth_deg"],
                                 f"only for layout 'turntable' (the {layout!r} layout turns the light arm)")
-    return Rig(name=str(data.get("name", Path(src).stem)), joints=tuple(joints), light_radius=rl, camera_radius=rc,
+    rig_name = data.get("name", Path(src).stem)
+    if not isinstance(rig_name, str):
+        raise ConfigError.field(src, "name", rig_name, "must be a string")
+    baud = bus.get("baud", 1_000_000)
+    from gonio.rig.control_table import BAUD_RATES
+
+    if isinstance(baud, bool) or baud not in BAUD_RATES:
+        raise ConfigError.field(src, "bus.baud", baud, f"must be one of {', '.join(map(str, BAUD_RATES))}")
+    return Rig(name=rig_name, joints=tuple(joints), light_radius=rl, camera_radius=rc,
                camera_body_radius=_num(src, "geometry", geo, "camera_body_radius_m", 0, 10),
                light_beam_radius=_num(src, "geometry", geo, "light_beam_radius_m", 0, 10),
                min_separation=math.radians(_num(src, "geometry", geo, "min_arm_separation_deg", 0, 180)),
-               baud=int(data.get("bus", {}).get("baud", 1_000_000)), source=src, layout=layout, light_azimuth=alpha)
+               baud=int(baud), source=src, layout=layout, light_azimuth=alpha)
