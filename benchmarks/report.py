@@ -170,6 +170,26 @@ def _plot_fit(ax, tables) -> bool:
     return True
 
 
+def _realdata(q):
+    from benchmarks import bench_realdata
+
+    return bench_realdata.run(q)
+
+
+def _plot_realdata(ax, tables) -> bool:
+    t = _find(tables, "material", "cbrt", "ABC cbrt", "SGD cbrt")
+    if t is None or not t.rows:
+        return False
+    x = np.arange(len(t.rows))
+    for k, (name, label) in enumerate((("cbrt", "gonio --select"), ("ABC cbrt", "Löw 2012 ABC"),
+                                       ("SGD cbrt", "Bagher 2012 SGD"))):
+        ax.bar(x + (k - 1) * 0.27, _col(t, name).astype(float), width=0.27, label=label)
+    ax.set_xticks(x, [str(m) for m in _col(t, "material")], rotation=60, ha="right", fontsize=7)
+    ax.set(ylabel="cube-root cosine-weighted error", title="Real materials: selected fit vs published fits")
+    ax.legend()
+    return True
+
+
 TRADES = [
     Trade("plans", "Plan density and kind → lab time vs BRDF error", _plans, _plot_plans),
     Trade("capture", "Exposure brackets and frames averaged → lab time vs noise", _capture, _plot_capture),
@@ -177,6 +197,7 @@ TRADES = [
           _plot_brdf),
     Trade("merl", "Interpolation in MERL lookup → speed vs error", _merl, _plot_merl),
     Trade("fit", "Fit data subsampling → fit time vs parameter error", _fit, _plot_fit),
+    Trade("realdata", "Real measured materials → selected fit and time vs published fits", _realdata, _plot_realdata),
 ]
 
 

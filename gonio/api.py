@@ -58,7 +58,6 @@ def select(data, candidates: Sequence[str] | None = None, **options):
     simplest one the data support; ``options`` as :func:`gonio.fit.select.select`. Returns a
     :class:`gonio.fit.select.Selection` (``.winner``, one row per candidate, and the winner's
     ``.model``, ``.params``, ``.uncertainty``, ``.errors``)."""
-    from gonio.fit.select import DEFAULT_CANDIDATES
     from gonio.fit.select import select as select_samples
 
-    return select_samples(as_samples(data), tuple(candidates) if candidates else DEFAULT_CANDIDATES, **options)
+    return select_samples(as_samples(data), tuple(candidates) if candidates else None, **options)

@@ -302,6 +302,41 @@ def profile_for(layout):
     return _kernel_if(layout, "supports")
 
 
+def _gtr(data, layout, shape):
+    """Burley 2012's GTR lobe + Lambert (:class:`gonio.brdf.gtr.GTR`) on cached geometry: bases kd → 1/π,
+    ks → D_GTR(θh; α, γ) G2 F / (4 cos θi cos θo), with D of :func:`gonio.brdf.gtr.gtr_d`, the GGX Smith G2
+    written in tan²θ as in :func:`_ggx_spec`, and Schlick's F for a tied or fixed f0 (Schlick 1994, eq. 15).
+    Equality with the model is a test (tests/fit/test_real_data.py)."""
+    import numpy as np
+
+    from gonio.brdf.fresnel import schlick
+    from gonio.brdf.gtr import gtr_d
+    from gonio.brdf.microfacet import clamp_alpha
+
+    _, _, t2i, t2o, inv4 = _geometry(data)
+    alpha, gamma = float(shape["alpha"]), float(shape["gamma"])
+    a2 = float(clamp_alpha(alpha)) ** 2
+    spec = gtr_d(data.cos_h, alpha, gamma) * inv4 * 4.0
+    spec /= (1.0 + np.sqrt(1.0 + a2 * t2i)) * (1.0 + np.sqrt(1.0 + a2 * t2o))
+    fixed = layout.fixed
+    if "f0" in shape:
+        f0 = float(shape["f0"])
+        if f0 != 1.0:
+            spec = spec * (f0 + (1.0 - f0) * _schlick_m5(data))
+    else:
+        f0 = np.asarray(fixed["f0"])
+        if not np.all(f0 == 1.0):
+            spec = spec[:, None] * _fresnel_cache(data, f0, schlick)
+    basis = {"kd": np.full(len(data), 1.0 / np.pi), "ks": spec}
+    offset = None
+    for k in ("kd", "ks"):
+        if k in fixed and np.any(np.asarray(fixed[k]) != 0):
+            b = basis[k] if basis[k].ndim == 2 else basis[k][:, None]
+            offset = (0.0 if offset is None else offset) + np.asarray(fixed[k]) * b
+    return offset, [basis[k] for k in layout.colour]
+
+
+_gtr.supports = lambda L: {"alpha", "gamma"} <= set(L.shape) and ("f0" in L.fixed or "f0" in L.shape)
 _microfacet.supports = lambda L: L.shape in (["alpha"], ["alpha", "f0"]) and ("f0" in L.fixed or "f0" in L.shape)
 _lambert.supports = lambda L: L.colour == ["albedo"]
-KERNELS.update({"lambert": _lambert, "microfacet": _microfacet})
+KERNELS.update({"lambert": _lambert, "microfacet": _microfacet, "gtr": _gtr})

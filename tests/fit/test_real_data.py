@@ -128,3 +128,17 @@ def test_parameters_at_a_bound_are_reported_in_table_and_json(tmp_path, capsys):
     report = json.loads(r.to_json())
     assert report["at_bound"]["kd"] == {"r": "lower 0"}
     assert set(report["metrics"]) == {"cbrt_rel", "image_rel"} and report["energy"]["ok"]
+
+
+def test_gtr_kernel_matches_the_model():
+    from gonio.fit.kernels import kernel_for
+    from gonio.fit.layout import Basis, Layout
+
+    s = prepare(synth("gtr", {"kd": 0.2, "ks": 0.5, "alpha": 0.3, "gamma": 1.3}, n=300))
+    for fixed, shape in (({}, [0.23, 1.4, 0.3]), ({"f0": [0.9, 0.5, 0.2]}, [0.23, 0.8])):
+        L = Layout("gtr", fixed, () if fixed else ("f0",))
+        assert kernel_for(L) is not None
+        fast = Basis(L, s, kernel_for(L))(np.array(shape))
+        slow = Basis(L, s, None)(np.array(shape))
+        for a, b in zip(fast[1], slow[1]):
+            np.testing.assert_allclose(np.broadcast_to(a if a.ndim == 2 else a[:, None], b.shape), b, rtol=1e-9, atol=1e-14)

@@ -1,0 +1,241 @@
+"""Real measured materials: gonio's model selection against the published fits of the same materials.
+
+For every material of ``../shared/realdata`` (MERL tables rebuilt from Sztrajman et al. 2021's neural
+fits of the MERL measurements; the tables are generated with its ``nbrdf_to_merl.py`` into a cache
+directory outside the repository, never copied into it): ``gonio.select`` with the default candidates
+(timed, wall and CPU), the chosen model, its parameters at a bound, and its errors on the whole table in
+three measures — ``cbrt`` (cube-root cosine-weighted, Ngan et al. 2005, :mod:`gonio.fit.metrics`),
+``image`` (rendered spheres, :mod:`gonio.fit.metrics`) and ``log`` (the RMS of ln(1 + f cos θi) differences,
+the metric Löw et al. 2012 fitted with) — beside the same errors of the published fits of the same
+material evaluated on the same table:
+
+* Löw et al. 2012, ABC microfacet model (``gonio.brdf.abc``), and
+* Bagher, Soler & Holzschuch 2012, shifted gamma distribution (SGD) model (:func:`sgd_eval`),
+
+with the parameters tabulated in J. Dupuy's ``dj_brdf.h`` (GitHub jdupuy/dj_brdf, ``djb::abc::s_data``
+and ``djb::sgd::s_data``; evaluation as ``djb::abc::eval`` / ``djb::sgd::eval``).
+
+``--quick`` (and ``gonio bench --quick``) measures two materials, and only when ``$GONIO_REALDATA`` is set.
+The data are looked for in ``$GONIO_REALDATA``, then ``../shared/realdata`` from the working directory
+and from the repository; when absent the table says so. Generated tables are cached in
+``$GONIO_REALDATA_CACHE`` (default: the system temporary directory).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.common import Table
+
+MATERIALS = ("alum-bronze", "blue-metallic-paint", "brass", "chrome", "dark-blue-paint", "gold-metallic-paint",
+             "green-latex", "nickel", "pink-fabric", "red-plastic", "specular-black-phenolic", "white-diffuse-bball")
+QUICK = ("chrome", "red-plastic")
+
+#: Löw et al. 2012 ABC fits (dj_brdf.h, djb::abc::s_data): kD (RGB), A (RGB), B, C, ior.
+ABC = {
+    "alum-bronze": ((0.024514, 0.022346, 0.016220), (51.714554, 37.932693, 27.373095), 10482.133789, 0.816737, 2.236525),
+    "blue-metallic-paint": ((0.003770, 0.001030, 0.009177), (0.495104, 0.469843, 1.097868), 48.572060, 1.702520, 9.024582),
+    "brass": ((0.007722, 0.012504, 0.010908), (2975.156982, 1931.137207, 987.877380), 244596.531250, 1.136163, 2.698691),
+    "chrome": ((0.002692, 0.002520, 0.003088), (986.846741, 771.035522, 696.134583), 64661.257812, 1.905420, 99.999413),
+    "dark-blue-paint": ((0.002488, 0.007395, 0.034947), (0.541177, 0.465818, 0.482633), 24.620041, 1.411947, 1.882264),
+    "gold-metallic-paint": ((0.009164, 0.005649, 0.000424), (1.685630, 1.147257, 0.418757), 53.738525, 1.511730, 9.031934),
+    "green-latex": ((0.071622, 0.106434, 0.047407), (0.618660, 0.699535, 0.427560), 701732.25, 0.230061, 3.772501),
+    "nickel": ((0.006227, 0.006663, 0.007587), (36.614742, 32.745403, 28.906111), 705.733887, 1.945258, 5.441883),
+    "pink-fabric": ((0.252317, 0.191945, 0.194732), (0.434443, 0.450356, 0.464137), 239167.375, 0.146117, 2.710645),
+    "red-plastic": ((0.268000, 0.044432, 0.010675), (1.081538, 1.045352, 1.037089), 34.117554, 1.529797, 1.666450),
+    "specular-black-phenolic": ((0.001379, 0.001737, 0.001891), (2866.697021, 2568.570068, 3042.953613), 291094.21875,
+                                1.252478, 1.415415),
+    "white-diffuse-bball": ((0.319956, 0.272448, 0.178031), (2.104850, 2.082304, 2.011517), 75.010391, 1.940200, 1.693726),
+}
+
+#: Bagher et al. 2012 SGD fits (dj_brdf.h, djb::sgd::s_data): rhoD, rhoS, alpha, p, f0, f1, kap, lambda, c, k,
+#: theta0 (each RGB).
+SGD = {
+    "alum-bronze": ((0.0478786, 0.0313514, 0.0200638), (0.0364976, 0.664975, 0.268836), (0.014832, 0.0300126, 0.0490339),
+                    (0.459076, 0.450056, 0.529272), (6.05524, 0.235756, 0.580647), (5.05524, 0.182842, 0.476088),
+                    (46.3841, 24.5961, 14.8261), (2.60672, 2.97371, 2.7827), (1.12717e-07, 1.06401e-07, 5.27952e-08),
+                    (47.783, 36.2767, 31.6066), (0.205635, 0.066289, -0.0661091)),
+    "blue-metallic-paint": ((0.00390446, 0.00337319, 0.00848198), (0.0706771, 0.0415082, 0.104423),
+                            (0.155564, 0.139, 0.15088), (1.01719, 1.02602, 1.16153), (0.149347, 0.153181, 1.87241e-14),
+                            (-0.487331, -0.76557, -1), (4.4222, 4.59265, 3.93929), (2.54345, 2.33884, 2.24405),
+                            (6.04906e-08, 5.81858e-08, 1.2419e-07), (23.9533, 25.0641, 24.6856),
+                            (-0.34053, -0.294595, -0.258117)),
+    "brass": ((0.0301974, 0.0223812, 0.0139381), (0.0557826, 0.0376687, 0.0775998), (0.0002028, 0.000258468, 0.00096108),
+              (0.362322, 0.401593, 0.776606), (0.639886, 0.12354, 0.0197853), (-0.360114, -0.87646, -0.0919344),
+              (3517.61, 2612.49, 331.815), (3.64061, 2.87206, 0.529487), (1.01146e-07, 9.83073e-08, 5.48819e-08),
+              (312.802, 283.431, 183.091), (0.522711, 0.516719, 0.474834)),
+    "chrome": ((0.00697189, 0.00655268, 0.0101854), (0.0930656, 0.041946, 0.104558), (0.00013, 0.0002, 6e-5),
+               (0.3, 0.36, 0.26), (0.256314, 0.819565, 3.22085e-13), (-0.743686, -0.180435, -1), (2200, 2150, 4100),
+               (3.8545, 4.44817, 5.40959), (5.30781e-08, 1.04045e-07, 1.8e+10), (354.965, 349.356, 457),
+               (0.526796, 0.528469, 1.00293)),
+    "dark-blue-paint": ((0.00665057, 0.0139696, 0.0472605), (0.231099, 0.18931, 0.12528), (0.130681, 0.112103, 0.0629285),
+                        (0.238562, 0.17, 0.0157371), (0.112486, 0.106018, 0.139316), (0.0662142, 0.0682314, 0.10607),
+                        (8.0828, 9.4312, 16.8231), (4.05526, 4.09607, 4.54368), (0.00104743, 0.0035546, 0.10813),
+                        (14.347, 13.928, 13.5626), (0.11894, 0.226752, 0.524826)),
+    "gold-metallic-paint": ((0.0178625, 0.00995704, 0.00335044), (0.17127, 0.120714, 0.115473),
+                            (0.127954, 0.127825, 0.109623), (0.781093, 0.795517, 0.661313),
+                            (1.00776e-12, 1.22243e-15, 6.18432e-13), (-1, -1, -0.334497), (5.90039, 5.83556, 7.14985),
+                            (2.7548, 2.7057, 2.94348), (9.46481e-08, 1.06951e-07, 1.10733e-07),
+                            (23.8811, 23.9059, 24.2972), (-0.303345, -0.293778, -0.267019)),
+    "green-latex": ((0.0885476, 0.13061, 0.0637004), (0.177041, 0.16009, 0.101365), (0.241826, 0.21913, 0.2567),
+                    (0.175925, 0.162514, 0.326958), (0.0213854, 0.0498004, 0.0677643),
+                    (-0.0864353, -0.0518848, -0.00668045), (5.17117, 5.55867, 4.84094), (2.61304, 2.75985, 2.84236),
+                    (0.0417628, 0.0352726, 0.0128547), (8.4496, 8.91691, 9.57998), (0.296393, 0.295144, 0.18077)),
+    "nickel": ((0.0144009, 0.0115339, 0.00989042), (0.157696, 0.293022, 0.450103), (0.00556292, 0.00627392, 0.00660563),
+               (0.171288, 0.168324, 0.161023), (2.21884, 1.61986, 0.931645), (1.21884, 1.22103, 0.698939),
+               (160.907, 143.234, 136.933), (6.76252, 6.76447, 6.76278), (16179.3, 3451.04, 3453.27),
+               (36.1378, 35.1378, 33.614), (0.846825, 0.821209, 0.830948)),
+    "pink-fabric": ((0.270553, 0.223977, 0.240993), (0.299998, 0.418074, 4.07112e-13), (0.787023, 0.234345, 0.17346),
+                    (1.77629, 4.64947e-15, 0.203846), (0.121124, 0.0271041, 1), (0.0151107, 0.00273969, 0),
+                    (4.71724, 5.3941, 6.55218), (2.23471, 2.34423, 3.31887), (0.0266324, 0.11955, 0.00966123),
+                    (7.20596, 7.20326, 11.0696), (0.130136, 0.407562, 0.22282)),
+    "red-plastic": ((0.247569, 0.049382, 0.0175621), (0.406976, 0.151478, 0.176348), (0.28723, 0.0572489, 0.0624682),
+                    (0.939617, 0.0851973, 0.0701483), (0.10036, 0.178468, 0.149441), (0.0512697, 0.13191, 0.102958),
+                    (3.80564, 17.8374, 16.5631), (4.37031, 4.96092, 4.75924), (1.03822e-07, 0.0236845, 0.0321546),
+                    (18.6088, 16.1371, 15.1243), (-0.609047, 0.43547, 0.445882)),
+    "specular-black-phenolic": ((0.00212164, 0.00308282, 0.00410253), (0.0881574, 0.0923246, 0.0398117),
+                                (0.00119167, 0.000641898, 0.000186605), (0.616914, 0.578026, 0.40121),
+                                (0.122486, 0.0907984, 0.13855), (0.0482851, 0.0348218, 0.0481813),
+                                (395.656, 781.361, 3615.49), (1.18051e-05, 1.22149, 2.87626),
+                                (2.88932e-07, 6.09017e-08, 9.79363e-08), (28.9748, 200.529, 331.336),
+                                (-0.257695, 0.487197, 0.524707)),
+    "white-diffuse-bball": ((0.284726, 0.239199, 0.177227), (0.680658, 0.828508, 0.502128), (0.689731, 0.601478, 0.209084),
+                            (1.23085, 0.956833, 0.800488), (1.06465e-11, 7.45307e-19, 0.089058),
+                            (-0.109723, -0.090129, 0.0545089), (3.94153, 3.65714, 4.53186), (2.04845, 2.06125, 3.72838),
+                            (0.0434345, 0.0439287, 1.06879e-07), (6.69695, 6.79535, 20.1466),
+                            (0.178983, 0.18898, -0.494774)),
+}
+
+
+class SGDModel:
+    """Bagher, Soler & Holzschuch, "Accurate fitting of measured reflectances using a Shifted Gamma
+    micro-facet distribution", CGF 31(4), 2012, as ``djb::sgd::eval`` evaluates it (dj_brdf.h):
+
+    f = (ρd + ρs F D G1(wi) G1(wo) / (cos θi cos θo)) / π, per channel, with
+    D = K exp(−a)/(π a^p cos⁴θh), a = α + tan²θh/α;  F = f0 − f1 cos θd + (1 − cos θd)⁵ (1 − f0);
+    G1(k) = clamp(1 + Λ (1 − exp(c (max(0, θk − θ0))^k)), 0, 1).
+    A reference for this benchmark only (not a gonio model: it is not reciprocal-by-construction nor
+    energy-bounded and has 33 parameters)."""
+
+    def __init__(self, params):
+        (self.rd, self.rs, self.alpha, self.p, self.f0, self.f1, self.kap, self.lam, self.c, self.k,
+         self.theta0) = (np.asarray(v, dtype=np.float64) for v in params)
+
+    def _g1(self, cos_k):
+        x = np.maximum(0.0, np.arccos(np.clip(cos_k, -1, 1))[:, None] - self.theta0)
+        with np.errstate(all="ignore"):
+            t = 1.0 - np.exp(self.c * x ** self.k)
+        return np.clip(1.0 + self.lam * t, 0.0, 1.0)
+
+    def eval(self, wi, wo):
+        from gonio.geometry import half_vector
+
+        wi, wo = np.atleast_2d(wi), np.atleast_2d(wo)
+        h = half_vector(wi, wo)
+        cd = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)[:, None]
+        c2 = np.clip(h[:, 2], 1e-12, 1.0)[:, None] ** 2
+        a = self.alpha + ((1.0 - c2) / c2) / self.alpha
+        with np.errstate(all="ignore"):
+            d = self.kap * np.exp(-a) / (np.pi * a ** self.p * c2 * c2)
+        f = self.f0 - cd * self.f1 + (1.0 - cd) ** 5 * (1.0 - self.f0)
+        g = self._g1(wi[:, 2]) * self._g1(wo[:, 2])
+        val = (self.rd + self.rs * f * d * g / (wi[:, 2] * wo[:, 2])[:, None]) / np.pi
+        above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+        return np.where(above[:, None], np.nan_to_num(val, nan=0.0, posinf=0.0), 0.0)
+
+
+def find_realdata() -> Path | None:
+    """The realdata folder (see the module docstring), or None."""
+    env = os.environ.get("GONIO_REALDATA")
+    here = Path(__file__).resolve().parent.parent
+    for p in ([Path(env)] if env else []) + [Path.cwd().parent / "shared/realdata", here.parent / "shared/realdata",
+                                               here.parent.parent / "shared/realdata"]:
+        if (p / "nbrdf_to_merl.py").is_file():
+            return p
+    return None
+
+
+def merl_tables(src: Path, names) -> dict[str, Path]:
+    """MERL tables of ``names``, generated once into the cache directory."""
+    cache = Path(os.environ.get("GONIO_REALDATA_CACHE") or Path(tempfile.gettempdir()) / "gonio-realdata-merl")
+    cache.mkdir(parents=True, exist_ok=True)
+    missing = [n for n in names if not (cache / f"{n}.binary").is_file()]
+    if missing:
+        subprocess.run([sys.executable, str(src / "nbrdf_to_merl.py"), *missing, "-o", str(cache)], check=True,
+                       stdout=subprocess.DEVNULL)
+    return {n: cache / f"{n}.binary" for n in names}
+
+
+def errors(model, d) -> dict[str, float]:
+    """cbrt, image (gonio.fit.metrics) and log (Löw et al. 2012's metric, RMS) errors of ``model`` on ``d``."""
+    from gonio.fit.metrics import cbrt_error, image_error
+
+    m = model.eval(d.wi, d.wo)
+    c = d.cos_i[:, None]
+    log = float(np.sqrt(np.mean((np.log1p(m * c) - np.log1p(d.y * c)) ** 2)))
+    return {"cbrt": cbrt_error(m, d.y, d.cos_i), "image": image_error(model, d) or float("nan"), "log": log}
+
+
+def _short(params: dict) -> str:
+    out = []
+    for k, v in params.items():
+        if isinstance(v, str):
+            continue
+        v = np.atleast_1d(v)
+        out.append(f"{k}=" + "/".join(f"{x:.3g}" for x in v))
+    return " ".join(out)
+
+
+def run(quick: bool = False) -> list[Table]:
+    from gonio.api import as_samples
+    from gonio.brdf import make
+    from gonio.fit.data import prepare
+    from gonio.fit.select import select
+
+    t = Table("Real measured materials: gonio --select vs published fits (errors on the whole table; lower is better)",
+              ["material", "selected", "at bound", "s (wall)", "CPU s", "cbrt", "image", "log",
+               "ABC cbrt", "ABC image", "ABC log", "SGD cbrt", "SGD image", "SGD log", "≤ best published", "parameters"])
+    src = find_realdata()
+    if quick and not os.environ.get("GONIO_REALDATA"):
+        t.notes.append("quick run: the real materials are measured only with GONIO_REALDATA set (generating the tables "
+                       "takes ~3 s and 35 MB each); run `python -m benchmarks realdata` for the full table")
+        return [t]
+    if src is None:
+        t.notes.append("../shared/realdata not found (set GONIO_REALDATA): no real materials measured in this run")
+        return [t]
+    names = QUICK if quick else MATERIALS
+    paths = merl_tables(src, names)
+    wins = 0
+    for name in names:
+        s = as_samples(str(paths[name]))
+        d = prepare(s)
+        w0, c0 = time.perf_counter(), time.process_time()
+        sel = select(s)
+        wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+        ours = errors(sel.model, d)
+        abc_p = ABC[name]
+        abc = errors(make("abc", kd=abc_p[0], A=abc_p[1], B=abc_p[2], C=abc_p[3], eta=abc_p[4]), d)
+        sgd = errors(SGDModel(SGD[name]), d)
+        better = all(ours[k] <= min(abc[k], sgd[k]) for k in ("cbrt", "log"))
+        wins += better
+        bound = ", ".join(sel.winner.at_bound) or "-"
+        t.add(name, sel.model_name, bound, round(wall, 1), round(cpu, 1), ours["cbrt"], ours["image"], ours["log"],
+              abc["cbrt"], abc["image"], abc["log"], sgd["cbrt"], sgd["image"], sgd["log"],
+              "yes" if better else "no", _short(sel.params))
+    t.notes += [
+        f"{wins} of {len(names)} materials: gonio's selected fit is at least as good as the better published fit in "
+        f"both the cube-root (Ngan et al. 2005) and the log (Löw et al. 2012) error",
+        "cbrt: relative cube-root cosine-weighted RMS; image: relative RMS of spheres under point lights at 0/30/60° "
+        "(nearest measured sample per pixel, a floor of ~0.03 for an exact model); log: RMS of ln(1 + f cos θi) differences",
+        "published fits: Löw et al. 2012 ABC and Bagher et al. 2012 SGD, parameters from jdupuy/dj_brdf dj_brdf.h",
+        f"tables rebuilt from Sztrajman et al. 2021's neural fits of the MERL measurements ({src})",
+        "at bound: parameters of the selected fit at or near a bound of their range (each also in its notes)",
+    ]
+    return [t]
