@@ -46,12 +46,21 @@ class FwConfig(ctypes.Structure):
 
 def build_library() -> Path:
     """Build the host firmware library with ``make`` if it is missing or older than its sources."""
+    import fcntl
+
     srcs = list(FIRMWARE_DIR.glob("*.[ch]")) + list((FIRMWARE_DIR.parent / "c").glob("fp_codec.[ch]"))
+    LIBRARY.parent.mkdir(exist_ok=True)
+    with open(LIBRARY.parent / ".lock", "w") as lock:  # one build at a time across processes
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        _make_if_stale(srcs)
+    return LIBRARY
+
+
+def _make_if_stale(srcs) -> None:
     if not LIBRARY.exists() or LIBRARY.stat().st_mtime < max(p.stat().st_mtime for p in srcs):
         r = subprocess.run(["make", "-s", "-C", str(FIRMWARE_DIR), "host"], capture_output=True, text=True)
         if r.returncode:
             raise RuntimeError(f"building {LIBRARY} failed: {r.stderr.strip() or r.stdout.strip()}")
-    return LIBRARY
 
 
 def library():
