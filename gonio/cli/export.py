@@ -5,9 +5,11 @@ from __future__ import annotations
 
 from gonio.cli import many
 
-FORMATS = ("merl", "csv", "npz")
+FORMATS = ("merl", "csv", "npz", "mitsuba", "pbrt", "gltf")
+#: Formats of a fitted model (the source is a ``gonio fit --json`` result), not of measurements.
+RENDERERS = ("mitsuba", "pbrt", "gltf")
 #: File name ending of each format, for batch outputs.
-SUFFIX = {"merl": ".binary", "csv": ".csv", "npz": ".npz"}
+SUFFIX = {"merl": ".binary", "csv": ".csv", "npz": ".npz", "mitsuba": ".xml", "pbrt": ".pbrt", "gltf": ".gltf"}
 
 
 def add_tabulation_options(p) -> None:
@@ -32,10 +34,11 @@ def tabulation_kwargs(args) -> dict:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("export", help="export a session as MERL, CSV or NPZ",
+    p = sub.add_parser("export", help="export a session as MERL, CSV or NPZ; a fit as Mitsuba, pbrt-v4 or glTF",
                        description="Export a session directory (or an NPZ export, or a MERL file) as a MERL "
                                    "binary table, a per-sample CSV (BRDF in 1/sr) or an NPZ archive with "
-                                   "samples, table and metadata.")
+                                   "samples, table and metadata; or a fit result (gonio fit --json FIT.json) as a "
+                                   "Mitsuba 3 BSDF, a pbrt-v4 material or a glTF 2.0 material.")
     p.add_argument("source", metavar="DIR", nargs="+",
                    help="session directory (or .npz export / MERL .binary); several, a directory of them or a "
                         "glob export each one (in parallel) into the directory -o names")
@@ -43,6 +46,8 @@ def register(sub) -> None:
     p.add_argument("-o", "--output", required=True, metavar="PATH",
                    help="output file (several sources: a directory receiving SOURCE-NAME.EXT each)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    p.add_argument("--approx", action="store_true", help="mitsuba/pbrt/gltf: write the renderer's closest material "
+                   "where it cannot reproduce the model exactly, printing its error (default: refuse, naming why)")
     many.add_options(p)
     add_tabulation_options(p)
     p.set_defaults(func=run)
@@ -73,8 +78,45 @@ def export_row(source: str, opts: dict) -> dict:
     return {"output": str(out)}
 
 
+def export_model(args) -> int:
+    """``--format mitsuba|pbrt|gltf`` of a fit result (``gonio fit --json FIT.json``)."""
+    from gonio.cli.plot import load_model
+    from gonio.io.outputs import check_output
+
+    suffixes = {"mitsuba": (".xml", ".json"), "pbrt": (".pbrt",), "gltf": (".gltf",)}[args.format]
+    out = check_output(args.output, option="-o", force=args.force, suffixes=suffixes)
+    from pathlib import Path
+
+    from gonio.errors import ConfigError
+    from gonio.io.sniff import sniff
+
+    src = Path(args.source)
+    looks = sniff(src)[1] if src.is_file() else ("a directory" if src.is_dir() else "nothing (no such file)")
+    if looks != "a JSON document":
+        raise ConfigError(f"{src}: --format {args.format} exports a fit result (gonio fit --json FIT.json), "
+                          f"and this is {looks}")
+    model = load_model(args.source)
+    if args.format == "mitsuba":
+        from gonio.io.mitsuba import write_mitsuba
+
+        ex = write_mitsuba(model, out, approx=args.approx)
+    elif args.format == "pbrt":
+        from gonio.io.pbrt import write_pbrt
+
+        ex = write_pbrt(model, out, approx=args.approx, option="-o")
+    else:
+        from gonio.io.gltf import write_gltf
+
+        ex = write_gltf(model, out, approx=args.approx, option="-o")
+    print(f"wrote {out} ({ex.describe()})")
+    return 0
+
+
 def run_one(args) -> int:
     from gonio.errors import ConfigError, DataError
+
+    if args.format in RENDERERS:
+        return export_model(args)
     from gonio.io.csv import write_csv
     from gonio.io.merl import write_merl
     from gonio.io.merl_sidecar import build_sidecar, sidecar_path, write_sidecar

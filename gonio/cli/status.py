@@ -23,7 +23,8 @@ def session_status(directory) -> dict:
     plan = manifest.get("plan") or {}
     from gonio.session.records import MAX_POSE
 
-    n_plan = plan.get("n_poses", len(plan.get("poses", ()) or ())) if isinstance(plan, dict) else None
+    poses = plan.get("poses") if isinstance(plan, dict) else None
+    n_plan = plan.get("n_poses", len(poses) if isinstance(poses, list) else None) if isinstance(plan, dict) else None
     if isinstance(n_plan, bool) or not isinstance(n_plan, int) or not 0 <= n_plan <= MAX_POSE:
         n_plan = None  # a crafted or damaged plan: unknown, not a loop over 10**30 poses
     done = set(scan.records)
@@ -31,7 +32,8 @@ def session_status(directory) -> dict:
     lab = [m.get("lab_time_s", m.get("lab_time")) for _, m in scan.records.values()]
     lab = [t for t in lab if isinstance(t, (int, float))]
     last_run = manifest.get("last_run") if isinstance(manifest.get("last_run"), dict) else {}
-    runs = [r.get("lab_time_s") for r in manifest.get("runs") or () if isinstance(r, dict)]
+    runs_list = manifest.get("runs") if isinstance(manifest.get("runs"), list) else []
+    runs = [r.get("lab_time_s") for r in runs_list if isinstance(r, dict)]
     runs = [t for t in runs if isinstance(t, (int, float)) and not isinstance(t, bool)]
     current = _killed_run(manifest, scan)  # a run in progress or killed: its records' lab time so far
     if runs or current is not None:  # every finished (or killed) run recorded its lab time: the session's total
@@ -52,7 +54,7 @@ def session_status(directory) -> dict:
         "exit_status": manifest.get("exit_status"),
         "started": manifest.get("started"),
         "stopped": manifest.get("stopped"),
-        "resumes": len(manifest.get("resumes", [])),
+        "resumes": len(manifest["resumes"]) if isinstance(manifest.get("resumes"), list) else 0,
         "duplicates": scan.n_duplicates,
         "torn": scan.torn,
         "failed_poses": [(k, why) for k, why in _failed_poses(manifest) if k not in done],

@@ -120,6 +120,16 @@ class Exported:
                                 f"cannot represent the model exactly ({why}); pass --approx to write the closest "
                                 f"{self.target} material anyway")
 
+    def write(self, path, option: str) -> "Exported":
+        """Write :attr:`text` to ``path``; a failure is one line naming ``option``."""
+        from pathlib import Path
+
+        try:
+            Path(path).write_text(self.text, encoding="utf-8")
+        except OSError as exc:
+            raise ConfigError.field(option, option.lstrip("-"), str(path), f"cannot write ({exc.strerror or exc})") from None
+        return self
+
     def describe(self) -> str:
         if self.exact:
             return f"{self.target}: exact (relative error {self.error:.1e})"

@@ -184,11 +184,4 @@ def write_gltf(model, path, *, approx: bool = False, option: str = "--gltf") -> 
     """Write ``model`` as ``path`` (.gltf); refused unless exact or ``approx`` (:meth:`Exported.check`)."""
     from pathlib import Path
 
-    from gonio.errors import ConfigError
-
-    ex = to_gltf(model, name=Path(path).stem).check(approx, option)
-    try:
-        Path(path).write_text(ex.text, encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError.field(option, "gltf", str(path), f"cannot write ({exc.strerror or exc})") from None
-    return ex
+    return to_gltf(model, name=Path(path).stem).check(approx, option).write(path, option)

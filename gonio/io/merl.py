@@ -258,7 +258,10 @@ def read_merl(path) -> MerlTable:
                 raise _read_error(path, f"truncated header ({size} bytes, expected {FILE_SIZE})")
             header = np.frombuffer(raw, dtype="<i4")
             if tuple(header) != SHAPE:
-                raise _read_error(path, f"header dims {tuple(int(x) for x in header)}, expected {SHAPE}")
+                from gonio.io.sniff import describe
+
+                raise _read_error(path, f"it looks like {describe(path)} (header dims "
+                                        f"{tuple(int(x) for x in header)}, expected {SHAPE})")
             if size != FILE_SIZE:
                 what = "truncated" if size < FILE_SIZE else "trailing data"
                 raise _read_error(path, f"{what}: {size} bytes, expected {FILE_SIZE}")

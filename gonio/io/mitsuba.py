@@ -180,10 +180,4 @@ def write_mitsuba(model, path, *, approx: bool = False):
     :class:`gonio.io.approx.Exported` (its :meth:`describe` says exact or the error)."""
     from pathlib import Path
 
-    p = Path(path)
-    ex = mitsuba_export(model, p, approx=approx)
-    try:
-        p.write_text(ex.text, encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError.field("--mitsuba", "mitsuba", str(p), f"cannot write ({exc.strerror or exc})") from None
-    return ex
+    return mitsuba_export(model, Path(path), approx=approx).write(path, "--mitsuba")

@@ -158,11 +158,4 @@ def write_pbrt(model, path, *, approx: bool = False, option: str = "--pbrt") -> 
     """Write ``model`` as ``path`` (.pbrt); refused unless exact or ``approx``."""
     from pathlib import Path
 
-    from gonio.errors import ConfigError
-
-    ex = to_pbrt(model, name=Path(path).stem).check(approx, option)
-    try:
-        Path(path).write_text(ex.text, encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError.field(option, "pbrt", str(path), f"cannot write ({exc.strerror or exc})") from None
-    return ex
+    return to_pbrt(model, name=Path(path).stem).check(approx, option).write(path, option)

@@ -72,7 +72,7 @@ class SignalCheck:
             z = (sub - mean) / np.sqrt(var + self.noise.variance(0.0, frame.gain))
             top = float(z.max())
             black = top <= BLACK_SIGMAS
-            what = f"no pixel more than {top:.1f} σ above its dark frame"
+            what = f"no pixel above the noise of its dark frame, highest {top:+.1f} σ"
         else:
             sigma = float(np.sqrt(self.noise.variance(0.0, frame.gain)))
             top = float(px.max())

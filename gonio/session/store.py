@@ -148,6 +148,11 @@ def _samples_path(d: Path, manifest: Mapping[str, Any]) -> Path:
     return d / SAMPLES
 
 
+def _list(value) -> list:
+    """A manifest's list field as a list (a crafted or damaged value reads as empty, never a traceback)."""
+    return list(value) if isinstance(value, list) else []
+
+
 def _quarantine(d: Path, path: Path, scan: ScanResult) -> dict:
     """Copy the damaged lines to ``quarantine.jsonl`` (appended, fsynced: nothing is thrown away), then
     replace ``samples.jsonl`` by its good lines (a new file renamed over it). Returns the repair entry."""
@@ -352,13 +357,14 @@ class SessionStore:
                 os.close(fd)
                 fd = os.open(path, os.O_RDWR | os.O_APPEND | os.O_NOFOLLOW)
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                manifest.setdefault("repairs", []).append(repaired)
+                manifest["repairs"] = [*_list(manifest.get("repairs")), repaired]
             killed = _killed_run(manifest, scan)
             if killed is not None:
-                manifest["runs"] = [*(manifest.get("runs") or []), killed]
+                manifest["runs"] = [*_list(manifest.get("runs")), killed]
             if resume or scan.torn is not None or repaired is not None or killed is not None:
                 if resume:
-                    manifest.setdefault("resumes", []).append(
+                    manifest["resumes"] = _list(manifest.get("resumes"))
+                    manifest["resumes"].append(
                         {"at": _wall(), "previous_exit_status": manifest.get("exit_status"), "dropped_torn_record": scan.torn})
                 manifest["exit_status"] = None if resume else manifest.get("exit_status")
                 manifest["stopped"] = None if resume else manifest.get("stopped")
@@ -452,7 +458,7 @@ class SessionStore:
         run = fields.get("last_run")
         if isinstance(run, Mapping):
             entry = {k: run.get(k) for k in RUN_KEYS if k in run}
-            fields["runs"] = [*(self._manifest.get("runs") or []), {**entry, "stopped": stopped}]
+            fields["runs"] = [*_list(self._manifest.get("runs")), {**entry, "stopped": stopped}]
         self.update_manifest(**fields, exit_status=str(exit_status), stopped=stopped, running=None,
                              sample_count=self.sample_count, pose_count=len(self._records))
         self.close()

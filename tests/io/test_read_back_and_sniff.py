@@ -180,3 +180,12 @@ def test_cli_names_the_lfs_pointer_in_one_line(tmp_path, capsys):
     assert main(["fit", str(p)]) != 0
     err = capsys.readouterr().err
     assert "Git LFS pointer" in err and err.count("\n") == 1
+
+
+def test_read_merl_itself_names_what_the_file_looks_like(tmp_path):
+    from gonio.io.merl import read_merl
+
+    p = tmp_path / "gold.binary"
+    p.write_bytes(b"version https://git-lfs.github.com/spec/v1\noid sha256:0\nsize 34992012\n")
+    with pytest.raises(DataError, match=r"gold.binary: not a MERL BRDF binary: it looks like a Git LFS pointer"):
+        read_merl(p)

@@ -254,3 +254,18 @@ def test_fix_accepts_the_names_fit_prints(plastic_csv, tmp_path, capsys):
     assert main(["fit", str(plastic_csv), "--model", "lambert+ggx", "--fix", "beta=1"]) == 2
     err = capsys.readouterr().err
     assert "lambert+ggx.beta" in err and "diffuse.albedo, lobe1.ks, lobe1.alpha, lobe1.f0" in err
+
+
+def test_export_of_a_fit_json_to_every_renderer(plastic_csv, tmp_path, capsys):
+    js = tmp_path / "fit.json"
+    assert main(["fit", str(plastic_csv), "--model", "lambert+ggx", "--json", str(js)]) == 0
+    capsys.readouterr()
+    assert main(["export", str(js), "--format", "pbrt", "-o", str(tmp_path / "m.pbrt")]) == 2
+    assert "pass --approx" in capsys.readouterr().err
+    for fmt, name in (("pbrt", "m.pbrt"), ("gltf", "m.gltf"), ("mitsuba", "m.xml")):
+        assert main(["export", str(js), "--format", fmt, "-o", str(tmp_path / name), "--approx"]) == 0
+        assert "APPROXIMATION" in capsys.readouterr().out and (tmp_path / name).stat().st_size > 100
+    assert main(["export", str(plastic_csv), "--format", "gltf", "-o", str(tmp_path / "x.gltf")]) == 2
+    err = capsys.readouterr().err
+    assert "exports a fit result (gonio fit --json FIT.json), and this is a gonio CSV export" in err
+    assert err.count("\n") == 1

@@ -110,5 +110,10 @@ def test_sigkilled_and_resumed_session_is_bit_identical(tmp_path, reference):
     proc.communicate(timeout=10)
     killed = scan_samples(d / "samples.jsonl")
     assert 3 <= len(killed.records) < len(small_plan()), "the kill came too late to test anything"
+    killed_lab = max(m.get("run_lab_time_s", m["lab_time_s"]) for _, m in killed.records.values())
     assert run_session(d, resume=True).status == "completed"
     assert_bit_identical(reference, d)
+    # the killed run's lab time survives the resume (it never wrote its run summary)
+    runs = load_session(d)[0]["runs"]
+    assert [r["status"] for r in runs] == ["killed", "completed"]
+    assert runs[0]["lab_time_s"] == killed_lab > 0 and runs[0]["poses"] == len(killed.records)

@@ -84,28 +84,25 @@ def test_poses_with_only_bad_frames_are_flagged_status_lists_them_and_resume_rem
     assert session_status(d)["failed_poses"] == []
 
 
-def test_an_incomplete_session_exits_non_zero_through_the_cli(tmp_path, capsys, monkeypatch):
-    """Exit code 6 (neither success nor an error's code) and one line naming the poses and the resume."""
+def test_an_incomplete_session_exits_6_status_lists_the_poses_and_resume_measures_them(tmp_path, capsys, clean):
+    """Exit code 6 (neither success nor an error's code), one line naming the resume; through gonio.cli.main."""
     from gonio.cli import measure
-    from gonio.session.runner import SessionRunner
 
-    real = SessionRunner._pose_with_retries
-
-    def flaky(self, k, result):  # pose 1 gives only black frames
-        if k == 1:
-            self.dev.camera  # noqa: B018
-            from gonio.pipeline.signal import FrameSignalError
-
-            result.failed.append((k, str(FrameSignalError("camera frame: black (test)"))))
-            return None, None, None
-        return real(self, k, result)
-
-    monkeypatch.setattr(SessionRunner, "_pose_with_retries", flaky)
     d = tmp_path / "s"
-    code = main(["measure", "--sim", *SMALL, "--out", str(d)])
+    code = main(["measure", "--sim", *SMALL, "--sim-frame-faults", "black=0.5", "--out", str(d)])
     err = capsys.readouterr().err
     assert code == measure.INCOMPLETE_EXIT == 6
     assert "session incomplete: 1 poses not measured" in err and f"gonio resume {d}" in err
+    assert main(["status", str(d)]) == 0
+    out = capsys.readouterr().out
+    assert "failed poses: 1 not measured" in out and "pose 1: camera frame: black" in out
+    assert sorted(scan_samples(d / "samples.jsonl").records) == [0] + list(range(2, 12))
+    m = json.loads((d / "manifest.json").read_text())
+    m["sim"]["frame_faults"] = ""  # the camera was repaired
+    (d / "manifest.json").write_text(json.dumps(m))
+    assert main(["resume", str(d), "--quiet"]) == 0
+    capsys.readouterr()
+    assert load_session(d)[0]["exit_status"] == "completed" and len(load_session(d)[1]) == len(clean)
 
 
 def test_a_camera_timeout_stops_with_one_line_and_a_resume_hint_nothing_lost(tmp_path, capsys):
