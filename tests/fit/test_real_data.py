@@ -157,3 +157,14 @@ def test_large_tables_select_on_a_subset_and_report_on_all_samples():
     assert sel.winner.n_used == 50_000  # refitted on all samples (warm-started) below REFIT_MAX
     assert sel.winner.metrics["cbrt_rel"] < 1e-3 and sel.winner.energy["ok"]
     np.testing.assert_allclose(sel.params["kd"], [0.3, 0.2, 0.1], rtol=1e-3)
+
+
+def test_cli_refuses_an_unknown_candidate_before_fitting(tmp_path, capsys):
+    from gonio.io.merl import MerlTable, write_merl
+
+    wi, wo, above = cell_directions()
+    path = tmp_path / "lambert.binary"
+    write_merl(path, MerlTable(np.where(above[..., None], make("lambert", albedo=0.5).eval(wi, wo), np.nan)))
+    assert main(["fit", str(path), "--select", "--candidates", "foo,lambert"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "foo" in err and "unknown model" in err
