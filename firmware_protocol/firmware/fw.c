@@ -55,6 +55,11 @@ void fw_init(fw_t *fw, fw_hal *hal, const fw_config *cfg)
     fw->duplicates = 0;
 }
 
+void fw_cut_light(fw_t *fw)
+{
+    light_cut(fw);
+}
+
 /* E-stop loop open or interlock open: cut the light (the hardware loop also cuts the driver's enable).
  * The cut latches: the light stays off after release until the host switches it on again. */
 void fw_estop_event(fw_t *fw)

@@ -45,5 +45,6 @@ void fw_init(fw_t *fw, fw_hal *hal, const fw_config *cfg); /* power-on / reset *
 void fw_rx_byte(fw_t *fw, uint8_t b);
 void fw_poll(fw_t *fw);
 void fw_estop_event(fw_t *fw);
+void fw_cut_light(fw_t *fw); /* after a hardware cut by an interrupt: the firmware's state follows */
 
 #endif
