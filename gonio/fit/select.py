@@ -152,12 +152,13 @@ _WIDTHS = ("alpha", "roughness", "exponent", "alpha_x", "alpha_y", "sigma")
 ANISOTROPIC_CANDIDATES = ("ward",)
 #: Above this many samples, selection fits every candidate on a seeded random subset of this size and
 #: scores it on a disjoint subset of the same size (hold-out validation instead of k folds); only the
-#: winner is refitted on all samples. ``python -m benchmarks realdata`` compares the choice with the
-#: full-data one.
+#: winner is refitted on all samples up to :data:`REFIT_MAX`. (Whether a full-data selection would choose
+#: differently is not measured yet; ``python -m benchmarks realdata`` measures the chosen fits' errors on
+#: the whole tables.)
 SELECT_N = 20_000
 #: Up to this many samples the winner is refitted on all of them (warm-started from its subset fit); above
-#: it the subset fit is the result (a full MERL table has 9·10⁵ samples: refitting would cost more than
-#: the whole selection, and the benchmark shows the parameters agree).
+#: it the subset fit is the result, said in its notes (a full MERL table has 9·10⁵ samples: refitting would
+#: cost more than the whole selection); its error measures are computed on all samples.
 REFIT_MAX = 200_000
 
 
@@ -266,7 +267,7 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
     else:
         d, d_val = d_all, None
     fit_kw = {**fit_kw, "report": False}
-    if big:  # one local refinement per candidate on the subset (the benchmark shows the same choices)
+    if big:  # one local refinement per candidate on the subset (keeps a full MERL table within ~10 CPU s)
         fit_kw.setdefault("n_starts", 1)
     n_fits = len(candidates) * (1 + (folds if criterion == "cv" and not big else 0)) + 1
     bar = _progress(n_fits, progress, "select")
