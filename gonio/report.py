@@ -27,10 +27,14 @@ import numpy as np
 from gonio.errors import ConfigError
 from gonio.geometry import from_spherical
 
-__all__ = ["Entry", "load_entries", "build_report", "sphere_panel", "slice_figure", "LIGHT_ANGLES_DEG"]
+__all__ = ["Entry", "load_entries", "build_report", "sphere_panel", "slice_figure", "fit_table", "comparison_table",
+           "LIGHT_ANGLES_DEG"]
 
 #: Light polar angles (degrees from the view axis) of the sphere panels.
 LIGHT_ANGLES_DEG = (0.0, 35.0, 70.0)
+#: On-the-fly fits use at most this many samples (a random subset, seed 0): a preview in seconds, not
+#: minutes, for a full MERL table (1.46 M cells); ``gonio fit`` + ``--model FIT.json`` fits them all.
+MAX_PREVIEW_FIT_SAMPLES = 20000
 #: Incidence angles of the slices (degrees), for tables and for samples (nearest measured).
 SLICE_THETA_I_DEG = (15.0, 30.0, 45.0, 60.0)
 
@@ -77,15 +81,29 @@ def load_entries(sources: Sequence[str], fit_files: Sequence[str] = (), *, fit_m
         e = Entry(Path(src).name or str(src), data)
         if given:
             e.fits = {label: (model, rep) for label, model, rep in given}
-        else:
+        elif fit_models:
+            samples = preview_samples(data, e.notes)
             for m in fit_models:
                 try:
-                    r = gonio.fit(data, m, **(fit_kw or {}))
+                    r = gonio.fit(samples, m, **(fit_kw or {}))
                     e.fits[m] = (r.model, {**r.to_dict(), "uncertainty": r.uncertainty})
                 except Exception as exc:  # noqa: BLE001 - a failed fit is shown, not fatal to the report
                     e.notes.append(f"fit of {m} failed: {exc}")
         entries.append(e)
     return entries
+
+
+def preview_samples(data, notes: list | None = None, limit: int = MAX_PREVIEW_FIT_SAMPLES):
+    """The samples of ``data`` for an on-the-fly fit: all of them, or a random subset of ``limit``
+    (seed 0, so the report is reproducible), said in ``notes``."""
+    samples = data.to_samples()
+    if len(samples) <= limit:
+        return samples
+    index = np.sort(np.random.default_rng(0).choice(len(samples), size=limit, replace=False))
+    if notes is not None:
+        notes.append(f"models fitted on {limit} of {len(samples)} samples (random subset, for speed); "
+                     "gonio fit + --model FIT.json fits all of them")
+    return samples.subset(index)
 
 
 # -- figures ------------------------------------------------------------------------------------------
@@ -176,11 +194,21 @@ def residual_figure(entry: Entry):
     return fig
 
 
-def _png(img: np.ndarray) -> str:
+def png_bytes(img: np.ndarray, mask: np.ndarray | None = None) -> bytes:
+    """An 8-bit RGB image as PNG bytes; with ``mask``, RGBA with the pixels off the sphere transparent."""
     import cv2
 
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(img[..., ::-1]))
-    return "data:image/png;base64," + base64.b64encode(buf.tobytes()).decode("ascii")
+    bgr = img[..., ::-1]
+    if mask is not None:
+        bgr = np.concatenate([bgr, np.where(mask, 255, 0).astype(np.uint8)[..., None]], axis=-1)
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(bgr))
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def _png(img: np.ndarray, mask: np.ndarray | None = None) -> str:
+    return "data:image/png;base64," + base64.b64encode(png_bytes(img, mask)).decode("ascii")
 
 
 def sphere_images(brdf, theta_deg: float, phi_deg: float = 0.0, *, size: int = 96, white=None):
@@ -205,22 +233,22 @@ def sphere_panel(entry: Entry, *, size: int = 96) -> str:
             try:
                 rad, img, r = sphere_images(measured, theta, size=size)
                 ref, white = rad, None
-                cells.append(f'<img class="sphere" alt="measured, light at {theta:g} deg" src="{_png(img)}">'
+                cells.append(f'<img class="sphere" alt="measured, light at {theta:g} deg" src="{_png(img, r.mask)}">'
                              + (f"<br><small>{r.missing} px not measured</small>" if r.missing else ""))
             except Exception as exc:  # noqa: BLE001 - e.g. anisotropic samples that do not tabulate
                 cells.append(f"<small>{html.escape(str(exc))[:120]}</small>")
                 ref = None
         errs = []
         for label, (model, _rep) in entry.fits.items():
-            rad, img, _r = sphere_images(model, theta, size=size,
+            rad, img, rm = sphere_images(model, theta, size=size,
                                          white=float(np.percentile(ref[ref > 0], 99.5)) if ref is not None and np.any(ref > 0) else None)
-            cells.append(f'<img class="sphere" alt="{html.escape(label)}, light at {theta:g} deg" src="{_png(img)}">')
+            cells.append(f'<img class="sphere" alt="{html.escape(label)}, light at {theta:g} deg" src="{_png(img, rm.mask)}">')
             if ref is not None:
                 with np.errstate(divide="ignore", invalid="ignore"):
                     rel = np.where(ref > 0, np.abs(rad - ref) / ref, 0.0).mean(axis=-1)
                 heat = np.clip(rel / 0.5, 0, 1)  # 0 .. 50 % relative error
                 err_img = np.stack([255 * heat, 255 * (1 - heat) * (heat > 0), 0 * heat], axis=-1).astype(np.uint8)
-                errs.append(f'<img class="sphere" alt="error of {html.escape(label)}" src="{_png(err_img)}"><br>'
+                errs.append(f'<img class="sphere" alt="error of {html.escape(label)}" src="{_png(err_img, rm.mask)}"><br>'
                             f"<small>median {100 * float(np.median(rel[ref.sum(-1) > 0])) if np.any(ref.sum(-1) > 0) else 0:.1f} %</small>")
         cells += errs
         rows.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
@@ -229,18 +257,59 @@ def sphere_panel(entry: Entry, *, size: int = 96) -> str:
             "red = 50 % or more.</small></p>")
 
 
+def _bounds(model) -> dict:
+    try:
+        return dict(model.bounds())
+    except Exception:  # noqa: BLE001 - a measured table or a model without fitting bounds
+        return {}
+
+
+def _on_bound(v, lo, hi) -> bool:
+    """A value within 1e-9 (relative) of its bound: the fit is limited there, not identified by the data."""
+    vals = np.atleast_1d(np.asarray(v, dtype=np.float64))
+    tol = 1e-9 * np.maximum(1.0, np.abs(vals))
+    return bool(np.any(np.abs(vals - lo) <= tol) or (np.isfinite(hi) and np.any(np.abs(vals - hi) <= tol)))
+
+
 def fit_table(entry: Entry) -> str:
+    """Per model: error, then parameter, value, standard uncertainty, fitting bounds and whether the value
+    sits on a bound (then it is limited by the bound, not determined by the data)."""
     rows = []
-    for label, (_model, rep) in entry.fits.items():
+    for label, (model, rep) in entry.fits.items():
         unc = rep.get("uncertainty") or {}
         err = rep.get("error") or {}
-        params = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(_fmt(v))}</td><td>{html.escape(_fmt(unc.get(k)))}</td></tr>"
-                         for k, v in (rep.get("params") or {}).items())
+        bounds = _bounds(model)
+        lines = []
+        for k, v in (rep.get("params") or {}).items():
+            b = bounds.get(k)
+            flag = ""
+            if b is not None and not isinstance(v, str):
+                try:
+                    flag = "on a bound" if _on_bound(v, *b) else ""
+                except (TypeError, ValueError):
+                    flag = ""
+            lines.append(f"<tr><td>{html.escape(k)}</td><td>{html.escape(_fmt(v))}</td>"
+                         f"<td>{html.escape(_fmt(unc.get(k)))}</td>"
+                         f"<td>{html.escape('[' + _fmt(float(b[0])) + ', ' + _fmt(float(b[1])) + ']') if b else '–'}</td>"
+                         f"<td class='flag'>{flag}</td></tr>")
         notes = "".join(f"<li>{html.escape(str(n))}</li>" for n in rep.get("notes") or [])
         rows.append(f"<h4>{html.escape(label)}</h4><p>relative RMS error {_fmt(err.get('rms_rel'))}, "
                     f"χ²/dof {_fmt(err.get('chi2_red'))}</p><table class='params'><tr><th>parameter</th><th>value</th>"
-                    f"<th>standard uncertainty</th></tr>{params}</table>" + (f"<ul>{notes}</ul>" if notes else ""))
+                    f"<th>standard uncertainty</th><th>bounds</th><th></th></tr>{''.join(lines)}</table>"
+                    + (f"<ul>{notes}</ul>" if notes else ""))
     return "".join(rows) or "<p>No model fitted.</p>"
+
+
+def comparison_table(entries: Sequence[Entry]) -> str:
+    """Several inputs: one row per input and model, with the fit's errors, to compare at a glance."""
+    rows = []
+    for k, e in enumerate(entries):
+        for label, (_model, rep) in e.fits.items() or [("–", (None, {}))]:
+            err = rep.get("error") or {}
+            rows.append(f"<tr><td><a href='#entry-{k}'>{html.escape(e.name)}</a></td><td>{html.escape(str(e.data.kind))}</td>"
+                        f"<td>{html.escape(label)}</td><td>{_fmt(err.get('rms_rel'))}</td><td>{_fmt(err.get('chi2_red'))}</td></tr>")
+    return ("<table class='comparison'><tr><th>input</th><th>kind</th><th>model</th><th>relative RMS error</th>"
+            "<th>χ²/dof</th></tr>" + "".join(rows) + "</table>")
 
 
 def _fmt(v) -> str:
@@ -291,6 +360,8 @@ def build_report(entries: Sequence[Entry], *, title: str = "gonio report", extra
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
              f"<style>{STYLE}</style><script type='text/javascript'>{offline.get_plotlyjs()}</script></head><body>",
              f"<h1>{html.escape(title)}</h1>"]
+    if len(entries) > 1:
+        parts.append(f"<h2>Comparison</h2>{comparison_table(entries)}")
     for k, e in enumerate(entries):
         figs = [coverage_figure(e), *(slice_figure(e, t) for t in slice_angles(e)), residual_figure(e)]
         parts.append(f"<section class='entry' id='entry-{k}'><h2>{html.escape(e.name)}</h2>{summary_html(e)}")

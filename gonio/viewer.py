@@ -15,7 +15,7 @@ import threading
 import urllib.parse
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
-from gonio.report import Entry, build_report, slice_figure, sphere_images
+from gonio.report import Entry, build_report, png_bytes, slice_figure, sphere_images
 
 __all__ = ["make_server", "interactive_panel"]
 
@@ -67,7 +67,6 @@ def _number(query: dict, key: str, lo: float, hi: float, default: float) -> floa
 
 def make_server(entries: list[Entry], *, port: int = 0, title: str = "gonio view") -> ThreadingHTTPServer:
     """An HTTP server on 127.0.0.1 (``port`` 0: a free one; ``server.server_address[1]`` says which)."""
-    import cv2
 
     page = build_report(entries, title=title,
                         extra_html="".join(interactive_panel(k, e) for k, e in enumerate(entries))).encode("utf-8")
@@ -100,14 +99,14 @@ def make_server(entries: list[Entry], *, port: int = 0, title: str = "gonio view
                 j = int(_number(q, "which", 0, len(sources) - 1, 0))
                 with lock:  # numpy/cv2 are thread-safe here, but one render at a time keeps memory flat
                     try:
-                        _rad, img, _r = sphere_images(sources[j], _number(q, "theta", 0, 89, 35),
-                                                      _number(q, "phi", 0, 360, 0), size=128)
+                        _rad, img, r = sphere_images(sources[j], _number(q, "theta", 0, 89, 35),
+                                                     _number(q, "phi", 0, 360, 0), size=128)
+                        mask = r.mask
                     except Exception:  # noqa: BLE001 - e.g. samples that do not tabulate: a black sphere
                         import numpy as np
 
-                        img = np.zeros((128, 128, 3), np.uint8)
-                ok, buf = cv2.imencode(".png", img[..., ::-1].copy())
-                return self._send(200, buf.tobytes(), "image/png")
+                        img, mask = np.zeros((128, 128, 3), np.uint8), None
+                return self._send(200, png_bytes(img, mask), "image/png")
             if url.path == "/slice.json":
                 fig = slice_figure(e, _number(q, "theta_i", 0, 85, 30))
                 return self._send(200, fig.to_json().encode("utf-8"), "application/json")

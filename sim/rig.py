@@ -41,6 +41,7 @@ from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
 from gonio.rig.control_table import load_control_table
 from gonio.rig.interfaces import Frame
 from gonio.rig.kinematics import Rig, load_rig
+from sim.as_built import AsBuilt, parse_as_built
 from sim.camera import SensorModel, SimCamera, SimScene
 from sim.clock import SimClock
 from sim.controller import ControllerEmulator
@@ -48,7 +49,7 @@ from sim.faults import FrameFaults, LinkFaults
 from sim.seeding import SETUP, pose_rng
 from sim.servo_bus import HW_OVERLOAD, ServoBus
 
-__all__ = ["SimRig", "SimRigConfig", "RigCamera", "RecordingServoBus", "DEFAULT_MATERIAL", "PARK_DEG"]
+__all__ = ["AsBuilt", "parse_as_built", "SimRig", "SimRigConfig", "RigCamera", "RecordingServoBus", "DEFAULT_MATERIAL", "PARK_DEG"]
 
 #: Material of the sample when none is given (a plastic-like GGX microfacet).
 DEFAULT_MATERIAL = {"model": "microfacet",
@@ -82,9 +83,18 @@ class SimRigConfig:
     camera_link: str = "direct"
     #: Camera faults, :meth:`sim.faults.FrameFaults.from_spec` (``"black=0.05,stale=0.01"``; empty: none).
     frame_faults: str = ""
+    #: The rig controller behind its pty: ``firmware`` (the reference firmware's C code, host build,
+    #: :mod:`sim.firmware`) or ``python`` (the independent Python implementation, :mod:`sim.controller`).
+    controller: str = "firmware"
+    #: As-built geometry (:mod:`sim.as_built`): ``None`` the declared (perfect) rig, else
+    #: :meth:`sim.as_built.AsBuilt.to_dict` (the assembly errors the simulator renders with).
+    as_built: dict | None = None
 
     def to_dict(self) -> dict:
-        return dict(self.__dict__)
+        d = dict(self.__dict__)
+        if d["as_built"] is None:  # a perfect rig's manifest stays what it was before as-built rigs existed
+            del d["as_built"]
+        return d
 
     def calibration(self) -> CameraCalibration:
         """The simulated camera's exact calibration (ideal pinhole, no distortion, the sensor's noise
@@ -101,6 +111,16 @@ class SimRigConfig:
     def from_dict(cls, d) -> "SimRigConfig":
         known = set(cls.__dataclass_fields__)
         return cls(**{k: v for k, v in dict(d).items() if k in known})
+
+
+def controller_class(kind: str):
+    """The emulator class of SimRigConfig.controller: ``firmware`` or ``python``."""
+    if kind == "python":
+        return ControllerEmulator
+    if kind == "firmware":
+        from sim.firmware import FirmwareController
+        return FirmwareController
+    raise ValueError(f"sim rig: controller = {kind!r}: must be 'firmware' or 'python'")
 
 
 class RecordingServoBus(ServoBus):
@@ -161,9 +181,9 @@ class RigCamera:
             r.sim_camera.reseed(pose_rng(r.config.seed, SETUP, "dark"))
         self._dark = dark
         joints = r.actual_joints()
-        position, R = r.rig.camera_pose(joints)
+        position, R = r.geometry.camera_pose(joints)  # the true (as-built) geometry, not the declared one
         r.sim_camera.set_pose(CameraPose(R, -R @ position))
-        r.sim_camera.set_light(r.rig.light_position(joints))
+        r.sim_camera.set_light(r.geometry.light_position(joints))
         return r.frame_faults.apply(lambda: r.sim_camera.capture(exposure, gain, timeout=timeout))
 
     def close(self) -> None:
@@ -200,6 +220,8 @@ class SimRig:
         #: else the config's ``frame_faults`` spec
         self.frame_faults = camera_faults or FrameFaults.from_spec(cfg.frame_faults, seed=cfg.seed)
         self.rig = rig if isinstance(rig, Rig) else load_rig(rig)
+        #: the geometry the simulator renders with: the declared rig, or its as-built version (sim/as_built.py)
+        self.geometry = self.rig if cfg.as_built is None else AsBuilt.from_dict(self.rig, cfg.as_built)
         if material is None or isinstance(material, dict):
             m = material or DEFAULT_MATERIAL
             material = make(m["model"], source="sim material", **m.get("params", {}))
@@ -210,7 +232,8 @@ class SimRig:
         self.servo_bus = RecordingServoBus({j.servo_id: j.model for j in self.rig.joints}, self.clock, seed=cfg.seed,
                                            noise_ticks=cfg.servo_noise_ticks, backlash_ticks=cfg.backlash_ticks,
                                            faults=servo_faults, positions=park)
-        self.controller = ControllerEmulator(self.clock, faults=controller_faults, seed=cfg.seed + 1,
+        self.controller = controller_class(cfg.controller)(
+                                             self.clock, faults=controller_faults, seed=cfg.seed + 1,
                                              warmup_depth=cfg.warmup_depth, warmup_tau=cfg.warmup_tau,
                                              pd_noise=cfg.pd_noise)
         self.sensor = SensorModel(bit_depth=cfg.bit_depth)

@@ -70,6 +70,10 @@ def register(sub) -> None:
                    help="gige: the simulated camera is served as a GigE Vision device on 127.0.0.1 and read "
                         "through gonio's Aravis backend, an 8-bit RGB8 sensor (needs gir1.2-aravis-0.8 and "
                         "gonio[genicam]); direct (default): called in-process")
+    p.add_argument("--sim-as-built", metavar="SEED|ERRORS.toml", default="",
+                   help="simulate an as-built rig: assembly errors (servo zeros, axis tilts and offsets, arm lengths, "
+                        "sample height) drawn from SEED or read from a TOML file; the host still uses the declared "
+                        "rig file (sim/as_built.py). Recorded in the manifest's sim.as_built")
     p.add_argument("--plan-file", metavar="PLAN.json", help="run the plan saved by 'gonio plan NAME --out PLAN.json' "
                    "(validated and solved again on this rig) instead of generating one")
     p.add_argument("--out", metavar="DIR", help="new session directory (default ./gonio-session-YYYYmmdd-HHMMSS)")
@@ -380,6 +384,14 @@ def _checked_sim(sim, where: str) -> dict:
                 raise DataError(f"{where}: sim.frame_faults = {str(value)[:40]!r}: {exc}") from None
             out[key] = value
             continue
+        if key == "as_built":
+            if value is not None:
+                from gonio.rig.chain import ChainErrors
+
+                errors = {k: v for k, v in value.items() if k != "source"} if isinstance(value, dict) else value
+                ChainErrors.from_dict(errors, source=f"{where}: sim.as_built")  # ConfigError naming the field
+            out[key] = value
+            continue
         if key == "camera_link":
             if value not in ("direct", "gige"):
                 raise DataError(f"{where}: sim.camera_link = {str(value)[:40]!r}: expected 'direct' or 'gige'")
@@ -522,6 +534,8 @@ def run_measure(args) -> int:
             except ValueError as exc:
                 raise ConfigError.field("--sim-frame-faults", "frame faults", args.sim_frame_faults, str(exc)) from None
             link["frame_faults"] = args.sim_frame_faults
+        if getattr(args, "sim_as_built", ""):
+            link["as_built"] = plugin("sim.rig").parse_as_built(rig, args.sim_as_built).to_dict()
         config = SimRigConfig.at_resolution(w, h, seed=args.seed, **link)
         manifest["sim"] = config.to_dict()
         manifest["calibration"] = _calibration_dict(config.calibration())

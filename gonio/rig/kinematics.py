@@ -41,7 +41,7 @@ mode (ROBOTIS e-manual, "Profile Velocity(112)"), which the servo emulator uses 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -181,6 +181,12 @@ class Rig:
     source: str = "<rig>"
     layout: str = "arms"
     light_azimuth: float = 0.0
+    #: The rig's estimated assembly errors (:class:`gonio.rig.chain.ChainErrors`, from the ``[calibration]``
+    #: table ``gonio calibrate rig`` writes), or ``None``: the declared geometry. When present, the forward
+    #: kinematics (:meth:`directions`, :meth:`forward`, :meth:`light_position`, :meth:`camera_pose`) follow
+    #: the calibrated chain (:func:`gonio.rig.chain.chain_forward`); the inverse (:meth:`solve_many`) stays the
+    #: declared one, so a pose lands within the calibration's corrections of its target and is recorded where it is.
+    geometry_errors: object = field(default=None, compare=False)
 
     def within(self, other: "Rig") -> "Rig":
         """This rig with every joint's limits, speed and acceleration no wider than ``other``'s joint of
@@ -263,6 +269,10 @@ class Rig:
 
     def directions(self, joints) -> tuple[np.ndarray, np.ndarray]:
         """Unit directions ``(wi, wo)`` (toward light, toward camera; sample frame) for joints ``(..., 4)``."""
+        if self.geometry_errors is not None:
+            from gonio.rig.chain import true_directions
+
+            return true_directions(self, self.geometry_errors, joints)
         laz, lel, caz, cel = self.arm_angles(joints)
         return self._arm_dir(laz, lel), self._arm_dir(caz, cel)
 
@@ -270,6 +280,13 @@ class Rig:
         """BRDF angles ``(θi, φi, θo, φo)`` of joints ``(..., 4)``: per arm (:meth:`arm_angles`)
         θ = |el|, φ = az (+π if el < 0), φ wrapped to [0, 2π). At the pole (el = 0) φ is the arm's
         azimuth in the sample frame."""
+        if self.geometry_errors is not None:  # from the calibrated directions (θ = polar angle, φ in [0, 2π))
+            from gonio.geometry import to_spherical
+
+            wi, wo = self.directions(joints)
+            ti, pi_ = to_spherical(wi)
+            to, po = to_spherical(wo)
+            return ti, np.mod(pi_, _TWO_PI), to, np.mod(po, _TWO_PI)
         laz, lel, caz, cel = self.arm_angles(joints)
 
         def arm(az, el):
@@ -281,6 +298,10 @@ class Rig:
 
     def light_position(self, joints) -> np.ndarray:
         """Light position in the sample frame, metres, ``(..., 3)``; it points at the origin."""
+        if self.geometry_errors is not None:
+            from gonio.rig.chain import chain_forward
+
+            return chain_forward(self, self.geometry_errors, joints)[0]
         return self.light_radius * self.directions(joints)[0]
 
     def camera_pose(self, joints) -> tuple[np.ndarray, np.ndarray]:
@@ -291,6 +312,11 @@ class Rig:
         convention), so a sample-frame point ``p`` is ``R @ (p - position)`` in camera coordinates.
         x is the camera arm's azimuth tangent (in the sample frame), defined everywhere including the pole.
         """
+        if self.geometry_errors is not None:
+            from gonio.rig.chain import chain_forward
+
+            _, position, R = chain_forward(self, self.geometry_errors, joints)
+            return position, R
         _, _, az, el = self.arm_angles(joints)
         wo = self._arm_dir(az, el)
         z = -wo
@@ -516,8 +542,18 @@ def load_rig(path: str | Path | None = None, *, text: str | None = None, source:
 
     if isinstance(baud, bool) or baud not in BAUD_RATES:
         raise ConfigError.field(src, "bus.baud", baud, f"must be one of {', '.join(map(str, BAUD_RATES))}")
+    errors = None
+    if "calibration" in data:  # written by `gonio calibrate rig` (gonio.rig.geocal.write_calibrated_rig)
+        from gonio.rig.chain import ChainErrors
+
+        cal = data["calibration"]
+        if not isinstance(cal, dict):
+            raise ConfigError.field(src, "calibration", str(cal)[:40], "must be a table of estimated assembly errors")
+        errors = ChainErrors.from_dict({k: v for k, v in cal.items() if k in ("light", "camera", "turntable",
+                                                                              "sample_height_mm")},
+                                       source=f"{src}: calibration")
     return Rig(name=rig_name, joints=tuple(joints), light_radius=rl, camera_radius=rc,
                camera_body_radius=_num(src, "geometry", geo, "camera_body_radius_m", 0, 10),
                light_beam_radius=_num(src, "geometry", geo, "light_beam_radius_m", 0, 10),
                min_separation=math.radians(_num(src, "geometry", geo, "min_arm_separation_deg", 0, 180)),
-               baud=int(baud), source=src, layout=layout, light_azimuth=alpha)
+               baud=int(baud), source=src, layout=layout, light_azimuth=alpha, geometry_errors=errors)

@@ -120,6 +120,7 @@ def test_report_is_self_contained_and_every_figure_renders(inputs, browser, tmp_
     text = out.read_text()
     import re
 
+    assert "random subset" in text  # the table's on-the-fly fit is a preview on a subset, and says so
     assert not re.search(r"<(script|link|img)[^>]+(src|href)=[\"']https?:", text)  # nothing fetched from a network
     ctx, page, errors = _open(browser, out.as_uri(), offline=True)
     try:
@@ -133,6 +134,7 @@ def test_report_is_self_contained_and_every_figure_renders(inputs, browser, tmp_
         assert spheres.count() >= 2 * 3
         widths = page.evaluate("Array.from(document.querySelectorAll('img.sphere')).map(i => i.naturalWidth)")
         assert min(widths) > 0
+        assert page.locator("table.comparison tr").count() == 1 + 2  # two inputs: one comparison table
         assert not errors, errors
         shot = tmp_path / "report.png"
         page.screenshot(path=str(shot), full_page=True)
@@ -193,3 +195,29 @@ def test_view_command_serves_and_stops_cleanly_on_ctrl_c(inputs):
     finally:
         proc.kill()
     assert proc.returncode == 0 and "stopped" in out and "Traceback" not in err
+
+
+def test_model_json_gives_bounds_flags_and_transparent_spheres(inputs, tmp_path, capsys):
+    import base64
+    import re
+
+    import cv2
+
+    from gonio.report import Entry, fit_table
+
+    session, _ = inputs
+    fit_json = tmp_path / "fit.json"
+    assert main(["fit", str(session), "--model", "microfacet", "--json", str(fit_json), "--quiet"]) == 0
+    out = tmp_path / "r.html"
+    assert main(["report", str(session), "--model", str(fit_json), "-o", str(out)]) == 0
+    text = out.read_text()
+    assert "microfacet (fit.json)" in text and "<th>bounds</th>" in text and "<h2>Comparison</h2>" not in text
+    uri = re.search(r'class="sphere" alt="microfacet[^"]*" src="data:image/png;base64,([^"]+)"', text).group(1)
+    img = cv2.imdecode(np.frombuffer(base64.b64decode(uri), np.uint8), cv2.IMREAD_UNCHANGED)
+    assert img.shape[2] == 4 and img[0, 0, 3] == 0 and img[img.shape[0] // 2, img.shape[1] // 2, 3] == 255
+    # a value on its fitting bound is said so; one inside is not
+    model = make("lambert", albedo=[0.0, 0.5, 0.5])
+    rep = {"params": {"albedo": [0.0, 0.5, 0.5]}, "uncertainty": {"albedo": [0.01, 0.01, 0.01]}}
+    assert "on a bound" in fit_table(Entry("x", None, fits={"lambert": (model, rep)}))
+    rep["params"]["albedo"] = [0.2, 0.5, 0.5]
+    assert "on a bound" not in fit_table(Entry("x", None, fits={"lambert": (model, rep)}))

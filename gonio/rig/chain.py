@@ -1,0 +1,206 @@
+"""Kinematic chain of a gonio rig with its assembly errors: where the light and the camera really are.
+
+The declared rig (:class:`gonio.rig.kinematics.Rig`) assumes a perfect build: both arms' azimuth axes
+are the sample normal through the sample centre, the elevation axes are orthogonal to them and meet
+them at the sample centre, the servo zeros are exact, the light and the camera sit on their arcs at
+exactly the declared radii. :class:`ChainErrors` names every deviation from that, and
+:func:`chain_forward` gives the true light position and camera pose for joint angles ``(..., 4)``.
+It is used in both directions: the simulator's *as-built* rig renders with it (``sim/as_built.py``),
+and the geometric calibration (:mod:`gonio.rig.geocal`) estimates its parameters.
+
+Model (one arm; a Denavit–Hartenberg-like product of exponentials, Hayati & Mirmirani 1985's
+"modified" parameters for near-parallel/near-orthogonal axes; Lynch & Park, *Modern Robotics*, §4.1):
+
+    Q   = A(tx, ty) · Rz(az + δaz) · Rx(β) · Ry(el + δel)
+    c   = (ox, oy, 0) + A(tx, ty) · Rz(az + δaz) · (ex, 0, ez)
+    p   = c + Q · (0, lat, r + δr)                 (device position, lab frame)
+    camera: looks along −Q·ẑ (at the arc centre), its x axis along Q·ŷ
+
+``A(tx, ty) = Rx(tx)·Ry(ty)`` tilts the azimuth axis, ``β`` is the elevation axis's non-orthogonality,
+``(ox, oy)`` is where the azimuth axis pierces the sample plane, ``(ex, ez)`` the arc centre's offset
+from the azimuth axis in the arm's plane, ``lat`` the device's offset from the arm's plane (along the
+elevation axis). The turntable layout turns the lab into the sample frame by
+``(A(tx_s, ty_s) · Rz(sample_az + δs))ᵀ``. The sample surface is ``dh`` above the declared centre;
+every position is finally expressed relative to it. ``dh`` and a common ``ez`` of both arms have
+the same effect (only ``ez − dh`` is observable): :data:`ARM_FIELDS` keeps ``ez`` per arm and the
+calibration reports ``dh`` as not identified.
+
+Units in :class:`ChainErrors`: angles in degrees, lengths in millimetres (what a lab types in a TOML).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gonio.errors import ConfigError
+
+__all__ = ["ARM_FIELDS", "TURNTABLE_FIELDS", "ChainErrors", "chain_forward", "true_directions", "angle_between_deg"]
+
+#: Per-arm error fields: name → (unit, description).
+ARM_FIELDS = {
+    "d_az_deg": ("deg", "azimuth servo zero-offset error"),
+    "d_el_deg": ("deg", "elevation servo zero-offset error"),
+    "tilt_x_deg": ("deg", "azimuth axis tilt about x"),
+    "tilt_y_deg": ("deg", "azimuth axis tilt about y"),
+    "nonorth_deg": ("deg", "elevation axis non-orthogonality to the azimuth axis"),
+    "axis_x_mm": ("mm", "azimuth axis miss of the sample centre, x"),
+    "axis_y_mm": ("mm", "azimuth axis miss of the sample centre, y"),
+    "arc_x_mm": ("mm", "arc centre offset from the azimuth axis, in the arm plane"),
+    "arc_z_mm": ("mm", "arc centre height above the sample surface"),
+    "d_radius_mm": ("mm", "device distance error from the arc centre"),
+    "lateral_mm": ("mm", "device offset from the arm plane (along the elevation axis)"),
+}
+#: Turntable error fields (turntable layout only).
+TURNTABLE_FIELDS = {
+    "d_az_deg": ("deg", "turntable zero-offset error"),
+    "tilt_x_deg": ("deg", "turntable axis tilt about x"),
+    "tilt_y_deg": ("deg", "turntable axis tilt about y"),
+}
+
+
+def _zero_arm() -> dict:
+    return {k: 0.0 for k in ARM_FIELDS}
+
+
+@dataclass
+class ChainErrors:
+    """Assembly errors of a rig (all zero: the declared, perfect rig). See the module docstring."""
+
+    light: dict = field(default_factory=_zero_arm)
+    camera: dict = field(default_factory=_zero_arm)
+    turntable: dict = field(default_factory=lambda: {k: 0.0 for k in TURNTABLE_FIELDS})
+    sample_height_mm: float = 0.0
+
+    def folded(self) -> "ChainErrors":
+        """The same rig with the sample height folded into both arcs' ``arc_z_mm`` (what images of the
+        sample plane can determine; equal up to the axis tilts times the height, < 0.01 mm)."""
+        light, camera = dict(self.light), dict(self.camera)
+        light["arc_z_mm"] -= self.sample_height_mm
+        camera["arc_z_mm"] -= self.sample_height_mm
+        return ChainErrors(light, camera, dict(self.turntable), 0.0)
+
+    # -- flat parameter vector (the calibration's unknowns) ---------------------------------------
+    def names(self) -> list[str]:
+        return ([f"light.{k}" for k in ARM_FIELDS] + [f"camera.{k}" for k in ARM_FIELDS]
+                + [f"turntable.{k}" for k in TURNTABLE_FIELDS] + ["sample_height_mm"])
+
+    def vector(self) -> np.ndarray:
+        return np.array([self.light[k] for k in ARM_FIELDS] + [self.camera[k] for k in ARM_FIELDS]
+                        + [self.turntable[k] for k in TURNTABLE_FIELDS] + [self.sample_height_mm], dtype=np.float64)
+
+    @classmethod
+    def from_vector(cls, v) -> "ChainErrors":
+        v = [float(x) for x in np.asarray(v, dtype=np.float64).ravel()]
+        na, nt = len(ARM_FIELDS), len(TURNTABLE_FIELDS)
+        return cls(dict(zip(ARM_FIELDS, v[:na])), dict(zip(ARM_FIELDS, v[na:2 * na])),
+                   dict(zip(TURNTABLE_FIELDS, v[2 * na:2 * na + nt])), v[2 * na + nt])
+
+    def to_dict(self) -> dict:
+        return {"light": dict(self.light), "camera": dict(self.camera), "turntable": dict(self.turntable),
+                "sample_height_mm": float(self.sample_height_mm)}
+
+    @classmethod
+    def from_dict(cls, d, source: str = "as-built geometry") -> "ChainErrors":
+        """From :meth:`to_dict`'s shape; every value checked (ConfigError naming ``source`` and the field).
+        Missing fields are 0 (perfect); unknown fields are refused (a typo must not pass as perfect)."""
+        if not isinstance(d, dict):
+            raise ConfigError(f"{source}: expected a table of assembly errors, got {str(d)[:40]!r}")
+        out = cls()
+        for key, value in d.items():
+            if key == "sample_height_mm":
+                out.sample_height_mm = _number(source, key, value, 20.0)
+                continue
+            fields = {"light": ARM_FIELDS, "camera": ARM_FIELDS, "turntable": TURNTABLE_FIELDS}.get(key)
+            if fields is None:
+                raise ConfigError(f"{source}: unknown section {key!r} (expected light, camera, turntable, sample_height_mm)")
+            if not isinstance(value, dict):
+                raise ConfigError(f"{source}: {key} = {str(value)[:40]!r}: expected a table")
+            target = getattr(out, key)
+            for k, x in value.items():
+                if k not in fields:
+                    raise ConfigError(f"{source}: {key}.{k}: unknown field (expected one of {', '.join(fields)})")
+                # bounds: far beyond any assembly error, still small-angle / small-offset
+                target[k] = _number(source, f"{key}.{k}", x, 20.0 if k.endswith("_deg") else 50.0)
+        return out
+
+
+def _number(source, key, value, bound) -> float:
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and abs(value) <= bound
+    if not ok:
+        raise ConfigError(f"{source}: {key} = {str(value)[:40]}: expected a number in [-{bound:g}, {bound:g}]")
+    return float(value)
+
+
+# -- rotations (batched) ---------------------------------------------------------------------------
+def _rx(a):
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(c), np.zeros_like(c)
+    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
+
+
+def _ry(a):
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(c), np.zeros_like(c)
+    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
+
+
+def _rz(a):
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(c), np.zeros_like(c)
+    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+
+
+def _arm(e: dict, az, el, radius_m: float):
+    """Device position (lab frame, m) and orientation ``Q`` (..., 3, 3) of one arm (module docstring)."""
+    d = math.radians
+    A = _rx(np.asarray(d(e["tilt_x_deg"]))) @ _ry(np.asarray(d(e["tilt_y_deg"])))
+    Raz = A @ _rz(az + d(e["d_az_deg"]))
+    Q = Raz @ _rx(np.full_like(az, d(e["nonorth_deg"]))) @ _ry(el + d(e["d_el_deg"]))
+    c = np.array([e["axis_x_mm"], e["axis_y_mm"], 0.0]) * 1e-3 + Raz @ (np.array([e["arc_x_mm"], 0.0, e["arc_z_mm"]]) * 1e-3)
+    p = c + Q @ np.array([0.0, e["lateral_mm"] * 1e-3, radius_m + e["d_radius_mm"] * 1e-3])
+    return p, Q
+
+
+def chain_forward(rig, errors: ChainErrors, joints):
+    """True light position, camera position and camera rotation in the sample frame for joints ``(..., 4)``
+    of ``rig``'s layout (``gonio.rig.kinematics.Rig``): ``(light (..., 3), cam (..., 3), R (..., 3, 3))``,
+    ``R`` in :meth:`gonio.rig.kinematics.Rig.camera_pose`'s convention (rows: camera x, y, z in sample
+    coordinates). All-zero ``errors`` reproduce ``rig.light_position`` / ``rig.camera_pose`` exactly."""
+    j = rig.as_array(joints)
+    if rig.layout == "turntable":
+        s = j[..., 0]
+        laz, lel, caz, cel = np.full_like(s, rig.light_azimuth), j[..., 1], j[..., 2], j[..., 3]
+    else:
+        s = None
+        laz, lel, caz, cel = j[..., 0], j[..., 1], j[..., 2], j[..., 3]
+    pl, _ = _arm(errors.light, laz, lel, rig.light_radius)
+    pc, Q = _arm(errors.camera, caz, cel, rig.camera_radius)
+    # camera axes: x = arm's azimuth tangent (Q·ŷ), z = toward the arc centre (−Q·ẑ), y = z × x
+    x, z = Q[..., :, 1], -Q[..., :, 2]
+    R = np.stack([x, np.cross(z, x), z], axis=-2)
+    if s is not None:  # lab → sample frame: the turntable's rotation, inverted
+        t = errors.turntable
+        T = (_rx(np.asarray(math.radians(t["tilt_x_deg"]))) @ _ry(np.asarray(math.radians(t["tilt_y_deg"])))
+             @ _rz(s + math.radians(t["d_az_deg"])))
+        Tt = np.swapaxes(T, -1, -2)
+        pl = (Tt @ pl[..., None])[..., 0]
+        pc = (Tt @ pc[..., None])[..., 0]
+        R = R @ T
+    h = np.array([0.0, 0.0, errors.sample_height_mm * 1e-3])
+    return pl - h, pc - h, R
+
+
+def true_directions(rig, errors: ChainErrors, joints):
+    """Unit ``(wi, wo)`` from the sample centre to the true light and camera positions (:func:`chain_forward`)."""
+    pl, pc, _ = chain_forward(rig, errors, joints)
+    return pl / np.linalg.norm(pl, axis=-1, keepdims=True), pc / np.linalg.norm(pc, axis=-1, keepdims=True)
+
+
+def angle_between_deg(a, b) -> np.ndarray:
+    """Angle (degrees) between unit vectors ``a`` and ``b`` (..., 3), by atan2 of |a×b| and a·b (accurate
+    for small angles, unlike arccos; Kahan, "How futile are mindless assessments of roundoff", 2006 §12)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1)))
