@@ -219,6 +219,18 @@ def sphere_images(brdf, theta_deg: float, phi_deg: float = 0.0, *, size: int = 9
     return r.radiance, tonemap(r.radiance, white=white), r
 
 
+#: Relative error at the top of the error images' colour scale.
+ERROR_SCALE = 0.2
+
+
+def error_image(rel: np.ndarray, scale: float = ERROR_SCALE) -> np.ndarray:
+    """8-bit RGB image of a relative error map: 0 → black, ``scale`` or more → yellow (inferno)."""
+    import cv2
+
+    level = np.rint(255 * np.clip(np.nan_to_num(rel / scale), 0, 1)).astype(np.uint8)
+    return cv2.applyColorMap(level, cv2.COLORMAP_INFERNO)[..., ::-1]
+
+
 def sphere_panel(entry: Entry, *, size: int = 96) -> str:
     """HTML table: one row per light angle; the measured data, each model, and |model − data| / data."""
     data = entry.data
@@ -246,15 +258,14 @@ def sphere_panel(entry: Entry, *, size: int = 96) -> str:
             if ref is not None:
                 with np.errstate(divide="ignore", invalid="ignore"):
                     rel = np.where(ref > 0, np.abs(rad - ref) / ref, 0.0).mean(axis=-1)
-                heat = np.clip(rel / 0.5, 0, 1)  # 0 .. 50 % relative error
-                err_img = np.stack([255 * heat, 255 * (1 - heat) * (heat > 0), 0 * heat], axis=-1).astype(np.uint8)
+                err_img = error_image(rel)
                 errs.append(f'<img class="sphere" alt="error of {html.escape(label)}" src="{_png(err_img, rm.mask)}"><br>'
                             f"<small>median {100 * float(np.median(rel[ref.sum(-1) > 0])) if np.any(ref.sum(-1) > 0) else 0:.1f} %</small>")
         cells += errs
         rows.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
     return ('<table class="spheres"><tr>' + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"
-            + "".join(rows) + "</table><p><small>Error images: |model − measured| / measured, black = 0, "
-            "red = 50 % or more.</small></p>")
+            + "".join(rows) + "</table><p><small>Error images: |model − measured| / measured, mean of R, G, B; colour map "
+            f"inferno: black 0 %, yellow {100 * ERROR_SCALE:g} % or more.</small></p>")
 
 
 def _bounds(model) -> dict:

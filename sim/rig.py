@@ -41,7 +41,7 @@ from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
 from gonio.rig.control_table import load_control_table
 from gonio.rig.interfaces import Frame
 from gonio.rig.kinematics import Rig, load_rig
-from sim.as_built import AsBuilt, parse_as_built
+from sim.as_built import AsBuilt, observe, parse_as_built
 from sim.camera import SensorModel, SimCamera, SimScene
 from sim.clock import SimClock
 from sim.controller import ControllerEmulator
@@ -49,7 +49,7 @@ from sim.faults import FrameFaults, LinkFaults
 from sim.seeding import SETUP, pose_rng
 from sim.servo_bus import HW_OVERLOAD, ServoBus
 
-__all__ = ["AsBuilt", "parse_as_built", "SimRig", "SimRigConfig", "RigCamera", "RecordingServoBus", "DEFAULT_MATERIAL", "PARK_DEG"]
+__all__ = ["AsBuilt", "observe", "parse_as_built", "SimRig", "SimRigConfig", "RigCamera", "RecordingServoBus", "DEFAULT_MATERIAL", "PARK_DEG"]
 
 #: Material of the sample when none is given (a plastic-like GGX microfacet).
 DEFAULT_MATERIAL = {"model": "microfacet",

@@ -162,8 +162,14 @@ def _rig_record(rig, source: str, text: str) -> dict:
     that a resumed session (or anything rebuilding the rig) uses this rig even if the file changes."""
     import hashlib
 
-    return {"name": rig.name, "source": source, "toml": text,
-            "sha256": hashlib.sha256(text.encode("utf-8")).hexdigest()}
+    rec = {"name": rig.name, "source": source, "toml": text,
+           "sha256": hashlib.sha256(text.encode("utf-8")).hexdigest()}
+    if getattr(rig, "geometry_errors", None) is not None:  # a calibrated rig (gonio calibrate rig): its uncertainties
+        import tomllib
+
+        cal = tomllib.loads(text).get("calibration", {})
+        rec["calibration"] = {k: cal[k] for k in ("uncertainty", "not_identified", "rms") if k in cal}
+    return rec
 
 
 def _warn(msg: str) -> None:

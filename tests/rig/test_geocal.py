@@ -103,3 +103,33 @@ def test_the_calibration_plan_is_reachable_and_fits_in_ten_minutes(rig, plan):
     for j in np.concatenate([plan["camera"], plan["highlight"]]):
         rig.solve(*rig.forward(j))  # the declared limits and collision zones accept every pose
     assert 60 <= len(plan["camera"]) + len(plan["highlight"]) and plan_lab_time(rig, plan) < 600
+
+
+def test_calibrate_rig_and_check_on_the_simulated_as_built_rig(tmp_path, capsys):
+    from gonio.cli.main import main
+
+    out = tmp_path / "cal.toml"
+    assert main(["calibrate", "rig", "--sim", "--sim-as-built", "7", "--quick", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "lab time" in printed and "not identified" in printed and "±" in printed
+    cal = load_rig(out)
+    assert cal.geometry_errors is not None
+    assert main(["calibrate", "check", "--sim", "--sim-as-built", "7", "--rig", str(out)]) == 0
+    after = capsys.readouterr().out
+    assert main(["calibrate", "check", "--sim", "--sim-as-built", "7"]) == 0
+    before = capsys.readouterr().out
+
+    def wi_median(text):
+        return float(text.split("wi median ")[1].split("°")[0])
+
+    assert wi_median(after) < 0.1 < 0.5 < wi_median(before)
+    # a session on a calibrated rig records the rig's uncertainties with its SHA-256
+    d = tmp_path / "s"
+    assert main(["measure", "--sim", "--quiet", "--plan", "in_plane", "--theta-i-step", "40", "--theta-o-step", "40",
+                 "--sim-resolution", "160x120", "--sim-as-built", "7", "--rig", str(out), "--out", str(d)]) == 0
+    import json
+
+    rec = json.loads((d / "manifest.json").read_text())["rig"]
+    assert len(rec["sha256"]) == 64 and "light" in rec["calibration"]["uncertainty"]
+    assert main(["calibrate", "rig", "--rig", str(out), "--sim", "--out", str(tmp_path / "again.toml")]) != 0
+    assert "already calibrated" in capsys.readouterr().err
