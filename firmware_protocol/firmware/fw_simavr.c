@@ -3,7 +3,7 @@
  * 16 MHz, with USART0 on a pseudo-terminal (simavr's uart_pty part). Prints "PTY <path>" on stdout
  * once the pty exists. The analogue side is a model: at every ADC conversion the photodiode input
  * (ADC0) is set to PD_FULL_MV * duty / 65535 from the light's PWM registers (OCR1A, COM1A1), the
- * TMP36 (ADC1) to 750 mV (25 degC). SIGUSR1 opens the E-stop loop (pin PD2 high), SIGUSR2 closes it.
+ * TMP36 (ADC1) to 750 mV (25 degC); "LIGHT <duty>" lines on stdout report the PWM duty as it changes. SIGUSR1 opens the E-stop loop (pin PD2 high), SIGUSR2 closes it.
  * Usage: fw_simavr FIRMWARE.elf
  */
 #include <signal.h>
@@ -40,7 +40,7 @@ int main(int argc, char **argv)
 {
     elf_firmware_t f;
     int state;
-    uint32_t estop = 0, n = 0;
+    uint32_t estop = 0, n = 0, reported = 0;
     memset(&f, 0, sizeof f);
     if (argc != 2 || elf_read_firmware(argv[1], &f) != 0) {
         fprintf(stderr, "usage: %s FIRMWARE.elf (a readable AVR ELF)\n", argv[0]);
@@ -74,6 +74,14 @@ int main(int argc, char **argv)
         }
         /* the loops are driven by their contacts, not by the pull-ups the firmware sets: re-assert */
         if ((++n & 0x3FFu) == 0u) {
+            /* report the light's PWM duty when it changes ("LIGHT <duty>"), for the simulated camera */
+            uint16_t ocr = (uint16_t)(avr->data[0x88] | (avr->data[0x89] << 8));
+            uint32_t duty = (avr->data[0x80] & 0x80) ? ocr : 0u;
+            if (duty != reported) {
+                reported = duty;
+                printf("LIGHT %u\n", (unsigned)duty);
+                fflush(stdout);
+            }
             avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 2), estop);
             avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 3), 0);
         }
