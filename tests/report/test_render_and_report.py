@@ -123,6 +123,7 @@ def test_report_is_self_contained_and_every_figure_renders(inputs, browser, tmp_
     text = out.read_text()
     import re
 
+    assert re.search(r"\d+ samples are too few to render the measured data", text)  # said, not silently left out
     assert "random subset" in text  # the table's on-the-fly fit is a preview on a subset, and says so
     assert not re.search(r"<(script|link|img)[^>]+(src|href)=[\"']https?:", text)  # nothing fetched from a network
     ctx, page, errors = _open(browser, out.as_uri(), offline=True)
