@@ -233,10 +233,23 @@ def error_image(rel: np.ndarray, scale: float = ERROR_SCALE) -> np.ndarray:
     return cv2.applyColorMap(level, cv2.COLORMAP_INFERNO)[..., ::-1]
 
 
+def renders_measured(data) -> bool:
+    """Whether the measured data are drawn on a sphere: a table, or more than
+    :data:`MIN_SAMPLES_FOR_SPHERE` samples (fewer leave most pixels without a measurement)."""
+    return data.table is not None or (data.samples is not None and len(data.samples) > MIN_SAMPLES_FOR_SPHERE)
+
+
+def sphere_sources(entry: Entry) -> list[tuple[str, object]]:
+    """``(label, brdf)`` of every sphere of an entry: the measured data (if :func:`renders_measured`),
+    then each fitted model (the report's columns and the viewer's live images)."""
+    return ([("measured", entry.data)] if renders_measured(entry.data) else []) + \
+        [(label, model) for label, (model, _rep) in entry.fits.items()]
+
+
 def sphere_panel(entry: Entry, *, size: int = 96) -> str:
     """HTML table: one row per light angle; the measured data, each model, and |model − data| / data."""
     data = entry.data
-    measured = data if (data.table is not None or (data.samples is not None and len(data.samples) > MIN_SAMPLES_FOR_SPHERE)) else None
+    measured = data if renders_measured(data) else None
     rows = []
     head = ["light θ"] + (["measured"] if measured is not None else []) + list(entry.fits) + \
         ([f"error of {k}" for k in entry.fits] if measured is not None else [])
