@@ -84,7 +84,8 @@ class SimRigConfig:
     #: Camera faults, :meth:`sim.faults.FrameFaults.from_spec` (``"black=0.05,stale=0.01"``; empty: none).
     frame_faults: str = ""
     #: The rig controller behind its pty: ``firmware`` (the reference firmware's C code, host build,
-    #: :mod:`sim.firmware`) or ``python`` (the independent Python implementation, :mod:`sim.controller`).
+    #: :mod:`sim.firmware`), ``python`` (the independent Python implementation, :mod:`sim.controller`) or
+    #: ``simavr`` (the AVR build in an emulated ATmega328P, :mod:`sim.simavr`; real emulated time).
     controller: str = "firmware"
     #: As-built geometry (:mod:`sim.as_built`): ``None`` the declared (perfect) rig, else
     #: :meth:`sim.as_built.AsBuilt.to_dict` (the assembly errors the simulator renders with).
@@ -120,7 +121,10 @@ def controller_class(kind: str):
     if kind == "firmware":
         from sim.firmware import FirmwareController
         return FirmwareController
-    raise ValueError(f"sim rig: controller = {kind!r}: must be 'firmware' or 'python'")
+    if kind == "simavr":
+        from sim.simavr import SimavrController
+        return SimavrController
+    raise ValueError(f"sim rig: controller = {kind!r}: must be 'firmware', 'python' or 'simavr'")
 
 
 class RecordingServoBus(ServoBus):

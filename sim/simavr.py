@@ -15,6 +15,7 @@ import os
 import select
 import signal
 import subprocess
+import threading
 import time
 
 from sim.firmware import FIRMWARE_DIR
@@ -51,9 +52,19 @@ def avr_size() -> tuple[int, int]:
 class SimavrController:
     """The AVR firmware in simavr behind a pty (start/stop, or use as a context manager)."""
 
-    def __init__(self):
+    def __init__(self, clock=None, *, faults=None, seed: int = 0, **_physics):
+        from sim.faults import LinkFaults
+
         self.proc: subprocess.Popen | None = None
         self.path = ""
+        self.clock = clock
+        self.faults = faults or LinkFaults()  # kept for the SimRig's per-pose reseeding; not applied here
+        if any(getattr(self.faults, k, 0) for k in ("delay_rate", "drop_rate", "corrupt_rate", "short_rate")):
+            raise ValueError("simavr controller: link faults are not supported (use controller = 'firmware')")
+        self._duty = 0
+        self._reader = None
+        #: lengths of the trigger pulses on pin PD7, µs of emulated time, as the bridge measured them
+        self.pulses_us: list[float] = []
 
     def start(self, timeout: float = 10.0) -> "SimavrController":
         build()
@@ -68,6 +79,8 @@ class SimavrController:
                 for line in out.decode(errors="replace").splitlines():
                     if line.startswith("PTY ") and out.endswith(b"\n"):
                         self.path = line.split()[1]
+                        self._reader = threading.Thread(target=self._read_reports, args=(fd,), daemon=True)
+                        self._reader.start()
                         time.sleep(0.2)  # the firmware's boot (a few emulated ms)
                         return self
                 if not chunk:
@@ -75,6 +88,33 @@ class SimavrController:
         err = out.decode(errors="replace")[-300:]
         self.stop()
         raise RuntimeError(f"fw_simavr did not report its pty: {err.strip()}")
+
+    def _read_reports(self, fd: int) -> None:
+        buf = b""
+        while True:
+            try:
+                chunk = os.read(fd, 4096)
+            except OSError:
+                return
+            if not chunk:
+                return
+            buf += chunk
+            *lines, buf = buf.split(b"\n")
+            for line in lines:
+                if line.startswith(b"LIGHT "):
+                    self._duty = int(line.split()[1])
+                elif line.startswith(b"PULSE "):
+                    self.pulses_us.append(int(line.split()[1]) / 1000.0)
+
+    def light_output(self) -> float:
+        """Relative light output now, from the PWM duty the firmware set (no warm-up model here)."""
+        return self._duty / 65535.0
+
+    def reseed(self, seed) -> None:
+        """Nothing to reseed: the photodiode model in the bridge is noiseless."""
+
+    def inject_reset(self) -> None:
+        raise NotImplementedError("simavr controller: brown-out injection is a host-build feature (controller = 'firmware')")
 
     def set_estop(self, pressed: bool) -> None:
         """Open (pressed) or close the E-stop loop on pin PD2."""
@@ -88,6 +128,10 @@ class SimavrController:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+        if self.proc is not None:
+            if self._reader is not None:
+                self._reader.join(2)
+            self.proc.stdout.close()
         self.proc = None
 
     def __enter__(self):

@@ -326,15 +326,20 @@ class Rig:
 
     # -- reachability ------------------------------------------------------------------------------
     def check_directions(self, wi, wo) -> np.ndarray:
-        """Reason codes (index into :data:`REASONS`) of the collision and shadow tests, ``(...)``."""
+        """Reason codes (index into :data:`REASONS`) of the collision and shadow tests, ``(...)``.
+
+        A direction with a non-finite component is ``"collision"``: the guard cannot clear what is not a
+        direction (NaN compares false with every threshold, so without this it would pass as ``"ok"``)."""
         wi, wo = np.broadcast_arrays(np.asarray(wi, float), np.asarray(wo, float))
         code = np.zeros(wi.shape[:-1], dtype=np.int8)
-        sep = np.arccos(np.clip(dot(wi, wo), -1.0, 1.0))
-        code[sep < self.min_separation] = 2
-        # Shadow: distance from the camera centre c to the segment origin -> light position L.
-        c, L = self.camera_radius * wo, self.light_radius * wi
-        t = np.clip(dot(c, L) / (self.light_radius ** 2), 0.0, 1.0)
-        dist = np.linalg.norm(c - t[..., None] * L, axis=-1)
+        finite = np.isfinite(wi).all(axis=-1) & np.isfinite(wo).all(axis=-1)
+        with np.errstate(invalid="ignore", over="ignore"):  # non-finite rows: coded below, values unused
+            sep = np.arccos(np.clip(dot(wi, wo), -1.0, 1.0))
+            # Shadow: distance from the camera centre c to the segment origin -> light position L.
+            c, L = self.camera_radius * wo, self.light_radius * wi
+            t = np.clip(dot(c, L) / (self.light_radius ** 2), 0.0, 1.0)
+            dist = np.linalg.norm(c - t[..., None] * L, axis=-1)
+        code[~(sep >= self.min_separation) | ~finite] = 2  # NaN separation included
         code[(code == 0) & (dist < self.camera_body_radius + self.light_beam_radius)] = 3
         return code
 
@@ -420,15 +425,15 @@ class Rig:
             joints = np.choose(best[..., None], [j for j, _ in sols])
             code = np.choose(best, [c for _, c in sols])
             return joints, code
+        finite = np.isfinite(ti) & np.isfinite(pi_) & np.isfinite(to) & np.isfinite(po)
+        ti, pi_, to, po = (np.where(finite, a, 0.0) for a in (ti, pi_, to, po))  # refused below, solved quietly
         if self.layout == "turntable":
             joints, ok = self._solve_turntable(ti, pi_, to, po, cur)
         else:
             laz, lel, lok = self._solve_arm(ti, pi_, cur[..., 0], cur[..., 1], 0, 1)
             caz, cel, cok = self._solve_arm(to, po, cur[..., 2], cur[..., 3], 2, 3)
             joints, ok = np.stack([laz, lel, caz, cel], axis=-1), lok & cok
-        finite = np.isfinite(ti) & np.isfinite(pi_) & np.isfinite(to) & np.isfinite(po)
-        with np.errstate(invalid="ignore"):
-            wi, wo = dirs_from_angles(*(np.where(finite, a, 0.0) for a in (ti, pi_, to, po)))
+        wi, wo = dirs_from_angles(ti, pi_, to, po)
         # a non-finite angle is no pose at all: refused here, whatever the caller checked (the collision
         # guard must not depend on its callers: a pole solution of an infinite azimuth is not a pose)
         ok = ok & finite & np.all(np.isfinite(joints), axis=-1)
