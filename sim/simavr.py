@@ -63,6 +63,8 @@ class SimavrController:
             raise ValueError("simavr controller: link faults are not supported (use controller = 'firmware')")
         self._duty = 0
         self._reader = None
+        #: lengths of the trigger pulses on pin PD7, µs of emulated time, as the bridge measured them
+        self.pulses_us: list[float] = []
 
     def start(self, timeout: float = 10.0) -> "SimavrController":
         build()
@@ -101,6 +103,8 @@ class SimavrController:
             for line in lines:
                 if line.startswith(b"LIGHT "):
                     self._duty = int(line.split()[1])
+                elif line.startswith(b"PULSE "):
+                    self.pulses_us.append(int(line.split()[1]) / 1000.0)
 
     def light_output(self) -> float:
         """Relative light output now, from the PWM duty the firmware set (no warm-up model here)."""

@@ -3,7 +3,8 @@
  * 16 MHz, with USART0 on a pseudo-terminal (simavr's uart_pty part). Prints "PTY <path>" on stdout
  * once the pty exists. The analogue side is a model: at every ADC conversion the photodiode input
  * (ADC0) is set to PD_FULL_MV * duty / 65535 from the light's PWM registers (OCR1A, COM1A1), the
- * TMP36 (ADC1) to 750 mV (25 degC); "LIGHT <duty>" lines on stdout report the PWM duty as it changes. SIGUSR1 opens the E-stop loop (pin PD2 high), SIGUSR2 closes it.
+ * TMP36 (ADC1) to 750 mV (25 degC); "LIGHT <duty>" lines on stdout report the PWM duty as it changes,
+ * "PULSE <ns>" the length of each trigger pulse on PD7 in emulated time. SIGUSR1 opens the E-stop loop (pin PD2 high), SIGUSR2 closes it.
  * Usage: fw_simavr FIRMWARE.elf
  */
 #include <signal.h>
@@ -36,6 +37,20 @@ static void adc_trigger(struct avr_irq_t *irq, uint32_t value, void *param)
     avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC1), 750);
 }
 
+/* the trigger line PD7: report each pulse's length in emulated time ("PULSE <ns>") */
+static avr_cycle_count_t rise;
+static void trigger_edge(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    if (value) {
+        rise = avr->cycle;
+    } else if (rise) {
+        printf("PULSE %llu\n", (unsigned long long)((avr->cycle - rise) * 1000000000ull / avr->frequency));
+        fflush(stdout);
+        rise = 0;
+    }
+}
+
 int main(int argc, char **argv)
 {
     elf_firmware_t f;
@@ -57,6 +72,7 @@ int main(int argc, char **argv)
     f.frequency = 16000000;
     avr_load_firmware(avr, &f);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_trigger, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 7), trigger_edge, NULL);
     uart_pty_init(avr, &uart);
     uart_pty_connect(&uart, '0');
     /* the E-stop loop and the interlock are closed (NC contacts to GND): drive PD2 and PD3 low */

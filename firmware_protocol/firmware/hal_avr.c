@@ -10,7 +10,8 @@
  *   PC1/ADC1 (A1)  TMP36 on the light's heat sink (10 mV/degC, 500 mV at 0 degC)
  *   PD0/PD1        USART0, 115200 8N1
  * Timers: Timer0 1 kHz millisecond tick; Timer1 light PWM; Timer2 the one-shot trigger pulse, counted in
- * 0.5 us ticks (prescaler 8) so the pulse lasts exactly exposure_us (plus a constant ISR latency).
+ * 0.5 us ticks (prescaler 8), the ISR latency compensated: the pulse lasts exposure_us to +-0.5 us
+ * (pulses under ~3 us are ~3 us).
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
@@ -20,6 +21,7 @@
 #include "fw.h"
 
 static volatile uint32_t ms_ticks;
+#define TRIG_LATENCY_TICKS 4u
 static volatile uint8_t trig_active;
 static volatile uint32_t trig_chunks;
 static volatile uint8_t cut_latch; /* set by the E-stop interrupt after it cut the light */
@@ -123,6 +125,9 @@ int16_t hal_temperature_centi(fw_hal *h)
 void hal_trigger_start(fw_hal *h, uint32_t us)
 {
     uint32_t ticks = us * 2u; /* 0.5 us ticks; us <= 600 000 000 fits */
+    /* the falling edge is set by the compare ISR, a constant 4 ticks (2 us, 33 cycles: measured in simavr,
+     * tests/protocol/test_simavr.py) after the match: count that much less, down to 1 tick */
+    ticks = ticks > TRIG_LATENCY_TICKS ? ticks - TRIG_LATENCY_TICKS : 1u;
     uint16_t first = (uint16_t)(ticks & 0xFFu);
     (void)h;
     if (first == 0u) {

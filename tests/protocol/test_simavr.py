@@ -101,3 +101,16 @@ def test_short_simulated_session_runs_against_the_avr_binary(built, tmp_path):
     assert "6/6 poses" in r.stdout and "warning" not in r.stderr
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["sim"]["controller"] == "simavr"
+
+
+def test_trigger_pulse_length_on_the_pin_is_the_exposure(avr):
+    with RigController.open(avr.path) as ctl:
+        for exposure_us in (7, 300, 1000, 25_000):
+            ctl.trigger_camera(exposure_us * 1e-6)
+            deadline = time.monotonic() + 5
+            while len(avr.pulses_us) < 1 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            [pulse] = avr.pulses_us
+            avr.pulses_us.clear()
+            # Timer2 counts the exposure in 0.5 us ticks, its constant ISR latency compensated
+            assert pulse == pytest.approx(exposure_us, abs=0.5), (exposure_us, pulse)
