@@ -84,7 +84,7 @@ def run(quick: bool = False) -> list[Table]:
     from sim.as_built import AsBuilt
 
     rig = load_rig("default")
-    seeds = range(10 if quick else 20)
+    seeds = range(5 if quick else 20)  # quick: for CI (gonio bench --quick); the issue's table is the full run
     rng = np.random.default_rng(0)
     n = 400 if quick else 2000
     ti, to = rng.uniform(0, math.radians(75), (2, n))
@@ -98,25 +98,55 @@ def run(quick: bool = False) -> list[Table]:
                "α rel. error median", "α rel. error max", "peak error median (°)", "peak error max (°)"],
               baseline=0, default=1, why_default="what a session records today: wi from the kinematics, wo from "
                                                  "the ChArUco pose (taken as exact here)")
-    acc = {k: [] for k in ("kin", "charuco")}
+    from gonio.rig.chain import angle_between_deg
+    from gonio.rig.geocal import calibrate_geometry, calibration_plan, plan_lab_time
+    from sim.as_built import observe
+
+    plan = calibration_plan(rig)
+    lab = plan_lab_time(rig, plan)
+    acc = {k: [] for k in ("kin", "charuco", "after", "rendered")}
+    rendered_seeds = set(range(1 if quick else 10))
+    z = []
     for seed in seeds:
         ab = AsBuilt.from_seed(rig, seed)
-        hwi, hwo = rig.directions(joints)
-        ei, eo, _, _ = direction_errors(rig, ab.errors, joints, hwi, hwo)
-        lwi, lwo = rig.directions(lobe)
-        twi, two = ab.directions(lobe)
-        h = twi + two
+        twi, two = ab.directions(joints)
+        cwi, cwo = ab.directions(lobe)
+        h = cwi + cwo
         h /= np.linalg.norm(h, axis=-1, keepdims=True)
         values = ggx_d(h[:, 2], ALPHA)
-        for key, host_wo in (("kin", lwo), ("charuco", two)):
-            a, peak = fit_lobe(lwi, host_wo, values)
-            acc[key].append((ei, eo if key == "kin" else np.zeros_like(eo), abs(a / ALPHA - 1.0), peak))
-    for key, label in (("kin", "declared kinematics (wi and wo)"), ("charuco", "declared wi, wo from ChArUco")):
+        res = calibrate_geometry(rig, *observe(ab, plan, seed))
+        est = AsBuilt(rig, res.errors)
+        runs = [("kin", AsBuilt.perfect(rig)), ("charuco", AsBuilt.perfect(rig)), ("after", est)]
+        if seed in rendered_seeds:
+            runs.append(("rendered", AsBuilt(rig, calibrate_geometry(rig, *observe(ab, plan, seed, render=True)).errors)))
+        for key, geo in runs:
+            hwi, hwo = geo.directions(joints)
+            lwi, lwo = geo.directions(lobe)
+            if key == "charuco":
+                hwo, lwo = two, cwo  # wo from the board: exact here
+            a, peak = fit_lobe(lwi, lwo, values)
+            acc[key].append((angle_between_deg(hwi, twi), angle_between_deg(hwo, two), abs(a / ALPHA - 1.0), peak))
+        for (name, v, s, unit), truth in zip(res.table(), ab.errors.folded().vector()):
+            if not unit.startswith("not"):
+                z.append((v - truth) / s)
+    for key, label in (("kin", "declared kinematics (wi and wo)"), ("charuco", "declared wi, wo from ChArUco"),
+                       ("after", "calibrated (wi and wo from the estimated chain)"),
+                       ("rendered", f"calibrated, ChArUco poses from rendered frames ({len(rendered_seeds)} seeds)")):
         ei = np.concatenate([r[0] for r in acc[key]])
         eo = np.concatenate([r[1] for r in acc[key]])
         da = np.array([r[2] for r in acc[key]])
         pk = np.array([r[3] for r in acc[key]])
         t.add(label, *_stats(ei), *_stats(eo), float(np.median(da)), float(da.max()), float(np.median(pk)), float(pk.max()))
+    z = np.abs(np.array(z))
+    t.notes.append(f"calibration plan: {len(plan['camera'])} ChArUco poses + {len(plan['highlight'])} mirror-highlight "
+                   f"poses, lab time {lab / 60:.1f} min (moves + settle + capture; goal <= 10 min); estimated "
+                   f"parameters within 3 sigma of the truth: {np.mean(z < 3) * 100:.1f} % of {len(z)} "
+                   f"(within 1 sigma: {np.mean(z < 1) * 100:.0f} %)")
+    t.notes.append("observations are simulated geometrically (sim.as_built.observe: ChArUco pose noise 0.2 mm / "
+                   "0.02°, highlight centroid 0.2 px, servo 0.02°), not from rendered frames, except in the last row, "
+                   "where the camera poses are gonio's ChArUco estimates from frames rendered on the as-built rig "
+                   "(the highlight centroid stays geometric); the sample height is not identifiable (absorbed in "
+                   "the arcs' heights); wi/wo errors are over random poses of the whole reachable range")
     t.notes.append("as-built errors uniform within sim.as_built.TOLERANCES (servo zeros ±3°, tilts ±0.5°, axis misses "
                    "±3 mm, distances ±5 mm, lateral ±3 mm, sample height ±1 mm); goal after calibration: "
                    "wi, wo ≤ 0.1° median, ≤ 0.25° p95; α within 2 %")

@@ -169,5 +169,45 @@ def retry_table(quick: bool) -> Table:
     return t
 
 
+def firmware_table(quick: bool) -> list[Table]:
+    """The reference firmware: AVR flash/RAM use, and one command's round trip through each
+    controller implementation (Python emulator, firmware host build, AVR build in simavr)."""
+    from gonio.rig.controller import RigController
+    from sim.clock import SimClock
+    from sim.controller import ControllerEmulator
+    from sim.firmware import FirmwareController
+    from sim.simavr import SimavrController, avr_size
+
+    flash, ram = avr_size()
+    size = Table("Reference firmware, ATmega328P build (make avr)", ["memory", "bytes", "limit", "% of limit"], baseline=None,
+                 notes=["limits: 32 KiB flash less a 512-byte boot loader; 2 KiB RAM less 512 bytes kept for "
+                        "the stack (static RAM = .data + .bss)"])
+    size.add("flash (.text + .data)", flash, 32 * 1024 - 512, 100.0 * flash / (32 * 1024 - 512))
+    size.add("static RAM (.data + .bss)", ram, 1536, 100.0 * ram / 1536)
+    n = 20 if quick else 200
+    t = Table("status() round trip by controller implementation", ["controller", "median ms", "p95 ms", "× baseline"],
+              baseline=0, default=1, why_default="gonio measure --sim runs the firmware's host build",
+              notes=["simavr: emulated 16 MHz ATmega328P, 115200 baud, simavr's uart_pty thread polls the pty"])
+    rows = []
+    for name, make in (("Python emulator (sim.controller)", lambda c: ControllerEmulator(c)),
+                       ("firmware, host build (sim.firmware)", lambda c: FirmwareController(c)),
+                       ("firmware, AVR build in simavr (sim.simavr)", None)):
+        clock = SimClock()
+        dev = make(clock) if make else SimavrController()
+        with dev:
+            with RigController.open(dev.path, **({"clock": clock} if make else {})) as ctl:
+                lat = []
+                for _ in range(n):
+                    t0 = time.perf_counter()
+                    ctl.status()
+                    lat.append(time.perf_counter() - t0)
+        rows.append((name, lat))
+    base = statistics.median(rows[0][1])
+    for name, lat in rows:
+        med = statistics.median(lat)
+        t.add(name, med * 1e3, _percentile(lat, 0.95) * 1e3, med / base)
+    return [size, t]
+
+
 def run(quick: bool = False) -> list[Table]:
-    return [decoder_table(quick), latency_table(quick), retry_table(quick)]
+    return [decoder_table(quick), latency_table(quick), retry_table(quick), *firmware_table(quick)]

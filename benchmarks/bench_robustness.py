@@ -1,5 +1,7 @@
-"""Robustness: fuzzed wire frames and servo status packets, mutated configuration and session files,
-kill -9 at random instants then resume, and fault scenarios through the simulated rig.
+"""Robustness: fuzzed Dynamixel status packets, mutated configuration files, servo-bus fault scenarios
+through a simulated session, plus the sections other modules own (hooks below): fuzzed wire frames
+(``benchmarks/robust_wire.py``) and kill -9 + resume, mutated session files, camera frame faults
+(``benchmarks/robust_session.py``).
 
 ``python -m benchmarks robustness`` runs it at full scale (≥ 10⁶ frames per decoder, ≥ 10⁶ status
 packets); ``--quick`` runs a small version (the suite runs a smaller one still,
@@ -9,6 +11,8 @@ frames or wrong values accepted, 0 tracebacks, 0 samples lost or duplicated.
 
 from __future__ import annotations
 
+import importlib
+import io
 import os
 import random
 import shutil
@@ -24,68 +28,6 @@ import numpy as np
 from benchmarks.common import Table
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-# -- wire frames ---------------------------------------------------------------------------------------
-def _mutate_frame(wire: bytes, rng: random.Random) -> tuple[bytes, bool]:
-    """``(damaged bytes, True if the damage must be detected)``: 1-5 flipped bits (must), or random
-    corruption / truncation / insertion (must not yield a *different* valid frame)."""
-    w = bytearray(wire)
-    mode = rng.random()
-    if mode < 0.6:
-        for k in rng.sample(range(8 * len(w)), rng.randint(1, 5)):
-            w[k // 8] ^= 1 << (k % 8)
-        return bytes(w), True
-    if mode < 0.8:
-        for _ in range(rng.randint(1, 8)):
-            w[rng.randrange(len(w))] = rng.randrange(256)
-        return bytes(w), False
-    if mode < 0.9:
-        return bytes(w[: rng.randrange(1, len(w))]) + bytes(rng.randrange(256) for _ in range(rng.randint(0, 20))), False
-    i = rng.randrange(len(w))
-    return bytes(w[:i]) + bytes([rng.randrange(256)]) + bytes(w[i:]), False
-
-
-def python_wire_fuzz(n: int, seed: int = 1) -> dict:
-    from firmware_protocol import codec as c
-
-    rng = random.Random(seed)
-    crashes = accepted_corrupt = 0
-    sentinel = c.encode_frame(c.STATUS, 200, b"")
-    lost_resync = 0
-    for _ in range(n):
-        f = c.Frame(rng.randrange(256), rng.randrange(256), bytes(rng.randrange(256) for _ in range(rng.randint(0, 64))))
-        wire = c.encode_frame(f.type, f.seq, f.payload)
-        bad, must = _mutate_frame(wire, rng)
-        try:
-            events = c.Decoder().feed(bad + sentinel)
-        except Exception:  # noqa: BLE001 - what is counted
-            crashes += 1
-            continue
-        frames = [e for e in events if isinstance(e, c.Frame)]
-        if not frames or frames[-1] != c.Frame(c.STATUS, 200, b""):
-            lost_resync += 1
-        others = frames[:-1]
-        accepted_corrupt += sum(1 for g in others if must or g != f)
-    return {"decoder": "Python", "frames": n, "crashes": crashes, "corrupt_accepted": accepted_corrupt,
-            "lost_resync": lost_resync}
-
-
-def c_wire_fuzz(n: int, seed: int = 1) -> dict:
-    from firmware_protocol import C_DIR
-
-    cc = shutil.which(os.environ.get("CC", "cc")) or shutil.which("gcc")
-    if cc is None:
-        return {"decoder": "C", "frames": 0, "crashes": "no C compiler", "corrupt_accepted": "-", "lost_resync": "-"}
-    with tempfile.TemporaryDirectory() as d:
-        exe = Path(d) / "fp_test"
-        subprocess.run([cc, "-std=c99", "-O2", "-o", str(exe), str(C_DIR / "fp_codec.c"), str(C_DIR / "fp_test.c")],
-                       check=True, capture_output=True)
-        res = subprocess.run([str(exe), "fuzz", str(seed), str(n)], capture_output=True, text=True)
-    stats = dict(kv.split("=") for kv in res.stdout.strip().splitlines()[-2 if res.returncode == 0 else -1].split()[1:]
-                 if "=" in kv)
-    return {"decoder": "C (fp_test fuzz)", "frames": n, "crashes": 0 if res.returncode in (0, 1) else res.returncode,
-            "corrupt_accepted": int(stats.get("undetected", -1)), "lost_resync": int(stats.get("lost_resync", -1))}
 
 
 # -- Dynamixel status packets ---------------------------------------------------------------------------
@@ -147,7 +89,7 @@ def dxl_status_fuzz(n: int, seed: int = 2) -> dict:
     return {"packets": n, "crashes": crashes, "wrong_values": wrong, "accepted": accepted}
 
 
-# -- configuration and session files --------------------------------------------------------------------
+# -- configuration files --------------------------------------------------------------------------------
 def config_fuzz(n_per_kind: int, seed: int = 3) -> dict:
     from benchmarks.robust_inputs import fuzz_configs
 
@@ -156,155 +98,104 @@ def config_fuzz(n_per_kind: int, seed: int = 3) -> dict:
     return {"files": tried, "tracebacks": len(bad), "example": bad[0] if bad else ""}
 
 
-def record_fuzz(session: Path, n: int, seed: int = 4) -> dict:
-    """Records and manifests mutated *with valid checksums* (a crafted file), read by the scanner and the
-    manifest reader: every outcome must be a kept record, a damaged record, or a one-line DataError."""
-    import json
-    import zlib
-
-    from gonio.errors import GonioError
-    from gonio.session.records import scan_bytes
-
-    rng = random.Random(seed)
-    lines = (session / "samples.jsonl").read_bytes().splitlines()
-    payloads = [ln[9:] for ln in lines if len(ln) > 9]
-    crashes = 0
-    for _ in range(n):
-        p = bytearray(rng.choice(payloads))
-        for _ in range(rng.randint(1, 6)):
-            i = rng.randrange(len(p))
-            p[i] = rng.choice(b'0123456789-+.eE"[]{}:,9e999Infinity' + bytes([rng.randrange(256)]))
-        line = b"%08x " % zlib.crc32(bytes(p)) + bytes(p) + b"\n"
-        try:
-            scan_bytes(line)
-        except Exception:  # noqa: BLE001
-            crashes += 1
-    manifest = json.loads((session / "manifest.json").read_text())
-    from gonio.cli.status import session_status
-
-    with tempfile.TemporaryDirectory() as d:
-        dd = Path(d) / "s"
-        shutil.copytree(session, dd)
-        fields = ["samples_file", "plan", "sim", "runs", "rig", "calibration", "running", "exit_status"]
-        crafted = [None, {}, [], "../x", 10 ** 30, -1, float("inf"), {"n_poses": 10 ** 30}, [[[]]], "x" * 1000]
-        for _ in range(max(1, n // 50)):
-            m = dict(manifest)
-            m[rng.choice(fields)] = rng.choice(crafted)
-            (dd / "manifest.json").write_text(json.dumps(m, allow_nan=True))
-            try:
-                session_status(dd)
-            except GonioError:
-                pass
-            except Exception:  # noqa: BLE001
-                crashes += 1
-    return {"records": n, "manifests": max(1, n // 50), "tracebacks": crashes}
+# -- servo-bus fault scenarios ---------------------------------------------------------------------------
+#: (name, LinkFaults rates on every servo reply, event before a pose: None / "estop" / "alarm").
+SCENARIOS = [("late replies 5 % (0.25 s)", dict(delay_rate=0.05), None),
+             ("dropped replies 5 %", dict(drop_rate=0.05), None),
+             ("corrupt replies 5 %", dict(corrupt_rate=0.05), None),
+             ("short valid-CRC replies 5 %", dict(short_rate=0.05), None),
+             ("all four at 3 % each", dict(delay_rate=0.03, drop_rate=0.03, corrupt_rate=0.03, short_rate=0.03), None),
+             ("servo overload alarm after pose 1 moved", {}, "alarm"),
+             ("E-stop pressed after pose 1 moved", {}, "estop")]
 
 
-# -- kill -9 and resume ---------------------------------------------------------------------------------
-SESSION_ARGS = ["--plan", "in_plane", "--theta-i", "30", "--theta-o-step", "20", "--quiet", "--seed", "5"]
-
-
-def _gonio(*args, **kw):
-    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    return subprocess.Popen([sys.executable, "-m", "gonio.cli.main", *args], cwd=REPO, env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, **kw)
-
-
-def kill_resume(n: int, seed: int = 6) -> dict:
-    """Sessions killed at random instants (creation included), resumed until complete, compared per pose
-    with an uninterrupted session of the same seed: records lost or duplicated, samples that differ."""
-    from gonio.session.store import load_session, scan_samples
-
-    rng = random.Random(seed)
-    with tempfile.TemporaryDirectory() as d:
-        ref = Path(d) / "ref"
-        assert _gonio("measure", "--sim", *SESSION_ARGS, "--out", str(ref)).wait() == 0
-        _, ref_samples = load_session(ref)
-        lost = duplicated = differ = unresumable = 0
-        for k in range(n):
-            out = Path(d) / f"s{k}"
-            proc = _gonio("measure", "--sim", *SESSION_ARGS, "--out", str(out))
-            time.sleep(rng.uniform(0.0, 1.5))
-            proc.send_signal(signal.SIGKILL)
-            proc.wait()
-            for _attempt in range(3):
-                if not out.exists():  # killed before the session existed: start it again
-                    code = _gonio("measure", "--sim", *SESSION_ARGS, "--out", str(out)).wait()
-                else:
-                    code = _gonio("resume", str(out), "--quiet").wait()
-                if code == 0:
-                    break
-            else:
-                unresumable += 1
-                continue
-            scan = scan_samples(out / "samples.jsonl")
-            duplicated += scan.n_duplicates
-            _, got = load_session(out)
-            for pose in np.unique(ref_samples.pose):
-                a, b = ref_samples.subset(ref_samples.pose == pose), got.subset(got.pose == pose)
-                if len(b) == 0:
-                    lost += 1
-                elif len(a) != len(b) or not np.array_equal(a.f, b.f):
-                    differ += 1
-    return {"kills": n, "unresumable": unresumable, "poses_lost": lost, "records_duplicated": duplicated,
-            "poses_not_bit_identical": differ}
-
-
-# -- fault scenarios ------------------------------------------------------------------------------------
-def fault_scenarios(quick: bool) -> list[dict]:
-    """Simulated sessions with faults on the servo link and an E-stop: each must complete, or stop with
-    one line and the resume command; nothing stored may be lost."""
+def fault_scenarios(quick: bool, scenarios=None) -> list[dict]:
+    """Simulated sessions (real bytes over the servo pty) with faults on the servo link, a servo's hardware
+    alarm and an E-stop between poses. Each must complete, or stop with one line naming the cause and the
+    resume command; every pose the runner reported measured must be stored (``lost`` 0); after an E-stop or
+    an alarm not one more goal packet reaches a servo (``goals after``)."""
     from gonio.plan.plan import CaptureSettings, Plan
     from gonio.session.runner import SessionRunner, open_devices
     from gonio.session.store import SessionStore, load_session
     from sim.faults import LinkFaults
     from sim.rig import SimRig, SimRigConfig
+    from sim.servo_bus import HW_OVERLOAD
 
     poses = np.radians([(30, 0, 30, 180), (45, 0, 20, 180), (20, 0, 50, 180), (60, 0, 40, 180), (10, 0, 30, 0),
                         (40, 0, 60, 180)])
-
-    rows = []
-    scenarios = [("late replies 5 %", dict(delay_rate=0.05)), ("dropped replies 5 %", dict(drop_rate=0.05)),
-                 ("corrupt replies 5 %", dict(corrupt_rate=0.05)), ("short valid-CRC replies 5 %", dict(short_rate=0.05)),
-                 ("E-stop at pose 3", None)]
     if quick:
-        scenarios = scenarios[3:]
-    for name, faults in scenarios:
+        poses = poses[:4]
+    rows = []
+    for name, rates, event in (scenarios or SCENARIOS):
         with tempfile.TemporaryDirectory() as d:
             t0 = time.perf_counter()
             plan = Plan(poses=poses, capture=CaptureSettings(), generator="custom")
             with SimRig(config=SimRigConfig(seed=3, width=240, height=180, focal_px=285.0),
-                        servo_faults=LinkFaults(seed=9, delay_s=0.25, **(faults or {}))) as sim:
-                def before(k, sim=sim, estop=faults is None):
+                        servo_faults=LinkFaults(seed=9, delay_s=0.25, **rates)) as sim:
+                marks = {}
+
+                def before(k, sim=sim, event=event, marks=marks):
                     sim.begin_pose(k)
-                    if estop and k == 3:
-                        sim.controller.set_estop(True)
+                    if event and k == 1:
+                        if event == "estop":
+                            sim.controller.set_estop(True)
+                        else:
+                            sim.servo_bus.servo(min(sim.servo_bus.servos)).trip(HW_OVERLOAD)
+                        marks["goals"] = len(sim.servo_bus.goal_log)
                 devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+                said = io.StringIO()
                 try:
                     store = SessionStore.create(Path(d) / "s", {"plan": plan, "mode": "test"})
                     result = SessionRunner(plan, store, devices, sim.calibration, sim.layout, before_pose=before,
-                                           resume_command="gonio resume DIR", stream=None).run()
+                                           resume_command="gonio resume DIR", stream=said).run()
                 finally:
                     devices.close()
-            one_line = "\n" not in result.status
+                goals_after = len(sim.servo_bus.goal_log) - marks["goals"] if marks else 0
             manifest, samples = load_session(Path(d) / "s")
             stored = len(set(samples.pose.tolist()))
-            rows.append({"scenario": name, "status": result.status.split(":")[0], "one_line": one_line,
-                         "poses_stored": stored, "measured": result.measured, "lost": result.measured - stored,
+            status = result.status
+            hint = "gonio resume DIR" in said.getvalue()
+            ok = status == "completed" or ("\n" not in status and hint)
+            rows.append({"scenario": name, "status": status.split(":")[0], "one_line": "\n" not in status,
+                         "resume_hint": hint, "ok": ok, "poses_stored": stored,
+                         "measured": result.measured, "lost": result.measured - stored, "goals_after": goals_after,
+                         "ended": manifest.get("exit_status", manifest.get("status", "")),
                          "wall_s": time.perf_counter() - t0})
     return rows
 
 
+# -- hooks: sections owned by other modules -------------------------------------------------------------
+def _hook_tables(module: str, title: str, quick: bool) -> list[Table]:
+    """``benchmarks.<module>.tables(quick)`` when that module exists; otherwise one table saying the
+    section is not available (never a silent gap)."""
+    try:
+        mod = importlib.import_module(f"benchmarks.{module}")
+    except ModuleNotFoundError as exc:
+        if exc.name != f"benchmarks.{module}":
+            raise
+        mod = None
+    if mod is None or not hasattr(mod, "tables"):
+        t = Table(title, ["section"])
+        t.add(f"not available (benchmarks/{module}.py with tables(quick) not present)")
+        return [t]
+    return list(mod.tables(quick=quick))
+
+
+def wire_tables(quick: bool) -> list[Table]:
+    """HOOK (protocol engineer): wire frames fuzzed per decoder / crashes / corrupt accepted —
+    ``benchmarks/robust_wire.py``, ``tables(quick) -> list[Table]``."""
+    return _hook_tables("robust_wire", "Wire frames fuzzed per decoder", quick)
+
+
+def session_tables(quick: bool) -> list[Table]:
+    """HOOK (session engineer): kill -9 + resume, mutated manifests and records, black/stale frames,
+    camera timeout — ``benchmarks/robust_session.py``, ``tables(quick) -> list[Table]``."""
+    return _hook_tables("robust_session", "Session robustness (kill -9, session files, camera frames)", quick)
+
+
 def run(quick: bool = False) -> list[Table]:
-    n_wire = 20_000 if quick else 1_000_000
+    tables = wire_tables(quick)
     n_dxl = 20_000 if quick else 1_000_000
-    t = Table("Wire frames fuzzed (1-5 flipped bits, random corruption, truncation, insertion), then a valid frame",
-              ["decoder", "frames", "crashes", "corrupt accepted", "resync lost", "goal"])
-    for row in (python_wire_fuzz(n_wire // (5 if not quick else 1)), c_wire_fuzz(n_wire)):
-        t.add(row["decoder"], row["frames"], row["crashes"], row["corrupt_accepted"], row["lost_resync"], "0 / 0 / 0")
-    t.notes.append("Python decoder: a fifth of the C count at full scale (it runs ~30x slower); both see the same "
-                   "mutation kinds.")
-    tables = [t]
     d = dxl_status_fuzz(n_dxl)
     t = Table("Dynamixel status packets fuzzed through gonio's checked packet handler (the real SDK's receive path)",
               ["packets", "crashes", "wrong values", "accepted (right values)", "goal"])
@@ -314,24 +205,17 @@ def run(quick: bool = False) -> list[Table]:
     t = Table("Mutated configuration files (rig, turntable rig, camera, target, material)",
               ["files", "tracebacks", "goal"])
     t.add(cf["files"], cf["tracebacks"], "0")
+    if cf["example"]:
+        t.notes.append(f"first traceback: {cf['example']}")
     tables.append(t)
-    with tempfile.TemporaryDirectory() as d:
-        s = Path(d) / "s"
-        assert _gonio("measure", "--sim", *SESSION_ARGS, "--out", str(s)).wait() == 0
-        rf = record_fuzz(s, 2_000 if quick else 50_000)
-    t = Table("Crafted session files (records with valid checksums, manifest fields)",
-              ["records", "manifests", "tracebacks", "goal"])
-    t.add(rf["records"], rf["manifests"], rf["tracebacks"], "0")
-    tables.append(t)
-    kr = kill_resume(3 if quick else 20)
-    t = Table("kill -9 at random instants (creation included), then resume, against an uninterrupted session",
-              ["kills", "unresumable", "poses lost", "records duplicated", "poses not bit-identical", "goal"])
-    t.add(kr["kills"], kr["unresumable"], kr["poses_lost"], kr["records_duplicated"], kr["poses_not_bit_identical"],
-          "0 / 0 / 0 / 0")
-    tables.append(t)
-    t = Table("Fault scenarios (simulated rig; servo link faults on every reply)",
-              ["scenario", "ended", "one line", "poses stored", "lost", "wall s"])
+    t = Table("Servo-bus fault scenarios through a simulated session (real bytes over the servo pty)",
+              ["scenario", "ended", "one line + resume hint", "poses stored", "lost", "goal packets after",
+               "wall s"])
     for r in fault_scenarios(quick):
-        t.add(r["scenario"], r["status"], "yes" if r["one_line"] else "NO", r["poses_stored"], r["lost"], r["wall_s"])
+        t.add(r["scenario"], r["status"], "yes" if r["ok"] else "NO", r["poses_stored"], r["lost"],
+              r["goals_after"], r["wall_s"])
+    t.notes.append("Goal: every session completed, or stopped with one line and `gonio resume DIR`; lost 0; "
+                   "0 goal packets after an alarm or E-stop.")
     tables.append(t)
+    tables.extend(session_tables(quick))
     return tables

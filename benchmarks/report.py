@@ -190,6 +190,25 @@ def _plot_realdata(ax, tables) -> bool:
     return True
 
 
+def _calibration(q):
+    from benchmarks import bench_calibration
+
+    return bench_calibration.run(q)
+
+
+def _plot_calibration(ax, tables) -> bool:
+    t = _find(tables, "geometry used by the host", "wi median", "wi p95")
+    if t is None or not t.rows:
+        return False
+    x = np.arange(len(t.rows))
+    for k, name in enumerate(("wi median", "wi p95", "wo median", "wo p95")):
+        ax.bar(x + (k - 1.5) * 0.2, _col(t, name).astype(float), width=0.2, label=name)
+    ax.set_xticks(x, [str(m) for m in _col(t, "geometry used by the host")], rotation=15, ha="right", fontsize=7)
+    ax.set(ylabel="angular error vs truth (°)", yscale="log", title="As-built rigs: declared vs calibrated geometry")
+    ax.legend()
+    return True
+
+
 TRADES = [
     Trade("plans", "Plan density and kind → lab time vs BRDF error", _plans, _plot_plans),
     Trade("capture", "Exposure brackets and frames averaged → lab time vs noise", _capture, _plot_capture),
@@ -198,6 +217,8 @@ TRADES = [
     Trade("merl", "Interpolation in MERL lookup → speed vs error", _merl, _plot_merl),
     Trade("fit", "Fit data subsampling → fit time vs parameter error", _fit, _plot_fit),
     Trade("realdata", "Real measured materials → selected fit and time vs published fits", _realdata, _plot_realdata),
+    Trade("calibration", "Rig geometric calibration → lab time vs wi/wo and lobe error on as-built rigs", _calibration,
+          _plot_calibration),
 ]
 
 

@@ -298,10 +298,10 @@ def tables(quick: bool = False) -> list:
     from benchmarks.common import Table
 
     kill = Table("Session kill -9 + resume (gonio measure --sim, SIGKILL at a random instant)", KILL_COLUMNS)
-    for r in run_kill_resume(4 if quick else 34, quick):
+    for r in run_kill_resume(2 if quick else 34, quick):
         kill.add(*r)
     mut = Table("Mutated session files (status, export, repair, resume through gonio.cli.main)", MUTATION_COLUMNS)
-    for r in run_mutated_session_files(20 if quick else 500, quick):
+    for r in run_mutated_session_files(8 if quick else 500, quick):
         mut.add(*r)
     frames = Table("Camera frame faults (gonio measure --sim --sim-frame-faults)", FRAME_COLUMNS)
     for r in run_frame_faults(1 if quick else 3, quick):

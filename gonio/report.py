@@ -219,10 +219,37 @@ def sphere_images(brdf, theta_deg: float, phi_deg: float = 0.0, *, size: int = 9
     return r.radiance, tonemap(r.radiance, white=white), r
 
 
+#: Samples (not a table) are rendered as a measured sphere only above this count.
+MIN_SAMPLES_FOR_SPHERE = 2000
+#: Relative error at the top of the error images' colour scale.
+ERROR_SCALE = 0.2
+
+
+def error_image(rel: np.ndarray, scale: float = ERROR_SCALE) -> np.ndarray:
+    """8-bit RGB image of a relative error map: 0 → black, ``scale`` or more → yellow (inferno)."""
+    import cv2
+
+    level = np.rint(255 * np.clip(np.nan_to_num(rel / scale), 0, 1)).astype(np.uint8)
+    return cv2.applyColorMap(level, cv2.COLORMAP_INFERNO)[..., ::-1]
+
+
+def renders_measured(data) -> bool:
+    """Whether the measured data are drawn on a sphere: a table, or more than
+    :data:`MIN_SAMPLES_FOR_SPHERE` samples (fewer leave most pixels without a measurement)."""
+    return data.table is not None or (data.samples is not None and len(data.samples) > MIN_SAMPLES_FOR_SPHERE)
+
+
+def sphere_sources(entry: Entry) -> list[tuple[str, object]]:
+    """``(label, brdf)`` of every sphere of an entry: the measured data (if :func:`renders_measured`),
+    then each fitted model (the report's columns and the viewer's live images)."""
+    return ([("measured", entry.data)] if renders_measured(entry.data) else []) + \
+        [(label, model) for label, (model, _rep) in entry.fits.items()]
+
+
 def sphere_panel(entry: Entry, *, size: int = 96) -> str:
     """HTML table: one row per light angle; the measured data, each model, and |model − data| / data."""
     data = entry.data
-    measured = data if (data.table is not None or (data.samples is not None and len(data.samples) > 2000)) else None
+    measured = data if renders_measured(data) else None
     rows = []
     head = ["light θ"] + (["measured"] if measured is not None else []) + list(entry.fits) + \
         ([f"error of {k}" for k in entry.fits] if measured is not None else [])
@@ -246,15 +273,18 @@ def sphere_panel(entry: Entry, *, size: int = 96) -> str:
             if ref is not None:
                 with np.errstate(divide="ignore", invalid="ignore"):
                     rel = np.where(ref > 0, np.abs(rad - ref) / ref, 0.0).mean(axis=-1)
-                heat = np.clip(rel / 0.5, 0, 1)  # 0 .. 50 % relative error
-                err_img = np.stack([255 * heat, 255 * (1 - heat) * (heat > 0), 0 * heat], axis=-1).astype(np.uint8)
+                err_img = error_image(rel)
                 errs.append(f'<img class="sphere" alt="error of {html.escape(label)}" src="{_png(err_img, rm.mask)}"><br>'
                             f"<small>median {100 * float(np.median(rel[ref.sum(-1) > 0])) if np.any(ref.sum(-1) > 0) else 0:.1f} %</small>")
         cells += errs
         rows.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
-    return ('<table class="spheres"><tr>' + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"
-            + "".join(rows) + "</table><p><small>Error images: |model − measured| / measured, black = 0, "
-            "red = 50 % or more.</small></p>")
+    sparse = "" if measured is not None else (
+        f"<p class='sparse'>{len(data.samples) if data.samples is not None else 0} samples are too few to render the "
+        f"measured data on a sphere (more than {MIN_SAMPLES_FOR_SPHERE} needed: most pixels would have no "
+        "measurement); the fitted models are shown.</p>")
+    return (sparse + '<table class="spheres"><tr>' + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"
+            + "".join(rows) + "</table><p><small>Error images: |model − measured| / measured, mean of R, G, B; colour map "
+            f"inferno: black 0 %, yellow {100 * ERROR_SCALE:g} % or more.</small></p>")
 
 
 def _bounds(model) -> dict:

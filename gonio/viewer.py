@@ -10,19 +10,20 @@ it was started with.
 
 from __future__ import annotations
 
+import html
 import json
 import threading
 import urllib.parse
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
-from gonio.report import Entry, build_report, png_bytes, slice_figure, sphere_images
+from gonio.report import Entry, build_report, png_bytes, slice_figure, sphere_images, sphere_sources
 
 __all__ = ["make_server", "interactive_panel"]
 
 
 def interactive_panel(k: int, entry: Entry) -> str:
     """Sliders and images of entry ``k``; the script fetches new renders as the sliders move."""
-    labels = (["measured"] if entry.data.table is not None or entry.data.samples is not None else []) + list(entry.fits)
+    labels = [html.escape(label) for label, _ in sphere_sources(entry)]
     imgs = "".join(f"<figure style='display:inline-block'><img id='live-{k}-{j}' class='live' width=192 height=192 "
                    f"alt='{lab}'><figcaption>{lab}</figcaption></figure>" for j, lab in enumerate(labels))
     return f"""
@@ -94,8 +95,9 @@ def make_server(entries: list[Entry], *, port: int = 0, title: str = "gonio view
             k = int(_number(q, "entry", 0, len(entries) - 1, 0))
             e = entries[k]
             if url.path == "/sphere.png":
-                sources = ([e.data] if e.data.table is not None or e.data.samples is not None else []) + \
-                    [m for m, _r in e.fits.values()]
+                sources = [brdf for _label, brdf in sphere_sources(e)]
+                if not sources:
+                    return self._send(404, b"no sphere", "text/plain")
                 j = int(_number(q, "which", 0, len(sources) - 1, 0))
                 with lock:  # numpy/cv2 are thread-safe here, but one render at a time keeps memory flat
                     try:

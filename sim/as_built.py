@@ -21,7 +21,7 @@ import numpy as np
 from gonio.errors import ConfigError
 from gonio.rig.chain import ARM_FIELDS, TURNTABLE_FIELDS, ChainErrors, chain_forward, true_directions
 
-__all__ = ["AsBuilt", "TOLERANCES", "parse_as_built"]
+__all__ = ["AsBuilt", "TOLERANCES", "observe", "parse_as_built", "render_board_poses"]
 
 #: Half-widths of the uniform assembly errors of :meth:`AsBuilt.from_seed` (issue 15's "realistic" rig).
 TOLERANCES = {
@@ -96,6 +96,75 @@ class AsBuilt:
     def directions(self, joints):
         """True unit ``(wi, wo)`` at the sample centre."""
         return true_directions(self.rig, self.errors, joints)
+
+
+def render_board_poses(as_built: AsBuilt, joints, seed: int = 0):
+    """Camera poses (position, R) that gonio's ChArUco pipeline (:func:`gonio.pipeline.markers.detect_board_pose`)
+    estimates from frames the simulated camera renders on the as-built rig at ``joints`` (N, 4); ``None``
+    where the board is not found. Light on at full output, default sensor and target."""
+    from gonio.pipeline.markers import detect_board_pose, to_gray8
+    from gonio.pipeline.target import CameraPose
+    from sim.rig import SimRig, SimRigConfig
+
+    out = []
+    sim = SimRig(as_built.rig, config=SimRigConfig(seed=seed, as_built=as_built.to_dict()))
+    cam = sim.sim_camera
+    cam._light_output = None  # no controller running: the light is simply on
+    for k, j in enumerate(np.asarray(joints, dtype=np.float64)):
+        pc, R = as_built.camera_pose(j)
+        cam.set_pose(CameraPose(R, -R @ pc))
+        cam.set_light(as_built.light_position(j), on=True, output=1.0)
+        cam.reseed([int(seed), k, 1516])
+        frame = cam.capture(0.02)
+        bp = detect_board_pose(to_gray8(frame.pixels, sim.sensor.bit_depth), sim.calibration, sim.layout.charuco)
+        out.append(None if bp is None else (bp.pose.centre, bp.pose.R))
+    return out
+
+
+def observe(as_built: AsBuilt, plan: dict, seed: int = 0, *, pose_mm: float = 0.2, pose_deg: float = 0.02,
+            highlight_px: float = 0.2, focal_px: float = 380.0, joint_deg: float = 0.02, render: bool = False):
+    """Simulated calibration observations on the as-built rig for ``plan`` (:func:`gonio.rig.geocal.calibration_plan`):
+    the camera's ChArUco pose with Gaussian noise (``pose_mm``, ``pose_deg`` per axis: a board pose
+    estimate's typical scatter) and the light's reflection in a mirror on the sample plane, its centroid
+    with ``highlight_px`` of noise at ``focal_px``; the arms stand ``joint_deg`` (servo noise, backlash) off
+    the commanded joints. ``render``: the camera's poses are instead what gonio's ChArUco pipeline
+    estimates from rendered frames (:func:`render_board_poses`; the mirror highlight stays geometric)."""
+    from gonio.rig.geocal import CameraObservation, HighlightObservation
+
+    rng = np.random.default_rng([int(seed), 1515])
+    rig = as_built.rig
+
+    def noisy_pose(j):
+        actual = j + np.radians(rng.normal(0.0, joint_deg, j.shape))
+        _, pc, R = chain_forward(rig, as_built.errors, actual)
+        rv = np.radians(rng.normal(0.0, pose_deg, 3))
+        from gonio.rig.chain import _rx, _ry, _rz
+        dR = _rx(np.asarray(rv[0])) @ _ry(np.asarray(rv[1])) @ _rz(np.asarray(rv[2]))
+        return actual, pc + rng.normal(0.0, pose_mm * 1e-3, 3), pc, R, dR @ R
+
+    cams, highs = [], []
+    rendered = {}
+    if render:
+        for key in ("camera", "highlight"):
+            rendered[key] = render_board_poses(as_built, plan[key], seed)
+    for k, j in enumerate(plan["camera"]):
+        _, obs_p, _, _, obs_R = noisy_pose(j)
+        if render:
+            if rendered["camera"][k] is None:
+                continue
+            obs_p, obs_R = rendered["camera"][k]
+        cams.append(CameraObservation(np.array(j), obs_p, obs_R))
+    for k, j in enumerate(plan["highlight"]):
+        actual, obs_p, pc, R, obs_R = noisy_pose(j)
+        if render:
+            if rendered["highlight"][k] is None:
+                continue
+            obs_p, obs_R = rendered["highlight"][k]
+        pl = chain_forward(rig, as_built.errors, actual)[0] * np.array([1.0, 1.0, -1.0])
+        v = R @ (pl - pc)
+        xy = v[:2] / v[2] + rng.normal(0.0, highlight_px / focal_px, 2)
+        highs.append(HighlightObservation(np.array(j), xy, obs_p, obs_R))
+    return cams, highs
 
 
 def parse_as_built(rig, spec) -> AsBuilt:

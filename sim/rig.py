@@ -41,7 +41,7 @@ from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
 from gonio.rig.control_table import load_control_table
 from gonio.rig.interfaces import Frame
 from gonio.rig.kinematics import Rig, load_rig
-from sim.as_built import AsBuilt, parse_as_built
+from sim.as_built import AsBuilt, observe, parse_as_built
 from sim.camera import SensorModel, SimCamera, SimScene
 from sim.clock import SimClock
 from sim.controller import ControllerEmulator
@@ -49,7 +49,7 @@ from sim.faults import FrameFaults, LinkFaults
 from sim.seeding import SETUP, pose_rng
 from sim.servo_bus import HW_OVERLOAD, ServoBus
 
-__all__ = ["AsBuilt", "parse_as_built", "SimRig", "SimRigConfig", "RigCamera", "RecordingServoBus", "DEFAULT_MATERIAL", "PARK_DEG"]
+__all__ = ["AsBuilt", "observe", "parse_as_built", "SimRig", "SimRigConfig", "RigCamera", "RecordingServoBus", "DEFAULT_MATERIAL", "PARK_DEG"]
 
 #: Material of the sample when none is given (a plastic-like GGX microfacet).
 DEFAULT_MATERIAL = {"model": "microfacet",
@@ -83,6 +83,10 @@ class SimRigConfig:
     camera_link: str = "direct"
     #: Camera faults, :meth:`sim.faults.FrameFaults.from_spec` (``"black=0.05,stale=0.01"``; empty: none).
     frame_faults: str = ""
+    #: The rig controller behind its pty: ``firmware`` (the reference firmware's C code, host build,
+    #: :mod:`sim.firmware`), ``python`` (the independent Python implementation, :mod:`sim.controller`) or
+    #: ``simavr`` (the AVR build in an emulated ATmega328P, :mod:`sim.simavr`; real emulated time).
+    controller: str = "firmware"
     #: As-built geometry (:mod:`sim.as_built`): ``None`` the declared (perfect) rig, else
     #: :meth:`sim.as_built.AsBuilt.to_dict` (the assembly errors the simulator renders with).
     as_built: dict | None = None
@@ -108,6 +112,19 @@ class SimRigConfig:
     def from_dict(cls, d) -> "SimRigConfig":
         known = set(cls.__dataclass_fields__)
         return cls(**{k: v for k, v in dict(d).items() if k in known})
+
+
+def controller_class(kind: str):
+    """The emulator class of SimRigConfig.controller: ``firmware`` or ``python``."""
+    if kind == "python":
+        return ControllerEmulator
+    if kind == "firmware":
+        from sim.firmware import FirmwareController
+        return FirmwareController
+    if kind == "simavr":
+        from sim.simavr import SimavrController
+        return SimavrController
+    raise ValueError(f"sim rig: controller = {kind!r}: must be 'firmware', 'python' or 'simavr'")
 
 
 class RecordingServoBus(ServoBus):
@@ -219,7 +236,8 @@ class SimRig:
         self.servo_bus = RecordingServoBus({j.servo_id: j.model for j in self.rig.joints}, self.clock, seed=cfg.seed,
                                            noise_ticks=cfg.servo_noise_ticks, backlash_ticks=cfg.backlash_ticks,
                                            faults=servo_faults, positions=park)
-        self.controller = ControllerEmulator(self.clock, faults=controller_faults, seed=cfg.seed + 1,
+        self.controller = controller_class(cfg.controller)(
+                                             self.clock, faults=controller_faults, seed=cfg.seed + 1,
                                              warmup_depth=cfg.warmup_depth, warmup_tau=cfg.warmup_tau,
                                              pd_noise=cfg.pd_noise)
         self.sensor = SensorModel(bit_depth=cfg.bit_depth)

@@ -66,6 +66,10 @@ def register(sub) -> None:
     p.add_argument("--sim-frame-faults", default="", metavar="KIND=RATE,...",
                    help="simulated camera faults per frame: black, stale, saturated, wrong_size, nan, timeout "
                         "(e.g. black=0.05,stale=0.01; black=1 is a dead camera)")
+    p.add_argument("--sim-controller", choices=("firmware", "python", "simavr"), default="firmware",
+                   help="the simulated rig controller: firmware (default: the reference firmware's C code, host "
+                        "build), python (the independent Python emulator) or simavr (the AVR binary in an "
+                        "emulated ATmega328P; real emulated time)")
     p.add_argument("--sim-camera", choices=("direct", "gige"), default="direct",
                    help="gige: the simulated camera is served as a GigE Vision device on 127.0.0.1 and read "
                         "through gonio's Aravis backend, an 8-bit RGB8 sensor (needs gir1.2-aravis-0.8 and "
@@ -162,8 +166,14 @@ def _rig_record(rig, source: str, text: str) -> dict:
     that a resumed session (or anything rebuilding the rig) uses this rig even if the file changes."""
     import hashlib
 
-    return {"name": rig.name, "source": source, "toml": text,
-            "sha256": hashlib.sha256(text.encode("utf-8")).hexdigest()}
+    rec = {"name": rig.name, "source": source, "toml": text,
+           "sha256": hashlib.sha256(text.encode("utf-8")).hexdigest()}
+    if getattr(rig, "geometry_errors", None) is not None:  # a calibrated rig (gonio calibrate rig): its uncertainties
+        import tomllib
+
+        cal = tomllib.loads(text).get("calibration", {})
+        rec["calibration"] = {k: cal[k] for k in ("uncertainty", "not_identified", "rms") if k in cal}
+    return rec
 
 
 def _warn(msg: str) -> None:
@@ -392,6 +402,11 @@ def _checked_sim(sim, where: str) -> dict:
                 ChainErrors.from_dict(errors, source=f"{where}: sim.as_built")  # ConfigError naming the field
             out[key] = value
             continue
+        if key == "controller":
+            if value not in ("firmware", "python", "simavr"):
+                raise DataError(f"{where}: sim.controller = {str(value)[:40]!r}: expected 'firmware', 'python' or 'simavr'")
+            out[key] = value
+            continue
         if key == "camera_link":
             if value not in ("direct", "gige"):
                 raise DataError(f"{where}: sim.camera_link = {str(value)[:40]!r}: expected 'direct' or 'gige'")
@@ -534,6 +549,8 @@ def run_measure(args) -> int:
             except ValueError as exc:
                 raise ConfigError.field("--sim-frame-faults", "frame faults", args.sim_frame_faults, str(exc)) from None
             link["frame_faults"] = args.sim_frame_faults
+        if getattr(args, "sim_controller", "firmware") != "firmware":
+            link["controller"] = args.sim_controller
         if getattr(args, "sim_as_built", ""):
             link["as_built"] = plugin("sim.rig").parse_as_built(rig, args.sim_as_built).to_dict()
         config = SimRigConfig.at_resolution(w, h, seed=args.seed, **link)

@@ -42,14 +42,16 @@ def _parse_ids(text: str | None):
     try:
         for part in text.split(","):
             if "-" in part:
-                a, b = part.split("-", 1)
-                ids.extend(range(int(a), int(b) + 1))
+                a, b = (int(v) for v in part.split("-", 1))
+                if not (0 <= a <= 252 and 0 <= b <= 252):  # bounded before a range is expanded
+                    raise ConfigError.field("--ids", "ids", text, "servo IDs are 0..252")
+                ids.extend(range(a, b + 1))
             elif part.strip():
                 ids.append(int(part))
     except ValueError:
-        raise ConfigError.field("--ids", "ids", text, "expected IDs like 1-10 or 1,3,5") from None
+        raise ConfigError.field("--ids", "ids", text, "expected IDs like 1-10 or 1,3,5 (servo IDs are 0..252)") from None
     if not ids or any(not 0 <= i <= 252 for i in ids) or len(ids) > 253:
-        raise ConfigError.field("--ids", "ids", text, "IDs must be in 0..252")
+        raise ConfigError.field("--ids", "ids", text, "servo IDs are 0..252 (a range low-high, low <= high)")
     return ids
 
 
@@ -58,8 +60,12 @@ def _check_numbers(args) -> None:
     import math
 
     from gonio.errors import ConfigError
+    from gonio.rig.control_table import BAUD_RATES
     from gonio.rig.dynamixel import MAX_ID
 
+    if args.baud not in BAUD_RATES:
+        raise ConfigError.field("--baud", "baud", args.baud,
+                                f"not a Dynamixel baud rate; use one of {', '.join(map(str, BAUD_RATES))}")
     if not (math.isfinite(args.latency_ms) and 0 < args.latency_ms <= 1000):
         raise ConfigError.field("--latency-ms", "latency_ms", args.latency_ms, "must be in (0, 1000] ms")
     if args.servo_command != "move":
@@ -89,10 +95,10 @@ def run(args) -> int:
     from gonio.rig.control_table import load_control_table, table_for_model_number
     from gonio.rig.dynamixel import DynamixelBus
 
+    _check_numbers(args)  # every value first: a wrong one is named even when the port is wrong too
+    ids = _parse_ids(getattr(args, "ids", None))
     if not os.path.exists(args.port):
         raise ConfigError.field("--port", "port", args.port, "no such serial device")
-    _check_numbers(args)
-    ids = _parse_ids(getattr(args, "ids", None))
     with DynamixelBus(args.port, args.baud, latency_timer_ms=args.latency_ms) as bus:
         if args.servo_command in ("scan", "read"):
             found = bus.scan(ids, attempts=3)  # a lost ping is not a missing servo

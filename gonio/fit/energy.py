@@ -17,7 +17,7 @@ __all__ = ["THETAS_DEG", "NODES", "TOLERANCE", "albedo_check"]
 #: Incidence angles at which the albedo is checked (degrees).
 THETAS_DEG = (0.0, 20.0, 40.0, 60.0, 75.0, 85.0)
 #: Gauss-Legendre nodes in θo.
-NODES = 192
+NODES = 128
 #: ρ above 1 + TOLERANCE is a violation (quadrature error of broad lobes is ~1e-3).
 TOLERANCE = 0.01
 

@@ -129,14 +129,17 @@ class Projection:
             b = np.stack([x @ self.y for x in wb])
             return np.broadcast_to(G1, (3, K, K)), b.T, self._c0
         t = np.asarray(self.y) - np.asarray(f0)
-        n = t.shape[0]
-        # (N, 3, K) at once; einsum's own loops (no threaded BLAS for these thin products: on a busy machine
-        # its threads cost more than the flops)
-        Bst = np.stack([np.broadcast_to(B[:, None] if B.ndim == 1 else B, (n, 3)) for B in cols], axis=-1)
-        WB = Bst * self.w[:, :, None]
-        G = np.einsum("nck,ncl->ckl", WB, Bst)
-        b = np.einsum("nck,nc->ck", WB, t)
-        c0 = np.einsum("nc,nc,nc->c", t, self.w, t)
+        K = len(cols)
+        # column sums of (N, 3) products, all channels at once (no threaded BLAS for these thin products: on a
+        # busy machine its threads cost more than the flops, and einsum's generic loops are slower still)
+        Bs = [B[:, None] if B.ndim == 1 else B for B in cols]
+        WB = [B * self.w for B in Bs]
+        G = np.empty((3, K, K))
+        for k in range(K):
+            for l in range(k, K):
+                G[:, k, l] = G[:, l, k] = (WB[k] * Bs[l]).sum(axis=0)
+        b = np.stack([(x * t).sum(axis=0) for x in WB], axis=-1)
+        c0 = (t * self.w * t).sum(axis=0)
         return G, b, c0
 
     def __call__(self, shape) -> tuple[float, np.ndarray]:

@@ -182,6 +182,8 @@ class MerlTable:
             i_h, i_d, i_p = half_diff_index(th, td, pd)
             out = self.values[i_h, i_d, i_p]
         else:
+            # wi == wo: the reference's acos(wi · h) of a dot product rounded above 1 is NaN; θd is 0 there
+            td = np.where(np.isnan(td) & np.isfinite(th), 0.0, td)
             out = self._trilinear(*grid_coords(th, td, pd))
         above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
         return np.where(above[..., None], out, 0.0)

@@ -74,6 +74,14 @@ class ChainErrors:
     turntable: dict = field(default_factory=lambda: {k: 0.0 for k in TURNTABLE_FIELDS})
     sample_height_mm: float = 0.0
 
+    def folded(self) -> "ChainErrors":
+        """The same rig with the sample height folded into both arcs' ``arc_z_mm`` (what images of the
+        sample plane can determine; equal up to the axis tilts times the height, < 0.01 mm)."""
+        light, camera = dict(self.light), dict(self.camera)
+        light["arc_z_mm"] -= self.sample_height_mm
+        camera["arc_z_mm"] -= self.sample_height_mm
+        return ChainErrors(light, camera, dict(self.turntable), 0.0)
+
     # -- flat parameter vector (the calibration's unknowns) ---------------------------------------
     def names(self) -> list[str]:
         return ([f"light.{k}" for k in ARM_FIELDS] + [f"camera.{k}" for k in ARM_FIELDS]

@@ -41,7 +41,7 @@ mode (ROBOTIS e-manual, "Profile Velocity(112)"), which the servo emulator uses 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -181,6 +181,12 @@ class Rig:
     source: str = "<rig>"
     layout: str = "arms"
     light_azimuth: float = 0.0
+    #: The rig's estimated assembly errors (:class:`gonio.rig.chain.ChainErrors`, from the ``[calibration]``
+    #: table ``gonio calibrate rig`` writes), or ``None``: the declared geometry. When present, the forward
+    #: kinematics (:meth:`directions`, :meth:`forward`, :meth:`light_position`, :meth:`camera_pose`) follow
+    #: the calibrated chain (:func:`gonio.rig.chain.chain_forward`); the inverse (:meth:`solve_many`) stays the
+    #: declared one, so a pose lands within the calibration's corrections of its target and is recorded where it is.
+    geometry_errors: object = field(default=None, compare=False)
 
     def within(self, other: "Rig") -> "Rig":
         """This rig with every joint's limits, speed and acceleration no wider than ``other``'s joint of
@@ -263,6 +269,10 @@ class Rig:
 
     def directions(self, joints) -> tuple[np.ndarray, np.ndarray]:
         """Unit directions ``(wi, wo)`` (toward light, toward camera; sample frame) for joints ``(..., 4)``."""
+        if self.geometry_errors is not None:
+            from gonio.rig.chain import true_directions
+
+            return true_directions(self, self.geometry_errors, joints)
         laz, lel, caz, cel = self.arm_angles(joints)
         return self._arm_dir(laz, lel), self._arm_dir(caz, cel)
 
@@ -270,6 +280,13 @@ class Rig:
         """BRDF angles ``(θi, φi, θo, φo)`` of joints ``(..., 4)``: per arm (:meth:`arm_angles`)
         θ = |el|, φ = az (+π if el < 0), φ wrapped to [0, 2π). At the pole (el = 0) φ is the arm's
         azimuth in the sample frame."""
+        if self.geometry_errors is not None:  # from the calibrated directions (θ = polar angle, φ in [0, 2π))
+            from gonio.geometry import to_spherical
+
+            wi, wo = self.directions(joints)
+            ti, pi_ = to_spherical(wi)
+            to, po = to_spherical(wo)
+            return ti, np.mod(pi_, _TWO_PI), to, np.mod(po, _TWO_PI)
         laz, lel, caz, cel = self.arm_angles(joints)
 
         def arm(az, el):
@@ -281,6 +298,10 @@ class Rig:
 
     def light_position(self, joints) -> np.ndarray:
         """Light position in the sample frame, metres, ``(..., 3)``; it points at the origin."""
+        if self.geometry_errors is not None:
+            from gonio.rig.chain import chain_forward
+
+            return chain_forward(self, self.geometry_errors, joints)[0]
         return self.light_radius * self.directions(joints)[0]
 
     def camera_pose(self, joints) -> tuple[np.ndarray, np.ndarray]:
@@ -291,6 +312,11 @@ class Rig:
         convention), so a sample-frame point ``p`` is ``R @ (p - position)`` in camera coordinates.
         x is the camera arm's azimuth tangent (in the sample frame), defined everywhere including the pole.
         """
+        if self.geometry_errors is not None:
+            from gonio.rig.chain import chain_forward
+
+            _, position, R = chain_forward(self, self.geometry_errors, joints)
+            return position, R
         _, _, az, el = self.arm_angles(joints)
         wo = self._arm_dir(az, el)
         z = -wo
@@ -300,15 +326,20 @@ class Rig:
 
     # -- reachability ------------------------------------------------------------------------------
     def check_directions(self, wi, wo) -> np.ndarray:
-        """Reason codes (index into :data:`REASONS`) of the collision and shadow tests, ``(...)``."""
+        """Reason codes (index into :data:`REASONS`) of the collision and shadow tests, ``(...)``.
+
+        A direction with a non-finite component is ``"collision"``: the guard cannot clear what is not a
+        direction (NaN compares false with every threshold, so without this it would pass as ``"ok"``)."""
         wi, wo = np.broadcast_arrays(np.asarray(wi, float), np.asarray(wo, float))
         code = np.zeros(wi.shape[:-1], dtype=np.int8)
-        sep = np.arccos(np.clip(dot(wi, wo), -1.0, 1.0))
-        code[sep < self.min_separation] = 2
-        # Shadow: distance from the camera centre c to the segment origin -> light position L.
-        c, L = self.camera_radius * wo, self.light_radius * wi
-        t = np.clip(dot(c, L) / (self.light_radius ** 2), 0.0, 1.0)
-        dist = np.linalg.norm(c - t[..., None] * L, axis=-1)
+        finite = np.isfinite(wi).all(axis=-1) & np.isfinite(wo).all(axis=-1)
+        with np.errstate(invalid="ignore", over="ignore"):  # non-finite rows: coded below, values unused
+            sep = np.arccos(np.clip(dot(wi, wo), -1.0, 1.0))
+            # Shadow: distance from the camera centre c to the segment origin -> light position L.
+            c, L = self.camera_radius * wo, self.light_radius * wi
+            t = np.clip(dot(c, L) / (self.light_radius ** 2), 0.0, 1.0)
+            dist = np.linalg.norm(c - t[..., None] * L, axis=-1)
+        code[~(sep >= self.min_separation) | ~finite] = 2  # NaN separation included
         code[(code == 0) & (dist < self.camera_body_radius + self.light_beam_radius)] = 3
         return code
 
@@ -394,15 +425,15 @@ class Rig:
             joints = np.choose(best[..., None], [j for j, _ in sols])
             code = np.choose(best, [c for _, c in sols])
             return joints, code
+        finite = np.isfinite(ti) & np.isfinite(pi_) & np.isfinite(to) & np.isfinite(po)
+        ti, pi_, to, po = (np.where(finite, a, 0.0) for a in (ti, pi_, to, po))  # refused below, solved quietly
         if self.layout == "turntable":
             joints, ok = self._solve_turntable(ti, pi_, to, po, cur)
         else:
             laz, lel, lok = self._solve_arm(ti, pi_, cur[..., 0], cur[..., 1], 0, 1)
             caz, cel, cok = self._solve_arm(to, po, cur[..., 2], cur[..., 3], 2, 3)
             joints, ok = np.stack([laz, lel, caz, cel], axis=-1), lok & cok
-        finite = np.isfinite(ti) & np.isfinite(pi_) & np.isfinite(to) & np.isfinite(po)
-        with np.errstate(invalid="ignore"):
-            wi, wo = dirs_from_angles(*(np.where(finite, a, 0.0) for a in (ti, pi_, to, po)))
+        wi, wo = dirs_from_angles(ti, pi_, to, po)
         # a non-finite angle is no pose at all: refused here, whatever the caller checked (the collision
         # guard must not depend on its callers: a pole solution of an infinite azimuth is not a pose)
         ok = ok & finite & np.all(np.isfinite(joints), axis=-1)
@@ -516,8 +547,18 @@ def load_rig(path: str | Path | None = None, *, text: str | None = None, source:
 
     if isinstance(baud, bool) or baud not in BAUD_RATES:
         raise ConfigError.field(src, "bus.baud", baud, f"must be one of {', '.join(map(str, BAUD_RATES))}")
+    errors = None
+    if "calibration" in data:  # written by `gonio calibrate rig` (gonio.rig.geocal.write_calibrated_rig)
+        from gonio.rig.chain import ChainErrors
+
+        cal = data["calibration"]
+        if not isinstance(cal, dict):
+            raise ConfigError.field(src, "calibration", str(cal)[:40], "must be a table of estimated assembly errors")
+        errors = ChainErrors.from_dict({k: v for k, v in cal.items() if k in ("light", "camera", "turntable",
+                                                                              "sample_height_mm")},
+                                       source=f"{src}: calibration")
     return Rig(name=rig_name, joints=tuple(joints), light_radius=rl, camera_radius=rc,
                camera_body_radius=_num(src, "geometry", geo, "camera_body_radius_m", 0, 10),
                light_beam_radius=_num(src, "geometry", geo, "light_beam_radius_m", 0, 10),
                min_separation=math.radians(_num(src, "geometry", geo, "min_arm_separation_deg", 0, 180)),
-               baud=int(baud), source=src, layout=layout, light_azimuth=alpha)
+               baud=int(baud), source=src, layout=layout, light_azimuth=alpha, geometry_errors=errors)

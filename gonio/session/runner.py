@@ -28,7 +28,10 @@ estimate recorded with the run come from that model.
 
 Faults: a hardware error during a pose is recovered from (servo alarm: reboot; controller reset or
 watchdog trip: light back on and warmed up) and the pose retried, at most ``pose_retries`` times; then
-the session ends cleanly with the error in the manifest's exit status. A pose is appended only once,
+the session ends cleanly with the error in the manifest's exit status. A pose whose camera frames stay
+bad (black, stale, all-saturated, wrong size: :mod:`gonio.pipeline.signal`) after the pipeline's retakes
+and the pose retries is flagged, not stored (``RunResult.failed``), and the session goes on; it then ends
+``incomplete`` (never ``completed``), and ``max_failed_in_a_row`` such poses stop it (a dead camera). A pose is appended only once,
 whole, after it succeeded, so nothing measured is lost and nothing is duplicated. SIGINT (Ctrl-C)
 finishes the pose in flight, marks the session ``interrupted`` and prints the command to resume.
 

@@ -142,3 +142,29 @@ def test_gtr_kernel_matches_the_model():
         slow = Basis(L, s, None)(np.array(shape))
         for a, b in zip(fast[1], slow[1]):
             np.testing.assert_allclose(np.broadcast_to(a if a.ndim == 2 else a[:, None], b.shape), b, rtol=1e-9, atol=1e-14)
+
+
+def test_large_tables_select_on_a_subset_and_report_on_all_samples():
+    # 50,000 MERL cells (> 2 × SELECT_N): candidates fitted on 20,000, scored on another 20,000
+    wi, wo, above = cell_directions()
+    ok = above & (wi[..., 2] > 0.2) & (wo[..., 2] > 0.2)
+    idx = np.random.default_rng(1).choice(np.flatnonzero(ok), 50_000, replace=False)
+    wi, wo = wi.reshape(-1, 3)[idx], wo.reshape(-1, 3)[idx]
+    truth = make("microfacet", kd=[0.3, 0.2, 0.1], ks=0.5, alpha=0.2, f0=1.0)
+    sel = select((wi, wo, truth.eval(wi, wo)), ["lambert", "microfacet"])
+    assert sel.model_name == "microfacet" and sel.criterion == "cv"
+    assert any("20000 of 50000" in n for n in sel.notes)
+    assert sel.winner.n_used == 50_000  # refitted on all samples (warm-started) below REFIT_MAX
+    assert sel.winner.metrics["cbrt_rel"] < 1e-3 and sel.winner.energy["ok"]
+    np.testing.assert_allclose(sel.params["kd"], [0.3, 0.2, 0.1], rtol=1e-3)
+
+
+def test_cli_refuses_an_unknown_candidate_before_fitting(tmp_path, capsys):
+    from gonio.io.merl import MerlTable, write_merl
+
+    wi, wo, above = cell_directions()
+    path = tmp_path / "lambert.binary"
+    write_merl(path, MerlTable(np.where(above[..., None], make("lambert", albedo=0.5).eval(wi, wo), np.nan)))
+    assert main(["fit", str(path), "--select", "--candidates", "foo,lambert"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "foo" in err and "unknown model" in err

@@ -9,15 +9,14 @@ from firmware_protocol import codec as fp
 from gonio.errors import ChecksumError, ControllerError, EmergencyStop, HardwareTimeout
 from gonio.rig.controller import RigController
 from sim.clock import SimClock
-from sim.controller import ControllerEmulator
 from sim.faults import LinkFaults
 
 
 @pytest.fixture
-def rig():
+def rig(Emulator):
     """(emulator, client, clock) on a fresh pty; everything is closed afterwards."""
     clock = SimClock(1000.0)
-    emu = ControllerEmulator(clock, seed=7).start()
+    emu = Emulator(clock, seed=7).start()
     ctl = RigController.open(emu.path, clock=clock, timeout=0.3)
     yield emu, ctl, clock
     ctl.close()
@@ -31,13 +30,13 @@ def test_connect_reports_version_capabilities_and_watchdog(rig):
     assert not st.flags & fp.FLAG_NOT_CONFIGURED and not st.light_on and st.temperature_c == 25.0
 
 
-def test_version_mismatch_and_missing_capability_are_refused():
+def test_version_mismatch_and_missing_capability_are_refused(Emulator):
     clock = SimClock()
-    with ControllerEmulator(clock, major=3) as emu:
+    with Emulator(clock, major=3) as emu:
         with pytest.raises(ControllerError, match="VERSION") as e:
             RigController.open(emu.path, clock=clock)
         assert e.value.code == fp.ERR_VERSION
-    with ControllerEmulator(clock, capabilities=fp.CAP_TRIGGER) as emu:
+    with Emulator(clock, capabilities=fp.CAP_TRIGGER) as emu:
         with pytest.raises(ControllerError, match="lacks capabilities: photodiode"):
             RigController.open(emu.path, clock=clock)
 
@@ -65,10 +64,10 @@ def test_photodiode_follows_warm_up_drift_and_light_output(rig):
     assert st.light_on and st.temperature_c > 30.0  # lamp heats the box
 
 
-def test_photodiode_noise_is_seeded():
+def test_photodiode_noise_is_seeded(Emulator):
     def readings(seed):
         clock = SimClock()
-        with ControllerEmulator(clock, seed=seed) as emu, RigController.open(emu.path, clock=clock) as ctl:
+        with Emulator(clock, seed=seed) as emu, RigController.open(emu.path, clock=clock) as ctl:
             ctl.set_light(True, 1.0)
             return [ctl.read_photodiode(1)[0] for _ in range(5)]
     a, b, c = readings(3), readings(3), readings(4)
@@ -193,19 +192,19 @@ def test_reset_that_forgets_state_is_recovered(rig):
     assert st.uptime_s == 0.0 and not st.flags & fp.FLAG_NOT_CONFIGURED
 
 
-def test_unconfigured_controller_answers_not_ready_without_executing():
+def test_unconfigured_controller_answers_not_ready_without_executing(Emulator):
     clock = SimClock()
-    with ControllerEmulator(clock) as emu:
+    with Emulator(clock) as emu:
         ctl = RigController.open(emu.path, clock=clock, connect=False)
         assert ctl.status().flags & fp.FLAG_NOT_CONFIGURED
         assert emu.executed["SET_LIGHT"] == 0
         ctl.close()
 
 
-def test_soak_with_random_faults_every_command_executes_exactly_once():
+def test_soak_with_random_faults_every_command_executes_exactly_once(Emulator):
     clock = SimClock()
     faults = LinkFaults(drop_rate=0.05, corrupt_rate=0.05, garbage_rate=0.05, truncate_rate=0.05, seed=11)
-    with ControllerEmulator(clock, faults=faults, seed=1) as emu:
+    with Emulator(clock, faults=faults, seed=1) as emu:
         with RigController.open(emu.path, clock=clock, timeout=0.1, retries=8) as ctl:
             for _ in range(40):
                 ctl.trigger_camera(0.001)

@@ -7,7 +7,6 @@ from firmware_protocol import codec as fp
 from gonio.errors import HardwareTimeout
 from gonio.rig.controller import RigController
 from sim.clock import SimClock
-from sim.controller import ControllerEmulator
 
 
 class Raw:
@@ -30,8 +29,8 @@ class Raw:
 
 
 @pytest.fixture
-def raw():
-    with ControllerEmulator(SimClock()) as emu:
+def raw(Emulator):
+    with Emulator(SimClock()) as emu:
         r = Raw(emu.path)
         yield emu, r
         r.port.close()

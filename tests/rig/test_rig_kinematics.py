@@ -149,3 +149,34 @@ def test_rig_file_errors_name_file_and_field(tmp_path):
         load_rig(bad)
     with pytest.raises(ConfigError, match="no such shipped rig"):
         load_rig("nope")
+
+
+_BAD = [math.nan, math.inf, -math.inf]
+
+
+@pytest.mark.parametrize("layout", ["default", "turntable"])
+@pytest.mark.parametrize("position", range(4))
+@pytest.mark.parametrize("bad", _BAD)
+def test_the_guard_refuses_every_non_finite_angle_itself(layout, position, bad):
+    """Whatever the caller checked: a non-finite angle in any position is refused by solve / solve_many
+    (never a pole solution that skips the collision test), for both layouts."""
+    rig = load_rig(None if layout == "default" else
+                   str(__import__("importlib").resources.files("gonio.rig") / "rigs" / "turntable.toml"))
+    good = [math.radians(30), 0.0, math.radians(30), math.pi]
+    angles = list(good)
+    angles[position] = bad
+    with pytest.raises(UnreachablePose):
+        rig.solve(*angles)
+    joints, code = rig.solve_many(*[np.array([a, g]) for a, g in zip(angles, good)])
+    assert code[0] != 0 and np.all(np.isnan(joints[0])) and code[1] == 0
+
+
+@pytest.mark.parametrize("bad", _BAD)
+def test_collision_check_never_clears_a_non_finite_direction(bad):
+    ok_wi, ok_wo = dirs_from_angles(np.radians(30), 0.0, np.radians(40), np.pi)
+    assert RIG.check_directions(ok_wi, ok_wo) == 0
+    for which in range(2):
+        for comp in range(3):
+            wi, wo = np.array(ok_wi, float), np.array(ok_wo, float)
+            (wi if which == 0 else wo)[comp] = bad
+            assert REASONS[int(RIG.check_directions(wi, wo))] == "collision"

@@ -100,6 +100,31 @@ def test_servo_cli_values_out_of_range_are_one_line(servo_bus, capsys, args, mes
     assert servo_bus.bytes_in == 0  # refused before a byte was sent
 
 
+@pytest.mark.parametrize("args, message", [
+    (["scan", "--baud", "12345"], "baud = 12345: not a Dynamixel baud rate"),
+    (["read", "--baud", "-1"], "baud = -1: not a Dynamixel baud rate"),
+    (["scan", "--latency-ms", "nan"], "latency_ms = nan: must be in (0, 1000] ms"),
+    (["scan", "--latency-ms", "-5"], "latency_ms = -5.0: must be in (0, 1000] ms"),
+    (["scan", "--ids", "300"], "servo IDs are 0..252"),
+    (["read", "--ids", "-3"], "servo IDs are 0..252"),
+    (["scan", "--ids", "1-x"], "servo IDs are 0..252"),
+    (["scan", "--ids", "5-1"], "servo IDs are 0..252"),
+    (["scan", "--ids", "0-100000000000"], "servo IDs are 0..252"),  # refused before the range is built
+    (["move", "--id", "1", "--deg", "10", "--tolerance", "-1"], "tolerance = -1: must be in 0..4095 ticks"),
+    (["move", "--id", "1", "--deg", "inf"], "deg = inf: raw angle must be in [0, 360]"),
+])
+def test_every_servo_cli_value_is_checked_before_the_port_in_one_line(servo_bus, capsys, args, message):
+    """Each value named with its valid range, before the port is even looked at (a wrong port too)."""
+    for port in (servo_bus.path, "/nonexistent/ttyUSB9"):
+        argv = ["servo", args[0], "--port", port, *args[1:]]
+        if "--baud" not in argv:
+            argv += ["--baud", "1000000"]
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0], err
+    assert servo_bus.bytes_in == 0
+
+
 def test_the_driver_itself_refuses_an_id_outside_the_protocol(bus):
     for bad in (-1, 253, 300, True, 2.0):
         with pytest.raises(ConfigError, match="servo id"):

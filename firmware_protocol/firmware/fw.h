@@ -1,0 +1,50 @@
+/*
+ * fw.h - reference firmware of the gonio rig controller (../SPEC.md, normative), portable C99.
+ *
+ * The firmware is one struct (fw_t) and three entry points: fw_rx_byte() for every received byte,
+ * fw_poll() as often as possible from the main loop (soft start, watchdog, E-stop), fw_estop_event()
+ * from the E-stop pin-change interrupt. All hardware goes through hal.h.
+ */
+#ifndef FW_FW_H
+#define FW_FW_H
+
+#include "../c/fp_codec.h"
+#include "hal.h"
+
+#define FW_VERSION 0x0200u /* 0xMMmm: 2.0 */
+
+typedef struct {
+    uint16_t capabilities;     /* HELLO_REPLY capabilities (FP_CAP_*) */
+    uint8_t major;             /* protocol major version served (FP_PROTOCOL_MAJOR) */
+    uint16_t pd_full_counts;   /* photodiode ADC counts at full level, warmed up (calibration) */
+    uint32_t pd_noise_e6;      /* calibrated single-sample noise, 1e-6 relative (sem for n = 1) */
+    uint16_t soft_start_ms;    /* light ramp time from off to the set level (0: instant) */
+    int16_t overtemp_centi;    /* SET_LIGHT on refused above this temperature, 0.01 degC */
+} fw_config;
+
+typedef struct {
+    fw_hal *hal;
+    fw_config cfg;
+    fp_decoder dec;
+    uint8_t configured, light_on, tripped;
+    uint16_t level;            /* level set by the host */
+    uint16_t applied;          /* PWM duty now (ramps to level during soft start) */
+    uint32_t boot_ms, on_since_ms, last_rx_ms, watchdog_ms;
+    uint32_t trigger_count;
+    uint32_t pd_time_ms;       /* uptime at the middle of the last photodiode reading */
+    uint8_t cache_valid, cache_reply_len;
+    fp_frame cache_req;        /* last executed request (duplicate rule, SPEC.md section 5) */
+    uint8_t cache_reply[FP_MAX_WIRE];
+    uint16_t executed[8];      /* requests executed, by TYPE 1..7 (duplicates and refusals excluded) */
+    uint16_t duplicates;       /* requests answered from the duplicate cache */
+    uint16_t rejects[6];       /* rejected segments, indexed by fp_result (FP_REJ_*) */
+} fw_t;
+
+void fw_default_config(fw_config *c);
+void fw_init(fw_t *fw, fw_hal *hal, const fw_config *cfg); /* power-on / reset */
+void fw_rx_byte(fw_t *fw, uint8_t b);
+void fw_poll(fw_t *fw);
+void fw_estop_event(fw_t *fw);
+void fw_cut_light(fw_t *fw); /* after a hardware cut by an interrupt: the firmware's state follows */
+
+#endif

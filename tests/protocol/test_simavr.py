@@ -1,0 +1,116 @@
+"""The reference firmware's AVR build, run in simavr (an emulated ATmega328P) with its UART on a pty:
+`gonio controller status`, the protocol's error codes, the duplicate rule, BUSY, silent drops, the
+soft start and the latching E-stop cut — the same bytes a real Uno would see. Emulated time is real
+CPU cycles, so these tests keep to a few requests each."""
+
+import subprocess
+import sys
+import time
+
+import pytest
+
+from firmware_protocol import codec as fp
+from gonio.errors import EmergencyStop
+from gonio.rig.controller import RigController
+from protocol.test_emulator_spec import Raw, err
+from sim.simavr import SimavrController, avr_size, build
+
+
+@pytest.fixture(scope="module")
+def built():
+    return build()
+
+
+@pytest.fixture
+def avr(built):
+    with SimavrController() as s:
+        yield s
+
+
+def test_avr_build_fits_the_atmega328p(built):
+    flash, ram = avr_size()
+    assert 1000 < flash <= 32 * 1024 - 512 and 100 < ram <= 1536
+
+
+def test_gonio_controller_status_through_simavr(avr):
+    r = subprocess.run([sys.executable, "-m", "gonio.cli.main", "controller", "status", "--port", avr.path],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "protocol 2.0, firmware 0x00000200" in r.stdout and "E-stop      released" in r.stdout
+
+
+def test_error_codes_duplicates_busy_and_silent_drops(avr):
+    r = Raw(avr.path)
+    try:
+        [m] = r.ask(fp.encode_message("HEARTBEAT", 1))
+        assert err(m) == ("ERROR", fp.ERR_NOT_READY, fp.HEARTBEAT)
+        [m] = r.ask(fp.encode_message("HELLO", 2, major=2, minor=0))
+        assert (m.name, m["capabilities"], m["firmware"], m["watchdog_ms"]) == ("HELLO_REPLY", 0x1F, 0x0200, 10_000)
+        [m] = r.ask(fp.encode_frame(0x42, 3, b"\x01"))
+        assert err(m) == ("ERROR", fp.ERR_UNKNOWN_TYPE, 0x42)
+        [m] = r.ask(fp.encode_frame(fp.SET_LIGHT, 4, b"\x01\xff"))
+        assert err(m) == ("ERROR", fp.ERR_BAD_LENGTH, fp.SET_LIGHT)
+        [m] = r.ask(fp.encode_frame(fp.SET_WATCHDOG, 5, (99).to_bytes(4, "little")))
+        assert err(m) == ("ERROR", fp.ERR_BAD_VALUE, fp.SET_WATCHDOG)
+        trig = fp.encode_message("TRIGGER", 6, exposure_us=500_000)
+        [a] = r.ask(trig)
+        [b] = r.ask(trig)  # a retry: answered from the cache, not executed again
+        assert a == b and a["count"] == 1
+        [m] = r.ask(fp.encode_message("TRIGGER", 7, exposure_us=10))
+        assert err(m) == ("ERROR", fp.ERR_BUSY, fp.TRIGGER)
+        bad = bytearray(fp.encode_message("HEARTBEAT", 8))
+        bad[2] ^= 0x01
+        assert r.ask(bytes(bad), expect=0) == []
+        [m] = r.ask(fp.encode_message("STATUS", 9))
+        assert m["flags"] & fp.FLAG_TRIGGER_ACTIVE and m["temperature"] == pytest.approx(2500, abs=100)
+    finally:
+        r.port.close()
+
+
+def test_soft_start_photodiode_and_latching_estop(avr):
+    with RigController.open(avr.path) as ctl:
+        ctl.set_light(True, 0.5)
+        early, _ = ctl.read_photodiode(1)
+        time.sleep(0.3)  # > the 50 ms soft start in emulated time
+        mean, sem = ctl.read_photodiode(16)
+        assert early < 0.45 and mean == pytest.approx(0.5, abs=0.003)
+        avr.set_estop(True)
+        deadline = time.monotonic() + 5
+        while not ctl.status().estop and time.monotonic() < deadline:
+            time.sleep(0.05)
+        st = ctl.status()
+        assert st.estop and not st.light_on and ctl.read_photodiode(4)[0] == 0.0
+        with pytest.raises(EmergencyStop):
+            ctl.set_light(True, 0.5)
+        avr.set_estop(False)
+        time.sleep(0.2)
+        st = ctl.status()
+        assert not st.estop and not st.light_on  # the cut latches: off until the host switches it on
+        ctl.set_light(True, 0.5)
+        assert ctl.status().light_on
+
+
+def test_short_simulated_session_runs_against_the_avr_binary(built, tmp_path):
+    import json
+
+    out = tmp_path / "s"
+    r = subprocess.run([sys.executable, "-W", "error::ResourceWarning", "-m", "gonio.cli.main", "measure", "--sim",
+                        "--sim-controller", "simavr", "--plan", "grid", "--theta-step", "45", "--phi-step", "180",
+                        "--theta-max", "45", "--out", str(out), "--quiet"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "6/6 poses" in r.stdout and "warning" not in r.stderr
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["sim"]["controller"] == "simavr"
+
+
+def test_trigger_pulse_length_on_the_pin_is_the_exposure(avr):
+    with RigController.open(avr.path) as ctl:
+        for exposure_us in (7, 300, 1000, 25_000):
+            ctl.trigger_camera(exposure_us * 1e-6)
+            deadline = time.monotonic() + 5
+            while len(avr.pulses_us) < 1 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            [pulse] = avr.pulses_us
+            avr.pulses_us.clear()
+            # Timer2 counts the exposure in 0.5 us ticks, its constant ISR latency compensated
+            assert pulse == pytest.approx(exposure_us, abs=0.5), (exposure_us, pulse)

@@ -1,0 +1,135 @@
+"""Geometric calibration (gonio.rig.geocal, issue 15): the estimated assembly errors of as-built simulated
+rigs are within their stated uncertainties, unidentifiable parameters are said so, a degenerate pose set
+is refused in one line, and the calibrated rig file gives the host the true directions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gonio.errors import ConfigError
+from gonio.rig.chain import angle_between_deg
+from gonio.rig.geocal import (DegeneratePoses, calibrate_geometry, calibrated_rig_text, calibration_plan,
+                              plan_lab_time)
+from gonio.rig.kinematics import load_rig, read_rig_text
+from sim.as_built import AsBuilt, observe
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return load_rig("default")
+
+
+@pytest.fixture(scope="module")
+def plan(rig):
+    return calibration_plan(rig)
+
+
+@pytest.fixture(scope="module")
+def fits(rig, plan):
+    out = []
+    for seed in (11, 12, 13):
+        ab = AsBuilt.from_seed(rig, seed)
+        out.append((ab, calibrate_geometry(rig, *observe(ab, plan, seed))))
+    return out
+
+
+def test_parameters_are_recovered_within_their_stated_uncertainty(fits):
+    z = []
+    for ab, res in fits:
+        for (name, value, sigma, unit), truth in zip(res.table(), ab.errors.folded().vector()):
+            if unit.startswith("not identified"):
+                assert np.isnan(sigma)
+                continue
+            assert 0 < sigma < 5.0, name
+            z.append(abs(value - truth) / sigma)
+    z = np.array(z)
+    assert len(z) == 3 * 22
+    assert np.mean(z < 3.0) >= 0.99  # the stated uncertainty is honest ...
+    assert np.mean(z < 0.2) < 0.5    # ... and not inflated to make the first assert trivial
+
+
+def test_unidentifiable_parameters_are_reported_not_guessed(fits):
+    _, res = fits[0]
+    assert "sample_height_mm" in res.not_identified and "turntable.tilt_x_deg" in res.not_identified
+    assert res.errors.sample_height_mm == 0.0 and np.isnan(res.sigma["sample_height_mm"])
+
+
+def test_calibrated_rig_file_gives_the_true_directions(rig, fits, tmp_path):
+    ab, res = fits[0]
+    text, _ = read_rig_text("default")
+    path = tmp_path / "calibrated.toml"
+    path.write_text(calibrated_rig_text(text, res))
+    cal = load_rig(path)
+    j = np.random.default_rng(0).uniform([-2.5, -1.3, -2.5, -1.3], [2.5, 1.3, 2.5, 1.3], (500, 4))
+    twi, two = ab.directions(j)
+    before = angle_between_deg(rig.directions(j)[0], twi)
+    after_i = angle_between_deg(cal.directions(j)[0], twi)
+    after_o = angle_between_deg(cal.directions(j)[1], two)
+    assert np.median(before) > 0.5
+    assert np.median(after_i) < 0.1 and np.median(after_o) < 0.1
+    ti, pi_, to, po = cal.forward(j)
+    wi = np.stack([np.sin(ti) * np.cos(pi_), np.sin(ti) * np.sin(pi_), np.cos(ti)], -1)
+    assert np.allclose(wi, cal.directions(j)[0], atol=1e-12)
+    with pytest.raises(ConfigError, match="already has a \\[calibration\\]"):
+        calibrated_rig_text(path.read_text(), res)
+
+
+def test_a_bad_calibration_table_is_one_line(tmp_path):
+    text, _ = read_rig_text("default")
+    p = tmp_path / "bad.toml"
+    p.write_text(text + "\n[calibration.light]\nd_az_deg = 'three'\n")
+    with pytest.raises(ConfigError, match="d_az_deg"):
+        load_rig(p)
+
+
+@pytest.mark.parametrize("cut, reason", [
+    (lambda plan: {"camera": plan["camera"][:4], "highlight": plan["highlight"]}, "4 camera poses"),
+    (lambda plan: {"camera": np.repeat(plan["camera"][np.isclose(plan["camera"][:, 2], plan["camera"][0, 2])], 3, 0),
+                   "highlight": plan["highlight"]}, "camera observations at 1 azimuth"),
+    (lambda plan: {"camera": plan["camera"],
+                   "highlight": plan["highlight"][np.isclose(plan["highlight"][:, 1], plan["highlight"][0, 1])]},
+     "light observations at 1 elevation"),
+])
+def test_a_degenerate_pose_set_is_refused_in_one_line(rig, plan, cut, reason):
+    ab = AsBuilt.from_seed(rig, 1)
+    bad = cut(plan)
+    with pytest.raises(DegeneratePoses, match=reason) as info:
+        calibrate_geometry(rig, *observe(ab, bad, 1))
+    assert "\n" not in str(info.value)
+
+
+def test_the_calibration_plan_is_reachable_and_fits_in_ten_minutes(rig, plan):
+    for j in np.concatenate([plan["camera"], plan["highlight"]]):
+        rig.solve(*rig.forward(j))  # the declared limits and collision zones accept every pose
+    assert 60 <= len(plan["camera"]) + len(plan["highlight"]) and plan_lab_time(rig, plan) < 600
+
+
+def test_calibrate_rig_and_check_on_the_simulated_as_built_rig(tmp_path, capsys):
+    from gonio.cli.main import main
+
+    out = tmp_path / "cal.toml"
+    assert main(["calibrate", "rig", "--sim", "--sim-as-built", "7", "--quick", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "lab time" in printed and "not identified" in printed and "±" in printed
+    cal = load_rig(out)
+    assert cal.geometry_errors is not None
+    assert main(["calibrate", "check", "--sim", "--sim-as-built", "7", "--rig", str(out)]) == 0
+    after = capsys.readouterr().out
+    assert main(["calibrate", "check", "--sim", "--sim-as-built", "7"]) == 0
+    before = capsys.readouterr().out
+
+    def wi_median(text):
+        return float(text.split("wi median ")[1].split("°")[0])
+
+    assert wi_median(after) < 0.1 < 0.5 < wi_median(before)
+    # a session on a calibrated rig records the rig's uncertainties with its SHA-256
+    d = tmp_path / "s"
+    assert main(["measure", "--sim", "--quiet", "--plan", "in_plane", "--theta-i-step", "40", "--theta-o-step", "40",
+                 "--sim-resolution", "160x120", "--sim-as-built", "7", "--rig", str(out), "--out", str(d)]) == 0
+    import json
+
+    rec = json.loads((d / "manifest.json").read_text())["rig"]
+    assert len(rec["sha256"]) == 64 and "light" in rec["calibration"]["uncertainty"]
+    assert main(["calibrate", "rig", "--rig", str(out), "--sim", "--out", str(tmp_path / "again.toml")]) != 0
+    assert "already calibrated" in capsys.readouterr().err
