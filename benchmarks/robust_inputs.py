@@ -23,7 +23,7 @@ TARGET = ('[charuco]\nsquares = [9, 7]\nsquare_length = 0.03\nmarker_length = 0.
 MATERIAL = 'model = "microfacet"\nlabel = "x"\n[params]\nkd = [0.3, 0.1, 0.1]\nks = 0.8\nalpha = 0.2\nf0 = 0.04\n'
 #: Values the audit found tracebacks with, and their relatives.
 VALUES = ['"up"', '"fast"', "5", "inf", "-inf", "nan", "2147483648.0", "1e308", "-1", "0", "1e-300", "true", "[]",
-          "[1, 2]", "[9, 7000]", "{}", "{a = 1}", '"x"', "[[1,2],[3]]", "-0.0", "1e30", "99999999999999999999"]
+          "[1, 2]", "[9, 7000]", "[40, 40]", "[3, 100000]", "{}", "{a = 1}", '"x"', "[[1,2],[3]]", "-0.0", "1e30", "99999999999999999999"]
 
 
 def _shipped(name: str) -> str:
@@ -71,8 +71,16 @@ def fuzz_configs(n_per_kind: int, seed: int, tmp_dir) -> tuple[int, list[str]]:
 
 
 
+def _target_in_use(path):
+    """Load a target file, then use it as a session does: build and draw the OpenCV board (the audit's
+    cv2.error / SystemError came from here, after the loader had accepted the file)."""
+    layout = load_target(path)
+    layout.charuco.board().generateImage((64, 48), marginSize=0, borderBits=1)
+    return layout
+
+
 def loaders():
     """``(kind, base text, loader)`` of every configuration file a user writes."""
     return (("rig", _shipped("default.toml"), load_rig), ("turntable", _shipped("turntable.toml"), load_rig),
-            ("camera", CAMERA, load_camera_calibration), ("target", TARGET, load_target),
+            ("camera", CAMERA, load_camera_calibration), ("target", TARGET, _target_in_use),
             ("material", MATERIAL, load_material))

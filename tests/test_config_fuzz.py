@@ -87,3 +87,23 @@ def test_the_kinematic_guard_refuses_non_finite_angles_itself(angles):
         rig.solve(*angles)
     joints, code = rig.solve_many(*[np.array([a]) for a in angles])
     assert code[0] != 0 and np.all(np.isnan(joints))
+
+
+@pytest.mark.parametrize("charuco, message", [
+    ("squares = [9, 7000]", "charuco.squares = (9, 7000): at most 100 squares a side"),
+    ("squares = [40, 40]", "needs 800 markers but DICT_5X5_100 has 100"),
+    ("marker_length = 1e-300", "charuco.marker_length = 1e-300: must be at least"),
+    ('dictionary = "DICT_NOPE"', "charuco.dictionary = 'DICT_NOPE': not a cv2.aruco dictionary"),
+])
+def test_a_target_opencv_cannot_draw_is_refused_before_a_session_exists(tmp_path, capsys, charuco, message):
+    base = {"squares": "squares = [9, 7]", "square_length": "square_length = 0.03",
+            "marker_length": "marker_length = 0.022", "dictionary": 'dictionary = "DICT_5X5_100"'}
+    base[charuco.split(" ")[0]] = charuco
+    target = tmp_path / "target.toml"
+    target.write_text("[charuco]\n" + "\n".join(base.values()) + "\n")
+    out = tmp_path / "s"
+    assert main(["measure", "--sim", "--plan", "in_plane", "--theta-i", "30", "--theta-o-step", "20", "--quiet",
+                 "--target", str(target), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(target) in err[0] and message in err[0], err
+    assert not out.exists()  # nothing left behind that could never be resumed

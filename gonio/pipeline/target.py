@@ -59,6 +59,12 @@ class Rect:
         return not (self.x1 <= other.x0 or other.x1 <= self.x0 or self.y1 <= other.y0 or other.y1 <= self.y0)
 
 
+#: Largest board side in squares, and smallest marker / square length ratio accepted (OpenCV draws
+#: and detects boards within these; beyond them it asserts or raises SystemError).
+MAX_SQUARES = 100
+MIN_MARKER_RATIO = 0.1
+
+
 @dataclass(frozen=True)
 class CharucoSpec:
     """A ChArUco board (OpenCV 5 ``cv2.aruco.CharucoBoard``), centred on the sample.
@@ -83,6 +89,25 @@ class CharucoSpec:
             raise ConfigError.field(None, "charuco.marker_length", self.marker_length, "must be in (0, square_length)")
         if min(self.squares) < 3:
             raise ConfigError.field(None, "charuco.squares", self.squares, "needs at least 3 × 3 squares")
+        if max(self.squares) > MAX_SQUARES:
+            raise ConfigError.field(None, "charuco.squares", self.squares, f"at most {MAX_SQUARES} squares a side")
+        if not (0 < self.square_length <= 10.0):
+            raise ConfigError.field(None, "charuco.square_length", self.square_length, "must be in (0, 10] m")
+        if self.marker_length < MIN_MARKER_RATIO * self.square_length:
+            raise ConfigError.field(None, "charuco.marker_length", self.marker_length,
+                                    f"must be at least {MIN_MARKER_RATIO:g} × square_length (a marker the "
+                                    "camera can decode)")
+
+    def check_dictionary(self) -> None:
+        """The dictionary exists and holds a marker for every white square (⌊columns·rows/2⌋ markers;
+        OpenCV's CharucoBoard numbers them from 0): ConfigError otherwise, before OpenCV asserts."""
+        import cv2
+
+        d = self.board().getDictionary()
+        n_markers, have = self.squares[0] * self.squares[1] // 2, int(d.bytesList.shape[0])
+        if n_markers > have:
+            raise ConfigError.field(None, "charuco.squares", self.squares,
+                                    f"needs {n_markers} markers but {self.dictionary} has {have}")
 
     @property
     def size(self) -> tuple[float, float]:
@@ -356,7 +381,12 @@ def load_target(path) -> TargetLayout:
     """
     from gonio.config import read_toml
 
-    return TargetLayout.from_dict(read_toml(path, "--target"), source=str(path))
+    layout = TargetLayout.from_dict(read_toml(path, "--target"), source=str(path))
+    try:
+        layout.charuco.check_dictionary()
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    return layout
 
 
 @dataclass(frozen=True)

@@ -39,6 +39,7 @@ from typing import Sequence
 
 import numpy as np
 
+from gonio.plan import neighbours as _nb
 from gonio.rig.kinematics import trapezoid_time
 
 
@@ -206,11 +207,36 @@ class _Graph:
         return np.where(self.virtual[a] | self.virtual[b], 0.0, t)
 
 
-def nearest_neighbour_order(joints, model: MotionModel, *, start=None, seed: int = 0) -> np.ndarray:
-    """Greedy nearest-neighbour order (by concurrent move time).
+def nearest_neighbour_order(joints, model: MotionModel, *, start=None, seed: int = 0,
+                            nbrs=None) -> np.ndarray:
+    """Greedy nearest-neighbour order (by concurrent move time; ties: lowest index).
 
-    Starts at the pose nearest ``start`` if given, else at a pose chosen by ``seed``.
+    Starts at the pose nearest ``start`` if given, else at a pose chosen by ``seed``. Exact nearest
+    unvisited pose from k-d tree queries (:class:`gonio.plan.neighbours.NearestUnvisited`), O(N log N) on
+    spread poses; the same order as :func:`_nearest_neighbour_order_dense` (O(N²), the reference).
     """
+    q = _check(joints, model)
+    n = q.shape[0]
+    if n == 0:
+        return np.zeros(0, np.int64)
+    if not _nb.supported(model) or n < 64:
+        return _nearest_neighbour_order_dense(q, model, start=start, seed=seed)
+    finder = _nb.NearestUnvisited(q, model, nbrs if nbrs is not None else _nb.knn(q, model, 10))
+    order = np.empty(n, np.int64)
+    if start is None:
+        cur = int(np.random.default_rng(seed).integers(n))
+    else:
+        cur = finder.nearest_point(np.asarray(start, dtype=np.float64))
+    for k in range(n):
+        order[k] = cur
+        finder.visit(cur)
+        if k < n - 1:
+            cur = finder.nearest_to(cur)
+    return order
+
+
+def _nearest_neighbour_order_dense(joints, model: MotionModel, *, start=None, seed: int = 0) -> np.ndarray:
+    """Reference greedy nearest-neighbour order: one dense O(N) row per step, O(N²) in all."""
     q = _check(joints, model)
     n = q.shape[0]
     if n == 0:
@@ -269,8 +295,16 @@ class _Scalar:
         return worst
 
 
-def _neighbours(q: np.ndarray, model: MotionModel, k: int) -> list[list[int]]:
-    """The ``k`` poses nearest each pose by move time, nearest first."""
+def _neighbours(q: np.ndarray, model: MotionModel, k: int, nbrs=None) -> list[list[int]]:
+    """The ``k`` poses nearest each pose by move time, nearest first (k-d tree, exact)."""
+    if _nb.supported(model) and q.shape[0] > k + 1:
+        idx, _ = nbrs if nbrs is not None else _nb.knn(q, model, k)
+        return idx[:, :k].tolist()
+    return _neighbours_dense(q, model, k)
+
+
+def _neighbours_dense(q: np.ndarray, model: MotionModel, k: int) -> list[list[int]]:
+    """Reference neighbour lists: one dense row per pose, O(N²)."""
     n = q.shape[0]
     k = min(k, n - 1)
     out = []
@@ -391,21 +425,34 @@ def optimize_order(joints, model: MotionModel, *, start=None, seed: int = 0, tim
     if n <= 1:
         return np.arange(n, dtype=np.int64)
     deadline = np.inf if time_budget is None else time.perf_counter() + float(time_budget)
-    cands = [nearest_neighbour_order(q, model, start=start, seed=seed),
+    nbrs = _nb.knn(q, model, max(neighbours, 10)) if _nb.supported(model) and n > max(neighbours, 10) + 1 else None
+    cands = [nearest_neighbour_order(q, model, start=start, seed=seed, nbrs=nbrs),
              raster_order(q) if initial is None else np.asarray(initial, dtype=np.int64)]
     costs = [path_move_time(q, c, model, start=start) for c in cands]
     best = cands[int(np.argmin(costs))]
     g = _Graph(q, model, start)
     tour = np.concatenate([[n], best, [n + 1]]).astype(np.int64)
-    _local_search(_Scalar(g), tour, _neighbours(q, model, neighbours), deadline, max_passes)
+    _local_search(_Scalar(g), tour, _neighbours(q, model, neighbours, nbrs), deadline, max_passes)
     return tour[1:-1].copy()
 
 
 def mst_move_time(joints, model: MotionModel, *, start=None) -> float:
     """Weight of the minimum spanning tree of the poses (and ``start``) under concurrent move time.
 
-    Prim's algorithm with dense rows computed on the fly: O(N²·J) time, O(N) memory (Prim 1957).
+    Borůvka rounds over exact k-d tree neighbour lists (:func:`gonio.plan.neighbours.mst_weight`),
+    O(N log N) on spread poses; the same weight as Prim's (:func:`_mst_move_time_dense`, the reference).
     """
+    q = _check(joints, model)
+    if start is not None:
+        q = np.vstack([np.asarray(start, dtype=np.float64)[None, :], q])
+    if not _nb.supported(model) or q.shape[0] < 64:
+        return _mst_move_time_dense(q, model)
+    return _nb.mst_weight(q, model)
+
+
+def _mst_move_time_dense(joints, model: MotionModel, *, start=None) -> float:
+    """Reference MST weight: Prim's algorithm with dense rows computed on the fly, O(N²·J) time, O(N)
+    memory (Prim 1957)."""
     q = _check(joints, model)
     if start is not None:
         q = np.vstack([np.asarray(start, dtype=np.float64)[None, :], q])

@@ -1,0 +1,236 @@
+"""Exact nearest neighbours and minimum spanning tree of poses under the concurrent move-time metric,
+in O(N log N) with a k-d tree (:class:`scipy.spatial.cKDTree`).
+
+Move time is ``t(a, b) = max_j t_j(|Δq_j|)`` with ``t_j`` the trapezoidal profile of
+:func:`gonio.rig.kinematics.trapezoid_time`. It is not a norm, but it is bounded below by a monotone
+function of the Chebyshev distance of the joints scaled by their speeds, ``x = max_j |Δq_j| / v_j``:
+
+    t_j(d) ≥ d / v_j,   so   t(a, b) ≥ F(x),   F(x) = min_j t_j(x · v_j)   (monotone)
+
+(``2√(d/a) ≥ d/v`` for ``d ≤ v²/a`` and ``d/v + v/a ≥ d/v``; Biagiotti & Melchiorri 2008, §3.2.2).
+Every point that a Chebyshev k-nearest query did not return lies at Chebyshev distance ≥ the last one
+returned, hence at move time ≥ ``F`` of it: a candidate list whose k-th exact time is ≤ that is the
+exact k-nearest list, otherwise the query is repeated with more candidates. When all joints share
+``v/a`` (the default rig), ``t = F(x)`` exactly and the first query almost always suffices.
+
+The spanning tree is Borůvka's (Borůvka 1926; Nešetřil et al., "Otakar Borůvka on minimum spanning tree
+problem", 2001): each round joins every component to its nearest other component. A component's
+cheapest outgoing edge is read from its points' exact neighbour lists when it is provably minimal
+(no point's unlisted neighbours can be closer), otherwise by a vectorized scan of those points against
+all others. Any cheapest outgoing edge may be taken per component (ties need no consistent rule when
+cycles are skipped with a union-find), so the weight is the exact MST weight, as Prim's O(N²) gives.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["supported", "knn", "mst_weight", "NearestUnvisited"]
+
+_TWO_PI = 2.0 * math.pi
+
+
+def supported(model) -> bool:
+    """True when the k-d tree bound applies (finite positive speeds and accelerations)."""
+    return bool(np.all(np.isfinite(model.vmax)) and np.all(np.isfinite(model.amax)))
+
+
+def _floor(model, x: np.ndarray) -> np.ndarray:
+    """``F(x) = min_j t_j(x · v_j)``: a lower bound of the move time at scaled Chebyshev distance ``x``."""
+    from gonio.rig.kinematics import trapezoid_time
+
+    x = np.asarray(x, dtype=np.float64)
+    return trapezoid_time(x[..., None] * model.vmax, model.vmax, model.amax).min(axis=-1)
+
+
+def _tree(x: np.ndarray, model, ref: np.ndarray):
+    """k-d tree over ``x`` in speed-scaled coordinates (periodic on wrap joints; non-wrap axes offset
+    and boxed by the extent of ``ref``, a superset of every point queried, so they never wrap)."""
+    from scipy.spatial import cKDTree
+
+    s = _scaled_like(x, ref, model)
+    box = None
+    if model.wrap.any():
+        r = _scaled_like(ref, ref, model)
+        box = np.where(model.wrap, _TWO_PI / model.vmax, np.ptp(r, axis=0) * 4.0 + 1.0)
+    return cKDTree(s, boxsize=box)
+
+
+def _query(q: np.ndarray, model, targets: np.ndarray, sources: np.ndarray, k: int):
+    """The ``k`` exact nearest of ``targets`` (pose indices) to each of ``sources`` (pose indices),
+    excluding the source itself: ``(index, time)`` each ``(len(sources), k)``, nearest first (ties by
+    index). ``k`` must be ≤ the targets available to each source."""
+    m = targets.size
+    tree = _tree(q[targets], model, q)
+    sq = _scaled_like(q[sources], q, model)
+    ns = sources.size
+    idx = np.zeros((ns, k), np.int64)
+    dist = np.zeros((ns, k))
+    todo = np.arange(ns)
+    kk = min(m, 2 * k + 2)
+    while todo.size:
+        cheb, cand = tree.query(sq[todo], k=kk, p=np.inf)
+        cand = targets[cand.reshape(todo.size, kk)]
+        cheb = cheb.reshape(todo.size, kk)
+        src = sources[todo]
+        t = model.move_time(q[src][:, None, :], q[cand])
+        t[cand == src[:, None]] = np.inf  # not its own neighbour
+        o = np.lexsort((cand, t), axis=-1)[:, :k]
+        ci = np.take_along_axis(cand, o, 1)
+        ct = np.take_along_axis(t, o, 1)
+        ok = (ct[:, -1] <= _floor(model, cheb[:, -1])) | (kk >= m)
+        idx[todo[ok]] = ci[ok]
+        dist[todo[ok]] = ct[ok]
+        todo = todo[~ok]
+        kk = min(m, kk * 2)
+    return idx, dist
+
+
+def _scaled_like(x: np.ndarray, ref: np.ndarray, model) -> np.ndarray:
+    """``x`` in the scaled coordinates of :func:`_tree` built over ``ref``."""
+    s = x / model.vmax
+    if model.wrap.any():
+        s = s.copy()
+        period = _TWO_PI / model.vmax
+        s[:, model.wrap] = np.mod(s[:, model.wrap], period[model.wrap])
+        s[:, ~model.wrap] -= (ref / model.vmax)[:, ~model.wrap].min(axis=0)
+    return s
+
+
+def knn(q: np.ndarray, model, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` nearest other poses of every pose by exact move time: ``(index, time)`` each ``(N, k)``,
+    nearest first (ties by index)."""
+    n = q.shape[0]
+    k = min(k, n - 1)
+    if k <= 0:
+        return np.zeros((n, 0), np.int64), np.zeros((n, 0))
+    every = np.arange(n)
+    return _query(q, model, every, every, k)
+
+
+def _find(parent: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Roots of ``x`` in the union-find forest ``parent`` (vectorized pointer jumping)."""
+    r = parent[x]
+    while True:
+        rr = parent[r]
+        if np.array_equal(rr, r):
+            return r
+        r = rr
+
+
+def mst_weight(q: np.ndarray, model, k: int = 12, nbrs=None) -> float:
+    """Exact weight of the minimum spanning tree of the rows of ``q`` under concurrent move time
+    (Borůvka rounds over exact k-nearest lists; see the module docstring)."""
+    n = q.shape[0]
+    if n < 2:
+        return 0.0
+    idx, dist = nbrs if nbrs is not None else knn(q, model, k)
+    rk = dist[:, -1] if dist.shape[1] else np.full(n, 0.0)
+    parent = np.arange(n)
+    total = 0.0
+    joined = 0
+    rows = np.arange(n)
+    while joined < n - 1:
+        lab = _find(parent, rows)
+        parent = lab.copy()
+        outside = lab[idx] != lab[:, None]
+        has = outside.any(axis=1)
+        first = outside.argmax(axis=1)
+        cd = np.where(has, dist[rows, first], np.inf)
+        cv = idx[rows, first]
+        # per component: cheapest listed outgoing edge, and the bound below which unlisted edges may lie
+        comp_best = np.full(n, np.inf)
+        np.minimum.at(comp_best, lab, cd)
+        bound = np.full(n, np.inf)
+        np.minimum.at(bound, lab[~has], rk[~has])
+        roots = np.unique(lab)
+        unresolved = roots[comp_best[roots] > bound[roots]]
+        edges_u, edges_v, edges_w = [], [], []
+        # resolved components: the row that reached comp_best
+        at = has & (cd <= comp_best[lab]) & ~np.isin(lab, unresolved)
+        sel = np.flatnonzero(at)
+        _, first_of = np.unique(lab[sel], return_index=True)
+        sel = sel[first_of]
+        edges_u.append(sel)
+        edges_v.append(cv[sel])
+        edges_w.append(cd[sel])
+        for c in unresolved:
+            # a k-d tree over the other components' poses, queried by this component's poses
+            members = np.flatnonzero(lab == c)
+            others = np.flatnonzero(lab != c)
+            j, t = _query(q, model, others, members, 1)
+            w = int(np.argmin(t[:, 0]))
+            edges_u.append(members[w:w + 1])
+            edges_v.append(j[w])
+            edges_w.append(t[w])
+        eu = np.concatenate(edges_u)
+        ev = np.concatenate(edges_v)
+        ew = np.concatenate(edges_w)
+        for u, v, w in zip(eu.tolist(), ev.tolist(), ew.tolist()):
+            ru, rv = u, v
+            while parent[ru] != ru:
+                ru = parent[ru]
+            while parent[rv] != rv:
+                rv = parent[rv]
+            if ru != rv:
+                parent[max(ru, rv)] = min(ru, rv)
+                total += w
+                joined += 1
+    return total
+
+
+class NearestUnvisited:
+    """Exact nearest unvisited pose by move time (ties: lowest index), for a greedy tour: the pose's
+    k-nearest list first, then k-d tree queries on a tree rebuilt over the unvisited poses when half of
+    its points have been visited. Amortized O(log N) per step on well-spread poses."""
+
+    def __init__(self, q: np.ndarray, model, nbrs):
+        self.q, self.model = q, model
+        self.idx, self.dist = nbrs
+        self.unvisited = np.ones(q.shape[0], bool)
+        self._build(np.arange(q.shape[0]))
+
+    def _build(self, ids: np.ndarray):
+        self.ids = ids
+        self.tree = _tree(self.q[ids], self.model, self.q) if ids.size else None
+        self.live = ids.size
+
+    def visit(self, i: int) -> None:
+        self.unvisited[i] = False
+        self.live -= 1
+        if self.ids.size >= 64 and self.live * 2 < self.ids.size:
+            self._build(np.flatnonzero(self.unvisited))
+
+    def nearest_to(self, i: int) -> int:
+        row_i, row_d = self.idx[i], self.dist[i]
+        free = self.unvisited[row_i]
+        if free.any() and row_d.size:
+            j = int(np.argmax(free))
+            if row_d[j] < row_d[-1]:
+                return int(row_i[j])
+        return self.nearest_point(self.q[i])
+
+    def nearest_point(self, x: np.ndarray) -> int:
+        """The unvisited pose nearest joint vector ``x`` (ties: lowest index); -1 if none is left."""
+        ids = self.ids
+        m = ids.size
+        kk = min(m, 16)
+        s = _scaled_like(np.asarray(x, dtype=np.float64)[None, :], self.q, self.model)[0]
+        while m:
+            cheb, cand = self.tree.query(s, k=kk, p=np.inf)
+            cand = np.atleast_1d(cand)
+            cheb = np.atleast_1d(cheb)
+            g = ids[cand]
+            ok = self.unvisited[g]
+            if ok.any():
+                g = g[ok]
+                t = self.model.move_time(x[None, :], self.q[g])
+                best = t.min()
+                if kk >= m or best < float(_floor(self.model, cheb[-1])):
+                    return int(g[t == best].min())
+            if kk >= m:
+                break
+            kk = min(m, kk * 4)
+        return -1

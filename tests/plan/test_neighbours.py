@@ -1,0 +1,62 @@
+"""The k-d tree planning paths (gonio.plan.neighbours) agree exactly with the dense O(N²) references:
+same MST weight (Prim), same greedy nearest-neighbour order, exact k-nearest lists; with unequal
+speed/acceleration ratios (the k-d tree bound is then not tight) and continuous-rotation joints."""
+
+import math
+
+import numpy as np
+import pytest
+
+from gonio.plan import make_plan, neighbours as nb, ordering as o
+from gonio.plan.ordering import MotionModel, mst_move_time, nearest_neighbour_order
+from gonio.rig.kinematics import load_rig
+
+_NAMES = ("a", "b", "c", "d")
+
+
+@pytest.fixture(scope="module")
+def rig_model():
+    return MotionModel.from_rig(load_rig())
+
+
+MODELS = {
+    "equal_ratio": lambda m: m,
+    "unequal": lambda m: MotionModel(_NAMES, [1.0, 2.0, 0.5, 0.7], [3.0, 1.0, 2.0, 0.4]),
+    "wrap": lambda m: MotionModel(_NAMES, [1.0, 2.0, 0.5, 0.7], [3.0, 1.0, 2.0, 0.4], [True, False, False, True]),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(MODELS))
+def test_random_poses_match_dense_reference(rig_model, kind):
+    model = MODELS[kind](rig_model)
+    q = np.random.default_rng(3).uniform(-3.0, 3.0, (400, 4))
+    assert mst_move_time(q, model) == pytest.approx(o._mst_move_time_dense(q, model), rel=1e-12)
+    start = np.array([0.1, -0.2, 0.3, 2.9])
+    assert mst_move_time(q, model, start=start) == pytest.approx(
+        o._mst_move_time_dense(q, model, start=start), rel=1e-12)
+    np.testing.assert_array_equal(nearest_neighbour_order(q, model, seed=5),
+                                  o._nearest_neighbour_order_dense(q, model, seed=5))
+    np.testing.assert_array_equal(nearest_neighbour_order(q, model, start=start),
+                                  o._nearest_neighbour_order_dense(q, model, start=start))
+    idx, dist = nb.knn(q, model, 7)
+    full = model.move_time(q[:, None, :], q[None, :, :])
+    np.fill_diagonal(full, np.inf)
+    np.testing.assert_allclose(dist, np.sort(full, axis=1)[:, :7], rtol=0, atol=0)
+    np.testing.assert_allclose(np.take_along_axis(full, idx, 1), dist, rtol=0, atol=0)
+
+
+def test_grid_plan_with_ties_matches_dense_reference(rig_model):
+    """A regular grid: many equal move times (ties) and clusters far apart (Borůvka's fallback)."""
+    plan = make_plan("grid", order="raster", theta_step=math.radians(15), phi_step=math.radians(45))
+    q = plan.joints
+    assert mst_move_time(q, rig_model) == pytest.approx(o._mst_move_time_dense(q, rig_model), rel=1e-12)
+    np.testing.assert_array_equal(nearest_neighbour_order(q, rig_model),
+                                  o._nearest_neighbour_order_dense(q, rig_model))
+
+
+def test_clusters_far_apart_are_joined(rig_model):
+    """Tight clusters far from each other: no neighbour list leaves its cluster, the MST still spans."""
+    rng = np.random.default_rng(0)
+    centres = rng.uniform(-3, 3, (6, 4))
+    q = np.concatenate([c + rng.normal(0, 1e-3, (40, 4)) for c in centres])
+    assert mst_move_time(q, rig_model) == pytest.approx(o._mst_move_time_dense(q, rig_model), rel=1e-12)
