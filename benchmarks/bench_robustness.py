@@ -114,6 +114,7 @@ def fault_scenarios(quick: bool, scenarios=None) -> list[dict]:
     alarm and an E-stop between poses. Each must complete, or stop with one line naming the cause and the
     resume command; every pose the runner reported measured must be stored (``lost`` 0); after an E-stop or
     an alarm not one more goal packet reaches a servo (``goals after``)."""
+    from gonio.errors import GonioError
     from gonio.plan.plan import CaptureSettings, Plan
     from gonio.session.runner import SessionRunner, open_devices
     from gonio.session.store import SessionStore, load_session
@@ -142,7 +143,15 @@ def fault_scenarios(quick: bool, scenarios=None) -> list[dict]:
                         else:
                             sim.servo_bus.servo(min(sim.servo_bus.servos)).trip(HW_OVERLOAD)
                         marks["goals"] = len(sim.servo_bus.goal_log)
-                devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+                try:
+                    devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+                except GonioError as exc:  # refused at start: must be one line naming the servo and fault
+                    msg = str(exc)
+                    rows.append({"scenario": name, "status": "refused at start", "one_line": "\n" not in msg,
+                                 "resume_hint": False, "ok": "\n" not in msg and "servo" in msg, "poses_stored": 0,
+                                 "measured": 0, "lost": 0, "goals_after": 0, "ended": msg,
+                                 "wall_s": time.perf_counter() - t0})
+                    continue
                 said = io.StringIO()
                 try:
                     store = SessionStore.create(Path(d) / "s", {"plan": plan, "mode": "test"})
