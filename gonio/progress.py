@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import os
 import sys
-from typing import Iterable, Iterator, TypeVar
+from contextlib import contextmanager
+from typing import Callable, Iterable, Iterator, TypeVar
 
 T = TypeVar("T")
 
@@ -31,12 +32,33 @@ def enabled() -> bool:
         return False
 
 
-def progress(iterable: Iterable[T], *, total: int | None = None, desc: str = "", unit: str = "it") -> Iterator[T]:
-    """``iterable`` with a progress bar when :func:`enabled`, unchanged otherwise."""
+def progress(iterable: Iterable[T], *, total: int | None = None, desc: str = "", unit: str = "it",
+             delay: float = 0.0) -> Iterator[T]:
+    """``iterable`` with a progress bar when :func:`enabled`, unchanged otherwise; ``delay``: seconds
+    before the bar appears (work that ends sooner shows nothing)."""
     if not enabled():
         yield from iterable
         return
     from tqdm import tqdm
 
-    with tqdm(iterable, total=total, desc=desc, unit=unit, leave=False, file=sys.stderr, dynamic_ncols=True) as bar:
+    with tqdm(iterable, total=total, desc=desc, unit=unit, leave=False, file=sys.stderr, dynamic_ncols=True,
+              delay=delay) as bar:
         yield from bar
+
+
+@contextmanager
+def progress_counter(*, total: int | None = None, desc: str = "", unit: str = "it",
+                     delay: float = 0.0) -> Iterator[Callable[[int], None]]:
+    """A function ``tick(done)`` reporting how much of the work is done, drawn as a bar when
+    :func:`enabled` (for loops that are not a plain iteration, e.g. a work queue); a no-op otherwise."""
+    if not enabled():
+        yield lambda done: None
+        return
+    from tqdm import tqdm
+
+    with tqdm(total=total, desc=desc, unit=unit, leave=False, file=sys.stderr, dynamic_ncols=True,
+              delay=delay) as bar:
+        def tick(done: int) -> None:
+            bar.update(done - bar.n)
+
+        yield tick

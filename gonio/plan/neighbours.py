@@ -126,13 +126,23 @@ def mst_weight(q: np.ndarray, model, k: int = 12, nbrs=None) -> float:
     n = q.shape[0]
     if n < 2:
         return 0.0
-    idx, dist = nbrs if nbrs is not None else knn(q, model, k)
+    from gonio.progress import progress_counter
+
+    with progress_counter(total=n - 1, desc="lower bound (spanning tree)", unit="edge", delay=2.0) as tick:
+        idx, dist = nbrs if nbrs is not None else knn(q, model, k)
+        return _boruvka(q, model, idx, dist, tick)
+
+
+def _boruvka(q: np.ndarray, model, idx: np.ndarray, dist: np.ndarray, tick) -> float:
+    """Borůvka's rounds of :func:`mst_weight` over the lists ``idx``/``dist``; ``tick(edges joined)``."""
+    n = q.shape[0]
     rk = dist[:, -1] if dist.shape[1] else np.full(n, 0.0)
     parent = np.arange(n)
     total = 0.0
     joined = 0
     rows = np.arange(n)
     while joined < n - 1:
+        tick(joined)
         lab = _find(parent, rows)
         parent = lab.copy()
         outside = lab[idx] != lab[:, None]

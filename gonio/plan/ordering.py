@@ -40,6 +40,7 @@ from typing import Sequence
 import numpy as np
 
 from gonio.plan import neighbours as _nb
+from gonio.progress import progress, progress_counter
 from gonio.rig.kinematics import trapezoid_time
 
 
@@ -227,7 +228,7 @@ def nearest_neighbour_order(joints, model: MotionModel, *, start=None, seed: int
         cur = int(np.random.default_rng(seed).integers(n))
     else:
         cur = finder.nearest_point(np.asarray(start, dtype=np.float64))
-    for k in range(n):
+    for k in progress(range(n), total=n, desc="ordering (nearest neighbour)", unit="pose", delay=2.0):
         order[k] = cur
         finder.visit(cur)
         if k < n - 1:
@@ -258,181 +259,135 @@ def _nearest_neighbour_order_dense(joints, model: MotionModel, *, start=None, se
     return order
 
 
-class _Scalar:
-    """Scalar move time between two graph nodes, in plain Python (the local search evaluates a few
-    costs per candidate move; NumPy call overhead would dominate). Same formula as
-    :meth:`MotionModel.move_time`."""
+def _scalar_cost(g: _Graph):
+    """``cost(a, b)``: the move time between graph nodes ``a`` and ``b`` in plain Python, cached (the
+    local search evaluates a few costs per candidate move, so NumPy's call overhead would dominate).
+    Same formula as :meth:`MotionModel.move_time`."""
+    m = g.model
+    x = g.x.tolist()
+    virtual = g.virtual.tolist()
+    joints = [(float(v), float(a), float(v * v / a), bool(w), j) for j, (v, a, w) in enumerate(zip(m.vmax, m.amax, m.wrap))]
+    size = len(x)
+    cache: dict[int, float] = {}
+    get = cache.get
+    sqrt, fmod = math.sqrt, math.fmod
 
-    def __init__(self, g: _Graph):
-        m = g.model
-        self.x = g.x.tolist()
-        self.virtual = g.virtual.tolist()
-        self.joints = [(float(v), float(a), float(v * v / a), bool(w), j)
-                       for j, (v, a, w) in enumerate(zip(m.vmax, m.amax, m.wrap))]
-        self.m = len(self.x)
-        self.cache: dict[int, float] = {}
-
-    def __call__(self, a: int, b: int) -> float:
-        key = a * self.m + b if a < b else b * self.m + a
-        got = self.cache.get(key)
-        if got is None:
-            got = self.cache[key] = self._eval(a, b)
-        return got
-
-    def _eval(self, a: int, b: int) -> float:
-        if self.virtual[a] or self.virtual[b]:
-            return 0.0
-        xa, xb = self.x[a], self.x[b]
+    def cost(a: int, b: int) -> float:
+        key = a * size + b if a < b else b * size + a
+        got = get(key)
+        if got is not None:
+            return got
         worst = 0.0
-        for v, acc, knee, wrap, j in self.joints:
-            d = abs(xa[j] - xb[j])
-            if wrap:
-                d = math.fmod(d, _TWO_PI)
-                d = min(d, _TWO_PI - d)
-            t = 2.0 * math.sqrt(d / acc) if d < knee else d / v + v / acc
-            if t > worst:
-                worst = t
+        if not (virtual[a] or virtual[b]):
+            xa, xb = x[a], x[b]
+            for v, acc, knee, wrap, j in joints:
+                d = abs(xa[j] - xb[j])
+                if wrap:
+                    d = fmod(d, _TWO_PI)
+                    d = min(d, _TWO_PI - d)
+                t = 2.0 * sqrt(d / acc) if d < knee else d / v + v / acc
+                if t > worst:
+                    worst = t
+        cache[key] = worst
         return worst
 
+    return cost
 
-def _neighbours(q: np.ndarray, model: MotionModel, k: int, nbrs=None) -> list[list[int]]:
-    """The ``k`` poses nearest each pose by move time, nearest first (k-d tree, exact)."""
+
+def _neighbours(q: np.ndarray, model: MotionModel, k: int, nbrs=None) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` poses nearest each pose by move time and those times, nearest first: ``(index, time)``
+    each ``(N, k)`` (k-d tree, exact; dense rows when the k-d tree bound does not apply or N is small)."""
     if _nb.supported(model) and q.shape[0] > k + 1:
-        idx, _ = nbrs if nbrs is not None else _nb.knn(q, model, k)
-        return idx[:, :k].tolist()
+        idx, dist = nbrs if nbrs is not None else _nb.knn(q, model, k)
+        return idx[:, :k], dist[:, :k]
     return _neighbours_dense(q, model, k)
 
 
-def _neighbours_dense(q: np.ndarray, model: MotionModel, k: int) -> list[list[int]]:
+def _neighbours_dense(q: np.ndarray, model: MotionModel, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Reference neighbour lists: one dense row per pose, O(N²)."""
     n = q.shape[0]
     k = min(k, n - 1)
-    out = []
+    idx = np.zeros((n, k), np.int64)
+    dist = np.zeros((n, k))
     for i in range(n):
         d = model.move_time(q[i][None, :], q)
         d[i] = np.inf
-        idx = np.argpartition(d, k - 1)[:k] if k < n - 1 else np.arange(n)[np.arange(n) != i]
-        out.append(idx[np.argsort(d[idx], kind="stable")].tolist())
-    return out
+        o = np.lexsort((np.arange(n), d))[:k]
+        idx[i], dist[i] = o, d[o]
+    return idx, dist
 
 
-def _local_search(cost: _Scalar, tour: np.ndarray, nbrs: list[list[int]], deadline: float,
-                  max_passes: int) -> None:
-    """2-opt and Or-opt (segments of 1-3) over neighbour lists, in place; ends fixed.
-
-    ``tour[0]`` is the start node and ``tour[-1]`` the free end; both stay in place.
-    """
-    m = tour.size
-    pos = np.empty(m, np.int64)
-    pos[tour] = np.arange(m)
-    t = tour.tolist()
-    p = pos.tolist()
-
-    def two_opt(i: int, j: int) -> bool:
-        # edges (t[i], t[i+1]) and (t[j], t[j+1]) -> (t[i], t[j]) and (t[i+1], t[j+1]); reverse t[i+1..j]
-        if i < 0 or j > m - 2 or j <= i + 1:
-            return False
-        a, b, c, d = t[i], t[i + 1], t[j], t[j + 1]
-        if cost(a, b) + cost(c, d) - cost(a, c) - cost(b, d) <= 1e-9:
-            return False
-        t[i + 1:j + 1] = t[i + 1:j + 1][::-1]
-        for k in range(i + 1, j + 1):
-            p[t[k]] = k
-        return True
-
-    def or_opt(i: int, seg_len: int) -> bool:
-        # move t[i .. i+seg_len-1] between two poses next to a neighbour of one of its ends
-        if i < 1 or i + seg_len > m - 1:
-            return False
-        s0, s1, prv, nxt = t[i], t[i + seg_len - 1], t[i - 1], t[i + seg_len]
-        removal = cost(prv, s0) + cost(s1, nxt) - cost(prv, nxt)
-        if removal <= 1e-9:
-            return False
-        best, best_k, best_rev = 1e-9, -1, False
-        for end, other in ((s0, s1), (s1, s0)):
-            for c in nbrs[end]:
-                dce = cost(c, end)
-                if dce >= removal:
-                    break  # neighbours are sorted: no closer one left
-                pc = p[c]
-                # `end` right after c (edge k = pc), or right before c (edge k = pc - 1)
-                for k, u_is_c in ((pc, True), (pc - 1, False)):
-                    if k < 0 or k > m - 2 or i - 1 <= k <= i + seg_len - 1:
-                        continue
-                    u, v = t[k], t[k + 1]
-                    if u_is_c:
-                        add = dce + cost(other, v) - cost(u, v)
-                    else:
-                        add = cost(u, other) + dce - cost(u, v)
-                    if removal - add > best:
-                        # u_is_c and end == s0 -> forward; u_is_c and end == s1 -> reversed, etc.
-                        best, best_k, best_rev = removal - add, k, (end == s0) != u_is_c
-                if seg_len == 1:
-                    pass
-            if seg_len == 1:
-                break
-        if best_k < 0:
-            return False
-        seg = t[i:i + seg_len]
-        if best_rev:
-            seg.reverse()
-        del t[i:i + seg_len]
-        k = best_k if best_k < i else best_k - seg_len
-        t[k + 1:k + 1] = seg
-        lo, hi = min(i, k + 1), max(i + seg_len, k + 1 + seg_len)
-        for kk in range(lo, hi):
-            p[t[kk]] = kk
-        return True
-
-    n_real = m - 2
-    for _ in range(max_passes):
-        improved = False
-        for node in range(n_real):
-            if time.perf_counter() > deadline:
-                break
-            for c in nbrs[node]:
-                pa, pc = p[node], p[c]
-                d_ac = cost(node, c)
-                if d_ac >= max(cost(node, t[pa + 1]), cost(t[pa - 1], node) if pa > 0 else 0.0):
-                    break  # a 2-opt gain needs a new edge shorter than one it removes at `node`
-                lo, hi = min(pa, pc), max(pa, pc)
-                if two_opt(lo, hi) or two_opt(lo - 1, hi - 1):
-                    improved = True
-            pa = p[node]
-            improved = two_opt(0, pa - 1) | two_opt(pa, m - 2) | improved
-            for seg_len in (1, 2, 3):
-                if or_opt(p[node], seg_len):
-                    improved = True
-        if not improved or time.perf_counter() > deadline:
-            break
-    tour[:] = t
+def _start_neighbours(q: np.ndarray, model: MotionModel, start, k: int) -> tuple[list[int], list[float]]:
+    """The ``k`` poses nearest the fixed start, nearest first (one dense row)."""
+    d = model.move_time(np.asarray(start, dtype=np.float64)[None, :], q)
+    o = np.lexsort((np.arange(d.size), d))[:k]
+    return o.tolist(), d[o].tolist()
 
 
 def optimize_order(joints, model: MotionModel, *, start=None, seed: int = 0, time_budget: float | None = None,
-                   max_passes: int = 30, neighbours: int = 10,
-                   initial: Sequence[int] | None = None) -> np.ndarray:
+                   max_passes: float = 30, neighbours: int = 10,
+                   initial: Sequence[int] | None = None, timings: dict | None = None) -> np.ndarray:
     """An order of the poses with small total move time.
 
     Builds the nearest-neighbour order, keeps it or ``initial`` (default: the raster order of the
-    joint vectors) whichever moves less, then alternates 2-opt and Or-opt passes until no move
-    improves, ``max_passes`` is reached, or ``time_budget`` wall seconds have elapsed (default ``None``:
-    no wall-clock limit, so the order depends only on the poses and ``seed`` — a plan is data and must be
-    reproducible on any machine; a 1640-pose grid converges in under a second). The result is never
-    slower than the raster order.
+    joint vectors) whichever moves less, then improves it with 2-opt and Or-opt moves over the
+    ``neighbours`` nearest poses of each pose (:func:`gonio.plan.localsearch.improve`: don't-look bits,
+    array tour reversing the shorter side) until no move improves, after ``max_passes`` visits per pose,
+    or when ``time_budget`` wall seconds have elapsed (default ``None``: no wall-clock limit, so the
+    order depends only on the poses and ``seed`` — a plan is data and must be reproducible on any
+    machine; 10⁴ spread poses take a few seconds). The result is never slower than the raster order.
+    ``timings``: if given, receives the wall seconds of each step (``tour``: neighbour lists and the
+    nearest-neighbour tour; ``local search``).
     """
+    from gonio.plan.localsearch import improve
+
     q = _check(joints, model)
     n = q.shape[0]
     if n <= 1:
         return np.arange(n, dtype=np.int64)
-    deadline = np.inf if time_budget is None else time.perf_counter() + float(time_budget)
+    t0 = time.perf_counter()
+    deadline = np.inf if time_budget is None else t0 + float(time_budget)
     nbrs = _nb.knn(q, model, max(neighbours, 10)) if _nb.supported(model) and n > max(neighbours, 10) + 1 else None
     cands = [nearest_neighbour_order(q, model, start=start, seed=seed, nbrs=nbrs),
              raster_order(q) if initial is None else np.asarray(initial, dtype=np.int64)]
     costs = [path_move_time(q, c, model, start=start) for c in cands]
     best = cands[int(np.argmin(costs))]
-    g = _Graph(q, model, start)
+    t1 = time.perf_counter()
+    idx, dist = _neighbours(q, model, neighbours, nbrs)
+    nbr_idx, nbr_cost = idx.tolist(), dist.tolist()
+    s_idx, s_cost = ([], []) if start is None else _start_neighbours(q, model, start, neighbours)
+    nbr_idx += [s_idx, []]
+    nbr_cost += [s_cost, []]
     tour = np.concatenate([[n], best, [n + 1]]).astype(np.int64)
-    _local_search(_Scalar(g), tour, _neighbours(q, model, neighbours, nbrs), deadline, max_passes)
+    with progress_counter(desc="ordering (2-opt/Or-opt)", unit="visit", delay=2.0) as tick:
+        tour = improve(tour, _scalar_cost(_Graph(q, model, start)), nbr_idx, nbr_cost, n, start is not None,
+                       max_passes=max_passes, deadline=deadline, progress=tick)
+    if timings is not None:
+        timings.update({"tour": t1 - t0, "local search": time.perf_counter() - t1})
+    return tour[1:-1].copy()
+
+
+def _optimize_order_reference(joints, model: MotionModel, *, start=None, seed: int = 0, max_passes: int = 30,
+                              neighbours: int = 10, initial: Sequence[int] | None = None,
+                              timings: dict | None = None) -> np.ndarray:
+    """:func:`optimize_order` with the previous local search
+    (:func:`gonio.plan.localsearch.reference_search`, O(N²) on large sets): the reference of tests and
+    ``benchmarks/bench_plan.py``."""
+    from gonio.plan.localsearch import reference_search
+
+    q = _check(joints, model)
+    n = q.shape[0]
+    if n <= 1:
+        return np.arange(n, dtype=np.int64)
+    cands = [nearest_neighbour_order(q, model, start=start, seed=seed),
+             raster_order(q) if initial is None else np.asarray(initial, dtype=np.int64)]
+    best = cands[int(np.argmin([path_move_time(q, c, model, start=start) for c in cands]))]
+    tour = np.concatenate([[n], best, [n + 1]]).astype(np.int64)
+    t0 = time.perf_counter()
+    idx, _ = _neighbours(q, model, neighbours)
+    reference_search(_scalar_cost(_Graph(q, model, start)), tour, idx.tolist(), np.inf, max_passes)
+    if timings is not None:
+        timings["local search"] = time.perf_counter() - t0
     return tour[1:-1].copy()
 
 
