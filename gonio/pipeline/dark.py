@@ -81,11 +81,15 @@ class DarkModel:
     doubling_c: float = DOUBLING_PRIOR_C
     doubling_fitted: bool = False
     checks: list = field(default_factory=list)  #: (time, temperature or None, k, u_k) of each check
+    _memo: dict = field(default_factory=dict, repr=False)  #: (exposure, k, u_k) -> predicted DarkFrame
+    _law: tuple | None = field(default=None, repr=False)  #: (c, T_d) until the next check
 
     @classmethod
     def fit(cls, frames, gain: float, black_level: float, time: float, temperature: float | None) -> "DarkModel":
         """Fit ``b``, ``r`` per pixel to ``frames`` = ``[(exposure, DarkFrame), ...]`` (weighted least squares,
-        closed form of the straight line; e.g. Press et al., *Numerical Recipes*, 3rd ed., §15.2)."""
+        closed form of the straight line; e.g. Press et al., *Numerical Recipes*, 3rd ed., §15.2), one
+        weight per exposure. The returned variances of b and r are per pixel (the line's covariance
+        scaled by each pixel's variance at the longest exposure relative to the weight there)."""
         ts = np.asarray([t for t, _ in frames], dtype=np.float64)
         if np.unique(ts).size < 2:  # one exposure: offset = the pedestal, the rest is dark current
             t, d = frames[0]
@@ -95,16 +99,20 @@ class DarkModel:
             return cls(b, r, z, (d.var / t**2).astype(np.float32), z, float(gain), float(time), temperature)
         S = St = Stt = Sy = Sty = 0.0
         for t, d in frames:
-            w = 1.0 / np.maximum(d.var.astype(np.float64), 1e-12)
+            # one weight per exposure (the frame's mean variance): per-pixel weights from the measured values
+            # would correlate with their noise and bias the line low
+            w = 1.0 / max(float(np.mean(d.var, dtype=np.float64)), 1e-12)
             y = d.mean.astype(np.float64)
             S, St, Stt = S + w, St + w * t, Stt + w * t * t
             Sy, Sty = Sy + w * y, Sty + w * t * y
         det = S * Stt - St * St
         b = (Stt * Sy - St * Sty) / det
         r = (S * Sty - St * Sy) / det
+        t_long, d_long = max(frames, key=lambda f: f[0])
+        rel = d_long.var.astype(np.float64) / max(float(np.mean(d_long.var, dtype=np.float64)), 1e-12)
         f32 = np.float32
-        return cls(b.astype(f32), r.astype(f32), (Stt / det).astype(f32), (S / det).astype(f32),
-                   (-St / det).astype(f32), float(gain), float(time), temperature)
+        return cls(b.astype(f32), r.astype(f32), (rel * Stt / det).astype(f32), (rel * S / det).astype(f32),
+                   (rel * -St / det).astype(f32), float(gain), float(time), temperature)
 
     # -- the dark current's scale -----------------------------------------------------------------
     def scale(self, temperature: float | None) -> tuple[float, float]:
@@ -114,7 +122,9 @@ class DarkModel:
             if not self.checks:
                 return 1.0, 0.0
             return self.checks[-1][2], self.checks[-1][3]
-        c, td = self._temperature_law()
+        if self._law is None:
+            self._law = self._temperature_law()
+        c, td = self._law
         dT = temperature - self.temperature
         k = c * 2.0 ** (dT / td)
         u_td = 0.0 if self.doubling_fitted else DOUBLING_PRIOR_REL_U  # relative uncertainty of T_d
@@ -144,25 +154,40 @@ class DarkModel:
 
     def add_check(self, exposure: float, dark: "DarkFrame", time: float, temperature: float | None) -> float:
         """Measure k from a dark frame ``dark`` of ``exposure`` (light off): the least-squares scale of the
-        pixels' dark current, ``k = Σ s (m − b) / Σ s²`` with ``s = r · t``; returns it."""
+        pixels' dark current, ``k = Σ s (m − b) / (Σ s² − t² Σ var r)`` with ``s = r · t``, the denominator
+        corrected for the noise of the fitted r (errors in variables: without it k is attenuated by
+        ``Σ var(s) / Σ s²``; Fuller, *Measurement Error Models*, 1987, §1.1); returns it."""
         s = self.rate.astype(np.float64) * exposure
         y = dark.mean.astype(np.float64) - self.offset
         ss = float(np.sum(s * s))
+        noise = exposure**2 * float(np.sum(self.var_rate, dtype=np.float64))
         if not ss > 0:
             return 1.0
-        k = float(np.sum(s * y) / ss)
+        k = float(np.sum(s * y) / (ss - noise if ss > 2 * noise else ss))
         u = math.sqrt(float(np.sum(s * s * (dark.var.astype(np.float64) + self.var_offset))) / ss**2)
         self.checks.append((float(time), temperature, k, u))
+        self._law = None
+        self._memo.clear()
         return k
 
     def frame(self, exposure: float, temperature: float | None, time: float) -> DarkFrame:
         """The predicted dark frame of ``exposure`` at ``temperature`` (see the class docstring)."""
         k, u = self.scale(temperature)
+        hit = self._memo.get((exposure, k, u))
+        if hit is not None:  # the same exposure at the same sensor temperature: a pose's frames, its meter
+            return hit
+        if len(self._memo) > 64:
+            self._memo.clear()
         kt = np.float32(k * exposure)
         mean = self.offset + kt * self.rate
         var = self.var_offset + kt * kt * self.var_rate + np.float32(2.0) * kt * self.cov
         var += (self.rate * np.float32(exposure * u)) ** 2
-        return DarkFrame(mean, np.maximum(var, 0.0), 0, float(time), measured=True, modelled=True)
+        mean.flags.writeable = False
+        var = np.maximum(var, 0.0)
+        var.flags.writeable = False
+        d = DarkFrame(mean, var, 0, float(time), measured=True, modelled=True)
+        self._memo[(exposure, k, u)] = d
+        return d
 
 
 class DarkCache:
