@@ -225,6 +225,12 @@ class SimCamera:
         self._rate: np.ndarray | None = None
         self._rays: np.ndarray | None = None
         self._texture = None
+        self._blurred: dict[float, np.ndarray] = {}
+        # per camera pose (and scene): the board's view and the sample's (see _board_view, _sample_view)
+        self._view_key: bytes | None = None
+        self._view_scene = self._view = None
+        self._sample_key: bytes | None = None
+        self._sample_scene = self._sample_cached = None
         self._closed = False
         self._t_power = clock.now() if clock is not None else 0.0  #: power-on: the sensor starts at ambient
         self._dsnu: np.ndarray | None = None
@@ -315,17 +321,33 @@ class SimCamera:
             self._cache_key = key
         return self._rate
 
-    def _render(self) -> np.ndarray:
-        """Radiance L = f(wi, wo) · I · cos θi / r² per pixel (point source; lecture notes 004,
-        "point light": E = I cos θ / r²; reflected radiance L = f E), times the responsivity.
-
-        The board (Lambertian, textured) is shaded over the whole frame in float32 from separable
-        ray maps (a pixel's ray ``Rᵀ(x, y, 1)`` meets z = 0 at ``C − C_z d / d_z``: no normalization
-        needed); the white patch and the sample only inside the bounding boxes of their projections,
-        in float64.
-        """
+    def _blurred_texture(self, sigma: float) -> np.ndarray:
+        """The board texture prefiltered with a Gaussian of ``sigma`` texels (cached per exact ``sigma``:
+        a rig's camera stays at one distance from the board, so a session uses one or two values)."""
         import cv2
 
+        cache = self._blurred
+        tex = cache.get(sigma)
+        if tex is None:
+            tex = cv2.GaussianBlur(self._board_texture(), (0, 0), sigma)
+            tex.flags.writeable = False
+            if len(cache) >= 8:
+                cache.pop(next(iter(cache)))
+            cache[sigma] = tex
+        return tex
+
+    def _board_view(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """What the camera pose alone decides (cached per pose; a plan often moves only the light):
+        the board-plane point ``(px, py)`` each pixel's ray meets, whether it meets it (``hit``) and the
+        board / background albedo there, all float32 (H, W) and read-only.
+
+        A pixel's ray ``Rᵀ(x, y, 1)`` meets z = 0 at ``C − C_z d / d_z`` (no normalization needed); the
+        albedo is a bilinear lookup in the texture prefiltered to the pixel footprint."""
+        import cv2
+
+        key = self._pose.R.tobytes() + self._pose.t.tobytes()
+        if self._view_key == key and self._view_scene is self.scene:
+            return self._view
         s, c = self.scene, self.calibration
         C = self._pose.centre
         R = self._pose.R
@@ -344,29 +366,44 @@ class SimCamera:
         py = x * f32(R[0, 1]) + (y * f32(R[1, 1]) + f32(R[2, 1]))
         py *= t
         py += f32(C[1])
-        # Board / background albedo: bilinear lookup in a texture prefiltered to the pixel footprint.
         tex = self._board_texture()
         w, h = s.layout.charuco.size
         footprint = np.linalg.norm(C) / c.K[0, 0] / s.texel  # texels per pixel at the board centre
         if footprint > 1.0:
-            tex = cv2.GaussianBlur(tex, (0, 0), 0.5 * footprint)
+            tex = self._blurred_texture(0.5 * footprint)
         inv = 1.0 / s.texel
         mx = px * f32(inv) + f32(w / 2 * inv - 0.5)
         my = py * f32(-inv) + f32(h / 2 * inv - 0.5)
         albedo = cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=s.background)
+        for a in (px, py, hit, albedo):
+            a.flags.writeable = False
+        self._view_key, self._view_scene, self._view = key, self.scene, (px, py, hit, albedo)
+        return self._view
+
+    def _render(self) -> np.ndarray:
+        """Radiance L = f(wi, wo) · I · cos θi / r² per pixel (point source; lecture notes 004,
+        "point light": E = I cos θ / r²; reflected radiance L = f E), times the responsivity.
+
+        The board (Lambertian, textured, :meth:`_board_view`) is shaded over the whole frame in float32;
+        the white patch and the sample only inside the bounding boxes of their projections, in float64.
+        """
+        s = self.scene
+        C = self._pose.centre
+        f32 = np.float32
+        px, py, hit, albedo = self._board_view()
         S_ = self._light_pos
-        irr = np.subtract(f32(S_[0]), px, out=mx)  # reuse the lookup buffers
+        irr = np.subtract(f32(S_[0]), px)
         irr *= irr
-        ly = np.subtract(f32(S_[1]), py, out=my)
+        ly = np.subtract(f32(S_[1]), py)
         ly *= ly
         irr += ly
         irr += f32(S_[2] ** 2)  # r²
         r = np.sqrt(irr, out=ly)
         irr *= r  # r³
         np.divide(f32(s.light_intensity * max(S_[2], 0.0)), irr, out=irr)  # I cos θ / r² = I z_S / r³
-        albedo *= irr
-        albedo *= hit
-        rate = np.multiply(albedo[..., None], np.asarray(self.sensor.responsivity, dtype=np.float32) / f32(np.pi))
+        shade = albedo * irr
+        shade *= hit
+        rate = np.multiply(shade[..., None], np.asarray(self.sensor.responsivity, dtype=np.float32) / f32(np.pi))
         lay = s.layout
         box = self._bbox(lay.white.corners())
         if box is not None:
@@ -392,32 +429,46 @@ class SimCamera:
             return None
         return rows, cols
 
+    def _sample_view(self, C: np.ndarray):
+        """What the camera pose alone decides about the sample patch (cached per pose): its pixel box,
+        the pixels inside it that see the patch, the points they see (sample frame) and the local
+        outgoing directions there; None when the patch is not in view."""
+        s = self.scene
+        key = self._pose.R.tobytes() + self._pose.t.tobytes()
+        if self._sample_key == key and self._sample_scene is s:
+            return self._sample_cached
+        M = s.layout.mount.transform if s.sample_transform is None else np.asarray(s.sample_transform, dtype=np.float64)
+        corners = s.layout.sample.corners() @ M[:3, :3].T + M[:3, 3]
+        view = None
+        box = self._bbox(corners)
+        if box is not None:
+            d = self._world_rays(box)
+            origin, n, frame = surface_frame(M)  # normal by the inverse-transpose (lecture notes 000)
+            dn = d @ n
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = np.dot(origin - C, n) / dn
+            ok = np.isfinite(t) & (t > 0) & (dn < 0)
+            p = C + np.where(ok, t, 0.0)[..., None] * d
+            Minv = np.linalg.inv(M)
+            q = p @ Minv[:3, :3].T + Minv[:3, 3]  # back to the patch's own coordinates
+            inside = ok & s.layout.sample.contains(q[..., 0], q[..., 1])
+            if inside.any():
+                pi = p[inside]
+                view = (box, inside, pi, to_local(normalize(C - pi), frame), frame)
+        self._sample_key, self._sample_scene, self._sample_cached = key, s, view
+        return view
+
     def _shade_sample(self, rate: np.ndarray, C: np.ndarray) -> None:
         """Overwrite ``rate`` where rays hit the (possibly transformed) sample patch."""
         s = self.scene
-        M = s.layout.mount.transform if s.sample_transform is None else np.asarray(s.sample_transform, dtype=np.float64)
-        corners = s.layout.sample.corners() @ M[:3, :3].T + M[:3, 3]
-        box = self._bbox(corners)
-        if box is None:
+        view = self._sample_view(C)
+        if view is None:
             return
-        d = self._world_rays(box)
-        origin, n, frame = surface_frame(M)  # normal by the inverse-transpose (lecture notes 000)
-        dn = d @ n
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.dot(origin - C, n) / dn
-        ok = np.isfinite(t) & (t > 0) & (dn < 0)
-        p = C + np.where(ok, t, 0.0)[..., None] * d
-        Minv = np.linalg.inv(M)
-        q = p @ Minv[:3, :3].T + Minv[:3, 3]  # back to the patch's own coordinates
-        inside = ok & s.layout.sample.contains(q[..., 0], q[..., 1])
-        if not inside.any():
-            return
-        pi = p[inside]
+        box, inside, pi, wo, frame = view
         to_light = self._light_pos - pi
         r2 = dot(to_light, to_light)
         wi_w = to_light / np.sqrt(r2)[:, None]
-        wo_w = normalize(C - pi)
-        wi, wo = to_local(wi_w, frame), to_local(wo_w, frame)
+        wi = to_local(wi_w, frame)
         f = s.material.eval(wi, wo)
         irr = s.light_intensity * np.maximum(wi[:, 2], 0.0) / r2
         rate[box][inside] = (f * irr[:, None] * np.asarray(self.sensor.responsivity)).astype(np.float32)

@@ -19,7 +19,8 @@ from sim.faults import LinkFaults
 
 class PtyServer:
     """Base class of the emulators: a reader thread passes incoming bytes to :meth:`on_bytes`;
-    replies go out through :meth:`send`, which applies the link's :class:`LinkFaults`.
+    replies go out through :meth:`send`, which applies the link's :class:`LinkFaults`; the replies
+    made while handling one read go out in one write (a sync read's status packets together).
 
     Subclasses implement :meth:`on_bytes`. Use as a context manager or call :meth:`start` and
     :meth:`stop`.
@@ -38,6 +39,10 @@ class PtyServer:
         self.silent = False  #: when True the device receives but never answers (unplugged / powered off)
         self.bytes_in = 0
         self.bytes_out = 0
+        #: replies made while handling one read from the host, written together when it is handled (one
+        #: write instead of one per reply: fewer wake-ups of the host; same bytes, same order)
+        self._pending: list[bytes] | None = None
+        self._loop_ident: int | None = None
 
     # -- lifecycle ----------------------------------------------------------------------------
     def start(self) -> "PtyServer":
@@ -79,6 +84,7 @@ class PtyServer:
 
     # -- I/O ----------------------------------------------------------------------------------
     def _loop(self) -> None:
+        self._loop_ident = threading.get_ident()
         while not self._stop.is_set():
             try:
                 ready, _, _ = select.select([self._master], [], [], 0.05)
@@ -93,7 +99,13 @@ class PtyServer:
                 continue
             if data:
                 self.bytes_in += len(data)
-                self.on_bytes(data)
+                self._pending = []
+                try:
+                    self.on_bytes(data)
+                finally:
+                    out, self._pending = b"".join(self._pending), None
+                    if out:
+                        self._write(out)
 
     def on_bytes(self, data: bytes) -> None:  # pragma: no cover - abstract
         """Handle bytes from the host (called on the reader thread)."""
@@ -114,7 +126,9 @@ class PtyServer:
         if fate is None:
             return
         delay, data = fate
-        if delay > 0:
+        if delay <= 0 and self._pending is not None and threading.get_ident() == self._loop_ident:
+            self._pending.append(data)  # replies to one read go out in one write (see _loop)
+        elif delay > 0:
             timer = threading.Timer(delay, self._write, args=(data,))
             timer.daemon = True
             timer.start()

@@ -23,12 +23,52 @@ def pytest_addoption(parser):
     parser.addoption("--controller-port", default=None, help="serial port of a real rig controller")
 
 
+# -- scheduling on the cores (pytest-xdist, `-n 2 --dist loadgroup` in addopts) -------------------------
+#: Modules whose module-scoped fixture is most of their cost (a whole `gonio bench --quick`, a simulated
+#: session, a browser): all their tests run on one worker (an ``xdist_group``), so the fixture runs once
+#: instead of once per worker that happens to receive one of them.
+SHARED_FIXTURE_MODULES = (
+    "tests/test_bench_cli.py",
+    "tests/rig/test_rig_kinematics_turntable_session.py",
+    "tests/report/test_render_and_report.py",
+    "tests/test_end_to_end.py",
+    "tests/rig/test_camera_cli.py",
+)
+#: The most expensive modules (tens of seconds each on a 2-core machine), most expensive first. They are
+#: handed out first (longest processing time first: Graham, "Bounds on multiprocessing timing anomalies",
+#: 1969): started last, one of them keeps a worker busy while the other has nothing left to do. Only the
+#: order changes; every test still runs.
+SLOW_FIRST = (
+    "tests/test_bench_cli.py",
+    "tests/session/test_adaptive_session.py",
+    "tests/session/test_reliability.py",
+    "tests/fit/test_select.py",
+    "tests/api/test_api.py",
+    "tests/session/test_robust_session.py",
+    "tests/api/test_batch.py",
+    "tests/session/test_frame_faults.py",
+    "tests/session/test_lab_time_estimate.py",
+    "tests/report/test_render_and_report.py",
+    "tests/fit/test_real_data.py",
+    "tests/rig/test_rig_kinematics_turntable_session.py",
+)
+
+
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
 def pytest_collection_modifyitems(config, items):
-    if config.getoption("--port") or config.getoption("--controller-port"):
-        return
-    selected, deselected = [], []
+    if not (config.getoption("--port") or config.getoption("--controller-port")):
+        selected, deselected = [], []
+        for item in items:
+            (deselected if "hardware" in item.keywords else selected).append(item)
+        if deselected:
+            config.hook.pytest_deselected(items=deselected)
+            items[:] = selected
+    rank = {m: k for k, m in enumerate(SLOW_FIRST)}
+
+    def module(item) -> str:
+        return item.nodeid.split("::", 1)[0]
+
     for item in items:
-        (deselected if "hardware" in item.keywords else selected).append(item)
-    if deselected:
-        config.hook.pytest_deselected(items=deselected)
-        items[:] = selected
+        if module(item) in SHARED_FIXTURE_MODULES:
+            item.add_marker(pytest.mark.xdist_group(module(item)))
+    items.sort(key=lambda item: rank.get(module(item), len(SLOW_FIRST)))  # stable: the rest keeps its order

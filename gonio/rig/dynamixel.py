@@ -25,6 +25,7 @@ gets its RAM settings written again and the move is re-issued, once per move.
 from __future__ import annotations
 
 import math
+import select
 import threading
 import time
 from dataclasses import dataclass
@@ -117,6 +118,25 @@ class _Port(sdk.PortHandler):
     def setPacketTimeout(self, packet_length):  # noqa: N802 - SDK name
         self.packet_start_time = self.getCurrentTime()
         self.packet_timeout = self.tx_time_per_byte * packet_length + self.latency_timer_ms * 2.0 + 2.0
+
+    def readPort(self, length):  # noqa: N802 - SDK name
+        """The bytes available (at most ``length``); when none are, first wait in the kernel for the next
+        byte until the packet timeout. The SDK's receive loops call this back to back until the packet
+        is complete or the timeout passes: with the SDK's non-blocking read that loop spins (one core at
+        100 % per transaction, and, in one process with an emulator, the emulator starved of the
+        interpreter lock); waiting in ``select`` gives the same bytes at the same deadlines."""
+        data = self.ser.read(length)
+        if data or length <= 0:
+            return data
+        left = (self.packet_timeout - self.getTimeSinceStart()) / 1000.0
+        fileno = getattr(self.ser, "fileno", None)
+        if left > 0 and fileno is not None:
+            try:
+                select.select([fileno()], [], [], left)
+            except (OSError, ValueError):  # closed underneath, or no selectable descriptor: the SDK's loop decides
+                return data
+            data = self.ser.read(length)
+        return data
 
 
 class DynamixelBus:
@@ -486,11 +506,9 @@ class DynamixelAxes:
 
     # -- state ----------------------------------------------------------------------------------
     def _state(self) -> dict[int, dict[str, int]]:
-        state = self.bus.sync_read(self._table, "torque_enable", "hardware_error_status", self._ids)
-        motion = self.bus.sync_read(self._table, "moving", "present_position", self._ids)
-        for i in self._ids:
-            state[i].update(motion[i])
-        return state
+        """Torque, hardware error, moving and present position of every servo: one sync read of the
+        block Torque Enable … Present Position (one round trip on the bus, not one per field group)."""
+        return self.bus.sync_read(self._table, "torque_enable", "present_position", self._ids)
 
     def alarms(self) -> dict[str, int]:
         """``{joint: Hardware Error Status bits}`` of every servo reporting one (one sync read)."""
