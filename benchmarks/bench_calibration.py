@@ -82,7 +82,8 @@ def _stats(x):
 
 def run(quick: bool = False) -> list[Table]:
     from gonio.rig.chain import angle_between_deg
-    from gonio.rig.geocal import calibrate_geometry, calibration_plan, plan_lab_time
+    from gonio.rig.geocal import calibrate_geometry, calibration_plan
+    from gonio.session.geocal_session import calibration_lab_time, calibration_session_plan
     from gonio.rig.kinematics import load_rig
     from sim.as_built import AsBuilt, observe, render_observations
 
@@ -104,7 +105,9 @@ def run(quick: bool = False) -> list[Table]:
                                                  "does (ChArUco pose and highlight detected in each frame)")
     plan = calibration_plan(rig)
     rplan = calibration_plan(rig, quick=quick)  # the rendered sessions (quick: fewer poses, CI time)
-    lab, rlab = plan_lab_time(rig, plan), plan_lab_time(rig, rplan)
+    # lab time: the session runner's cost model of the calibration session (moves, settle and approach, frames)
+    lab = calibration_lab_time(calibration_session_plan(rig), rig)
+    rlab = calibration_lab_time(calibration_session_plan(rig, quick=quick), rig)
     acc = {k: [] for k in ("kin", "charuco", "after", "rendered")}
     z = {"after": [], "rendered": []}
     counts = []
@@ -148,7 +151,7 @@ def run(quick: bool = False) -> list[Table]:
         return f"{np.mean(v < 3) * 100:.1f} % of {len(v)} within 3σ ({np.mean(v < 1) * 100:.0f} % within 1σ)"
 
     t.notes.append(f"calibration plan: {len(plan['camera'])} ChArUco poses + {len(plan['highlight'])} mirror-highlight "
-                   f"poses, lab time {lab / 60:.1f} min (moves + settle + capture; goal <= 10 min)"
+                   f"poses, lab time {lab / 60:.1f} min (the runner's cost model: moves, settle and unidirectional approach, frames; goal <= 10 min)"
                    + (f"; the rendered sessions use the quick plan ({len(rplan['camera'])} + {len(rplan['highlight'])} "
                       f"poses, {rlab / 60:.1f} min)" if quick else ""))
     t.notes.append(f"rendered + detected (sim.as_built.render_observations -> gonio.session.geocal_observe.observe_pose): "

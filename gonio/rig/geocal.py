@@ -7,17 +7,24 @@ Observations (one per pose of a calibration plan, :func:`calibration_plan`):
   (:mod:`gonio.pipeline.target`) at joints ``j``: position (m) and rotation (rows = camera axes);
 * :class:`HighlightObservation` — with a flat mirror (or a glossy black tile) on the stage, the pixel
   direction (normalized image coordinates ``x/z, y/z``) in which the camera sees the light's specular
-  reflection, together with the camera's ChArUco pose of the same frame. The mirror plane is the sample
-  plane z = 0, so the camera sees the light's mirror image ``(x, y, −z)`` (law of reflection).
+  reflection (:mod:`gonio.pipeline.highlight`). The mirror plane is the sample plane z = 0, so the camera
+  sees the light's mirror image ``(x, y, −z)`` (law of reflection). It is projected with the camera pose
+  of the chain being estimated (the board poses of the same frames are camera observations too), not
+  with each frame's own board pose, whose rotation error (~0.05° at 320 px) would enter the light's
+  triangulation one frame at a time.
 
-The unknowns are :class:`ChainErrors`'s fields (degrees, millimetres). The residuals are weighted by
-their scatter, estimated from the data (two reweighting passes, one variance per observation kind),
-and solved with :func:`scipy.optimize.least_squares`. The standard uncertainties are the square roots
-of the diagonal of ``s² (JᵀJ)⁻¹`` at the solution (the Gauss–Newton covariance; Bates & Watts 1988,
-*Nonlinear Regression Analysis*, §2.3.1; ``s²`` = weighted RSS / (m − n)). Parameters the poses
-cannot determine — the columns of ``J`` in the null space of its SVD (relative singular value below
-:data:`RANK_TOL`) or with an uncertainty above :data:`MAX_SIGMA` — are reported as *not identified*,
-kept at their declared value (0), and the fit is repeated without them; they are never guessed.
+The unknowns are :class:`ChainErrors`'s fields (degrees, millimetres). Each observation's residual is
+whitened by its own covariance when it has one (the board pose's PnP covariance, the highlight
+centroid's), each kind is then rescaled by its scatter (two reweighting passes), and the problem is
+solved with :func:`scipy.optimize.least_squares`. The standard uncertainty of a parameter is the larger
+of the Gauss–Newton one, ``s² (JᵀJ)⁻¹`` (Bates & Watts 1988, *Nonlinear Regression Analysis*, §2.3.1),
+and the cluster-robust sandwich one (one cluster per observation; White 1980, Liang & Zeger 1986), plus
+the effect of errors common to every observation that no scatter shows — the board's printed scale, the
+corner detector's bias, the principal point (:data:`BOARD_SCALE_SIGMA`, :data:`BOARD_ORIGIN_SIGMA_MM`,
+:data:`PRINCIPAL_POINT_SIGMA`). Parameters the poses cannot determine — the columns of ``J`` in the null
+space of its SVD (relative singular value below :data:`RANK_TOL`) or with an uncertainty above
+:data:`MAX_SIGMA` — are reported as *not identified*, kept at their declared value (0), and the fit is
+repeated without them; they are never guessed.
 A pose set that cannot determine the chain at all (too few poses, one azimuth, one elevation) is
 refused before solving with a one-line :class:`DegeneratePoses`.
 """
@@ -34,7 +41,7 @@ from gonio.errors import ConfigError
 from gonio.rig.chain import ARM_FIELDS, TURNTABLE_FIELDS, ChainErrors, chain_forward
 
 __all__ = ["CameraObservation", "HighlightObservation", "GeoCalResult", "DegeneratePoses", "calibrate_geometry",
-           "calibration_plan", "calibrated_rig_text", "plan_lab_time", "RANK_TOL", "MAX_SIGMA"]
+           "calibration_plan", "calibrated_rig_text", "RANK_TOL", "MAX_SIGMA"]
 
 #: Relative singular value below which a direction of parameter space is not determined by the data.
 RANK_TOL = 1e-7
@@ -338,20 +345,6 @@ def calibration_plan(rig, *, quick: bool = False) -> dict[str, np.ndarray]:
         return j[ok]
 
     return {"camera": keep(cam), "highlight": keep(hi)}
-
-
-#: Seconds per calibration pose besides the move: settling and one exposure set (the runner's defaults).
-POSE_OVERHEAD_S = 1.5
-
-
-def plan_lab_time(rig, plan: dict, *, overhead_s: float = POSE_OVERHEAD_S) -> float:
-    """Lab time (s) of :func:`calibration_plan`'s poses in order: the trapezoidal moves
-    (:meth:`gonio.rig.kinematics.Rig.move_time`) plus ``overhead_s`` per pose."""
-    j = np.concatenate([plan["camera"], plan["highlight"]])
-    if len(j) == 0:
-        return 0.0
-    moves = rig.move_time(j[:-1], j[1:]) if len(j) > 1 else np.zeros(0)
-    return float(np.sum(moves) + overhead_s * len(j))
 
 
 def calibrated_rig_text(declared_text: str, result: GeoCalResult, *, note: str = "") -> str:
