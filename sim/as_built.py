@@ -21,7 +21,7 @@ import numpy as np
 from gonio.errors import ConfigError
 from gonio.rig.chain import ARM_FIELDS, TURNTABLE_FIELDS, ChainErrors, chain_forward, true_directions
 
-__all__ = ["AsBuilt", "TOLERANCES", "observe", "parse_as_built", "render_board_poses"]
+__all__ = ["AsBuilt", "TOLERANCES", "observe", "parse_as_built", "render_observations"]
 
 #: Half-widths of the uniform assembly errors of :meth:`AsBuilt.from_seed` (issue 15's "realistic" rig).
 TOLERANCES = {
@@ -98,39 +98,59 @@ class AsBuilt:
         return true_directions(self.rig, self.errors, joints)
 
 
-def render_board_poses(as_built: AsBuilt, joints, seed: int = 0):
-    """Camera poses (position, R) that gonio's ChArUco pipeline (:func:`gonio.pipeline.markers.detect_board_pose`)
-    estimates from frames the simulated camera renders on the as-built rig at ``joints`` (N, 4); ``None``
-    where the board is not found. Light on at full output, default sensor and target."""
-    from gonio.pipeline.markers import detect_board_pose, to_gray8
+def render_observations(as_built: AsBuilt, plan: dict, seed: int = 0, *, joint_deg: float = 0.02, config=None):
+    """Calibration observations from frames the simulated camera renders on the as-built rig, detected by
+    gonio's own code (:func:`gonio.session.geocal_observe.observe_pose`: the ChArUco pose with its
+    covariance; the light's highlight in the 80 mm glossy black tile on the stage, sub-pixel, with its
+    covariance). The arms stand ``joint_deg`` (servo noise, backlash; Gaussian) off the commanded joints,
+    which are what the observations record. Returns ``(cams, highs, refused)``: every frame with a board
+    pose is a camera observation; ``refused`` lists ``(kind, index, reason)`` of poses that gave none."""
     from gonio.pipeline.target import CameraPose
+    from gonio.session.geocal_observe import calibration_layout, observe_pose
     from sim.rig import SimRig, SimRigConfig
 
-    out = []
-    sim = SimRig(as_built.rig, config=SimRigConfig(seed=seed, as_built=as_built.to_dict()))
+    rig = as_built.rig
+    cfg = config or SimRigConfig(seed=seed)
+    from dataclasses import replace
+
+    cfg = replace(cfg, as_built=as_built.to_dict(), tile=cfg.tile or {})
+    sim = SimRig(rig, config=cfg, layout=calibration_layout())
     cam = sim.sim_camera
     cam._light_output = None  # no controller running: the light is simply on
-    for k, j in enumerate(np.asarray(joints, dtype=np.float64)):
-        pc, R = as_built.camera_pose(j)
-        cam.set_pose(CameraPose(R, -R @ pc))
-        cam.set_light(as_built.light_position(j), on=True, output=1.0)
-        cam.reseed([int(seed), k, 1516])
-        frame = cam.capture(0.02)
-        bp = detect_board_pose(to_gray8(frame.pixels, sim.sensor.bit_depth), sim.calibration, sim.layout.charuco)
-        out.append(None if bp is None else (bp.pose.centre, bp.pose.R))
-    return out
+    rng = np.random.default_rng([int(seed), 1517])
+    cams, highs, refused = [], [], []
+    for kind in ("camera", "highlight"):
+        for k, j in enumerate(np.asarray(plan[kind], dtype=np.float64)):
+            actual = j + np.radians(rng.normal(0.0, joint_deg, j.shape))
+            pc, R = as_built.camera_pose(actual)
+            cam.set_pose(CameraPose(R, -R @ pc))
+            cam.set_light(as_built.light_position(actual), on=True, output=1.0)
+            cam.reseed([int(seed), k, 1516 if kind == "camera" else 1518])
+            c, h, why = observe_pose(cam, sim.calibration, sim.layout, j, highlight=kind == "highlight",
+                                     min_exposure=sim.sensor.min_exposure)
+            if c is not None:
+                cams.append(c)
+            if h is not None:
+                highs.append(h)
+            elif why:
+                refused.append((kind, k, why))
+    return cams, highs, refused
 
 
 def observe(as_built: AsBuilt, plan: dict, seed: int = 0, *, pose_mm: float = 0.2, pose_deg: float = 0.02,
             highlight_px: float = 0.2, focal_px: float = 380.0, joint_deg: float = 0.02, render: bool = False):
-    """Simulated calibration observations on the as-built rig for ``plan`` (:func:`gonio.rig.geocal.calibration_plan`):
-    the camera's ChArUco pose with Gaussian noise (``pose_mm``, ``pose_deg`` per axis: a board pose
-    estimate's typical scatter) and the light's reflection in a mirror on the sample plane, its centroid
-    with ``highlight_px`` of noise at ``focal_px``; the arms stand ``joint_deg`` (servo noise, backlash) off
-    the commanded joints. ``render``: the camera's poses are instead what gonio's ChArUco pipeline
-    estimates from rendered frames (:func:`render_board_poses`; the mirror highlight stays geometric)."""
+    """Calibration observations on the as-built rig for ``plan`` (:func:`gonio.rig.geocal.calibration_plan`).
+
+    ``render=False`` (cheap, for tests): *geometric* observations — the camera's ChArUco pose with
+    Gaussian noise (``pose_mm``, ``pose_deg`` per axis) and the light's mirror image projected with
+    ``highlight_px`` of noise at ``focal_px``, no frames, no covariances; the arms stand ``joint_deg``
+    off the commanded joints. ``render=True``: :func:`render_observations` (rendered frames, detected by
+    gonio's pipeline; the board poses of highlight frames are camera observations too)."""
     from gonio.rig.geocal import CameraObservation, HighlightObservation
 
+    if render:
+        cams, highs, _ = render_observations(as_built, plan, seed, joint_deg=joint_deg)
+        return cams, highs
     rng = np.random.default_rng([int(seed), 1515])
     rig = as_built.rig
 
@@ -143,23 +163,11 @@ def observe(as_built: AsBuilt, plan: dict, seed: int = 0, *, pose_mm: float = 0.
         return actual, pc + rng.normal(0.0, pose_mm * 1e-3, 3), pc, R, dR @ R
 
     cams, highs = [], []
-    rendered = {}
-    if render:
-        for key in ("camera", "highlight"):
-            rendered[key] = render_board_poses(as_built, plan[key], seed)
-    for k, j in enumerate(plan["camera"]):
+    for j in plan["camera"]:
         _, obs_p, _, _, obs_R = noisy_pose(j)
-        if render:
-            if rendered["camera"][k] is None:
-                continue
-            obs_p, obs_R = rendered["camera"][k]
         cams.append(CameraObservation(np.array(j), obs_p, obs_R))
-    for k, j in enumerate(plan["highlight"]):
+    for j in plan["highlight"]:
         actual, obs_p, pc, R, obs_R = noisy_pose(j)
-        if render:
-            if rendered["highlight"][k] is None:
-                continue
-            obs_p, obs_R = rendered["highlight"][k]
         pl = chain_forward(rig, as_built.errors, actual)[0] * np.array([1.0, 1.0, -1.0])
         v = R @ (pl - pc)
         xy = v[:2] / v[2] + rng.normal(0.0, highlight_px / focal_px, 2)

@@ -157,6 +157,9 @@ class SimScene:
     background: float = 0.02
     sample_transform: np.ndarray | None = None
     texel: float = 0.25e-3
+    #: a glossy black tile or mirror in place of the sample (:class:`sim.mirror_tile.CalibrationTile`): the
+    #: geometric calibration's view of the light's reflection; None: the sample patch
+    tile: object = None
 
 
 class SceneLight:
@@ -411,7 +414,12 @@ class SimCamera:
             m = lay.white.contains(*sub) & hit[box]
             wrate = (np.asarray(lay.white_albedo) / np.pi * np.asarray(self.sensor.responsivity)).astype(np.float32)
             rate[box][m] = irr[box][m][:, None] * wrate
-        self._shade_sample(rate, C)
+        if s.tile is not None:
+            from sim.mirror_tile import shade_tile
+
+            shade_tile(self, rate, C)
+        else:
+            self._shade_sample(rate, C)
         return rate
 
     def _bbox(self, corners: np.ndarray) -> tuple[slice, slice] | None:

@@ -100,11 +100,16 @@ class SimRigConfig:
     #: As-built geometry (:mod:`sim.as_built`): ``None`` the declared (perfect) rig, else
     #: :meth:`sim.as_built.AsBuilt.to_dict` (the assembly errors the simulator renders with).
     as_built: dict | None = None
+    #: A glossy black tile (or mirror) in place of the sample, over the layout's sample rectangle
+    #: (:class:`sim.mirror_tile.CalibrationTile`'s other fields: ``f0``, ``diffuse``, ``light_radius``):
+    #: the geometric calibration's stage. ``None``: the sample.
+    tile: dict | None = None
 
     def to_dict(self) -> dict:
         d = dict(self.__dict__)
-        if d["as_built"] is None:  # a perfect rig's manifest stays what it was before as-built rigs existed
-            del d["as_built"]
+        for k in ("as_built", "tile"):  # a plain rig's manifest stays what it was before these existed
+            if d[k] is None:
+                del d[k]
         return d
 
     def calibration(self) -> CameraCalibration:
@@ -255,7 +260,12 @@ class SimRig:
                                   reports_temperature=cfg.sensor_reports_temperature)
         self.layout = layout or TargetLayout()
         self.calibration = cfg.calibration()
-        scene = SimScene(self.layout, self.material, light_intensity=cfg.light_intensity)
+        tile = None
+        if cfg.tile is not None:
+            from sim.mirror_tile import CalibrationTile
+
+            tile = CalibrationTile(rect=self.layout.sample, **cfg.tile)
+        scene = SimScene(self.layout, self.material, light_intensity=cfg.light_intensity, tile=tile)
         self.sim_camera = SimCamera(self.calibration, self.sensor, scene, seed=cfg.seed, clock=self.clock,
                                     light_output=self.controller.light_output)
         self.camera = RigCamera(self)

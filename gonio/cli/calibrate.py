@@ -1,21 +1,28 @@
 """``gonio calibrate rig|check``: geometric calibration of the rig (:mod:`gonio.rig.geocal`).
 
-``gonio calibrate rig`` lays out the calibration poses (:func:`gonio.rig.geocal.calibration_plan`:
-ChArUco poses of the camera arm, mirror-highlight poses of the light arm, all inside the declared joint
-limits and collision zones), prints their number and lab time, gathers the observations, estimates the
-rig's assembly errors with their uncertainties, prints them (parameters not identified are said so)
-and writes the calibrated rig file (``--out``: the declared file plus a ``[calibration]`` table), which
-``gonio measure --rig CALIBRATED.toml`` uses. ``gonio calibrate check`` re-observes a few poses and
-reports the angular error left with a (calibrated) rig file.
-
-With ``--sim`` the observations come from the as-built simulated rig (``--sim-as-built SEED|FILE``,
-:func:`sim.as_built.observe`: geometric observations with a ChArUco pose and highlight-centroid noise
-model, no rendered frames), found through the ``gonio.plugins`` entry points (gonio never imports sim).
+``gonio calibrate rig`` lays out the calibration poses (:func:`gonio.session.geocal_session.calibration_session_plan`:
+ChArUco poses of the camera arm, mirror-highlight poses of the light arm, inside the declared joint limits
+and collision zones), prints their number and lab-time estimate, then runs them as a session through the
+session runner (same moves, safety checks, crash-safe store and progress line as a measurement; an
+interrupted session continues with ``gonio resume DIR``): each pose's frames give the board pose and the
+light's highlight in the tile on the stage. At the end it estimates the rig's assembly errors with their
+uncertainties, prints them (parameters not identified are said so) and writes the calibrated rig file
+(``--out``: the declared file plus a ``[calibration]`` table), which ``gonio measure --rig CALIBRATED.toml``
+uses. On a rig: ``--rig RIG.toml --servo-port --controller-port --camera --calibration CAMERA.toml``; with
+``--sim`` the simulated as-built rig (``--sim-as-built SEED|FILE``) renders the frames.
+``gonio calibrate check`` re-observes a few poses and reports the angular error left with a (calibrated)
+rig file (simulated: geometric observations, :func:`sim.as_built.observe`).
 """
 
 from __future__ import annotations
 
 import math
+import sys
+
+#: What a hardware calibration session needs besides --out (the option, what it is).
+HARDWARE_OPTIONS = (("--rig", "rig", "the declared rig file"), ("--servo-port", "servo_port", "the servo bus port"),
+                    ("--controller-port", "controller_port", "the rig controller port"),
+                    ("--camera", "camera", "the camera"), ("--calibration", "calibration", "the camera's CAMERA.toml"))
 
 
 def register(sub) -> None:
@@ -24,18 +31,24 @@ def register(sub) -> None:
     csub = p.add_subparsers(dest="calibrate_command", metavar="ACTION", required=True)
 
     def common(sp):
-        sp.add_argument("--rig", metavar="RIG.toml", help="rig file (default: the shipped rig)")
+        sp.add_argument("--rig", metavar="RIG.toml", help="rig file (default with --sim: the shipped rig)")
         sp.add_argument("--sim", action="store_true", help="calibrate the simulated (as-built) rig")
         sp.add_argument("--sim-as-built", metavar="SEED|ERRORS.toml", default="0",
                         help="the simulated rig's assembly errors: a seed or a TOML file (default seed 0)")
-        sp.add_argument("--seed", type=int, default=0, help="seed of the simulated observation noise")
+        sp.add_argument("--seed", type=int, default=0, help="seed of the simulation's noise")
         sp.add_argument("--quick", action="store_true", help="fewer poses (coarser azimuth steps)")
         sp.set_defaults(func=run)
 
-    rig = csub.add_parser("rig", help="estimate the rig's geometry and write a calibrated rig file")
+    rig = csub.add_parser("rig", help="run a calibration session and write a calibrated rig file")
     common(rig)
-    rig.add_argument("--out", metavar="CALIBRATED.toml", help="calibrated rig file to write")
+    rig.add_argument("--out", metavar="CALIBRATED.toml", help="calibrated rig file to write (never overwritten)")
+    rig.add_argument("--session", metavar="DIR", help="the calibration session's directory (default: OUT.session)")
     rig.add_argument("--estimate", action="store_true", help="only print the plan and its lab time")
+    rig.add_argument("--servo-port", help="servo bus serial port (hardware)")
+    rig.add_argument("--controller-port", help="rig controller serial port (hardware)")
+    rig.add_argument("--camera", help="camera index, path or GigE id (hardware)")
+    rig.add_argument("--calibration", metavar="CAMERA.toml", help="the camera's intrinsics and settings (hardware)")
+    rig.add_argument("--quiet", action="store_true", help="no progress line")
     check = csub.add_parser("check", help="re-observe a few poses and report the angular error left")
     common(check)
 
@@ -44,9 +57,8 @@ def _observations(args, declared, plan):
     from gonio.errors import ConfigError
 
     if not args.sim:
-        raise ConfigError("gonio calibrate: the hardware calibration session (ChArUco and mirror-highlight frames "
-                          "through the session runner) is not available yet; use --sim, or see README "
-                          "'Rig geometry' for the procedure")
+        raise ConfigError("gonio calibrate check is not available on a rig yet (run `gonio calibrate rig` again "
+                          "and compare the estimates); use --sim for the simulated rig")
     from gonio.plugins import plugin
 
     sim = plugin("sim.rig")
@@ -54,43 +66,154 @@ def _observations(args, declared, plan):
     return as_built, sim.observe(as_built, plan, args.seed)
 
 
+def print_result(res, refused=()) -> None:
+    """The estimate's table (value ± standard uncertainty, or why not identified) and the residuals."""
+    for name, value, sigma, unit in res.table():
+        if unit.startswith("not identified"):
+            print(f"  {name:26s}      —          {unit}")
+        else:
+            print(f"  {name:26s} {value:+9.4f} ± {sigma:.4f} {unit}")
+    print("  residual RMS: " + ", ".join(f"{k} {v:.3g}" for k, v in res.rms.items())
+          + f"; {res.n_observations['camera']} board poses, {res.n_observations['highlight']} highlights")
+    if refused:
+        print(f"  {len(refused)} poses without a highlight or a board pose, e.g. pose {refused[0][0]}: {refused[0][1]}")
+
+
+def run_calibration_session(store, plan, devices, calibration, layout, *, before_pose, quiet: bool,
+                            resume_cmd: str) -> int:
+    """Run (or resume) the calibration session in ``store``; when every pose is done, estimate and write the
+    calibrated rig file the manifest names (``geocal.out``). Called by ``gonio measure``'s session code."""
+    from gonio.session.geocal_session import CalibrationRunner, finish_calibration
+    from gonio.session.runner import format_lab_time
+
+    runner = CalibrationRunner(plan, store, devices, calibration, layout, before_pose=before_pose,
+                               resume_command=resume_cmd, stream=None if quiet else sys.stderr)
+    result = runner.run()
+    print(f"calibration session {store.directory}: {len(store.done_poses())}/{len(plan)} poses, lab time "
+          f"{format_lab_time(result.lab_time)} in this run ({'simulated' if devices.clock.simulated else 'real'}; "
+          f"estimated {format_lab_time(result.estimated_lab_time or 0.0)}), wall time {result.wall_time:.1f} s")
+    if result.skipped:
+        print(f"{len(result.skipped)} poses skipped: " + "; ".join(f"pose {k}: {r}" for k, r in result.skipped[:3]))
+    if not result.ok:
+        print(f"gonio: calibration session ended: {result.status}; resume with `{resume_cmd}`", file=sys.stderr)
+        if result.status == "interrupted":
+            return 130
+        return result.error.exit_code if result.error is not None else 3
+    g = store.manifest["geocal"]
+    res, refused = finish_calibration(store.directory, devices.rig, store.manifest["rig"]["toml"], g["out"],
+                                      note=g.get("note", ""))
+    print_result(res, refused)
+    print(f"wrote {g['out']} (use it with: gonio measure --rig {g['out']})")
+    return 0
+
+
+def finish_from_directory(d, manifest, *, rig_file=None) -> int:
+    """The estimate of a calibration session whose poses are all measured (``gonio resume`` of a session
+    stopped before its estimate was written): writes the calibrated rig file unless it exists."""
+    from pathlib import Path
+
+    from gonio.cli.measure import _manifest_rig
+    from gonio.session.geocal_session import finish_calibration
+    from gonio.session.store import MANIFEST
+
+    out = Path(manifest["geocal"]["out"])
+    if out.exists():
+        print(f"{d}: the calibrated rig file {out} is written; nothing to do")
+        return 0
+    rig = _manifest_rig(manifest, str(Path(d) / MANIFEST), rig_file)
+    res, refused = finish_calibration(d, rig, manifest["rig"]["toml"], out, note=manifest["geocal"].get("note", ""))
+    print_result(res, refused)
+    print(f"wrote {out} (use it with: gonio measure --rig {out})")
+    return 0
+
+
+def _new_session(args, rig, text, src, plan) -> int:
+    from pathlib import Path
+
+    from gonio.cli.measure import (_calibration_dict, _calibration_from_toml, _check_out, _hw_session, _material,
+                                   _open_hw_devices, _rig_record, _sim_session)
+    from gonio.errors import ConfigError
+    from gonio.session.geocal_observe import calibration_layout
+    from gonio.session.store import SessionStore
+
+    out = Path(args.out).resolve()
+    if out.exists():
+        raise ConfigError(f"--out {args.out}: exists: the calibrated rig file is never overwritten")
+    session = args.session or f"{args.out}.session"
+    _check_out(session)
+    manifest = {
+        "mode": "sim" if args.sim else "hardware",
+        "command": ["gonio", *sys.argv[1:]] if sys.argv and sys.argv[0].endswith(("gonio", "main.py")) else None,
+        "seed": args.seed, "plan": plan, "rig": _rig_record(rig, src, text),
+        "material": {"label": "calibration tile"}, "target": calibration_layout().to_dict(),
+        "geocal": {"out": str(out), "note": f"source rig: {src}"},
+    }
+    if args.sim:
+        from dataclasses import replace
+
+        from gonio.plugins import plugin
+
+        simrig = plugin("sim.rig")
+        as_built = simrig.parse_as_built(rig, args.sim_as_built)
+        config = simrig.SimRigConfig(seed=args.seed, as_built=as_built.to_dict(), tile={})
+        manifest["material"] = _material(None).to_dict()  # what the simulator renders off the tile (nothing)
+        manifest["sim"] = config.to_dict()
+        manifest["calibration"] = _calibration_dict(config.calibration())
+        manifest["geocal"]["note"] += f"; simulated as-built rig ({as_built.source})"
+        store = SessionStore.create(session, manifest)
+        return _sim_session(store, plan, store.manifest, args.quiet)
+    from gonio.rig.clock import RealClock
+
+    description = _calibration_from_toml(args.calibration)
+    calibration = description.calibration
+    manifest["hardware"] = {"servo_port": args.servo_port, "controller_port": args.controller_port,
+                            "camera": args.camera}
+    manifest["calibration"] = description.to_dict()
+    description.camera.check_session(args.calibration)
+    devices = _open_hw_devices(rig, manifest["hardware"], description.camera, RealClock(),
+                               size=(calibration.width, calibration.height))
+    try:
+        store = SessionStore.create(session, manifest)
+    except BaseException:
+        devices.close()
+        raise
+    return _hw_session(store, plan, store.manifest, rig, calibration, args.quiet, devices=devices)
+
+
 def run(args) -> int:
     from gonio.errors import ConfigError
-    from gonio.rig.geocal import calibrate_geometry, calibrated_rig_text, calibration_plan, plan_lab_time
+    from gonio.rig.geocal import calibration_plan
     from gonio.rig.kinematics import load_rig, read_rig_text
 
+    if not args.sim and not args.rig and not getattr(args, "estimate", False):
+        raise ConfigError("gonio calibrate: --rig RIG.toml (the declared rig file) is required on a rig "
+                          "(or --sim for the simulated rig)")
     text, src = read_rig_text(args.rig or "default")
     rig = load_rig(text=text, source=src)
     if args.calibrate_command == "rig":
+        from gonio.session.geocal_session import calibration_lab_time, calibration_session_plan
+        from gonio.session.runner import format_lab_time
+
+        if not args.sim and not args.estimate:
+            missing = [f"{o} ({what})" for o, key, what in HARDWARE_OPTIONS if not getattr(args, key)]
+            if missing:
+                raise ConfigError(f"gonio calibrate rig on a rig needs {', '.join(missing)} (or --sim for the "
+                                  "simulated rig)")
         if rig.geometry_errors is not None:
             raise ConfigError(f"{src}: already calibrated ([calibration] table): calibrate from the declared rig file")
         if rig.layout != "arms":
             raise ConfigError(f"{src}: layout {rig.layout!r}: the calibration plan supports the 'arms' layout only")
-        plan = calibration_plan(rig, quick=args.quick)
-        lab = plan_lab_time(rig, plan)
-        print(f"calibration plan: {len(plan['camera'])} ChArUco poses (board on the stage) + "
-              f"{len(plan['highlight'])} mirror-highlight poses (mirror or glossy black tile on the stage), "
-              f"lab time {lab / 60:.1f} min")
+        plan = calibration_session_plan(rig, quick=args.quick)
+        kinds = plan.params["kinds"]
+        lab = calibration_lab_time(plan, rig)
+        print(f"calibration plan: {kinds.count('camera')} ChArUco poses + {kinds.count('highlight')} highlight poses "
+              f"(ChArUco board with an 80 mm glossy black tile or front-surface mirror on the sample area), "
+              f"estimated lab time {format_lab_time(lab)}")
         if args.estimate:
             return 0
         if not args.out:
             raise ConfigError("gonio calibrate rig: --out CALIBRATED.toml is required (or --estimate)")
-        truth, (cams, highs) = _observations(args, rig, plan)
-        res = calibrate_geometry(rig, cams, highs)
-        for name, value, sigma, unit in res.table():
-            if unit.startswith("not identified"):
-                print(f"  {name:26s}      —          {unit}")
-            else:
-                print(f"  {name:26s} {value:+9.4f} ± {sigma:.4f} {unit}")
-        print("  residual RMS: " + ", ".join(f"{k} {v:.3g}" for k, v in res.rms.items()))
-        note = f"source rig: {src}; {len(cams)} ChArUco + {len(highs)} highlight observations"
-        if args.sim:
-            note += f"; simulated as-built rig ({truth.source})"
-        from pathlib import Path
-
-        Path(args.out).write_text(calibrated_rig_text(text, res, note=note), encoding="utf-8")
-        print(f"wrote {args.out} (use it with: gonio measure --rig {args.out})")
-        return 0
+        return _new_session(args, rig, text, src, plan)
     # check: a quick plan's poses, the error of the rig file's geometry against what the camera sees
     import numpy as np
 

@@ -320,6 +320,12 @@ def _run_session(store, plan, devices, calibration, layout, *, before_pose, quie
     from gonio.session.runner import RunnerSettings, SessionRunner, format_lab_time
 
     settings = RunnerSettings(timing=_manifest_timing(store.manifest))
+    if "geocal" in store.manifest:  # a geometric calibration session (gonio calibrate rig)
+        from gonio.cli.calibrate import run_calibration_session
+
+        return run_calibration_session(store, plan, devices, calibration, layout, before_pose=before_pose,
+                                       quiet=quiet, resume_cmd=resume_cmd)
+
     if "adaptive" in store.manifest:  # a loop around the runner: rounds planned from the stored samples
         from gonio.session.adaptive import AdaptiveSession, model_table, rounds_table
 
@@ -444,6 +450,19 @@ def _checked_sim(sim, where: str) -> dict:
 
                 errors = {k: v for k, v in value.items() if k != "source"} if isinstance(value, dict) else value
                 ChainErrors.from_dict(errors, source=f"{where}: sim.as_built")  # ConfigError naming the field
+            out[key] = value
+            continue
+        if key == "tile":  # the calibration tile (sim.mirror_tile.CalibrationTile's f0, diffuse, light_radius)
+            ranges = {"f0": (0.0, 1.0), "diffuse": (0.0, 1.0), "light_radius": (1e-4, 0.1)}
+            if value is not None:
+                if not isinstance(value, dict):
+                    raise DataError(f"{where}: sim.tile = {str(value)[:40]!r}: expected an object")
+                for k, v in value.items():
+                    lo, hi = ranges.get(k, (None, None))
+                    ok = lo is not None and isinstance(v, (int, float)) and not isinstance(v, bool) and lo <= v <= hi
+                    if not ok:
+                        raise DataError(f"{where}: sim.tile.{k} = {str(v)[:40]}: expected one of "
+                                        f"{', '.join(ranges)} with a number in its range")
             out[key] = value
             continue
         if key == "controller":
@@ -682,6 +701,13 @@ def run_resume(args) -> int:
     if not (d / MANIFEST).is_file():
         raise ConfigError.field(None, "session directory", args.dir, "is not a gonio session (no manifest.json)")
     if _nothing_to_resume(d):
+        from gonio.session.store import _read_manifest
+
+        manifest = _read_manifest(d)
+        if "geocal" in manifest:  # every pose measured: the calibration's estimate may still be missing
+            from gonio.cli.calibrate import finish_from_directory
+
+            return finish_from_directory(d, manifest, rig_file=args.rig)
         return 0
     store = SessionStore.open(d)
     if store.repaired is not None:

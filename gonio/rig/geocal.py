@@ -7,17 +7,24 @@ Observations (one per pose of a calibration plan, :func:`calibration_plan`):
   (:mod:`gonio.pipeline.target`) at joints ``j``: position (m) and rotation (rows = camera axes);
 * :class:`HighlightObservation` — with a flat mirror (or a glossy black tile) on the stage, the pixel
   direction (normalized image coordinates ``x/z, y/z``) in which the camera sees the light's specular
-  reflection, together with the camera's ChArUco pose of the same frame. The mirror plane is the sample
-  plane z = 0, so the camera sees the light's mirror image ``(x, y, −z)`` (law of reflection).
+  reflection (:mod:`gonio.pipeline.highlight`). The mirror plane is the sample plane z = 0, so the camera
+  sees the light's mirror image ``(x, y, −z)`` (law of reflection). It is projected with the camera pose
+  of the chain being estimated (the board poses of the same frames are camera observations too), not
+  with each frame's own board pose, whose rotation error (~0.05° at 320 px) would enter the light's
+  triangulation one frame at a time.
 
-The unknowns are :class:`ChainErrors`'s fields (degrees, millimetres). The residuals are weighted by
-their scatter, estimated from the data (two reweighting passes, one variance per observation kind),
-and solved with :func:`scipy.optimize.least_squares`. The standard uncertainties are the square roots
-of the diagonal of ``s² (JᵀJ)⁻¹`` at the solution (the Gauss–Newton covariance; Bates & Watts 1988,
-*Nonlinear Regression Analysis*, §2.3.1; ``s²`` = weighted RSS / (m − n)). Parameters the poses
-cannot determine — the columns of ``J`` in the null space of its SVD (relative singular value below
-:data:`RANK_TOL`) or with an uncertainty above :data:`MAX_SIGMA` — are reported as *not identified*,
-kept at their declared value (0), and the fit is repeated without them; they are never guessed.
+The unknowns are :class:`ChainErrors`'s fields (degrees, millimetres). Each observation's residual is
+whitened by its own covariance when it has one (the board pose's PnP covariance, the highlight
+centroid's), each kind is then rescaled by its scatter (two reweighting passes), and the problem is
+solved with :func:`scipy.optimize.least_squares`. The standard uncertainty of a parameter is the larger
+of the Gauss–Newton one, ``s² (JᵀJ)⁻¹`` (Bates & Watts 1988, *Nonlinear Regression Analysis*, §2.3.1),
+and the cluster-robust sandwich one (one cluster per observation; White 1980, Liang & Zeger 1986), plus
+the effect of errors common to every observation that no scatter shows — the board's printed scale, the
+corner detector's bias, the principal point (:data:`BOARD_SCALE_SIGMA`, :data:`BOARD_ORIGIN_SIGMA_MM`,
+:data:`PRINCIPAL_POINT_SIGMA`). Parameters the poses cannot determine — the columns of ``J`` in the null
+space of its SVD (relative singular value below :data:`RANK_TOL`) or with an uncertainty above
+:data:`MAX_SIGMA` — are reported as *not identified*, kept at their declared value (0), and the fit is
+repeated without them; they are never guessed.
 A pose set that cannot determine the chain at all (too few poses, one azimuth, one elevation) is
 refused before solving with a one-line :class:`DegeneratePoses`.
 """
@@ -34,12 +41,21 @@ from gonio.errors import ConfigError
 from gonio.rig.chain import ARM_FIELDS, TURNTABLE_FIELDS, ChainErrors, chain_forward
 
 __all__ = ["CameraObservation", "HighlightObservation", "GeoCalResult", "DegeneratePoses", "calibrate_geometry",
-           "calibration_plan", "calibrated_rig_text", "plan_lab_time", "RANK_TOL", "MAX_SIGMA"]
+           "calibration_plan", "calibrated_rig_text", "RANK_TOL", "MAX_SIGMA"]
 
 #: Relative singular value below which a direction of parameter space is not determined by the data.
 RANK_TOL = 1e-7
 #: A parameter whose standard uncertainty exceeds this (deg or mm) is reported as not identified.
 MAX_SIGMA = 5.0
+#: Relative standard uncertainty of the ChArUco board's scale (a laser print's square length, measured with
+#: calipers over the whole board: ~0.05 %): a systematic error of every camera position.
+BOARD_SCALE_SIGMA = 5e-4
+#: Standard uncertainty of the camera's principal point in normalized image units (0.1 px at a 400 px focal
+#: length: what a careful OpenCV intrinsic calibration states): a systematic turn of every board pose.
+PRINCIPAL_POINT_SIGMA = 2.5e-4
+#: Standard uncertainty (mm) of the board's origin as the corner detector sees it: a sub-pixel corner
+#: finder's bias common to all corners (~0.02 px at 0.4 m and a 400 px focal length).
+BOARD_ORIGIN_SIGMA_MM = 0.02
 #: Not identifiable from images of the sample plane: the sample height is the same as moving both arcs.
 ALWAYS_FIXED = {"sample_height_mm": "same effect as both arcs' arc_z_mm (only arc_z − height is observable)"}
 
@@ -53,6 +69,8 @@ class CameraObservation:
     joints: np.ndarray      # (4,) rad, the rig's joint order
     position: np.ndarray    # (3,) m, camera centre in the sample frame (ChArUco)
     R: np.ndarray           # (3, 3) rows = camera axes in sample coordinates (ChArUco)
+    #: (6, 6) covariance of (centre in mm, rotation vector of R_true R_obsᵀ in degrees), or None (unknown)
+    cov: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -61,6 +79,8 @@ class HighlightObservation:
     xy: np.ndarray          # (2,) normalized image coordinates of the light's reflection
     position: np.ndarray    # (3,) camera centre (ChArUco, same frame)
     R: np.ndarray           # (3, 3) camera rotation (ChArUco, same frame)
+    #: (2, 2) covariance of ``xy`` (normalized image units), or None (unknown)
+    cov: np.ndarray | None = None
 
 
 @dataclass
@@ -85,31 +105,70 @@ class GeoCalResult:
         return out
 
 
-def _rotvec(R):
+def rotvec(R):
     """Rotation vector (rad) of rotation matrices ``(..., 3, 3)`` near the identity (small angle:
     the antisymmetric part, exact to second order; Murray, Li & Sastry 1994, §2.2)."""
     return 0.5 * np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
 
 
-def _residual_blocks(rig, errors: ChainErrors, cams, highs):
+_rotvec = rotvec
+
+
+def _whiteners(obs, n: int, unit: float):
+    """(N, n, n) matrices W with Wᵀ W = cov⁻¹ (so W r has unit covariance), or None if any observation has
+    no covariance (then the block is weighted by its scatter alone). ``unit`` scales cov to the residual's unit."""
+    if not obs or any(o.cov is None for o in obs):
+        return None
+    covs = np.stack([np.asarray(o.cov, dtype=np.float64) * unit ** 2 for o in obs])
+    covs = covs + np.eye(n) * 1e-12 * np.trace(covs, axis1=1, axis2=2)[:, None, None]
+    L = np.linalg.cholesky(covs)
+    return np.linalg.inv(L)
+
+
+def _residual_blocks(rig, errors: ChainErrors, cams, highs, *, highlight_camera: str = "chain", white=None):
+    """Residuals per observation kind. ``highlight_camera``: ``"chain"`` projects the light's mirror image
+    with the camera pose of the chain being estimated (the board poses of those frames are camera
+    observations too), ``"board"`` with each frame's own ChArUco pose. ``white``: per-kind whitening
+    matrices (:func:`_whiteners`); a whitened block is named ``*_w`` (unitless)."""
     out = {}
+    white = white or {}
     if cams:
         j = np.stack([c.joints for c in cams])
         _, pc, R = chain_forward(rig, errors, j)
         obs_p = np.stack([c.position for c in cams])
         obs_R = np.stack([c.R for c in cams])
-        out["camera_mm"] = ((pc - obs_p) * 1e3).ravel()
-        out["camera_deg"] = np.degrees(_rotvec(R @ np.swapaxes(obs_R, -1, -2))).ravel()
+        dp = (pc - obs_p) * 1e3
+        dr = np.degrees(rotvec(R @ np.swapaxes(obs_R, -1, -2)))
+        if white.get("camera") is not None:
+            out["camera_w"] = (white["camera"] @ np.concatenate([dp, dr], axis=1)[..., None])[..., 0].ravel()
+        else:
+            out["camera_mm"] = dp.ravel()
+            out["camera_deg"] = dr.ravel()
     if highs:
         j = np.stack([h.joints for h in highs])
-        pl, _, _ = chain_forward(rig, errors, j)
+        pl, pc, Rc = chain_forward(rig, errors, j)
         image = pl * np.array([1.0, 1.0, -1.0])  # mirror image in the sample plane z = 0
-        c = np.stack([h.position for h in highs])
-        R = np.stack([h.R for h in highs])
-        v = (R @ (image - c)[..., None])[..., 0]
+        if highlight_camera == "board":
+            pc = np.stack([h.position for h in highs])
+            Rc = np.stack([h.R for h in highs])
+        v = (Rc @ (image - pc)[..., None])[..., 0]
         xy = v[:, :2] / v[:, 2:3]
-        out["highlight_mrad"] = ((xy - np.stack([h.xy for h in highs])) * 1e3).ravel()
+        d = (xy - np.stack([h.xy for h in highs])) * 1e3
+        if white.get("highlight") is not None:
+            out["highlight_w"] = (white["highlight"] @ d[..., None])[..., 0].ravel()
+        else:
+            out["highlight_mrad"] = d.ravel()
     return out
+
+
+def _clusters(keys, n_cam: int, n_high: int) -> np.ndarray:
+    """Observation index of every residual row, in :func:`_residual_blocks`'s sorted block order."""
+    per = {"camera_w": 6, "camera_mm": 3, "camera_deg": 3, "highlight_w": 2, "highlight_mrad": 2}
+    out = []
+    for k in keys:
+        base, count = (0, n_cam) if k.startswith("camera") else (n_cam, n_high)
+        out.append(base + np.repeat(np.arange(count), per[k]))
+    return np.concatenate(out)
 
 
 def check_pose_set(rig, cams, highs) -> None:
@@ -141,9 +200,17 @@ def check_pose_set(rig, cams, highs) -> None:
                                   f"not separable)")
 
 
-def calibrate_geometry(rig, cams, highs, *, check: bool = True) -> GeoCalResult:
-    """Estimate the rig's :class:`ChainErrors` from camera and highlight observations (module docstring)."""
+def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera: str = "chain",
+                       weighted: bool = True, board_scale_sigma: float = BOARD_SCALE_SIGMA,
+                       principal_point_sigma: float = PRINCIPAL_POINT_SIGMA,
+                       board_origin_sigma_mm: float = BOARD_ORIGIN_SIGMA_MM) -> GeoCalResult:
+    """Estimate the rig's :class:`ChainErrors` from camera and highlight observations (module docstring).
+
+    ``weighted``: residuals whitened by each observation's own covariance where every observation of a
+    kind has one (then rescaled by the kind's scatter); ``highlight_camera``: see :func:`_residual_blocks`."""
     cams, highs = list(cams), list(highs)
+    white = {"camera": _whiteners(cams, 6, 1.0), "highlight": _whiteners(highs, 2, 1e3)} if weighted else {}
+    kw = {"highlight_camera": highlight_camera, "white": white}
     if check:
         check_pose_set(rig, cams, highs)
     names = ChainErrors().names()
@@ -155,13 +222,13 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True) -> GeoCalResult:
     if rig.layout == "turntable":
         not_identified["light.d_az_deg"] = "same effect as the turntable's zero offset (the light arm has no azimuth joint)"
         free.remove(names.index("light.d_az_deg"))
-    scale = {k: 1.0 for k in _residual_blocks(rig, ChainErrors(), cams, highs)}
+    scale = {k: 1.0 for k in _residual_blocks(rig, ChainErrors(), cams, highs, **kw)}
     x = np.zeros(len(names))
 
-    def fun(p, idx, scale):
+    def fun(p, idx, scale, cams=cams, highs=highs):
         v = x.copy()
         v[idx] = p
-        blocks = _residual_blocks(rig, ChainErrors.from_vector(v), cams, highs)
+        blocks = _residual_blocks(rig, ChainErrors.from_vector(v), cams, highs, **kw)
         return np.concatenate([blocks[k] / scale[k] for k in sorted(blocks)])
 
     idx = list(free)
@@ -174,7 +241,7 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True) -> GeoCalResult:
         _, s, vt = np.linalg.svd(J / col, full_matrices=False)
         null = vt[s < RANK_TOL * s[0]]
         bad = [idx[i] for i in range(len(idx)) if null.size and np.max(np.abs(null[:, i])) > 0.1]
-        blocks = _residual_blocks(rig, ChainErrors.from_vector(x), cams, highs)
+        blocks = _residual_blocks(rig, ChainErrors.from_vector(x), cams, highs, **kw)
         scale = {k: max(float(np.sqrt(np.mean(r ** 2))), 1e-12) for k, r in blocks.items()}
         if bad:
             for i in bad:
@@ -186,8 +253,53 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True) -> GeoCalResult:
     r = sol.fun
     m, n = len(r), len(idx)
     s2 = float(r @ r) / max(m - n, 1)
-    cov = s2 * np.linalg.pinv(sol.jac.T @ sol.jac)
-    sig = np.sqrt(np.clip(np.diag(cov), 0, None))
+    A = np.linalg.pinv(sol.jac.T @ sol.jac)
+    cov = s2 * A
+    # cluster-robust ("sandwich") covariance, one cluster per observation: honest when the observations'
+    # own covariances (the weights) are wrong in shape or size (White 1980, Econometrica 48(4);
+    # Liang & Zeger 1986, Biometrika 73(1)); the larger of the two variances is reported
+    cid = _clusters(sorted(_residual_blocks(rig, ChainErrors(), cams, highs, **kw)), len(cams), len(highs))
+    g = np.zeros((len(cams) + len(highs), n))
+    np.add.at(g, cid, sol.jac * r[:, None])
+    cov_s = A @ (g.T @ g) @ A * m / max(m - n, 1)
+    var = np.maximum(np.diag(cov), np.diag(cov_s))
+    from dataclasses import replace as _replace
+
+    def rotated(obs, axis, eps):  # the camera frame turned by eps (rad) about its own axis (0: x, 1: y)
+        from gonio.rig.chain import _rx, _ry
+
+        D = (_rx if axis == 0 else _ry)(np.asarray(eps))
+        return _replace(obs, R=D @ obs.R)
+
+    def shifted(obs, axis, eps):  # a principal-point error seen as a shift of the normalized coordinates
+        xy = np.array(obs.xy, dtype=np.float64)
+        xy[1 - axis] += eps if axis == 0 else -eps
+        return _replace(rotated(obs, axis, eps), xy=xy)
+
+    # Systematic errors common to all observations, which no scatter shows, propagated by their effect on
+    # the solution, dx/dε = −A Jᵀ ∂r/∂ε (implicit function theorem at the least-squares optimum), adding
+    # (dx/dε · σ_ε)² to the variances (GUM, JCGM 100 §5.2, fully correlated inputs):
+    # the board's printed scale (every ChArUco position scales with it), the corner detector's common bias
+    # (the board's origin as the detector sees it, x and y) and the principal point (x and y: every board
+    # pose turns about the camera's y / x axis, every highlight shifts the same way).
+    systematics = []
+    if board_scale_sigma > 0 and cams:
+        systematics.append(([_replace(c, position=c.position * (1.0 + 1e-4)) for c in cams], highs, 1e-4,
+                            board_scale_sigma))
+    if board_origin_sigma_mm > 0 and cams:
+        for axis in (0, 1):
+            e = np.eye(3)[axis] * 1e-6
+            systematics.append(([_replace(c, position=c.position + e) for c in cams], highs, 1e-3, board_origin_sigma_mm))
+    if principal_point_sigma > 0:
+        for axis in (0, 1):
+            e = 1e-5
+            systematics.append(([rotated(c, axis, e) for c in cams], [shifted(h, axis, e) for h in highs], e,
+                                principal_point_sigma))
+    for cams_e, highs_e, h, sigma_e in systematics:
+        dr = (fun(sol.x, idx, scale, cams=cams_e, highs=highs_e) - r) / h
+        dx = -A @ (sol.jac.T @ dr)
+        var = var + (dx * sigma_e) ** 2
+    sig = np.sqrt(np.clip(var, 0, None))
     sigma = {names[i]: math.nan for i in range(len(names))}
     for k, i in enumerate(idx):
         if sig[k] > MAX_SIGMA:
@@ -195,7 +307,7 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True) -> GeoCalResult:
             x[i] = 0.0
         else:
             sigma[names[i]] = float(sig[k])
-    blocks = _residual_blocks(rig, ChainErrors.from_vector(x), cams, highs)
+    blocks = _residual_blocks(rig, ChainErrors.from_vector(x), cams, highs, highlight_camera=highlight_camera)
     return GeoCalResult(ChainErrors.from_vector(x), sigma, not_identified,
                         rms={k: float(np.sqrt(np.mean(v ** 2))) for k, v in blocks.items()},
                         n_observations={"camera": len(cams), "highlight": len(highs)}, residuals=r)
@@ -205,13 +317,15 @@ def calibration_plan(rig, *, quick: bool = False) -> dict[str, np.ndarray]:
     """Joint angles (rad) of a calibration session on ``rig``'s (arms) layout.
 
     ``camera``: the camera arm over 6 azimuths × 4 signed elevations (board in view), light parked out of
-    the way; ``highlight``: the light arm over 8 azimuths × 5 elevations (10° to 78°), the camera at the light's mirror
-    direction and 6° either side of it in elevation (parallax to triangulate the light's distance).
+    the way; ``highlight``: the light arm over 12 azimuths (``quick``: 6) × 5 elevations (10° to 78°), the
+    camera at the light's mirror direction and 3° either side of it in elevation (parallax to triangulate
+    the light's distance; more parallax sends the reflection off an 80 mm tile at high elevations).
     Poses that are out of limits or in a collision zone are dropped (the same ``solve_many`` checks).
     """
     d = math.radians
     az = np.radians(np.arange(-150.0, 180.0, 60.0 if not quick else 90.0))
-    laz = np.radians(np.arange(-157.5, 180.0, 45.0 if not quick else 90.0))
+    step = 30.0 if not quick else 60.0
+    laz = np.radians(np.arange(-180.0 + step / 2, 180.0, step))
     cam = []
     for a in az:
         for e in (-55.0, -25.0, 25.0, 55.0):
@@ -220,7 +334,7 @@ def calibration_plan(rig, *, quick: bool = False) -> dict[str, np.ndarray]:
     hi = []
     for a in laz:
         for e in (10.0, 30.0, 50.0, 65.0, 78.0):
-            for de in (-6.0, 0.0, 6.0):
+            for de in (-3.0, 0.0, 3.0):
                 hi.append((a, d(e), a, -d(e + de)))  # camera past the pole: the mirror direction, ± parallax
     hi = np.array(hi)
 
@@ -231,20 +345,6 @@ def calibration_plan(rig, *, quick: bool = False) -> dict[str, np.ndarray]:
         return j[ok]
 
     return {"camera": keep(cam), "highlight": keep(hi)}
-
-
-#: Seconds per calibration pose besides the move: settling and one exposure set (the runner's defaults).
-POSE_OVERHEAD_S = 1.5
-
-
-def plan_lab_time(rig, plan: dict, *, overhead_s: float = POSE_OVERHEAD_S) -> float:
-    """Lab time (s) of :func:`calibration_plan`'s poses in order: the trapezoidal moves
-    (:meth:`gonio.rig.kinematics.Rig.move_time`) plus ``overhead_s`` per pose."""
-    j = np.concatenate([plan["camera"], plan["highlight"]])
-    if len(j) == 0:
-        return 0.0
-    moves = rig.move_time(j[:-1], j[1:]) if len(j) > 1 else np.zeros(0)
-    return float(np.sum(moves) + overhead_s * len(j))
 
 
 def calibrated_rig_text(declared_text: str, result: GeoCalResult, *, note: str = "") -> str:

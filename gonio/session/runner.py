@@ -347,7 +347,7 @@ class SessionRunner:
         rig, axes, ctl, st = self.dev.rig, self.dev.axes, self.dev.controller, self.settings
         self.safety_check()
         current = axes.positions()
-        target = rig.solve(*self.plan.poses[index], current=current)
+        target = self._target(index, current)
         tol = math.radians(st.joint_tolerance_deg)
         for attempt in range(st.move_retries + 1):
             if attempt:
@@ -363,6 +363,11 @@ class SessionRunner:
         raise HardwareError(f"joint {worst}: at {math.degrees(measured[worst]):.2f} deg after "
                             f"{st.move_retries + 1} moves, target {math.degrees(target[worst]):.2f} deg "
                             f"(tolerance {st.joint_tolerance_deg:g} deg)", device=worst)
+
+    def _target(self, index: int, current) -> dict:
+        """Joint angles (by name) of pose ``index``: the kinematics' solution nearest ``current``
+        (:class:`~gonio.errors.UnreachablePose` if none)."""
+        return self.dev.rig.solve(*self.plan.poses[index], current=current)
 
     def _refresh_darks(self) -> bool:
         """Measure the whole dark set (every exposure the session may use) if it was never measured, or
