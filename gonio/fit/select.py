@@ -101,9 +101,9 @@ class Selection:
             _write_new(path, text, force)
         return text
 
-    def to_mitsuba(self, path=None):
+    def to_mitsuba(self, path=None, *, approx: bool = False):
         """The chosen model as a Mitsuba 3 BSDF (see :meth:`FitResult.to_mitsuba`)."""
-        return self.winner.to_mitsuba(path)
+        return self.winner.to_mitsuba(path, approx=approx)
 
     def table_lines(self) -> list[str]:
         """One row per candidate: parameters, score, error, status and why it won or lost."""
@@ -143,8 +143,12 @@ def _cv_score(d, model, loss, k, seed, fit_kw, bar=None, start=None) -> tuple[fl
 
 
 #: Default candidates added for large tables (above 2 × :data:`SELECT_N` samples, e.g. a MERL table): Burley's
-#: GTR lobe, whose tail exponent fits the long tails of measured metals (``python -m benchmarks realdata``).
-LARGE_TABLE_CANDIDATES = ("gtr",)
+#: GTR lobe, whose tail exponent fits the long tails of measured metals, and Löw et al. 2012's smooth-surface
+#: ABC model, whose lobe is a function of the projected deviation ‖wi⊥ + wo⊥‖ = 2 cos θd sin θh from the
+#: mirror direction (Rayleigh–Rice scattering), so it widens in θh towards grazing θd as the narrow peaks of
+#: polished metals and the lobes of paints do, where a microfacet lobe keeps its width in θh
+#: (``python -m benchmarks realdata``).
+LARGE_TABLE_CANDIDATES = ("gtr", "abc-smooth")
 #: Width parameters of the terms of a sum: one on a bound means the term has no shape the data determine.
 _WIDTHS = ("alpha", "roughness", "exponent", "alpha_x", "alpha_y", "sigma")
 #: Candidates added when the data are anisotropic (:func:`gonio.tabulate.check_isotropy`) and none of
