@@ -224,3 +224,32 @@ def test_fix_accepts_the_names_fit_prints_at_the_api_level():
                                      "diffuse.albedo.b": 0.1}, report=False)
     assert r.params["lobe1.f0"] == [1.0, 1.0, 1.0] and r.params["diffuse.albedo"] == [0.1, 0.1, 0.1]
     assert "lobe1.f0" not in r.uncertainty
+
+
+def test_cv_folds_in_threads_score_as_in_turn(monkeypatch):
+    import gonio.fit.select as sel
+    from gonio.fit.losses import LOSSES
+
+    d = prepare(synth("lambert+ggx", {"diffuse.albedo": 0.1, "lobe1.ks": 0.4, "lobe1.alpha": 0.2}, n=600))
+    start = fit(d, "lambert+ggx", report=False).params
+    kw = {"report": False}
+    monkeypatch.setattr(sel, "free_cores", lambda: 1)
+    serial = sel._cv_score(d, "lambert+ggx", LOSSES["robust"], 3, 0, kw, start=start)
+    monkeypatch.setattr(sel, "free_cores", lambda: 3)
+    threaded = sel._cv_score(d, "lambert+ggx", LOSSES["robust"], 3, 0, kw, start=start)
+    assert threaded == pytest.approx(serial, rel=1e-12)
+
+
+def test_free_cores_counts_allowed_cpus_minus_load(monkeypatch):
+    import os
+
+    from gonio.fit.select import free_cores
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.2, 0.0, 0.0))
+    assert free_cores() == 2
+    monkeypatch.setattr(os, "getloadavg", lambda: (7.5, 0.0, 0.0))
+    assert free_cores() == 1
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0}, raising=False)  # taskset -c 0
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    assert free_cores() == 1
