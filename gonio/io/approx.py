@@ -55,9 +55,18 @@ def _rgb(v) -> np.ndarray:
     return np.broadcast_to(np.asarray(v, dtype=np.float64), (3,)).copy()
 
 
-def decompose(model, target: str) -> Decomposed:
+def decompose(model, target: str, approx: bool = False, reasons: list | None = None) -> Decomposed:
     """``model`` as a diffuse term plus microfacet lobes; :class:`ConfigError` naming ``target`` for a
-    model that is not such a sum (Phong, Ward, ...: no renderer counterpart to approximate from)."""
+    model that is not such a sum (Phong, Ward, ABC, ...), unless ``approx``: then the sum is
+    :func:`closest_lobes` (fitted to the model) and ``reasons`` receives why."""
+    if approx:
+        try:
+            return decompose(model, target)
+        except ConfigError:
+            stand_in, why = closest_lobes(model, target)
+            if reasons is not None:
+                reasons.append(why)
+            return decompose(stand_in, target)
     from gonio.brdf.lambert import Lambert
     from gonio.brdf.lobes import Sum
     from gonio.brdf.microfacet import Microfacet
@@ -77,7 +86,8 @@ def decompose(model, target: str) -> Decomposed:
         else:
             raise ConfigError.field(target, "model", m.name,
                                     "has no counterpart to export: exportable are lambert, microfacet/ggx/beckmann "
-                                    "lobes and their sums")
+                                    "lobes and their sums; pass --approx for the closest (a lambert+ggx fitted to "
+                                    "it, its error printed)")
     return Decomposed(diffuse, tuple(lobes))
 
 
@@ -114,8 +124,8 @@ def closest_lobes(model, target: str):
     ``model`` itself."""
     from gonio.fit.fit import fit
 
-    wi, wo = _fit_pairs()
-    r = fit((wi, wo, model.eval(wi, wo)), "lambert+ggx", max_theta_deg=None, report=False, n_starts=2)
+    wi, wo = _fit_pairs(4096)
+    r = fit((wi, wo, model.eval(wi, wo)), "lambert+ggx", max_theta_deg=None, report=False, n_starts=1)
     return r.model, (f"{model.name} has no {target} counterpart: exported as the lambert+ggx fitted to it "
                      f"(lobe alpha {r.params['lobe1.alpha']:.3g})")
 
