@@ -224,6 +224,12 @@ def test_fix_accepts_the_names_fit_prints_at_the_api_level():
                                      "diffuse.albedo.b": 0.1}, report=False)
     assert r.params["lobe1.f0"] == [1.0, 1.0, 1.0] and r.params["diffuse.albedo"] == [0.1, 0.1, 0.1]
     assert "lobe1.f0" not in r.uncertainty
+    import gonio
+
+    r2 = gonio.fit(s, "lambert+ggx", fix={"lobe1.f0": 1.0}, report=False)  # the --fix name at the top level
+    assert r2.params["lobe1.f0"] == [1.0, 1.0, 1.0] and "lobe1.f0" not in r2.uncertainty
+    with pytest.raises(ConfigError, match=r"^fix = \{'f0': 1\.0\}: unknown parameter|unknown parameter; lambert has albedo"):
+        gonio.fit(s, "lambert", fix={"f0": 1.0})
 
 
 def test_cv_folds_in_threads_score_as_in_turn(monkeypatch):
