@@ -43,13 +43,20 @@ def as_samples(data):
     return to_samples()
 
 
-def fit(data, model: str = "microfacet", **options):
+def fit(data, model: str = "microfacet", *, fix: dict | None = None, **options):
     """Fit one model (a :func:`gonio.brdf.make` name, sums such as ``"lambert+2ggx"``) to ``data``
     (see :func:`as_samples`); ``options`` as :func:`gonio.fit.fit.fit` (``loss``, ``fixed``, ``seed``,
-    ``max_theta_deg``, ...). Returns a :class:`gonio.fit.result.FitResult`: ``.model`` (evaluable),
-    ``.params``, ``.uncertainty``, ``.errors``, ``.to_json()``, ``.to_mitsuba()``."""
+    ``max_theta_deg``, ...). ``fix`` (as ``--fix``) is ``fixed``: parameters held, named as ``gonio fit``
+    prints them (``{"lobe1.f0": 1}``, ``{"f0": 1}`` for every lobe, ``{"kd.r": .., "kd.g": .., "kd.b": ..}``).
+    Returns a :class:`gonio.fit.result.FitResult`: ``.model`` (evaluable), ``.params``, ``.uncertainty``,
+    ``.errors``, ``.to_json()``, ``.to_mitsuba()``."""
+    from gonio.errors import ConfigError
     from gonio.fit.fit import fit as fit_samples
 
+    if fix is not None:
+        if options.get("fixed") is not None:
+            raise ConfigError.field(None, "fix", fix, "give fix or fixed, not both")
+        options["fixed"] = fix
     return fit_samples(as_samples(data), model, **options)
 
 

@@ -24,6 +24,9 @@ __all__ = ["ABCMicrofacet", "ABCSmooth", "abc_s", "abc_s_core", "abc_spec"]
 #: Upper bound of B: ~1/B is the lobe width in (1 − cos θh); 1e7 resolves lobes far narrower than a
 #: MERL cell at θh = 0 (Löw's fits reach B ≈ 6·10⁶ for fabrics' grazing lobes).
 B_MAX = 1e8
+#: Lower bound of B: below it the lobe is flat over the hemisphere (B x ≤ 10⁻² · 4); it is also where the
+#: (log-scaled) search of B starts, so broad lobes (Löw's fits of paints reach B ≈ 25) are reached.
+B_MIN = 1e-2
 
 
 def abc_s(x, A, B, C) -> np.ndarray:
@@ -74,7 +77,7 @@ class ABCMicrofacet(BRDF):
     A : float or 3 floats
         Lobe scale (≥ 0, 1/sr).
     B : float
-        Lobe sharpness, in [0, 1e8].
+        Lobe sharpness, in [1e-2, 1e8].
     C : float
         Lobe fall-off exponent, in [0, 50].
     eta : float
@@ -85,7 +88,7 @@ class ABCMicrofacet(BRDF):
     PARAMS = {
         "kd": Param("rgb", 0.0, 1.0, 0.0, doc="diffuse albedo, per RGB channel"),
         "A": Param("rgb", 0.0, np.inf, 1.0, doc="ABC lobe scale A (1/sr), per RGB channel"),
-        "B": Param("scalar", 0.0, B_MAX, 100.0, doc="ABC lobe sharpness B"),
+        "B": Param("scalar", B_MIN, B_MAX, 100.0, doc="ABC lobe sharpness B"),
         "C": Param("scalar", 1e-3, 50.0, 1.0, doc="ABC lobe fall-off exponent C"),
         "eta": Param("scalar", 1.0, 100.0, 1.5, doc="index of refraction of the Fresnel term"),
     }
@@ -113,7 +116,7 @@ class ABCSmooth(BRDF):
     A : float or 3 floats
         Lobe scale (≥ 0, 1/sr).
     B, C : float
-        Lobe sharpness in [0, 1e8] and fall-off exponent in [1e-3, 50].
+        Lobe sharpness in [1e-2, 1e8] and fall-off exponent in [1e-3, 50].
     eta : float
         Index of refraction in [1, 100].
     """

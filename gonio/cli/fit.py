@@ -33,7 +33,9 @@ def register(sub) -> None:
     p.add_argument("--mitsuba", metavar="OUT.xml|OUT.json",
                    help="also write the fitted model as a Mitsuba 3 BSDF (XML element or load_dict JSON): exact for "
                         "lambert, microfacet/ggx/beckmann lobes with f0 = 1 (or within 1e-3 of it) and their sums; "
-                        "Schlick f0 < 1 lobes with --approx (roughconductor with the exact Fresnel equations)")
+                        "with --approx the closest plugin, its error printed: Schlick f0 < 1 lobes as roughconductor "
+                        "with the exact Fresnel equations or roughplastic (whichever is closer), other models "
+                        "(abc, gtr, ...) as a lambert+ggx fitted to them")
     p.add_argument("--pbrt", metavar="OUT.pbrt", help="also write the fitted model as a pbrt-v4 material (diffuse, "
                    "conductor, mix); refused unless exact or --approx")
     p.add_argument("--gltf", metavar="OUT.gltf", help="also write the fitted model as a glTF 2.0 material on a sphere "
@@ -50,26 +52,6 @@ def load_source(path_text: str):
     return as_samples(path_text)
 
 
-def resolve_fixed(model: str, fixed: dict) -> dict:
-    """``--fix`` names as ``gonio fit`` prints them, mapped onto ``model``'s parameters: a full name
-    (``lobe1.f0``, ``diffuse.albedo``) is itself; a bare name (``f0``, ``alpha``, ``albedo``) that the
-    model does not have as such names that parameter of every lobe having it (``f0=1`` on lambert+2ggx
-    fixes lobe1.f0 and lobe2.f0: a tied f0 applies to all lobes). Anything else is one line listing the
-    model's parameters."""
-    from gonio.errors import ConfigError
-    from gonio.fit.layout import model_class
-
-    params = list(model_class(model).PARAMS)
-    out: dict = {}
-    for name, value in fixed.items():
-        targets = [name] if name in params else [p for p in params if p.rsplit(".", 1)[-1] == name]
-        if not targets:
-            raise ConfigError.field("--fix", f"{model}.{name}", value,
-                                    f"unknown parameter; {model} has {', '.join(params)}")
-        out.update({t: value for t in targets})
-    return out
-
-
 def _options(args) -> dict:
     """What every source's fit needs, as plain data (sent to worker processes)."""
     from gonio.cli.models import _parse_param
@@ -79,7 +61,11 @@ def _options(args) -> dict:
         raise ConfigError.field("--max-theta", "max_theta", args.max_theta, "must be in (0, 90] degrees")
     if args.select and args.fix:
         raise ConfigError.field("--fix", "fix", args.fix, "not supported with --select")
-    fixed = resolve_fixed(args.model, dict(_parse_param(t) for t in args.fix)) if args.fix else {}
+    fixed = dict(_parse_param(t) for t in args.fix) if args.fix else {}
+    if fixed:  # checked before any source is read (names as `gonio fit` prints them, gonio.fit.layout.resolve_fixed)
+        from gonio.fit.layout import model_class, resolve_fixed
+
+        resolve_fixed(model_class(args.model), fixed)
     cands = tuple(c.strip() for c in args.candidates.split(",")) if args.candidates else None
     return {"select": args.select, "model": args.model, "candidates": cands, "criterion": args.criterion,
             "loss": args.loss, "fixed": fixed, "seed": args.seed,

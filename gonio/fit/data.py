@@ -84,9 +84,18 @@ class FitData:
         return np.einsum("ij,ij->i", self.wi, self.half) if n is None else 0.5 * n
 
     def subset(self, index) -> "FitData":
-        """The samples selected by a mask or index array (geometry is recomputed lazily)."""
-        return FitData(self.wi[index], self.wo[index], self.y[index],
-                       None if self.sigma is None else self.sigma[index], self.source, dict(self.dropped))
+        """The samples selected by a mask or index array; geometry already computed here is shared (sliced),
+        the rest is computed lazily (the folds of a cross-validation share one geometry)."""
+        sub = FitData(self.wi[index], self.wo[index], self.y[index],
+                      None if self.sigma is None else self.sigma[index], self.source, dict(self.dropped))
+        for name in _GEOMETRY:
+            if name in self.__dict__ and self.__dict__[name] is not None:
+                sub.__dict__[name] = self.__dict__[name][index]
+        return sub
+
+
+#: Cached geometry of :class:`FitData` that a subset slices instead of recomputing.
+_GEOMETRY = ("cos_i", "cos_o", "half", "cos_h", "cos_d")
 
 
 def prepare(data, *, max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG, use_flagged: bool = False,

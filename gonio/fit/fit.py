@@ -28,7 +28,8 @@ import numpy as np
 from gonio.errors import ConfigError, DataError, GonioError
 from gonio.fit.data import DEFAULT_MAX_THETA_DEG, FitData, prepare
 from gonio.fit.kernels import jacobian_for, profile_for
-from gonio.fit.layout import CHANNELS, Layout, SubSpace, auto_tied, make_basis, model_class, separated
+from gonio.fit.layout import (CHANNELS, Layout, SubSpace, auto_tied, make_basis, model_class, resolve_fixed,
+                              separated)
 from gonio.fit.losses import LOSSES, Loss, get_loss
 from gonio.fit.result import FitResult
 from gonio.fit.solve import Projection, ProfiledProjection, jtj_from_elements, shared_weights
@@ -184,6 +185,22 @@ class _Problem:
         return A
 
 
+def _coordinate_scan(f, u0, c0: float, u_lo, u_hi, cycles: int = 2, points: int = 17):
+    """Cyclic coordinate search (e.g. Nocedal & Wright, *Numerical Optimization*, 2nd ed., §9.3) on grids:
+    each parameter in turn over ``points`` values of its whole search range, the others held, ``cycles``
+    times. Returns the best point and its cost."""
+    u, c = np.array(u0, dtype=np.float64), float(c0)
+    for _ in range(cycles):
+        for j in range(u.size):
+            for x in np.linspace(u_lo[j], u_hi[j], points):
+                t = u.copy()
+                t[j] = x
+                ct = f(t)
+                if ct < c:
+                    u, c = t, ct
+    return u, c
+
+
 def _search_shape(proj: Projection, L: Layout, rng, n_starts: int):
     """Global-then-local search of the projected cost over the shape parameters."""
     from scipy.optimize import minimize, minimize_scalar
@@ -210,7 +227,13 @@ def _search_shape(proj: Projection, L: Layout, rng, n_starts: int):
     else:
         cand = [L.to_u(L.default_shape())] + list(rng.uniform(u_lo, u_hi, (8 * L.S + 4 * n_starts, L.S)))
         costs = np.array([f(u) for u in cand])
-        for j in np.argsort(costs)[:max(1, n_starts)]:
+        best = list(np.argsort(costs)[:max(1, n_starts)])
+        # and from a coordinate scan of the best point: a narrow valley between parameters (ABC's B and C)
+        # that no random point hits is found along the axes
+        u_scan, c_scan = _coordinate_scan(f, cand[best[0]], costs[best[0]], u_lo, u_hi)
+        cand.append(u_scan)
+        costs = np.append(costs, c_scan)
+        for j in best + [len(cand) - 1]:
             res = minimize(f, cand[j], method="L-BFGS-B", bounds=list(zip(u_lo, u_hi)),
                            options={"eps": 1e-7, "ftol": 1e-13, "gtol": 1e-10, "maxiter": 200})
             results.append((float(res.fun), np.asarray(res.x)))
@@ -401,7 +424,9 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
     loss : str
         ``auto`` (χ² with uncertainties, else cosine), ``cosine``, ``chi2``, ``log``, ``cbrt``.
     fixed : dict
-        Parameters held fixed (choice parameters are always fixed, at their default unless given).
+        Parameters held fixed (choice parameters are always fixed, at their default unless given), named as
+        ``gonio fit`` prints them: ``lobe1.f0``, a bare ``f0`` for every lobe's f0, or per channel
+        (``kd.r``, all three channels) — :func:`gonio.fit.layout.resolve_fixed`.
     free : sequence of str
         Parameters fitted per channel although tied by default (the Fresnel ``f0``, see
         :data:`gonio.fit.layout.AUTO_TIED`; e.g. ``("f0",)`` or ``("lobe1.f0",)``). A tied parameter
@@ -440,7 +465,7 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
         raise ConfigError.field("--method", "method", method, f"must be one of {', '.join(METHODS)}")
     d = prepare(data, max_theta_deg=max_theta_deg, use_flagged=use_flagged)
     cls = model_class(model) if isinstance(model, str) else model
-    fixed = dict(fixed or {})
+    fixed = resolve_fixed(cls, dict(fixed or {}))
     tied = auto_tied(cls, fixed, free)
     L = Layout(cls, fixed, tied)
     lossobj = resolve_loss(loss, d)
@@ -495,7 +520,14 @@ NEAR_BOUND = 1e-3
 
 
 def bound_report(cls, params: dict, uncertainty: dict) -> dict:
-    """Fitted parameters at or near a bound: name -> {channel ("r", "g", "b") or "value": "lower 0"}."""
+    """Fitted parameters at or near a bound: name -> {channel ("r", "g", "b") or "value": "lower 0"}.
+
+    A shape parameter searched in log space (:meth:`gonio.fit.layout.Layout.search_space`: a range wider
+    than 100×) is at its lower bound within a factor 1 + 10·:data:`NEAR_BOUND` of the lower end of that
+    search (for a range starting at 0, :func:`gonio.fit.layout.log_floor`), not within a fraction of the
+    whole range (a Blinn-Phong exponent of 500 in [0, 10⁶] is a well-determined width, not a value at 0)."""
+    from gonio.fit.layout import log_floor
+
     out: dict = {}
     for name, unc in uncertainty.items():
         spec = cls.PARAMS.get(name)
@@ -504,13 +536,14 @@ def bound_report(cls, params: dict, uncertainty: dict) -> dict:
         vals = np.atleast_1d(np.asarray(params[name], dtype=np.float64))
         lo, hi = float(spec.lo), float(spec.hi)
         span = hi - lo if np.isfinite(hi) else max(abs(lo), 1.0)
-        logscale = lo > 0 and np.isfinite(hi) and hi / lo > 100
+        logscale = spec.kind == "scalar" and lo >= 0 and np.isfinite(hi) and hi / max(lo, 1e-300) >= 100
+        floor = (lo if lo > 0 else log_floor(hi)) if logscale else lo
         hits = {}
         for j, v in enumerate(vals):
             key = CHANNELS[j] if vals.size == 3 else "value"
-            near_lo = (v <= lo * (1 + 10 * NEAR_BOUND)) if logscale else (v - lo <= NEAR_BOUND * span)
+            near_lo = (v <= floor * (1 + 10 * NEAR_BOUND)) if logscale else (v - lo <= NEAR_BOUND * span)
             if near_lo:
-                hits[key] = f"lower {lo:g}"
+                hits[key] = f"lower {floor:g}"
             elif np.isfinite(hi) and hi - v <= NEAR_BOUND * span:
                 hits[key] = f"upper {hi:g}"
         if hits:

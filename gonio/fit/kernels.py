@@ -340,3 +340,7 @@ _gtr.supports = lambda L: {"alpha", "gamma"} <= set(L.shape) and ("f0" in L.fixe
 _microfacet.supports = lambda L: L.shape in (["alpha"], ["alpha", "f0"]) and ("f0" in L.fixed or "f0" in L.shape)
 _lambert.supports = lambda L: L.colour == ["albedo"]
 KERNELS.update({"lambert": _lambert, "microfacet": _microfacet, "gtr": _gtr})
+
+from gonio.fit.kernels_abc import KERNELS_ABC  # noqa: E402  (models for real measurements, issue 14)
+
+KERNELS.update(KERNELS_ABC)

@@ -33,6 +33,54 @@ def model_class(name: str) -> type[BRDF]:
     raise ConfigError.field("--model", "model", name, f"unknown model; known: {', '.join(sorted(MODELS))}")
 
 
+def resolve_fixed(cls: type[BRDF], fixed: dict, source: str = "--fix") -> dict:
+    """Held parameters named as ``gonio fit`` prints them, mapped onto ``cls``'s parameters.
+
+    * a full name (``lobe1.f0``, ``diffuse.albedo``, ``alpha``) is itself;
+    * a bare name the model does not have as such (``f0``, ``alpha``, ``ks`` on ``lambert+2ggx``) names that
+      parameter of every term having it (``f0=1`` holds lobe1.f0 and lobe2.f0: a tied f0 applies to all lobes);
+    * a per-channel name (``lobe1.ks.r``, ``kd.g``, ``f0.b``, as in the labels of the uncertainties and the
+      redundancy notes) holds one channel; the three channels of a parameter must then all be given (a fit
+      holds a colour parameter whole), and they combine into one RGB value.
+
+    Anything else is a one-line :class:`ConfigError` listing the valid names."""
+    params = cls.PARAMS
+    out: dict = {}
+    channels: dict[str, dict[int, Any]] = {}
+
+    def valid() -> str:
+        rgb = [k for k, v in params.items() if v.kind == "rgb"]
+        extra = f" (per channel: {rgb[0]}.r, {rgb[0]}.g, {rgb[0]}.b, ...)" if rgb else ""
+        return f"{cls.name} has {', '.join(params)}{extra}"
+
+    for name, value in fixed.items():
+        name = str(name).strip()
+        base, _, ch = name.rpartition(".")
+        if name not in params and ch in CHANNELS and base:
+            targets = [base] if base in params else [p for p in params if p.rsplit(".", 1)[-1] == base]
+            targets = [t for t in targets if params[t].kind == "rgb"]
+            if not targets:
+                raise ConfigError.field(source, f"{cls.name}.{name}", value, f"unknown parameter; {valid()}")
+            if np.ndim(value) != 0:
+                raise ConfigError.field(source, f"{cls.name}.{name}", value, "one channel takes one number")
+            for t in targets:
+                channels.setdefault(t, {})[CHANNELS.index(ch)] = value
+            continue
+        targets = [name] if name in params else [p for p in params if p.rsplit(".", 1)[-1] == name]
+        if not targets:
+            raise ConfigError.field(source, f"{cls.name}.{name}", value, f"unknown parameter; {valid()}")
+        out.update({t: value for t in targets})
+    for t, per in channels.items():
+        if t in out:
+            raise ConfigError.field(source, f"{cls.name}.{t}", out[t], "given both whole and per channel")
+        if len(per) != 3:
+            missing = ", ".join(f"{t}.{c}" for j, c in enumerate(CHANNELS) if j not in per)
+            raise ConfigError.field(source, f"{cls.name}.{t}.{CHANNELS[min(per)]}", per[min(per)],
+                                    f"a colour parameter is held whole: also give {missing} (or {t}=R,G,B)")
+        out[t] = [per[j] for j in range(3)]
+    return out
+
+
 #: Colour parameters fitted *tied* by default: one value shared by R, G and B, searched as a shape
 #: parameter. The Fresnel reflectance f0 multiplies the specular weight (ks·F(f0), Schlick 1994), so per
 #: channel it would duplicate ks; the colour lives in ks, while a shared f0 sets how the specular
@@ -53,6 +101,13 @@ def auto_tied(cls: type[BRDF], fixed: dict, free=()) -> tuple[str, ...]:
                  and k not in free and _base(k) not in free)
 
 
+def log_floor(hi: float, tied: bool = False) -> float:
+    """Lower end of the log-scaled search of a parameter whose range starts at 0: 10⁻⁶ of its upper end
+    (10⁻³ for a tied reflectance f0, see :meth:`Layout.search_space`). A range that starts above 0 is
+    searched from its own lower end."""
+    return hi * (1e-3 if tied else 1e-6)
+
+
 class _SearchMap:
     """Maps between shape parameters and the search space (log-scaled where ``is_log``), for classes
     with ``search_space()``, ``shape_lo`` and ``shape_hi``."""
@@ -60,7 +115,9 @@ class _SearchMap:
     def to_shape(self, u: np.ndarray) -> np.ndarray:
         """Shape parameters of a point of the search space (clipped to the model bounds)."""
         _, _, is_log = self.search_space()
-        s = np.where(is_log, np.exp(u), u)
+        u = np.asarray(u, dtype=np.float64)
+        s = u.copy()
+        s[is_log] = np.exp(u[is_log])
         return np.clip(s, self.shape_lo, self.shape_hi)
 
     def to_u(self, s: np.ndarray) -> np.ndarray:
@@ -159,8 +216,9 @@ class Layout(_SearchMap):
         """``(u_lo, u_hi, is_log)``: bounded search box of the shape parameters.
 
         Wide positive ranges (hi/lo > 100) are searched in log space (roughness, exponents); an
-        infinite upper bound is capped at 10⁴ × max(default, 1). Tied reflectances (f0) are searched in
-        log space from 10⁻³ (below any real material: f0 ≥ 0.02 for refractive index ≥ 1.33).
+        infinite upper bound is capped at 10⁴ × max(default, 1). A range starting at 0 is searched from
+        :func:`log_floor` (10⁻⁶ of its upper end; tied reflectances f0 from 10⁻³, below any real material:
+        f0 ≥ 0.02 for refractive index ≥ 1.33); a range starting above 0 from its lower end.
         """
         cached = self.__dict__.get("_space")
         if cached is not None:
@@ -173,9 +231,10 @@ class Layout(_SearchMap):
                 hi = 1e4 * max(abs(float(spec.default or 1.0)), 1.0)
             if not np.isfinite(lo):
                 lo = -hi
-            log = lo >= 0 and hi > 0 and hi / max(lo, 1e-300) > 100
+            log = lo >= 0 and hi > 0 and hi / max(lo, 1e-300) >= 100
             if log:
-                lo = max(lo, hi * (1e-3 if name in self.tied else 1e-6))
+                if lo <= 0:
+                    lo = log_floor(hi, name in self.tied)
                 u_lo.append(np.log(lo)), u_hi.append(np.log(hi))
             else:
                 u_lo.append(lo), u_hi.append(hi)

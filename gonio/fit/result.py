@@ -130,15 +130,19 @@ class FitResult:
             _write_new(path, text, force)
         return text
 
-    def to_mitsuba(self, path=None):
+    def to_mitsuba(self, path=None, *, approx: bool = False):
         """The fitted model as a Mitsuba 3 BSDF dict (``mitsuba.load_dict``); also written to ``path``
         (``.xml`` or ``.json``) when given. Refused with a one-line reason where Mitsuba's plugins cannot
-        reproduce the model (:mod:`gonio.io.mitsuba`)."""
+        reproduce the model, unless ``approx`` (as ``--approx``: the closest plugin, its error in
+        :func:`gonio.io.mitsuba.mitsuba_export`'s result) (:mod:`gonio.io.mitsuba`)."""
+        import json
+
         from gonio.io import mitsuba
 
+        ex = mitsuba.mitsuba_export(self.model, approx=approx)
         if path is not None:
-            mitsuba.write_mitsuba(self.model, path)
-        return mitsuba.to_mitsuba_dict(self.model)
+            mitsuba.write_mitsuba(self.model, path, approx=approx)
+        return json.loads(ex.text)
 
     def __repr__(self) -> str:
         return "\n".join(self.summary_lines())

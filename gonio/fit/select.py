@@ -101,9 +101,9 @@ class Selection:
             _write_new(path, text, force)
         return text
 
-    def to_mitsuba(self, path=None):
+    def to_mitsuba(self, path=None, *, approx: bool = False):
         """The chosen model as a Mitsuba 3 BSDF (see :meth:`FitResult.to_mitsuba`)."""
-        return self.winner.to_mitsuba(path)
+        return self.winner.to_mitsuba(path, approx=approx)
 
     def table_lines(self) -> list[str]:
         """One row per candidate: parameters, score, error, status and why it won or lost."""
@@ -122,29 +122,62 @@ class Selection:
                           *("  " + line for line in self.table_lines()), *self.winner.summary_lines()])
 
 
+def free_cores() -> int:
+    """Cores this process may use that are not busy: the CPUs it is allowed to run on (``taskset``) minus
+    the 1-minute load average of the machine (at least 1)."""
+    import os
+
+    try:
+        allowed = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        allowed = os.cpu_count() or 1
+    try:
+        busy = os.getloadavg()[0]
+    except OSError:
+        busy = 0.0
+    return max(1, min(allowed, int(allowed - busy + 0.5)))
+
+
 def _cv_score(d, model, loss, k, seed, fit_kw, bar=None, start=None) -> tuple[float, float]:
     """Mean held-out ½·mean(r²) over k folds and its standard error; each fold's fit is warm-started from
-    ``start`` (the full-data fit: a local refinement instead of a global search)."""
+    ``start`` (the full-data fit: a local refinement instead of a global search) and shares the geometry
+    computed on all samples (:meth:`gonio.fit.data.FitData.subset`). The folds run in threads when
+    :func:`free_cores` says cores are free (NumPy releases the GIL in its array operations), else in turn."""
     rng = np.random.default_rng(seed)
     folds = np.array_split(rng.permutation(len(d)), k)
-    scores = []
-    for j in range(k):
+    for name in ("cos_i", "cos_o", "cos_h", "cos_d"):
+        getattr(d, name)  # computed once, sliced by every fold
+
+    def one(j: int) -> float:
         test = folds[j]
         train = np.concatenate([folds[i] for i in range(k) if i != j])
         r = fit(d.subset(train), model, loss=loss.name, seed=seed, start=start, **fit_kw)  # warm start
         m = r.build().eval(d.wi[test], d.wo[test])
         sigma = None if d.sigma is None else d.sigma[test]
         res = loss.residual(m, d.y[test], d.cos_i[test], sigma)
-        scores.append(float(np.mean(res * res)))
         if bar is not None:
             bar.update(1)
+        return float(np.mean(res * res))
+
+    workers = min(k, free_cores())
+    if workers > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            scores = list(pool.map(one, range(k)))
+    else:
+        scores = [one(j) for j in range(k)]
     scores = np.array(scores)
     return float(scores.mean()), float(scores.std(ddof=1) / np.sqrt(k)) if k > 1 else 0.0
 
 
 #: Default candidates added for large tables (above 2 × :data:`SELECT_N` samples, e.g. a MERL table): Burley's
-#: GTR lobe, whose tail exponent fits the long tails of measured metals (``python -m benchmarks realdata``).
-LARGE_TABLE_CANDIDATES = ("gtr",)
+#: GTR lobe, whose tail exponent fits the long tails of measured metals, and Löw et al. 2012's smooth-surface
+#: ABC model, whose lobe is a function of the projected deviation ‖wi⊥ + wo⊥‖ = 2 cos θd sin θh from the
+#: mirror direction (Rayleigh–Rice scattering), so it widens in θh towards grazing θd as the narrow peaks of
+#: polished metals and the lobes of paints do, where a microfacet lobe keeps its width in θh
+#: (``python -m benchmarks realdata``).
+LARGE_TABLE_CANDIDATES = ("gtr", "abc-smooth")
 #: Width parameters of the terms of a sum: one on a bound means the term has no shape the data determine.
 _WIDTHS = ("alpha", "roughness", "exponent", "alpha_x", "alpha_y", "sigma")
 #: Candidates added when the data are anisotropic (:func:`gonio.tabulate.check_isotropy`) and none of

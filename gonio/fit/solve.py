@@ -109,6 +109,7 @@ class Projection:
         self.w1 = shared_weights(w)
         self._c0 = np.einsum("nc,nc,nc->c", y, w, y)
         self._wb_cache: dict[int, tuple] = {}
+        self._wT = self._yT = None  # channels-first copies of w and y, made on first use
 
     def normal_equations(self, shape):
         f0, cols = self.basis(shape)
@@ -128,8 +129,22 @@ class Projection:
                     G1[k, l] = G1[l, k] = wb[k] @ cols[l]
             b = np.stack([x @ self.y for x in wb])
             return np.broadcast_to(G1, (3, K, K)), b.T, self._c0
-        t = np.asarray(self.y) - np.asarray(f0)
         K = len(cols)
+        if all(B.ndim == 1 for B in cols):
+            # channels first: row sums of contiguous (3, N) products, a quarter of the time of (N, 3) column
+            # sums (and no threaded BLAS: on a busy machine its threads cost more than the flops)
+            if self._wT is None:
+                self._wT, self._yT = np.ascontiguousarray(self.w.T), np.ascontiguousarray(self.y.T)
+            tT = self._yT if getattr(f0, "is_zero", False) else self._yT - np.asarray(f0).T
+            WB = [self._wT * B for B in cols]
+            G = np.empty((3, K, K))
+            for k in range(K):
+                for l in range(k, K):
+                    G[:, k, l] = G[:, l, k] = (WB[k] * cols[l]).sum(axis=1)
+            b = np.stack([(x * tT).sum(axis=1) for x in WB], axis=-1)
+            c0 = self._c0 if tT is self._yT else (tT * self._wT * tT).sum(axis=1)
+            return G, b, c0
+        t = np.asarray(self.y) - np.asarray(f0)
         # column sums of (N, 3) products, all channels at once (no threaded BLAS for these thin products: on a
         # busy machine its threads cost more than the flops, and einsum's generic loops are slower still)
         Bs = [B[:, None] if B.ndim == 1 else B for B in cols]

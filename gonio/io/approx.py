@@ -22,7 +22,8 @@ import numpy as np
 
 from gonio.errors import ConfigError
 
-__all__ = ["Lobe", "Decomposed", "decompose", "direction_pairs", "relative_error", "Exported", "EXACT", "TOLERANCE", "N_PAIRS"]
+__all__ = ["Lobe", "Decomposed", "decompose", "direction_pairs", "relative_error", "Exported", "closest_lobes",
+           "EXACT", "TOLERANCE", "N_PAIRS"]
 
 #: Relative error below which an export counts as exact (float64 round-off of the formulas).
 EXACT = 1e-9
@@ -54,9 +55,18 @@ def _rgb(v) -> np.ndarray:
     return np.broadcast_to(np.asarray(v, dtype=np.float64), (3,)).copy()
 
 
-def decompose(model, target: str) -> Decomposed:
+def decompose(model, target: str, approx: bool = False, reasons: list | None = None) -> Decomposed:
     """``model`` as a diffuse term plus microfacet lobes; :class:`ConfigError` naming ``target`` for a
-    model that is not such a sum (Phong, Ward, ...: no renderer counterpart to approximate from)."""
+    model that is not such a sum (Phong, Ward, ABC, ...), unless ``approx``: then the sum is
+    :func:`closest_lobes` (fitted to the model) and ``reasons`` receives why."""
+    if approx:
+        try:
+            return decompose(model, target)
+        except ConfigError:
+            stand_in, why = closest_lobes(model, target)
+            if reasons is not None:
+                reasons.append(why)
+            return decompose(stand_in, target)
     from gonio.brdf.lambert import Lambert
     from gonio.brdf.lobes import Sum
     from gonio.brdf.microfacet import Microfacet
@@ -76,7 +86,8 @@ def decompose(model, target: str) -> Decomposed:
         else:
             raise ConfigError.field(target, "model", m.name,
                                     "has no counterpart to export: exportable are lambert, microfacet/ggx/beckmann "
-                                    "lobes and their sums")
+                                    "lobes and their sums; pass --approx for the closest (a lambert+ggx fitted to "
+                                    "it, its error printed)")
     return Decomposed(diffuse, tuple(lobes))
 
 
@@ -89,6 +100,34 @@ def direction_pairs(n: int = N_PAIRS, seed: int = 12345) -> tuple[np.ndarray, np
         r, phi = np.sqrt(u1), 2 * np.pi * u2
         out.append(np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1 - u1, 1e-12))], axis=-1))
     return out[0], out[1]
+
+
+def _fit_pairs(n: int = N_PAIRS, seed: int = 54321) -> tuple[np.ndarray, np.ndarray]:
+    """Direction pairs to fit a stand-in lobe on: :func:`direction_pairs` plus as many pairs whose ``wo`` is
+    the mirror direction of ``wi`` tilted by log-uniform angles from 10⁻⁴ to 1 rad, so that razor-thin
+    peaks (polished metals, α ~ 10⁻³) are sampled."""
+    from gonio.geometry import frame_from_normal, from_spherical, to_world
+
+    wi, wo = direction_pairs(n, seed)
+    rng = np.random.default_rng(seed + 1)
+    tilt = np.exp(rng.uniform(np.log(1e-4), 0.0, n))
+    mirror = wi * np.array([-1.0, -1.0, 1.0])
+    wo2 = to_world(from_spherical(tilt, rng.uniform(0, 2 * np.pi, n)), frame_from_normal(mirror))
+    keep = wo2[:, 2] > 0.05
+    return np.concatenate([wi, wi[keep]]), np.concatenate([wo, wo2[keep]])
+
+
+def closest_lobes(model, target: str):
+    """A ``lambert+ggx`` sum fitted to ``model`` (values at :func:`_fit_pairs`, gonio's default robust loss,
+    :func:`gonio.fit.fit.fit`), for a model no renderer plugin has (ABC, GTR, Phong, ...): the closest
+    material a renderer can then take, the reason as a string. The export's error is still measured against
+    ``model`` itself."""
+    from gonio.fit.fit import fit
+
+    wi, wo = _fit_pairs(4096)
+    r = fit((wi, wo, model.eval(wi, wo)), "lambert+ggx", max_theta_deg=None, report=False, n_starts=1)
+    return r.model, (f"{model.name} has no {target} counterpart: exported as the lambert+ggx fitted to it "
+                     f"(lobe alpha {r.params['lobe1.alpha']:.3g})")
 
 
 def relative_error(f_target: np.ndarray, f_model: np.ndarray) -> float:

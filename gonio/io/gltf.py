@@ -76,10 +76,11 @@ def _ior_for(f0: float) -> float:
     return float((1 + s) / (1 - s))
 
 
-def gltf_material(model) -> tuple[dict, list[str]]:
-    """The closest glTF material (dict as :func:`gltf_eval` takes) and why it is not exact."""
-    dec = decompose(model, "glTF")
+def gltf_material(model, approx: bool = False) -> tuple[dict, list[str]]:
+    """The closest glTF material (dict as :func:`gltf_eval` takes) and why it is not exact (``approx``: a
+    model glTF has no counterpart for is taken as :func:`gonio.io.approx.closest_lobes`)."""
     reasons: list[str] = []
+    dec = decompose(model, "glTF", approx=approx, reasons=reasons)
     d = dec.diffuse
     if not dec.lobes:
         if np.any(d > 1):
@@ -172,9 +173,9 @@ def _document(mat: dict, name: str) -> dict:
     }
 
 
-def to_gltf(model, name: str = "gonio material") -> Exported:
+def to_gltf(model, name: str = "gonio material", approx: bool = False) -> Exported:
     """The glTF document (text) of the closest material, with its error against ``model``."""
-    mat, reasons = gltf_material(model)
+    mat, reasons = gltf_material(model, approx)
     wi, wo = direction_pairs()
     err = relative_error(gltf_eval(mat, wi, wo), model.eval(wi, wo))
     return Exported("glTF", json.dumps(_document(mat, name), indent=1) + "\n", err, reasons)
@@ -184,4 +185,4 @@ def write_gltf(model, path, *, approx: bool = False, option: str = "--gltf") -> 
     """Write ``model`` as ``path`` (.gltf); refused unless exact or ``approx`` (:meth:`Exported.check`)."""
     from pathlib import Path
 
-    return to_gltf(model, name=Path(path).stem).check(approx, option).write(path, option)
+    return to_gltf(model, name=Path(path).stem, approx=approx).check(approx, option).write(path, option)

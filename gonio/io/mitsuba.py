@@ -19,8 +19,17 @@ reflectance (``eta = (1 + √f0)/(1 − √f0)`` per channel, ``k = 0``: Mitsuba
 reduces to the dielectric one), the same distribution and α, ``specular_reflectance = ks``; the
 cosine-weighted relative error against the model is printed (:mod:`gonio.io.approx`). An f0 within
 :data:`F0_TOLERANCE` of 1 (a fit that printed "1") exports as ``material = "none"``, its error printed.
-Without ``approx`` those are refused with the reason and the error. Phong, Blinn-Phong, Ward,
-Lafortune, Oren-Nayar, Cook-Torrance and Ashikhmin-Shirley have no Mitsuba counterpart: refused.
+Without ``approx`` those are refused with the reason and the error.
+
+A diffuse term under one dielectric lobe (a grey f0 < 1: plastics, clear coats) has a second candidate
+with ``approx``: ``roughplastic`` (:mod:`gonio.io.mitsuba_plastic`: η from f0, the same distribution, α and
+ks, the diffuse reflectance matched in least squares); whichever of the two has the smaller error is
+written, and the other's error is printed beside it.
+
+Models with no Mitsuba counterpart (ABC, GTR, Phong, Blinn-Phong, Ward, Lafortune, Oren-Nayar,
+Cook-Torrance, Ashikhmin-Shirley) are refused with the reason; with ``approx`` a ``lambert+ggx`` fitted to
+the model's values (:func:`gonio.io.approx.closest_lobes`) is exported instead, its error against the
+model itself printed.
 """
 
 from __future__ import annotations
@@ -76,9 +85,16 @@ def _terms(model, source: str, approx: bool = False, reasons: list | None = None
                                     "or fit with --fix f0=1")
         terms = [("diffuse", {}, _rgb(model.kd))] if np.any(np.asarray(model.kd) > 0) else []
         return terms + [("roughconductor", lobe, _rgb(model.ks))]
+    if approx:
+        from gonio.io.approx import closest_lobes
+
+        stand_in, why = closest_lobes(model, "Mitsuba 3")
+        reasons.append(why)
+        return _terms(stand_in, source, approx, reasons)
     raise ConfigError.field(source, "model", model.name,
                             "has no exact Mitsuba 3 counterpart (exportable: lambert, microfacet with f0 = 1, "
-                            "and sums of lambert/ggx/beckmann lobes)")
+                            "and sums of lambert/ggx/beckmann lobes); pass --approx for the closest (a lambert+ggx "
+                            "fitted to it, its error printed)")
 
 
 def _plugin(kind: str, params: dict, rgb: list[float]) -> dict:
@@ -112,6 +128,11 @@ def to_mitsuba_dict(model, source: str = "--mitsuba", approx: bool = False, reas
 
 def to_mitsuba_xml(model, source: str = "--mitsuba", approx: bool = False) -> str:
     """The same BSDF as a Mitsuba 3 scene-file ``<bsdf>`` element."""
+    return _xml(to_mitsuba_dict(model, source, approx))
+
+
+def _xml(bsdf: dict) -> str:
+    """A BSDF dictionary as a Mitsuba 3 scene-file ``<bsdf>`` element."""
 
     def emit(d: dict, name: str | None, depth: int) -> list[str]:
         pad = "    " * depth
@@ -124,13 +145,15 @@ def to_mitsuba_xml(model, source: str = "--mitsuba", approx: bool = False) -> st
                 lines.append(f"{pad}    <rgb name={quoteattr(k)} value=\"{', '.join(f'{x:.9g}' for x in v['value'])}\"/>")
             elif isinstance(v, dict):
                 lines += emit(v, None, depth + 1)
+            elif isinstance(v, bool):
+                lines.append(f"{pad}    <boolean name={quoteattr(k)} value=\"{str(v).lower()}\"/>")
             elif isinstance(v, float):
                 lines.append(f"{pad}    <float name={quoteattr(k)} value=\"{v:.9g}\"/>")
             else:
                 lines.append(f"{pad}    <string name={quoteattr(k)} value={quoteattr(str(v))}/>")
         return lines + [f"{pad}</bsdf>"]
 
-    return "\n".join(emit(to_mitsuba_dict(model, source, approx), None, 0)) + "\n"
+    return "\n".join(emit(bsdf, None, 0)) + "\n"
 
 
 def mitsuba_eval(d: dict, wi, wo) -> np.ndarray:
@@ -146,6 +169,10 @@ def mitsuba_eval(d: dict, wi, wo) -> np.ndarray:
     wo = np.asarray(wo, dtype=np.float64)
     if d["type"] == "diffuse":
         return make("lambert", albedo=1.0).eval(wi, wo) * np.asarray(d["reflectance"]["value"])
+    if d["type"] == "roughplastic":
+        from gonio.io.mitsuba_plastic import roughplastic_eval
+
+        return roughplastic_eval(d, wi, wo)
     if d["type"] == "roughconductor":
         lobe = make("microfacet", kd=0.0, ks=1.0, alpha=d["alpha"], f0=1.0, distribution=d["distribution"])
         v = lobe.eval(wi, wo) * np.asarray(d["specular_reflectance"]["value"])
@@ -163,16 +190,45 @@ def mitsuba_export(model, path=None, *, approx: bool = False, option: str = "--m
     its error against the model, why it is not exact. Refused unless exact, within tolerance, or ``approx``."""
     from pathlib import Path
 
-    from gonio.io.approx import Exported, direction_pairs, relative_error
+    from gonio.io.approx import EXACT, Exported, direction_pairs, relative_error
 
     reasons: list[str] = []
     d = to_mitsuba_dict(model, option, approx, reasons)
     wi, wo = direction_pairs()
-    err = relative_error(mitsuba_eval(d, wi, wo), model.eval(wi, wo))
+    want = model.eval(wi, wo)
+    err = relative_error(mitsuba_eval(d, wi, wo), want)
+    if approx and err >= EXACT:
+        plastic = _roughplastic_candidate(model, wi, wo)
+        if plastic is not None:
+            pd, why = plastic
+            perr = relative_error(mitsuba_eval(pd, wi, wo), want)
+            if perr < err:
+                reasons = why + [f"closer than diffuse + roughconductor ({100 * err:.2f} %)"]
+                d, err = pd, perr
+            else:
+                reasons.append(f"closer than roughplastic ({100 * perr:.2f} %)")
     xml = path is not None and Path(path).suffix.lower() == ".xml"
-    text = to_mitsuba_xml(model, option, approx) if xml else json.dumps(d, indent=2) + "\n"
+    text = _xml(d) if xml else json.dumps(d, indent=2) + "\n"
     ex = Exported("Mitsuba 3", text, err, reasons)
-    return ex.check(approx, option)  # exact, within TOLERANCE, or asked for
+    return ex.check(approx, option)  # exact, within tolerance, or asked for
+
+
+def _roughplastic_candidate(model, wi, wo):
+    """``(roughplastic dict, reasons)`` for a diffuse term plus one lobe of grey f0 < 1 (a dielectric: plastics,
+    paints' clear coats), else None (:mod:`gonio.io.mitsuba_plastic`)."""
+    from gonio.io.approx import decompose
+    from gonio.io.mitsuba_plastic import roughplastic_dict
+
+    try:
+        dec = decompose(model, "Mitsuba 3")
+    except ConfigError:
+        return None
+    if len(dec.lobes) != 1:
+        return None
+    lobe = dec.lobes[0]
+    if np.ptp(lobe.f0) > 1e-9 or lobe.f0[0] >= 1.0 - F0_TOLERANCE or lobe.f0[0] <= 0:
+        return None
+    return roughplastic_dict(dec.diffuse, lobe.ks, float(lobe.f0[0]), lobe.alpha, lobe.distribution, wi, wo)
 
 
 def write_mitsuba(model, path, *, approx: bool = False):

@@ -78,10 +78,11 @@ def pbrt_eval(terms, wi, wo) -> np.ndarray:
     return np.where(above[..., None], np.nan_to_num(total), 0.0)
 
 
-def pbrt_terms(model) -> tuple[list, list[str]]:
-    """The weighted terms of the closest pbrt-v4 material and why it is not exact."""
-    dec = decompose(model, "pbrt")
+def pbrt_terms(model, approx: bool = False) -> tuple[list, list[str]]:
+    """The weighted terms of the closest pbrt-v4 material and why it is not exact (``approx``: a model pbrt
+    has no counterpart for is taken as :func:`gonio.io.approx.closest_lobes`)."""
     reasons: list[str] = []
+    dec = decompose(model, "pbrt", approx=approx, reasons=reasons)
     terms = []
     d = dec.diffuse
     if np.any(d > 0):
@@ -146,9 +147,9 @@ def _text(terms, name: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def to_pbrt(model, name: str = "gonio") -> Exported:
+def to_pbrt(model, name: str = "gonio", approx: bool = False) -> Exported:
     """The pbrt-v4 material text, with its error against ``model``."""
-    terms, reasons = pbrt_terms(model)
+    terms, reasons = pbrt_terms(model, approx)
     wi, wo = direction_pairs()
     err = relative_error(pbrt_eval(terms, wi, wo), model.eval(wi, wo))
     return Exported("pbrt-v4", _text(terms, name), err, reasons)
@@ -158,4 +159,4 @@ def write_pbrt(model, path, *, approx: bool = False, option: str = "--pbrt") -> 
     """Write ``model`` as ``path`` (.pbrt); refused unless exact or ``approx``."""
     from pathlib import Path
 
-    return to_pbrt(model, name=Path(path).stem).check(approx, option).write(path, option)
+    return to_pbrt(model, name=Path(path).stem, approx=approx).check(approx, option).write(path, option)

@@ -168,3 +168,94 @@ def test_cli_refuses_an_unknown_candidate_before_fitting(tmp_path, capsys):
     assert main(["fit", str(path), "--select", "--candidates", "foo,lambert"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "foo" in err and "unknown model" in err
+
+
+def test_abc_smooth_kernel_matches_the_model():
+    from gonio.fit.kernels import kernel_for
+    from gonio.fit.layout import Basis, Layout
+
+    s = prepare(synth("abc-smooth", {"kd": 0.01, "A": 50.0, "B": 3e3, "C": 1.7, "eta": 2.3}, n=300))
+    for fixed, shape in (({}, [3e3, 1.7, 2.3]), ({"eta": 1.6}, [20.0, 0.9])):
+        L = Layout("abc-smooth", fixed)
+        assert kernel_for(L) is not None
+        fast = Basis(L, s, kernel_for(L))(np.array(shape))
+        slow = Basis(L, s, None)(np.array(shape))
+        for a, b in zip(fast[1], slow[1]):
+            np.testing.assert_allclose(np.broadcast_to(a[:, None], b.shape), b, rtol=1e-9, atol=1e-14)
+
+
+def test_polished_metal_peak_that_widens_towards_grazing_is_fitted_by_abc_smooth(merl_cells):
+    # a Rayleigh-Rice peak (its width in theta_h grows as 1/cos theta_d, as on measured chrome) with a
+    # dielectric-like Fresnel rise: the fit finds the narrow basin (B ~ 4e4 of [1e-2, 1e8], eta ~ 2) rather
+    # than the metal-like eta = 100 one, and nothing is reported at a bound
+    wi, wo = merl_cells[0][:6000], merl_cells[1][:6000]
+    truth = make("abc-smooth", kd=[0.002, 0.0015, 0.0017], A=[3500.0, 3700.0, 3700.0], B=3.6e4, C=1.76, eta=2.3)
+    d = prepare((wi, wo, truth.eval(wi, wo)), source="chrome-like")
+    r = fit(d, "abc-smooth", report=False, n_starts=1)
+    assert r.params["B"] == pytest.approx(3.6e4, rel=0.05) and r.params["eta"] == pytest.approx(2.3, rel=0.05)
+    np.testing.assert_allclose(r.params["kd"], [0.002, 0.0015, 0.0017], rtol=0.05)
+    assert r.at_bound == {}
+
+
+def test_log_searched_width_far_from_its_floor_is_not_reported_at_a_bound():
+    from gonio.fit.fit import bound_report
+    from gonio.fit.layout import model_class
+
+    cls = model_class("blinn-phong")  # exponent in [0, 1e6], searched in log space from 1
+    assert bound_report(cls, {"exponent": 500.0}, {"exponent": 1.0}) == {}
+    assert bound_report(cls, {"exponent": 1.0}, {"exponent": 1.0}) == {"exponent": {"value": "lower 1"}}
+    assert "exponent" in bound_report(cls, {"exponent": 1e6}, {"exponent": 1.0})
+
+
+def test_fix_accepts_the_names_fit_prints_at_the_api_level():
+    from gonio.fit.layout import model_class, resolve_fixed
+
+    cls = model_class("lambert+2ggx")
+    assert resolve_fixed(cls, {"f0": 1.0}) == {"lobe1.f0": 1.0, "lobe2.f0": 1.0}
+    assert resolve_fixed(cls, {"lobe1.f0": 1.0}) == {"lobe1.f0": 1.0}
+    assert resolve_fixed(cls, {"lobe2.ks.r": 0.1, "lobe2.ks.g": 0.2, "lobe2.ks.b": 0.3}) == {"lobe2.ks": [0.1, 0.2, 0.3]}
+    with pytest.raises(ConfigError, match=r"unknown parameter; lambert\+2ggx has diffuse.albedo, .*lobe1.f0") as e:
+        resolve_fixed(cls, {"lobe3.f0": 1.0})
+    assert "\n" not in str(e.value)
+    with pytest.raises(ConfigError, match=r"also give lobe1.ks.g, lobe1.ks.b"):
+        resolve_fixed(cls, {"lobe1.ks.r": 0.1})
+    s = synth("lambert+ggx", {"diffuse.albedo": 0.1, "lobe1.ks": 0.4, "lobe1.alpha": 0.2}, n=600)
+    r = fit(s, "lambert+ggx", fixed={"f0": 1.0, "diffuse.albedo.r": 0.1, "diffuse.albedo.g": 0.1,
+                                     "diffuse.albedo.b": 0.1}, report=False)
+    assert r.params["lobe1.f0"] == [1.0, 1.0, 1.0] and r.params["diffuse.albedo"] == [0.1, 0.1, 0.1]
+    assert "lobe1.f0" not in r.uncertainty
+    import gonio
+
+    r2 = gonio.fit(s, "lambert+ggx", fix={"lobe1.f0": 1.0}, report=False)  # the --fix name at the top level
+    assert r2.params["lobe1.f0"] == [1.0, 1.0, 1.0] and "lobe1.f0" not in r2.uncertainty
+    with pytest.raises(ConfigError, match=r"^fix = \{'f0': 1\.0\}: unknown parameter|unknown parameter; lambert has albedo"):
+        gonio.fit(s, "lambert", fix={"f0": 1.0})
+
+
+def test_cv_folds_in_threads_score_as_in_turn(monkeypatch):
+    import gonio.fit.select as sel
+    from gonio.fit.losses import LOSSES
+
+    d = prepare(synth("lambert+ggx", {"diffuse.albedo": 0.1, "lobe1.ks": 0.4, "lobe1.alpha": 0.2}, n=600))
+    start = fit(d, "lambert+ggx", report=False).params
+    kw = {"report": False}
+    monkeypatch.setattr(sel, "free_cores", lambda: 1)
+    serial = sel._cv_score(d, "lambert+ggx", LOSSES["robust"], 3, 0, kw, start=start)
+    monkeypatch.setattr(sel, "free_cores", lambda: 3)
+    threaded = sel._cv_score(d, "lambert+ggx", LOSSES["robust"], 3, 0, kw, start=start)
+    assert threaded == pytest.approx(serial, rel=1e-12)
+
+
+def test_free_cores_counts_allowed_cpus_minus_load(monkeypatch):
+    import os
+
+    from gonio.fit.select import free_cores
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.2, 0.0, 0.0))
+    assert free_cores() == 2
+    monkeypatch.setattr(os, "getloadavg", lambda: (7.5, 0.0, 0.0))
+    assert free_cores() == 1
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0}, raising=False)  # taskset -c 0
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    assert free_cores() == 1

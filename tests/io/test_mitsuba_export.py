@@ -58,7 +58,7 @@ def test_exported_bsdf_reproduces_the_model(name, params):
 def test_models_without_an_exact_plugin_are_refused():
     with pytest.raises(ConfigError, match=r"f0 .*Schlick's Fresnel with f0 < 1 has no exact Mitsuba 3 plugin"):
         to_mitsuba_dict(make("microfacet", kd=0.3, ks=0.8, alpha=0.25, f0=0.04, distribution="ggx"))
-    with pytest.raises(ConfigError, match="has no exact Mitsuba 3 counterpart"):
+    with pytest.raises(ConfigError, match="has no exact Mitsuba 3 counterpart"):  # unless --approx
         to_mitsuba_dict(make("blinn-phong", kd=0.3, ks=0.5, exponent=50))
 
 
@@ -127,3 +127,71 @@ def test_dielectric_lobes_export_with_approx_as_the_closest_plugin_with_the_true
     independent = relative_error(mitsuba_eval_any(d, wi, wo), model.eval(wi, wo))
     assert independent == pytest.approx(ex.error, rel=1e-6) and 0 < ex.error < 0.1
     assert "APPROXIMATION" in ex.describe() and "exact Fresnel equations" in ex.describe()
+
+
+def test_roughplastic_tables_are_the_lobe_albedo_of_the_published_formula():
+    # Mitsuba's roughplastic: t(mu) = 1 - R(mu; eta), R the directional albedo of the dielectric lobe; the
+    # quadrature against a plain Monte Carlo estimate of the same integral
+    from gonio.brdf.fresnel import dielectric
+    from gonio.io.mitsuba_plastic import lobe_albedo
+
+    rng = np.random.default_rng(0)
+    n = 200_000
+    u1, u2 = rng.random(n), rng.random(n)
+    wo = np.stack([np.sqrt(u1) * np.cos(2 * np.pi * u2), np.sqrt(u1) * np.sin(2 * np.pi * u2), np.sqrt(1 - u1)], -1)
+    for mu, eta, alpha in ((0.9, 1.5, 0.2), (0.5, 1 / 1.5, 0.3)):
+        wi = np.broadcast_to([np.sqrt(1 - mu * mu), 0.0, mu], wo.shape)
+        h = (wi + wo) / np.linalg.norm(wi + wo, axis=-1, keepdims=True)
+        f = make("microfacet", kd=0.0, ks=1.0, alpha=alpha, f0=1.0, distribution="ggx").eval(wi, wo)[:, 0]
+        mc = np.pi * np.mean(f * dielectric(np.sum(wi * h, -1), eta))  # cosine-weighted sampling: pdf cos/pi
+        assert lobe_albedo([mu], eta, alpha)[0] == pytest.approx(mc, rel=0.01)
+
+
+def test_roughplastic_export_evaluates_by_mitsubas_formulas():
+    from gonio.brdf.fresnel import dielectric
+    from gonio.io.approx import direction_pairs
+    from gonio.io.mitsuba_plastic import roughplastic_dict, roughplastic_eval, roughplastic_tables
+
+    wi, wo = direction_pairs(2000)
+    d, reasons = roughplastic_dict([0.3, 0.2, 0.1], [0.8, 0.8, 0.8], 0.04, 0.2, "ggx", wi, wo)
+    assert d["type"] == "roughplastic" and d["int_ior"] == pytest.approx(1.5) and not d["nonlinear"]
+    f = roughplastic_eval(d, wi, wo)
+    # specular part: ks * F_dielectric * D G / (4 cos cos); diffuse part: rho/(1 - R_int) t_i t_o / (pi eta^2)
+    h = (wi + wo) / np.linalg.norm(wi + wo, axis=-1, keepdims=True)
+    spec = make("microfacet", kd=0.0, ks=0.8, alpha=0.2, f0=1.0).eval(wi, wo) * dielectric(np.sum(wi * h, -1), 1.5)[:, None]
+    t, r_int = roughplastic_tables(1.5, 0.2, "ggx")
+    ti, to = np.interp(wi[:, 2], np.linspace(0, 1, 64), t), np.interp(wo[:, 2], np.linspace(0, 1, 64), t)
+    diff = np.asarray(d["diffuse_reflectance"]["value"]) / (1 - r_int) * (ti * to / (np.pi * 1.5 ** 2))[:, None]
+    np.testing.assert_allclose(f, spec + diff, rtol=1e-4)
+    assert 0.0 < r_int < 1.0 and np.all((t > 0.7) & (t < 1.0))  # a plastic's coating: mostly transmitted
+    # the diffuse reflectance matches the model's albedo/pi on average: the ratio is near 1 where t ~ 1
+    assert 0.2 < d["diffuse_reflectance"]["value"][0] < 0.45
+
+
+def test_dielectric_lobe_export_chooses_the_closer_plugin_and_prints_the_other(tmp_path):
+    from gonio.io.approx import direction_pairs, relative_error
+    from gonio.io.mitsuba import mitsuba_eval, mitsuba_export
+
+    for albedo in ([0.3, 0.2, 0.1], [0.0, 0.0, 0.0]):
+        model = make("lambert+ggx", **{"diffuse.albedo": albedo, "lobe1.ks": 0.8, "lobe1.alpha": 0.2,
+                                       "lobe1.f0": 0.04})
+        ex = mitsuba_export(model, tmp_path / "p.json", approx=True)
+        d = json.loads(ex.text)
+        wi, wo = direction_pairs()
+        assert relative_error(mitsuba_eval(d, wi, wo), model.eval(wi, wo)) == pytest.approx(ex.error, rel=1e-9)
+        assert re.search(r"closer than (roughplastic|diffuse \+ roughconductor) \(\d+\.\d\d %\)", ex.describe())
+
+
+def test_models_without_a_plugin_export_as_the_fitted_closest_with_approx(tmp_path):
+    from gonio.io.approx import direction_pairs, relative_error
+    from gonio.io.mitsuba import mitsuba_eval, mitsuba_export
+
+    model = make("gtr", kd=[0.07, 0.1, 0.04], ks=[0.22, 0.24, 0.16], alpha=0.4, gamma=1.2, f0=1.0)
+    with pytest.raises(ConfigError, match="no exact Mitsuba 3 counterpart.*pass --approx"):
+        mitsuba_export(model)
+    ex = mitsuba_export(model, tmp_path / "g.xml", approx=True)
+    assert ET.fromstring(ex.text).tag == "bsdf"
+    d = to_mitsuba_dict(model, approx=True)
+    wi, wo = direction_pairs()
+    assert relative_error(mitsuba_eval(d, wi, wo), model.eval(wi, wo)) == pytest.approx(ex.error, rel=1e-6)
+    assert 0 < ex.error < 0.15 and "gtr has no Mitsuba 3 counterpart" in ex.describe()

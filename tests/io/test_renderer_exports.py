@@ -269,3 +269,13 @@ def test_export_of_a_fit_json_to_every_renderer(plastic_csv, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "exports a fit result (gonio fit --json FIT.json), and this is a gonio CSV export" in err
     assert err.count("\n") == 1
+
+
+def test_models_without_a_counterpart_export_with_approx_as_a_fitted_lambert_ggx():
+    model = make("gtr", kd=[0.07, 0.1, 0.04], ks=[0.22, 0.24, 0.16], alpha=0.4, gamma=1.2, f0=1.0)
+    for to, target in ((to_pbrt, "pbrt"), (to_gltf, "glTF")):
+        with pytest.raises(ConfigError, match="no counterpart to export.*pass --approx"):
+            to(model)
+        ex = to(model, approx=True)
+        assert 0 < ex.error < 0.2 and f"gtr has no {target} counterpart" in ex.describe()
+        assert "APPROXIMATION" in ex.describe()

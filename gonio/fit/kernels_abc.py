@@ -1,0 +1,47 @@
+"""Precomputed-geometry kernels of the models for real measurements (:mod:`gonio.brdf.abc`), registered in
+:data:`gonio.fit.kernels.KERNELS` (same contract: the colour basis of the model from geometry cached on the
+data; equality with the model's ``eval`` is a test, tests/fit/test_real_data.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gonio.brdf.abc import abc_s
+from gonio.brdf.fresnel import dielectric
+
+
+def _projected_x(data) -> np.ndarray:
+    """‖wi⊥ + wo⊥‖², the squared projection of wi + wo on the surface plane, cached per dataset."""
+    cache = data.__dict__.setdefault("_kernel_cache", {})
+    if "abc_x" not in cache:
+        px = data.wi[:, 0] + data.wo[:, 0]
+        py = data.wi[:, 1] + data.wo[:, 1]
+        cache["abc_x"] = px * px + py * py
+    return cache["abc_x"]
+
+
+def _fresnel(data, eta: float) -> np.ndarray:
+    """Exact dielectric Fresnel reflectance at θd (:func:`gonio.brdf.fresnel.dielectric`), kept for the last η."""
+    cache = data.__dict__.setdefault("_kernel_cache", {})
+    hit = cache.get("abc_fresnel")
+    if hit is None or hit[0] != eta:
+        hit = cache["abc_fresnel"] = (eta, dielectric(np.clip(data.cos_d, 0.0, 1.0), eta))
+    return hit[1]
+
+
+def abc_smooth(data, layout, shape):
+    """Löw et al. 2012's smooth-surface ABC model (:class:`gonio.brdf.abc.ABCSmooth`): bases kd → 1/π,
+    A → S(‖wi⊥ + wo⊥‖²; B, C) · F(θd; η) with S(x) = 1/(1 + B x)^C (their §4, eq. 7)."""
+    p = {**layout.fixed, **shape}
+    s = abc_s(_projected_x(data), 1.0, p["B"], p["C"])[..., 0] * _fresnel(data, float(p["eta"]))
+    basis = {"kd": np.full(len(data), 1.0 / np.pi), "A": s}
+    offset = None
+    for k in ("kd", "A"):
+        if k in layout.fixed and np.any(np.asarray(layout.fixed[k]) != 0):
+            b = basis[k][:, None]
+            offset = (0.0 if offset is None else offset) + np.asarray(layout.fixed[k]) * b
+    return offset, [basis[k] for k in layout.colour]
+
+
+abc_smooth.supports = lambda L: set(L.colour) <= {"kd", "A"}
+KERNELS_ABC = {"abc-smooth": abc_smooth}
