@@ -58,7 +58,7 @@ def run(quick: bool = False) -> list[Table]:
     t.baseline = 0
     t.notes.append(f"baseline timed on the first {limit} pixels of the 64² disc; × baseline = per-pixel time ratio; "
                    "each BRDF has its own loop row, and its ratios are against that row")
-    from gonio.report import png_bytes
+    from gonio.render import png_bytes
 
     v = Table("One gonio view sphere request (128², render + tonemap + PNG)", ["BRDF", "ms per request"])
     for name, brdf in (("microfacet (analytic)", model),):

@@ -7,6 +7,7 @@ The Python API (see the README's "Python API" section and ``docs/``)::
     result = gonio.fit(data, "lambert+ggx")     # one model; gonio.select(data) chooses among several
     print(result)                               # parameter table with uncertainties
     result.model.eval(wi, wo)                   # the fitted BRDF, evaluable (1/sr, RGB)
+    gonio.render_sphere(result.model, [gonio.light_from_angles(35)])   # a lit sphere (shows in a notebook)
 
 Subpackages: :mod:`gonio.geometry`, :mod:`gonio.lights` and :mod:`gonio.brdf` are the pure physics
 core; :mod:`gonio.rig` talks to hardware; :mod:`gonio.pipeline`, :mod:`gonio.plan` and
@@ -24,6 +25,7 @@ _API = {
     "load": "gonio.api", "select": "gonio.api", "as_samples": "gonio.api",
     "Measured": "gonio.io.source", "SampleSet": "gonio.samples", "FitResult": "gonio.fit.result",
     "Selection": "gonio.fit.select", "make": "gonio.brdf", "MODELS": "gonio.brdf",
+    "render_sphere": "gonio.render", "light_from_angles": "gonio.render",
 }
 
 __all__ = ["fit", *_API]

@@ -29,17 +29,54 @@ from gonio.errors import ConfigError
 from gonio.geometry import frame_from_normal, to_local
 from gonio.lights import DirectionalLight, Light
 
-__all__ = ["Render", "render_sphere", "sphere_points", "tonemap", "light_from_angles"]
+__all__ = ["Render", "render_sphere", "sphere_points", "tonemap", "light_from_angles", "png_bytes"]
 
 
 @dataclass(frozen=True)
 class Render:
     """A rendered sphere: ``radiance`` (size, size, 3) in the lights' units × 1/sr, ``mask`` (size, size)
-    of pixels on the sphere, and ``missing``: pixels whose BRDF value was not finite (rendered as 0)."""
+    of pixels on the sphere, and ``missing``: pixels whose BRDF value was not finite (rendered as 0).
+
+    In a notebook it displays itself (``_repr_png_``: :meth:`to_srgb` with the default white, the
+    pixels off the sphere transparent); :meth:`save` writes the same PNG."""
 
     radiance: np.ndarray
     mask: np.ndarray
     missing: int = 0
+
+    def to_srgb(self, white: float | None = None) -> np.ndarray:
+        """The 8-bit sRGB image (:func:`tonemap`)."""
+        return tonemap(self.radiance, white=white)
+
+    def png(self, white: float | None = None) -> bytes:
+        """PNG bytes of :meth:`to_srgb`, transparent off the sphere."""
+        return png_bytes(self.to_srgb(white), self.mask)
+
+    def save(self, path, white: float | None = None):
+        """Write :meth:`png` to ``path`` (a ``.png`` file); returns the path."""
+        from pathlib import Path
+
+        path = Path(path)
+        if path.suffix.lower() != ".png":
+            raise ConfigError.field(None, "path", str(path), "a rendered sphere is written as .png")
+        path.write_bytes(self.png(white))
+        return path
+
+    def _repr_png_(self) -> bytes:
+        return self.png()
+
+
+def png_bytes(img: np.ndarray, mask: np.ndarray | None = None) -> bytes:
+    """An 8-bit RGB image as PNG bytes; with ``mask``, RGBA with the pixels off the sphere transparent."""
+    import cv2
+
+    bgr = img[..., ::-1]
+    if mask is not None:
+        bgr = np.concatenate([bgr, np.where(mask, 255, 0).astype(np.uint8)[..., None]], axis=-1)
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(bgr))
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()
 
 
 def sphere_points(size: int) -> tuple[np.ndarray, np.ndarray]:

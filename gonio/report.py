@@ -26,6 +26,7 @@ import numpy as np
 
 from gonio.errors import ConfigError
 from gonio.geometry import from_spherical
+from gonio.render import png_bytes
 
 __all__ = ["Entry", "load_entries", "build_report", "sphere_panel", "slice_figure", "fit_table", "comparison_table",
            "LIGHT_ANGLES_DEG"]
@@ -192,19 +193,6 @@ def residual_figure(entry: Entry):
     fig.update_layout(title=f"{entry.name}: residuals (f − model)/σ, mean of R, G, B", barmode="overlay", height=320,
                       xaxis_title="(f − model) / σ", yaxis_title="probability density")
     return fig
-
-
-def png_bytes(img: np.ndarray, mask: np.ndarray | None = None) -> bytes:
-    """An 8-bit RGB image as PNG bytes; with ``mask``, RGBA with the pixels off the sphere transparent."""
-    import cv2
-
-    bgr = img[..., ::-1]
-    if mask is not None:
-        bgr = np.concatenate([bgr, np.where(mask, 255, 0).astype(np.uint8)[..., None]], axis=-1)
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(bgr))
-    if not ok:
-        raise RuntimeError("PNG encoding failed")
-    return buf.tobytes()
 
 
 def _png(img: np.ndarray, mask: np.ndarray | None = None) -> str:

@@ -16,7 +16,8 @@ import threading
 import urllib.parse
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
-from gonio.report import Entry, build_report, png_bytes, slice_figure, sphere_images, sphere_sources
+from gonio.render import png_bytes
+from gonio.report import Entry, build_report, slice_figure, sphere_images, sphere_sources
 
 __all__ = ["make_server", "interactive_panel"]
 
