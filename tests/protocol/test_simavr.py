@@ -13,11 +13,13 @@ from firmware_protocol import codec as fp
 from gonio.errors import EmergencyStop
 from gonio.rig.controller import RigController
 from protocol.test_emulator_spec import Raw, err
-from sim.simavr import SimavrController, avr_size, build
+from sim.simavr import DEBIAN_PACKAGES, SimavrController, avr_size, build
+from tests.debian import require
 
 
 @pytest.fixture(scope="module")
 def built():
+    require("the firmware's AVR build in simavr", *DEBIAN_PACKAGES)
     return build()
 
 
