@@ -345,3 +345,22 @@ def write_report(out: Path, *, quick: bool = False, trades: list[Trade] | None =
     path = out / "REPORT.md"
     path.write_text("\n".join(head) + "\n" + "\n".join(body), encoding="utf-8")
     return path, failed
+
+
+def write_robustness(out: Path, *, quick: bool = False, stream: TextIO | None = None) -> Path:
+    """``gonio bench --robustness``: :mod:`benchmarks.bench_robustness` (full scale unless ``quick``) as
+    ``out/ROBUSTNESS.md``, each table also written to ``stream`` as it is done."""
+    from benchmarks import bench_robustness
+
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    parts = [f"# gonio robustness ({'quick' if quick else 'full scale'}) — {time.strftime('%Y-%m-%d %H:%M')}, "
+             f"{platform.machine()}, Python {platform.python_version()}\n"]
+    for t in bench_robustness.run(quick=quick):
+        parts.append(t.to_markdown())
+        if stream is not None:
+            print(parts[-1], file=stream, flush=True)
+    parts.append(f"_run: {time.perf_counter() - t0:.0f} s_\n")
+    path = out / "ROBUSTNESS.md"
+    path.write_text("\n".join(parts), encoding="utf-8")
+    return path

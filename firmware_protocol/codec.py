@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from typing import Mapping
 
 PROTOCOL_MAJOR = 2
-PROTOCOL_MINOR = 0
+PROTOCOL_MINOR = 1
 
 MAX_PAYLOAD = 64
 HEADER = 3  # TYPE SEQ LEN
@@ -292,18 +292,25 @@ class Decoder:
 # ================================================================================================
 @dataclass(frozen=True)
 class Field:
-    """One payload field: ``name``, struct code (little-endian), inclusive range, unit (for docs)."""
+    """One payload field: ``name``, struct code (little-endian), inclusive range, unit (for docs), and the
+    minor version that appended it to its message (``since``; SPEC.md §4: a minor version only appends)."""
 
     name: str
     fmt: str
     lo: int
     hi: int
     unit: str = ""
+    since: int = 0
 
 
 @dataclass(frozen=True)
 class MessageSpec:
-    """A message type: its ``code``, ``name`` and payload ``fields`` (in wire order)."""
+    """A message type: its ``code``, ``name`` and payload ``fields`` (in wire order).
+
+    Fields carry the minor version that appended them (:attr:`Field.since`); a session of minor version
+    ``m`` (the lower of the host's and the controller's, SPEC.md §3) carries the fields with
+    ``since <= m``: :meth:`fields_for`, :meth:`size_for`.
+    """
 
     code: int
     name: str
@@ -315,16 +322,25 @@ class MessageSpec:
 
     @property
     def size(self) -> int:
+        """Payload size in the current minor version (:data:`PROTOCOL_MINOR`)."""
         return self._struct.size
+
+    def fields_for(self, minor: int) -> tuple[Field, ...]:
+        """The fields a session of minor version ``minor`` carries (a prefix of :attr:`fields`)."""
+        return tuple(f for f in self.fields if f.since <= minor)
+
+    def size_for(self, minor: int) -> int:
+        """Payload size in a session of minor version ``minor``."""
+        return struct.calcsize("<" + "".join(f.fmt for f in self.fields_for(minor)))
 
 
 def _u(fmt: str) -> tuple[int, int]:
     return {"B": (0, 0xFF), "H": (0, 0xFFFF), "I": (0, 0xFFFFFFFF), "h": (-0x8000, 0x7FFF)}[fmt]
 
 
-def _f(name: str, fmt: str, lo: int | None = None, hi: int | None = None, unit: str = "") -> Field:
+def _f(name: str, fmt: str, lo: int | None = None, hi: int | None = None, unit: str = "", since: int = 0) -> Field:
     dlo, dhi = _u(fmt)
-    return Field(name, fmt, dlo if lo is None else lo, dhi if hi is None else hi, unit)
+    return Field(name, fmt, dlo if lo is None else lo, dhi if hi is None else hi, unit, since)
 
 
 #: The message catalogue (SPEC.md §4), requests and their replies (code | 0x80), and ERROR.
@@ -342,7 +358,8 @@ MESSAGES: dict[int, MessageSpec] = {m.code: m for m in (
     MessageSpec(HEARTBEAT | REPLY_BIT, "HEARTBEAT_REPLY"),
     MessageSpec(SET_LIGHT | REPLY_BIT, "SET_LIGHT_REPLY", (_f("on", "B", 0, 1), _f("level", "H", unit="1/65535"))),
     MessageSpec(READ_PHOTODIODE | REPLY_BIT, "READ_PHOTODIODE_REPLY", (
-        _f("samples", "B", 1, 255), _f("mean", "I", unit="1e-6 rel"), _f("sem", "I", unit="1e-6 rel"))),
+        _f("samples", "B", 1, 255), _f("mean", "I", unit="1e-6 rel"), _f("sem", "I", unit="1e-6 rel"),
+        _f("time_ms", "I", unit="ms", since=1), _f("span_us", "I", unit="us", since=1))),
     MessageSpec(TRIGGER | REPLY_BIT, "TRIGGER_REPLY", (_f("exposure_us", "I", unit="us"), _f("count", "I"))),
     MessageSpec(STATUS | REPLY_BIT, "STATUS_REPLY", (
         _f("flags", "H"), _f("level", "H", unit="1/65535"), _f("temperature", "h", unit="0.01 degC"),
@@ -369,8 +386,11 @@ class Message:
         return self.values[key]
 
 
-def pack_payload(name: str, values: Mapping[str, int]) -> tuple[int, bytes]:
-    """Validate ``values`` against message ``name`` and pack them; return ``(code, payload)``."""
+def pack_payload(name: str, values: Mapping[str, int], session_minor: int = PROTOCOL_MINOR) -> tuple[int, bytes]:
+    """Validate ``values`` against message ``name`` and pack them; return ``(code, payload)``.
+
+    ``session_minor``: the session's minor version; fields appended by a later minor version are not sent
+    (they may be given, and are ignored), every field of ``session_minor`` is required."""
     spec = BY_NAME.get(name)
     if spec is None:
         raise ProtocolError(f"message: unknown name {name!r}")
@@ -378,8 +398,9 @@ def pack_payload(name: str, values: Mapping[str, int]) -> tuple[int, bytes]:
     extra = set(values) - set(names)
     if extra:
         raise ProtocolError(f"{name}: unknown field {sorted(extra)[0]!r}; fields: {', '.join(names) or 'none'}")
+    fields = spec.fields_for(session_minor)
     out = []
-    for f in spec.fields:
+    for f in fields:
         if f.name not in values:
             raise ProtocolError(f"{name}: missing field {f.name!r}")
         v = values[f.name]
@@ -388,32 +409,48 @@ def pack_payload(name: str, values: Mapping[str, int]) -> tuple[int, bytes]:
         if not isinstance(v, int) or not f.lo <= v <= f.hi:
             raise ProtocolError(f"{name}: {f.name} = {v!r}: must be an integer in [{f.lo}, {f.hi}]")
         out.append(v)
-    return spec.code, spec._struct.pack(*out)
+    if len(fields) == len(spec.fields):
+        return spec.code, spec._struct.pack(*out)
+    return spec.code, struct.pack("<" + "".join(f.fmt for f in fields), *out)
 
 
-def encode_message(name: str, seq: int, **values: int) -> bytes:
-    """Wire bytes of message ``name`` with sequence number ``seq`` and field ``values``."""
-    code, payload = pack_payload(name, values)
+def encode_message(name: str, seq: int, *, session_minor: int = PROTOCOL_MINOR, **values: int) -> bytes:
+    """Wire bytes of message ``name`` with sequence number ``seq`` and field ``values`` (in a session of
+    minor version ``session_minor``: see :func:`pack_payload`)."""
+    code, payload = pack_payload(name, values, session_minor)
     return encode_frame(code, seq, payload)
 
 
-def decode_message(frame: Frame) -> Message:
+def decode_message(frame: Frame, session_minor: int | None = None) -> Message:
     """Unpack a frame's payload by the catalogue; :class:`ProtocolError` on unknown type or bad size.
 
-    Values are only range-checked by the receiver's logic, not here (a controller answers BAD_VALUE).
+    ``session_minor``: the session's minor version, whose payload size is then required exactly; None accepts
+    the size of any minor version up to :data:`PROTOCOL_MINOR` (before the handshake, or a tool that reads
+    both), and the message then holds the fields that size carries. Values are only range-checked by the
+    receiver's logic, not here (a controller answers BAD_VALUE).
     """
     spec = MESSAGES.get(frame.type)
     if spec is None:
         raise ProtocolError(f"message: unknown type 0x{frame.type:02X}")
-    if len(frame.payload) != spec.size:
-        raise ProtocolError(f"{spec.name}: payload is {len(frame.payload)} bytes, expected {spec.size}")
-    vals = spec._struct.unpack(frame.payload)
-    return Message(spec.name, frame.seq, dict(zip((f.name for f in spec.fields), vals)))
+    n = len(frame.payload)
+    if n == spec.size and (session_minor is None or session_minor >= PROTOCOL_MINOR):
+        vals = spec._struct.unpack(frame.payload)
+        return Message(spec.name, frame.seq, dict(zip((f.name for f in spec.fields), vals)))
+    minors = range(PROTOCOL_MINOR + 1) if session_minor is None else (min(session_minor, PROTOCOL_MINOR),)
+    for m in sorted(minors, reverse=True):
+        if n == spec.size_for(m):
+            fields = spec.fields_for(m)
+            vals = struct.unpack("<" + "".join(f.fmt for f in fields), frame.payload)
+            return Message(spec.name, frame.seq, dict(zip((f.name for f in fields), vals)))
+    expected = spec.size_for(session_minor) if session_minor is not None else spec.size
+    raise ProtocolError(f"{spec.name}: payload is {n} bytes, expected {expected}")
 
 
 def check_ranges(msg: Message) -> str | None:
     """Name of the first field of ``msg`` outside its catalogue range, or None if all are in range."""
     for f in BY_NAME[msg.name].fields:
+        if f.name not in msg.values:
+            continue  # appended by a later minor version than the message's
         if not f.lo <= msg.values[f.name] <= f.hi:
             return f.name
     return None

@@ -45,7 +45,9 @@ def build() -> dict:
         ("SET_LIGHT_REPLY", 2, {"on": 1, "level": 65535}),
         ("SET_LIGHT", 3, {"on": 0, "level": 0}),
         ("READ_PHOTODIODE", 4, {"samples": 16}),
-        ("READ_PHOTODIODE_REPLY", 4, {"samples": 16, "mean": 987654, "sem": 500}),
+        ("READ_PHOTODIODE_REPLY", 4, {"samples": 16, "mean": 987654, "sem": 500, "time_ms": 123457,
+                                      "span_us": 1560}),
+        ("READ_PHOTODIODE_REPLY", 4, {"samples": 16, "mean": 987654, "sem": 500}, 0),  # a 2.0 session
         ("TRIGGER", 5, {"exposure_us": 20000}),
         ("TRIGGER_REPLY", 5, {"exposure_us": 20000, "count": 1}),
         ("STATUS", 6, {}),
@@ -59,9 +61,10 @@ def build() -> dict:
         ("HEARTBEAT", 255, {}),
     ]
     messages = []
-    for name, seq, values in msgs:
-        code, payload = c.pack_payload(name, values)
-        messages.append({"name": name, "seq": seq, "values": values,
+    for name, seq, values, *minor in msgs:
+        session_minor = minor[0] if minor else c.PROTOCOL_MINOR  # the fields of that minor version (SPEC.md §3)
+        code, payload = c.pack_payload(name, values, session_minor)
+        messages.append({"name": name, "seq": seq, "session_minor": session_minor, "values": values,
                          "frame": {"type": code, "seq": seq, "payload": payload.hex()},
                          "bytes": c.encode_frame(code, seq, payload).hex()})
 
@@ -111,6 +114,8 @@ def build() -> dict:
         {"description": "unknown type", "frame": {"type": 0x42, "seq": 1, "payload": "0102"}},
         {"description": "SET_LIGHT with a 2-byte payload", "frame": {"type": 3, "seq": 1, "payload": "01ff"}},
         {"description": "STATUS with a payload", "frame": {"type": 6, "seq": 1, "payload": "00"}},
+        {"description": "READ_PHOTODIODE_REPLY of neither the 2.0 (9) nor the 2.1 size (17)",
+         "frame": {"type": 0x84, "seq": 1, "payload": "00" * 13}},
     ]
     return {
         "protocol": {"major": c.PROTOCOL_MAJOR, "minor": c.PROTOCOL_MINOR},

@@ -25,7 +25,7 @@ from gonio.brdf.base import BRDF
 from gonio.errors import ConfigError, HardwareError
 from gonio.geometry import dot, normalize, to_local
 from gonio.pipeline.target import CameraCalibration, CameraPose, NoiseModel, TargetLayout, surface_frame
-from gonio.rig.interfaces import Clock, Frame
+from gonio.rig.interfaces import Clock, Frame, PhotodiodeReading
 
 __all__ = ["SensorModel", "SimScene", "SimCamera", "SceneLight", "normal_table"]
 
@@ -191,9 +191,11 @@ class SceneLight:
             return 0.0
         return self._level * (1.0 - self.drift * np.exp(-self.clock.now() / self.tau))
 
-    def read_photodiode(self, samples: int = 1) -> tuple[float, float]:
+    def read_photodiode(self, samples: int = 1) -> PhotodiodeReading:
         sigma = self.pd_noise / np.sqrt(max(samples, 1))
-        return self.output() + (self._rng.normal(0.0, sigma) if sigma > 0 else 0.0), sigma
+        now = self.clock.now()
+        return PhotodiodeReading(self.output() + (self._rng.normal(0.0, sigma) if sigma > 0 else 0.0), sigma,
+                                 samples=samples, time=now, uptime=now, span=0.0)
 
 
 class SimCamera:

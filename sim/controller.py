@@ -55,20 +55,21 @@ class ControllerEmulator(PtyServer):
         Photodiode gain g and per-sample noise σ (relative units).
     ambient_c, heating_c, thermal_tau : float
         Temperature model: T_amb, ΔT at full level, τ_th (seconds).
-    capabilities, major : int
-        What HELLO reports (tests change them to exercise the host's checks).
+    capabilities, major, minor : int
+        What HELLO reports (tests change them to exercise the host's checks; ``minor = 0`` acts as a
+        protocol 2.0 controller, whose photodiode replies carry no timestamp).
     """
 
     def __init__(self, clock, *, faults: LinkFaults | None = None, seed: int = 0, warmup_depth: float = 0.05,
                  warmup_tau: float = 120.0, pd_gain: float = 1.0, pd_noise: float = 0.002, ambient_c: float = 25.0,
                  heating_c: float = 15.0, thermal_tau: float = 600.0, capabilities: int = ALL_CAPABILITIES,
-                 major: int = fp.PROTOCOL_MAJOR, name: str = "controller"):
+                 major: int = fp.PROTOCOL_MAJOR, minor: int = fp.PROTOCOL_MINOR, name: str = "controller"):
         super().__init__(name, faults)
         self.clock = clock
         self.warmup_depth, self.warmup_tau = float(warmup_depth), float(warmup_tau)
         self.pd_gain, self.pd_noise = float(pd_gain), float(pd_noise)
         self.ambient_c, self.heating_c, self.thermal_tau = float(ambient_c), float(heating_c), float(thermal_tau)
-        self.capabilities, self.major = int(capabilities), int(major)
+        self.capabilities, self.major, self.minor = int(capabilities), int(major), int(minor)
         self._rng = np.random.default_rng(seed)
         self._lock = threading.RLock()
         self._decoder = fp.Decoder()
@@ -86,6 +87,7 @@ class ControllerEmulator(PtyServer):
         now = self.clock.now()
         self._boot = now
         self._configured = False
+        self.session_minor = 0  #: min(host's minor from HELLO, own minor): the fields replies carry
         self._light_on = False
         self._level = 0
         self._on_since = now
@@ -220,7 +222,8 @@ class ControllerEmulator(PtyServer):
             if v["major"] != self.major:
                 return self._error(frame, fp.ERR_VERSION)
             self._configured = True
-            out = dict(major=self.major, minor=fp.PROTOCOL_MINOR, capabilities=self.capabilities,
+            self.session_minor = min(v["minor"], self.minor)
+            out = dict(major=self.major, minor=self.minor, capabilities=self.capabilities,
                        firmware=FIRMWARE_VERSION, max_payload=fp.MAX_PAYLOAD, watchdog_ms=self._watchdog_ms)
         elif frame.type == fp.HEARTBEAT:
             out = {}
@@ -240,7 +243,9 @@ class ControllerEmulator(PtyServer):
             n = v["samples"]
             x = self.pd_gain * self._output(now) + self._rng.normal(0.0, self.pd_noise, n)
             sem = x.std(ddof=1) / math.sqrt(n) if n > 1 else self.pd_noise
-            out = dict(samples=n, mean=_u32(x.mean() / fp.MICRO), sem=_u32(sem / fp.MICRO))
+            # all n samples are taken at this instant of the Clock: span 0, time = uptime now (SPEC.md §4.4)
+            out = dict(samples=n, mean=_u32(x.mean() / fp.MICRO), sem=_u32(sem / fp.MICRO),
+                       time_ms=_u32((now - self._boot) * 1000), span_us=0)
         elif frame.type == fp.TRIGGER:
             if now < self._trigger_end:
                 return self._error(frame, fp.ERR_BUSY)
@@ -258,7 +263,7 @@ class ControllerEmulator(PtyServer):
         else:  # a request type in the catalogue without a handler would be a bug of this emulator
             return self._error(frame, fp.ERR_UNKNOWN_TYPE)
         self.executed[msg.name] += 1
-        return fp.encode_message(reply_name, seq, **out)
+        return fp.encode_message(reply_name, seq, session_minor=self.session_minor, **out)
 
     def _flags(self, now: float) -> int:
         flags = 0

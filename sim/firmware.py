@@ -39,7 +39,8 @@ _lib = None
 
 class FwConfig(ctypes.Structure):
     """``fw_config`` of fw.h."""
-    _fields_ = [("capabilities", ctypes.c_uint16), ("major", ctypes.c_uint8), ("pd_full_counts", ctypes.c_uint16),
+    _fields_ = [("capabilities", ctypes.c_uint16), ("major", ctypes.c_uint8), ("minor", ctypes.c_uint8),
+                ("pd_full_counts", ctypes.c_uint16),
                 ("pd_noise_e6", ctypes.c_uint32), ("soft_start_ms", ctypes.c_uint16),
                 ("overtemp_centi", ctypes.c_int16)]
 
@@ -119,14 +120,16 @@ class FirmwareController(ControllerEmulator):
     def __init__(self, clock, *, faults: LinkFaults | None = None, seed: int = 0, warmup_depth: float = 0.05,
                  warmup_tau: float = 120.0, pd_gain: float = 1.0, pd_noise: float = 0.002, ambient_c: float = 25.0,
                  heating_c: float = 15.0, thermal_tau: float = 600.0, capabilities: int = ALL_CAPABILITIES,
-                 major: int = fp.PROTOCOL_MAJOR, name: str = "controller", soft_start_ms: int = 0):
+                 major: int = fp.PROTOCOL_MAJOR, minor: int = fp.PROTOCOL_MINOR, name: str = "controller",
+                 soft_start_ms: int = 0):
         self._lib = library()
         self._h = None
         self._adc_cb = _ADC_FN(lambda _ctx: self._adc_sample())
         self._temp_cb = _TEMP_FN(lambda _ctx: int(round(self._temperature(self.clock.now()) * 100)))
         cfg = FwConfig()
         self._lib.fwhost_default_config(ctypes.byref(cfg))
-        cfg.capabilities, cfg.major, cfg.pd_full_counts = int(capabilities), int(major), PD_FULL_COUNTS
+        cfg.capabilities, cfg.major, cfg.minor = int(capabilities), int(major), int(minor)
+        cfg.pd_full_counts = PD_FULL_COUNTS
         cfg.pd_noise_e6, cfg.soft_start_ms = int(round(pd_noise / fp.MICRO)), int(soft_start_ms)
         cfg.overtemp_centi = int(round(OVERTEMP_C * 100))
         self._cfg = cfg
@@ -134,7 +137,7 @@ class FirmwareController(ControllerEmulator):
         self._known_triggers = 0
         super().__init__(clock, faults=faults, seed=seed, warmup_depth=warmup_depth, warmup_tau=warmup_tau,
                          pd_gain=pd_gain, pd_noise=pd_noise, ambient_c=ambient_c, heating_c=heating_c,
-                         thermal_tau=thermal_tau, capabilities=capabilities, major=major, name=name)
+                         thermal_tau=thermal_tau, capabilities=capabilities, major=major, minor=minor, name=name)
         self.executed = _Executed(self)
 
     # -- the HAL's side ------------------------------------------------------------------------
@@ -142,7 +145,7 @@ class FirmwareController(ControllerEmulator):
         return max(0, int(round(t * 1e6)))
 
     def _state(self) -> list[int]:
-        s = (ctypes.c_uint64 * 13)()
+        s = (ctypes.c_uint64 * 15)()
         self._lib.fwhost_state(self._h, s)
         return list(s)
 
@@ -247,6 +250,11 @@ class FirmwareController(ControllerEmulator):
     def photodiode_time(self) -> float:
         """Uptime (s) at the middle of the last photodiode reading, as the firmware recorded it."""
         return self._state()[9] / 1000.0
+
+    @property
+    def session_minor(self) -> int:
+        """The minor version of the fields the firmware's replies carry (min of host's and its own)."""
+        return self._state()[14]
 
     # -- the UART ------------------------------------------------------------------------------
     def on_idle(self) -> None:

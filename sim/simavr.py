@@ -11,8 +11,10 @@ E-stop loop is opened and closed with :meth:`set_estop` (SIGUSR1/SIGUSR2 to the 
 
 from __future__ import annotations
 
+import glob
 import os
 import select
+import shutil
 import signal
 import subprocess
 import threading
@@ -23,11 +25,32 @@ from sim.firmware import FIRMWARE_DIR
 BRIDGE = FIRMWARE_DIR / "build" / "fw_simavr"
 ELF = FIRMWARE_DIR / "build" / "goniofw.elf"
 
+#: The Debian packages the AVR build and its emulation need, each with a file that shows it is installed
+#: (commands are looked up on PATH).
+DEBIAN_PACKAGES = {
+    "make": lambda: shutil.which("make"),
+    "gcc": lambda: shutil.which("cc") or shutil.which("gcc"),  # the bridge is a host program
+    "gcc-avr": lambda: shutil.which("avr-gcc"),
+    "binutils-avr": lambda: shutil.which("avr-objcopy") and shutil.which("avr-size"),
+    "avr-libc": lambda: glob.glob("/usr/lib/avr/include/avr/io.h"),
+    "libsimavr-dev": lambda: glob.glob("/usr/include/simavr/sim_avr.h") and glob.glob("/usr/lib/*/libsimavr.so*"),
+}
+
+
+def missing_packages() -> list[str]:
+    """The Debian packages of :data:`DEBIAN_PACKAGES` that are not installed (empty when all are)."""
+    return [name for name, present in DEBIAN_PACKAGES.items() if not present()]
+
 
 def build() -> str:
-    """Build the AVR firmware and the bridge; returns make's output (flash/RAM use line included)."""
+    """Build the AVR firmware and the bridge; returns make's output (flash/RAM use line included).
+    Missing Debian packages are named before anything is run."""
     import fcntl
 
+    missing = missing_packages()
+    if missing:
+        raise RuntimeError(f"the AVR build in simavr needs Debian packages {' '.join(missing)}: "
+                           f"apt-get install {' '.join(missing)}")
     (FIRMWARE_DIR / "build").mkdir(exist_ok=True)
     with open(FIRMWARE_DIR / "build" / ".lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)

@@ -119,3 +119,23 @@ def test_knee_of_a_two_row_front_is_the_more_accurate_row():
     from benchmarks.bench_tradeoffs import knee
 
     assert knee([235.0, 246.0, 300.0], [5.7, 0.02, 0.1]) == 1
+
+
+def test_bench_robustness_writes_the_robustness_tables(tmp_path, monkeypatch, capsys):
+    """`gonio bench --robustness` runs benchmarks.bench_robustness (its sections have their own tests,
+    tests/test_bench_robustness.py; here a stand-in table keeps this test cheap) and writes ROBUSTNESS.md."""
+    from benchmarks import bench_robustness
+
+    asked = []
+
+    def fake_run(quick=False):
+        asked.append(quick)
+        t = Table("Frames fuzzed per decoder", ["decoder", "frames", "crashes"])
+        t.add("python", 1000, 0)
+        return [t]
+
+    monkeypatch.setattr(bench_robustness, "run", fake_run)
+    assert main(["bench", "--robustness", "-o", str(tmp_path / "r")]) == 0
+    text = (tmp_path / "r" / "ROBUSTNESS.md").read_text()
+    assert asked == [False] and "full scale" in text and "Frames fuzzed per decoder" in text and "| python" in text
+    assert "ROBUSTNESS.md" in capsys.readouterr().out

@@ -15,7 +15,7 @@
 #include <stdint.h>
 
 #define FP_PROTOCOL_MAJOR 2u
-#define FP_PROTOCOL_MINOR 0u
+#define FP_PROTOCOL_MINOR 1u /* 2.1: READ_PHOTODIODE_REPLY carries time_ms, span_us */
 
 #define FP_MAX_PAYLOAD 64u
 #define FP_MIN_FRAME 3u                                /* body: TYPE SEQ LEN */

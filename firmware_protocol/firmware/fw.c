@@ -15,6 +15,7 @@ void fw_default_config(fw_config *c)
 {
     c->capabilities = FP_CAP_DIMMING | FP_CAP_PHOTODIODE | FP_CAP_TRIGGER | FP_CAP_TEMPERATURE | FP_CAP_INTERLOCK;
     c->major = FP_PROTOCOL_MAJOR;
+    c->minor = FP_PROTOCOL_MINOR;
     c->pd_full_counts = 900u;   /* 10-bit ADC: full level at ~88 % of full scale, headroom for drift */
     c->pd_noise_e6 = 2000u;
     c->soft_start_ms = 50u;
@@ -35,6 +36,7 @@ void fw_init(fw_t *fw, fw_hal *hal, const fw_config *cfg)
     fw->cfg = *cfg;
     fp_decoder_init(&fw->dec);
     fw->configured = 0;
+    fw->session_minor = 0;
     fw->tripped = 0;
     fw->level = 0;
     light_cut(fw);
@@ -44,6 +46,7 @@ void fw_init(fw_t *fw, fw_hal *hal, const fw_config *cfg)
     fw->watchdog_ms = 10000ul;
     fw->trigger_count = 0;
     fw->pd_time_ms = 0;
+    fw->pd_span_us = 0;
     fw->cache_valid = 0;
     fw->cache_reply_len = 0;
     for (i = 0; i < 8u; ++i) {
@@ -124,13 +127,18 @@ static uint16_t flags(fw_t *fw, uint32_t now)
 
 /* Photodiode: n conversions; mean and standard uncertainty of the mean, 1e-6 relative.
  * Shifted-data variance (Chan, Golub & LeVeque 1983): s = sum(x - x0), q = sum((x - x0)^2),
- * var = (q - s^2/n) / (n - 1), sem = sqrt(var / n); n = 1 reports the calibrated noise. */
+ * var = (q - s^2/n) / (n - 1), sem = sqrt(var / n); n = 1 reports the calibrated noise.
+ * Timestamp (SPEC.md section 4.4): span = first to last conversion (us timer), time = uptime (ms) at
+ * the first conversion + span / 2, rounded: the instant a mean of a linearly drifting signal stands for. */
 static void photodiode(fw_t *fw, uint8_t n, uint32_t *mean_e6, uint32_t *sem_e6)
 {
-    uint32_t t0 = hal_millis(fw->hal);
+    uint32_t t0 = hal_millis(fw->hal), u0 = hal_micros(fw->hal), u1 = u0;
     double x0 = 0.0, s = 0.0, q = 0.0, d, scale = 1e6 / (double)fw->cfg.pd_full_counts, m, v;
     uint8_t i;
     for (i = 0; i < n; ++i) {
+        if (i + 1u == n) {
+            u1 = hal_micros(fw->hal); /* start of the last conversion (u0: of the first) */
+        }
         d = (double)hal_adc_photodiode(fw->hal);
         if (i == 0) {
             x0 = d;
@@ -139,7 +147,8 @@ static void photodiode(fw_t *fw, uint8_t n, uint32_t *mean_e6, uint32_t *sem_e6)
         s += d;
         q += d * d;
     }
-    fw->pd_time_ms = ((t0 + (uint32_t)((hal_millis(fw->hal) - t0) / 2u)) - fw->boot_ms);
+    fw->pd_span_us = u1 - u0;
+    fw->pd_time_ms = t0 - fw->boot_ms + (fw->pd_span_us / 2u + 500u) / 1000u;
     m = (x0 + s / n) * scale;
     *mean_e6 = m <= 0.0 ? 0u : m >= 4294967295.0 ? 0xFFFFFFFFul : (uint32_t)(m + 0.5);
     if (n < 2u) {
@@ -178,7 +187,7 @@ static uint8_t error(fw_t *fw, const fp_frame *req, uint8_t code)
 /* Execute request f; the encoded reply is left in fw->cache_reply, its length returned. */
 static uint8_t execute(fw_t *fw, const fp_frame *f, uint32_t now)
 {
-    uint8_t p[16];
+    uint8_t p[20];
     const uint8_t *a = f->payload;
     uint32_t u, mean, sem;
     uint16_t lvl;
@@ -205,8 +214,9 @@ static uint8_t execute(fw_t *fw, const fp_frame *f, uint32_t now)
             return error(fw, f, FP_ERR_VERSION);
         }
         fw->configured = 1;
+        fw->session_minor = a[1] < fw->cfg.minor ? a[1] : fw->cfg.minor; /* fields both ends know */
         p[0] = fw->cfg.major;
-        p[1] = FP_PROTOCOL_MINOR;
+        p[1] = fw->cfg.minor;
         fp_put_u16(&p[2], fw->cfg.capabilities);
         fp_put_u16(&p[4], FW_VERSION);
         p[6] = FP_MAX_PAYLOAD;
@@ -244,7 +254,12 @@ static uint8_t execute(fw_t *fw, const fp_frame *f, uint32_t now)
         p[0] = a[0];
         fp_put_u32(&p[1], mean);
         fp_put_u32(&p[5], sem);
-        return reply(fw, f, FP_READ_PHOTODIODE | FP_REPLY_BIT, p, 9);
+        if (fw->session_minor < 1u) {
+            return reply(fw, f, FP_READ_PHOTODIODE | FP_REPLY_BIT, p, 9); /* a 2.0 host: no timestamp */
+        }
+        fp_put_u32(&p[9], fw->pd_time_ms);
+        fp_put_u32(&p[13], fw->pd_span_us);
+        return reply(fw, f, FP_READ_PHOTODIODE | FP_REPLY_BIT, p, 17);
     case FP_TRIGGER:
         if (hal_trigger_active(fw->hal)) {
             fw->executed[f->type]--;

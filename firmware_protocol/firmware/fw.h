@@ -11,11 +11,12 @@
 #include "../c/fp_codec.h"
 #include "hal.h"
 
-#define FW_VERSION 0x0200u /* 0xMMmm: 2.0 */
+#define FW_VERSION 0x0201u /* 0xMMmm: 2.1 */
 
 typedef struct {
     uint16_t capabilities;     /* HELLO_REPLY capabilities (FP_CAP_*) */
     uint8_t major;             /* protocol major version served (FP_PROTOCOL_MAJOR) */
+    uint8_t minor;             /* protocol minor version served (FP_PROTOCOL_MINOR; lower to act as an older controller) */
     uint16_t pd_full_counts;   /* photodiode ADC counts at full level, warmed up (calibration) */
     uint32_t pd_noise_e6;      /* calibrated single-sample noise, 1e-6 relative (sem for n = 1) */
     uint16_t soft_start_ms;    /* light ramp time from off to the set level (0: instant) */
@@ -27,11 +28,13 @@ typedef struct {
     fw_config cfg;
     fp_decoder dec;
     uint8_t configured, light_on, tripped;
+    uint8_t session_minor;     /* min(host minor from HELLO, cfg.minor): which fields replies carry */
     uint16_t level;            /* level set by the host */
     uint16_t applied;          /* PWM duty now (ramps to level during soft start) */
     uint32_t boot_ms, on_since_ms, last_rx_ms, watchdog_ms;
     uint32_t trigger_count;
-    uint32_t pd_time_ms;       /* uptime at the middle of the last photodiode reading */
+    uint32_t pd_time_ms;       /* uptime at the middle of the last photodiode reading (first to last conversion) */
+    uint32_t pd_span_us;       /* first to last conversion of the last photodiode reading */
     uint8_t cache_valid, cache_reply_len;
     fp_frame cache_req;        /* last executed request (duplicate rule, SPEC.md section 5) */
     uint8_t cache_reply[FP_MAX_WIRE];

@@ -17,6 +17,7 @@
 typedef struct fw_hal fw_hal;
 
 uint32_t hal_millis(fw_hal *h);                    /* ms since power-on; wraps after 49.7 days */
+uint32_t hal_micros(fw_hal *h);                    /* us since power-on, for intervals; wraps after 71.6 min */
 void hal_light_set(fw_hal *h, uint16_t duty);      /* light driver PWM duty 0..65535; 0 = driver disabled */
 int hal_estop_pressed(fw_hal *h);                  /* 1 while the E-stop loop is open (NC contact broken) */
 int hal_interlock_open(fw_hal *h);                 /* 1 while the enclosure interlock is open */

@@ -89,6 +89,24 @@ uint32_t hal_millis(fw_hal *h)
     return t;
 }
 
+/* Timer0 counts 250 steps of 4 us per millisecond tick; a compare match not yet serviced (OCF0A set,
+ * interrupts blocked) means one more millisecond than ms_ticks says. */
+uint32_t hal_micros(fw_hal *h)
+{
+    uint32_t ms;
+    uint8_t t, pending;
+    (void)h;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        ms = ms_ticks;
+        t = TCNT0;
+        pending = (TIFR0 & _BV(OCF0A)) != 0;
+        if (pending && t < 249u) {
+            ms++;
+        }
+    }
+    return ms * 1000u + (uint32_t)t * 4u;
+}
+
 void hal_light_set(fw_hal *h, uint16_t duty)
 {
     (void)h;

@@ -33,6 +33,7 @@ typedef struct {
 } fwhost;
 
 uint32_t hal_millis(fw_hal *h) { return (uint32_t)(h->now_us / 1000u); }
+uint32_t hal_micros(fw_hal *h) { return (uint32_t)h->now_us; }
 
 void hal_light_set(fw_hal *h, uint16_t duty)
 {
@@ -133,7 +134,7 @@ size_t fwhost_take_tx(fwhost *x, uint8_t *out, size_t cap)
 }
 
 /* Observables: [duty, light_on, level, tripped, configured, trigger_count, executed, duplicates,
- * watchdog_ms, pd_time_ms, on_since_ms(hal), trigger_start_ms] */
+ * watchdog_ms, pd_time_ms, on_since_us(hal), trigger_start_us, trigger_end_us, pd_span_us, session_minor] */
 void fwhost_state(fwhost *x, uint64_t *s)
 {
     s[0] = x->hal.duty;
@@ -149,6 +150,8 @@ void fwhost_state(fwhost *x, uint64_t *s)
     s[10] = x->hal.on_since_us;
     s[11] = x->hal.trigger_start_us;
     s[12] = x->hal.trigger_end_us;
+    s[13] = x->fw.pd_span_us;
+    s[14] = x->fw.session_minor;
 }
 
 uint32_t fwhost_executed(fwhost *x, uint8_t type) { return type < 8u ? x->fw.executed[type] : 0u; }

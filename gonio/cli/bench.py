@@ -19,6 +19,10 @@ def register(sub) -> None:
                                    "write DIR/REPORT.md with tables (default marked, with its reason), the date, "
                                    "the machine and the run's duration, and one PNG plot per trade.")
     p.add_argument("--quick", action="store_true", help="small sizes (for CI): well under two minutes")
+    p.add_argument("--robustness", action="store_true",
+                   help="instead: the robustness benchmark (fuzzed frames and status packets, mutated configs and "
+                        "session files, kill -9 + resume, fault scenarios), at full scale unless --quick; "
+                        "writes DIR/ROBUSTNESS.md")
     p.add_argument("-o", "--out", default="gonio-bench", metavar="DIR",
                    help="output directory (default ./gonio-bench; REPORT.md and the PNGs are overwritten)")
     p.set_defaults(func=run)
@@ -34,9 +38,13 @@ def run(args) -> int:
         raise ConfigError.field("-o", "out", str(out), "exists and is not a directory")
     from gonio.plugins import plugin
 
+    t0 = time.perf_counter()
+    if args.robustness:
+        path = plugin("benchmarks.report").write_robustness(out, quick=args.quick, stream=sys.stdout)
+        print(f"{path} ({time.perf_counter() - t0:.0f} s)")
+        return 0
     write_report = plugin("benchmarks.report").write_report
 
-    t0 = time.perf_counter()
     path, failed = write_report(out, quick=args.quick, stream=sys.stderr)
     print(f"{path} ({time.perf_counter() - t0:.0f} s)")
     if failed:

@@ -77,8 +77,9 @@ def run(args) -> int:
             _print_status(ctl.status())
             return 0
         if args.controller_command == "photodiode":
-            mean, sem = ctl.read_photodiode(args.samples)
-            print(f"photodiode {mean:.6f} ± {sem:.6f} (relative units, {args.samples} readings)")
+            pd = ctl.read_photodiode(args.samples)
+            when = "" if pd.uptime is None else f", at controller uptime {pd.uptime:.3f} s over {pd.span * 1e3:.2f} ms"
+            print(f"photodiode {pd.mean:.6f} ± {pd.sem:.6f} (relative units, {args.samples} readings{when})")
             return 0
         if args.controller_command == "trigger":
             ctl.trigger_camera(args.exposure)

@@ -18,6 +18,9 @@ Reliability rules (SPEC.md §5):
   reset: the client re-handshakes, restores the watchdog period and the light it last commanded
   (the light then warms up again; the photodiode reports that drift) and retries once.
 
+Versions (SPEC.md §3): the session speaks the lower of the host's and the controller's minor version
+(:attr:`RigController.session_minor`); from 2.1 on, photodiode readings carry the controller's timestamp.
+
 Watchdog: every request feeds the controller's watchdog. During long waits call :meth:`wait`, which
 sleeps on the :class:`Clock` in steps of at most half the watchdog period and sends a heartbeat between
 steps; with a simulated clock the controller measures silence on that same clock.
@@ -34,7 +37,7 @@ from dataclasses import dataclass
 from firmware_protocol import codec as fp
 from gonio.errors import ChecksumError, ConfigError, ControllerError, EmergencyStop, HardwareTimeout
 from gonio.rig.clock import RealClock
-from gonio.rig.interfaces import ControllerStatus
+from gonio.rig.interfaces import ControllerStatus, PhotodiodeReading
 
 REQUIRED_CAPABILITIES = fp.CAP_PHOTODIODE | fp.CAP_TRIGGER
 CAPABILITY_NAMES = {fp.CAP_DIMMING: "dimming", fp.CAP_PHOTODIODE: "photodiode", fp.CAP_TRIGGER: "trigger",
@@ -96,6 +99,9 @@ class RigController:
         self.resets_seen = 0  #: controller resets detected (NOT_READY) and recovered from
         self._recovering = False
         self._needs_flush = False  # the last exchange failed: flush before the next one
+        #: minor version of this session: min(host's, controller's); None before the handshake
+        self.session_minor: int | None = None
+        self._exchange_times = (0.0, 0.0, 0.0, 1)  # Clock at first send, last send, reply; attempts
         if hasattr(port, "timeout"):
             port.timeout = 0.02
 
@@ -129,6 +135,7 @@ class RigController:
     def connect(self) -> ControllerInfo:
         """HELLO (protocol version and capability check), then set the watchdog period."""
         with self._lock:
+            self.session_minor = None  # the HELLO reply's size is the same in every minor version
             r = self._transact("HELLO", major=fp.PROTOCOL_MAJOR, minor=fp.PROTOCOL_MINOR)
             if r["major"] != fp.PROTOCOL_MAJOR:
                 raise ControllerError(f"{self.device}: controller speaks protocol {r['major']}.{r['minor']}, "
@@ -139,6 +146,7 @@ class RigController:
                 names = [n for bit, n in CAPABILITY_NAMES.items() if missing & bit]
                 raise ControllerError(f"{self.device}: controller lacks capabilities: {', '.join(names)}",
                                       device=self.device)
+            self.session_minor = min(r["minor"], fp.PROTOCOL_MINOR)
             w = self._transact("SET_WATCHDOG", period_ms=int(round(self.watchdog * 1000)))
             self.info = ControllerInfo(r["major"], r["minor"], r["capabilities"], r["firmware"], r["max_payload"],
                                        w["period_ms"] / 1000.0)
@@ -154,12 +162,30 @@ class RigController:
             self._transact("SET_LIGHT", on=int(bool(on)), level=lvl)
             self._light = (bool(on), lvl)
 
-    def read_photodiode(self, samples: int = 1) -> tuple[float, float]:
-        """Mean of ``samples`` (1..255) photodiode readings and its standard uncertainty (relative units)."""
+    def read_photodiode(self, samples: int = 1) -> PhotodiodeReading:
+        """Mean of ``samples`` (1..255) photodiode readings and its standard uncertainty (relative units).
+
+        Returns a :class:`~gonio.rig.interfaces.PhotodiodeReading`: it unpacks as ``(mean, sem)`` and says
+        when the reading was taken. ``uptime`` and ``span`` are the controller's (protocol ≥ 2.1; None from a
+        2.0 controller). ``time`` places the middle of the sampling window on this client's Clock: the
+        window lies between the request leaving and the reply arriving, so the middle is in
+        ``[sent + span/2, received − span/2]``; the controller replies as soon as it has sampled, so
+        ``received − span/2`` is taken (too late by the reply's transmission, ~2 ms at 115 200 baud). If the
+        exchange needed retries the reading may come from any attempt (a retry is answered from the
+        controller's cache), and the middle of the interval from the first send is taken instead. A 2.0
+        controller sends no span: ``time`` is then the reply's arrival.
+        """
         if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= 255:
             raise ConfigError.field(self.device, "photodiode samples", samples, "must be an integer in [1, 255]")
         r = self._transact("READ_PHOTODIODE", samples=samples)
-        return r["mean"] * fp.MICRO, r["sem"] * fp.MICRO
+        first, _last, received, attempts = self._exchange_times
+        if "time_ms" not in r.values:
+            return PhotodiodeReading(r["mean"] * fp.MICRO, r["sem"] * fp.MICRO, samples=r["samples"], time=received)
+        span = r["span_us"] * fp.MICRO
+        lo, hi = first + span / 2, received - span / 2
+        t = hi if attempts == 1 and hi >= lo else (lo + hi) / 2
+        return PhotodiodeReading(r["mean"] * fp.MICRO, r["sem"] * fp.MICRO, samples=r["samples"], time=t,
+                                 uptime=r["time_ms"] / 1000.0, span=span)
 
     def trigger_camera(self, exposure: float) -> None:
         """Start a trigger pulse of ``exposure`` seconds (1 µs .. 600 s).
@@ -261,15 +287,19 @@ class RigController:
 
     def _exchange(self, name: str, code: int, seq: int, wire: bytes) -> fp.Message:
         corrupt = False
+        first = None
         for attempt in range(self.retries + 1):
             if attempt:
                 self.retry_count += 1
             if attempt or self._needs_flush:
                 self._flush()
+            sent = self.clock.now()
+            first = sent if first is None else first
             self._port.write(wire)
             reply, corrupt = self._await(code, seq)
             self._needs_flush = reply is None
             if reply is not None:
+                self._exchange_times = (first, sent, self.clock.now(), attempt + 1)
                 return reply
         tries = self.retries + 1
         if corrupt:
@@ -296,7 +326,7 @@ class RigController:
                     self.stale_replies += 1
                     continue
                 try:
-                    msg = fp.decode_message(ev)
+                    msg = fp.decode_message(ev, self.session_minor)
                 except fp.ProtocolError:
                     corrupt = True
                     continue

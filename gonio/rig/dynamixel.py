@@ -1,6 +1,6 @@
 """Dynamixel servos (Protocol 2.0) through the real ``dynamixel-sdk``: a guarded bus and the rig's axes.
 
-:class:`DynamixelBus` wraps one port: ``PortHandler`` / ``PacketHandler(2.0)`` / ``GroupSyncWrite`` /
+:class:`DynamixelBus` wraps one port: ``PortHandler`` (this module's, see below) / ``PacketHandler(2.0)`` / ``GroupSyncWrite`` /
 ``GroupSyncRead`` / ``GroupBulkRead``, with
 
 * a lock around every transaction (the SDK's ``is_using`` flag is not a lock, FIELD-NOTES.md);
@@ -9,6 +9,11 @@
   answer to the next request when the IDs match (FIELD-NOTES.md);
 * the packet timeout's latency term set per port (``latency_timer_ms``, the SDK's module-global
   ``LATENCY_TIMER`` is left alone), so a loaded CI machine can use a generous value;
+* no busy-polling while a reply is awaited: the SDK calls ``readPort`` in a tight loop until its
+  timeout; here ``readPort`` blocks in ``select`` (at most :data:`POLL_WAIT_S`) when nothing has
+  arrived, so the waiting thread gives up the CPU and the GIL — on a loaded machine the device side (a
+  USB adapter's driver, or the simulator's servo thread in the same process) then answers within the
+  timeout instead of being starved by the loop that waits for it;
 * typed errors: :class:`~gonio.errors.HardwareTimeout`, :class:`~gonio.errors.ChecksumError`,
   :class:`~gonio.errors.ServoAlarm` (Hardware Error Status bits decoded), :class:`~gonio.errors.HardwareError`.
 
@@ -108,12 +113,30 @@ class _CheckedPacketHandler(sdk.Protocol2PacketHandler):
         return rxpacket, result, error
 
 
-class _Port(sdk.PortHandler):
-    """``PortHandler`` whose packet timeout uses this port's latency timer instead of the module global."""
+#: Longest single wait of :meth:`PortHandler.readPort` for bytes (the SDK re-checks its timeout after each).
+POLL_WAIT_S = 0.005
+
+
+class PortHandler(sdk.PortHandler):
+    """``PortHandler`` whose packet timeout uses this port's latency timer instead of the module global,
+    and whose ``readPort`` waits for bytes in ``select`` instead of returning at once (module docstring)."""
 
     def __init__(self, name: str, latency_timer_ms: float):
         super().__init__(name)
         self.latency_timer_ms = float(latency_timer_ms)
+
+    def readPort(self, length):  # noqa: N802 - SDK name
+        data = self.ser.read(length)
+        if data or length <= 0:
+            return data
+        left_ms = self.packet_timeout - self.getTimeSinceStart() if self.packet_timeout else 0.0
+        try:
+            fd = self.ser.fileno()
+        except (AttributeError, OSError, ValueError):  # a port without a descriptor: the SDK's own polling
+            return data
+        if left_ms > 0 and select.select([fd], [], [], min(left_ms / 1000.0, POLL_WAIT_S))[0]:
+            data = self.ser.read(length)
+        return data
 
     def setPacketTimeout(self, packet_length):  # noqa: N802 - SDK name
         self.packet_start_time = self.getCurrentTime()
@@ -160,7 +183,7 @@ class DynamixelBus:
         self.baud = baud
         self.retries = int(retries)
         self.late_reply_window_s = float(late_reply_window_s)
-        self._port = _Port(port, latency_timer_ms)
+        self._port = PortHandler(port, latency_timer_ms)
         self._ph = _CheckedPacketHandler()
         self._lock = threading.RLock()
         self._sync_reads: dict[tuple, sdk.GroupSyncRead] = {}
@@ -245,7 +268,9 @@ class DynamixelBus:
             return out
         cls = ChecksumError if last == sdk.COMM_RX_CORRUPT else HardwareTimeout
         why = "corrupted replies" if cls is ChecksumError else "no answer"
-        raise cls(f"{self._who(dxl_id)}: {what}: {why} after {self.retries + 1} attempts",
+        wait = f" (reply timeout {2 * self._port.latency_timer_ms + 2:.0f} ms + transfer each: latency_timer_ms)" \
+            if cls is HardwareTimeout else ""
+        raise cls(f"{self._who(dxl_id)}: {what}: {why} after {self.retries + 1} attempts{wait}",
                   device=self.port_name, code=last)
 
     @staticmethod

@@ -76,6 +76,48 @@ class Camera(Protocol):
         """Release the device."""
 
 
+class PhotodiodeReading(tuple):
+    """One reference-photodiode reading: ``(mean, sem)`` — it unpacks and compares as that pair, as
+    ``read_photodiode`` always returned — plus when it was taken.
+
+    Attributes
+    ----------
+    mean, sem : float
+        Mean of the samples and its standard uncertainty (relative units, 1 = full level warmed up).
+    samples : int
+        Number of ADC conversions averaged.
+    time : float or None
+        The instant the mean stands for, on the host's :class:`Clock` (seconds; the session's lab time):
+        the middle of the controller's sampling window as the host places it (see
+        :meth:`gonio.rig.controller.RigController.read_photodiode`); None if not known.
+    uptime : float or None
+        The same instant on the controller's own clock (seconds since its reset, the timer of STATUS's
+        uptime), exact to 1 ms; None from a protocol 2.0 controller, which does not send it.
+    span : float or None
+        Seconds from the first to the last conversion (None if not known).
+    """
+
+    def __new__(cls, mean: float, sem: float, *, samples: int = 1, time: float | None = None,
+                uptime: float | None = None, span: float | None = None):
+        self = super().__new__(cls, (float(mean), float(sem)))
+        self.samples, self.time, self.uptime, self.span = int(samples), time, uptime, span
+        return self
+
+    mean = property(lambda self: self[0])
+    sem = property(lambda self: self[1])
+
+    def __reduce__(self):
+        return (_photodiode_reading, (self[0], self[1], self.samples, self.time, self.uptime, self.span))
+
+    def __repr__(self) -> str:
+        return (f"PhotodiodeReading(mean={self[0]!r}, sem={self[1]!r}, samples={self.samples}, "
+                f"time={self.time!r}, uptime={self.uptime!r}, span={self.span!r})")
+
+
+def _photodiode_reading(mean, sem, samples, time, uptime, span) -> PhotodiodeReading:
+    return PhotodiodeReading(mean, sem, samples=samples, time=time, uptime=uptime, span=span)
+
+
 @dataclass(frozen=True)
 class ControllerStatus:
     """What the rig controller reports about itself (see firmware_protocol/SPEC.md)."""
@@ -97,7 +139,8 @@ class RigController(Protocol):
         """Switch the light on/off at relative level 0..1."""
 
     def read_photodiode(self, samples: int = 1) -> tuple[float, float]:
-        """Mean reference photodiode reading and its standard uncertainty (relative units)."""
+        """Mean reference photodiode reading and its standard uncertainty (relative units): a
+        :class:`PhotodiodeReading` (a ``(mean, sem)`` pair that also says when it was taken) or a plain pair."""
 
     def trigger_camera(self, exposure: float) -> None:
         """Fire the camera's hardware trigger for ``exposure`` seconds."""

@@ -51,19 +51,49 @@ def test_long_runs_round_trip():
         assert c.cobs_decode(c.cobs_encode(data)) == data
 
 
-@pytest.mark.parametrize("i", range(19))
+@pytest.mark.parametrize("i", range(20))
 def test_message_vectors(vectors, i):
     v = vectors["messages"][i]
-    wire = bytes.fromhex(v["bytes"])
-    assert c.encode_message(v["name"], v["seq"], **v["values"]) == wire
-    # independent derivation of the same bytes from the spec's words
+    wire, minor = bytes.fromhex(v["bytes"]), v["session_minor"]
+    assert c.encode_message(v["name"], v["seq"], session_minor=minor, **v["values"]) == wire
+    # independent derivation of the same bytes from the spec's words: the fields of the session's version
     spec = c.BY_NAME[v["name"]]
-    payload = struct.pack("<" + "".join(f.fmt for f in spec.fields), *[v["values"][f.name] for f in spec.fields])
+    fields = [f for f in spec.fields if f.since <= minor]
+    payload = struct.pack("<" + "".join(f.fmt for f in fields), *[v["values"][f.name] for f in fields])
     body = bytes([spec.code, v["seq"], len(payload)]) + payload
     enc = cobs_by_hand(body)
     assert wire == b"\x00" + enc + check_by_hand(crc_bitwise(enc)) + b"\x00"
-    msg = c.decode_message(c.decode_frame(wire))
-    assert (msg.name, msg.seq, dict(msg.values)) == (v["name"], v["seq"], v["values"])
+    for session_minor in (None, minor):  # any version's size, or exactly the session's
+        msg = c.decode_message(c.decode_frame(wire), session_minor)
+        assert (msg.name, msg.seq, dict(msg.values)) == (v["name"], v["seq"], v["values"])
+
+
+def test_vectors_cover_every_message_and_both_photodiode_reply_versions(vectors):
+    assert len(vectors["messages"]) == 20 and vectors["protocol"] == {"major": 2, "minor": 1}
+    pd = [(v["session_minor"], len(bytes.fromhex(v["frame"]["payload"]))) for v in vectors["messages"]
+          if v["name"] == "READ_PHOTODIODE_REPLY"]
+    assert sorted(pd) == [(0, 9), (1, 17)]
+
+
+def test_minor_versions_only_append_and_sizes_are_checked_per_session():
+    """SPEC.md §3: a 2.0 session carries the 2.0 fields only; a receiver that knows the session's
+    version refuses the other version's size; fields of a later version are not sent to an earlier one."""
+    full = dict(samples=4, mean=500_000, sem=20, time_ms=7, span_us=300)
+    w20 = c.encode_message("READ_PHOTODIODE_REPLY", 9, session_minor=0, **full)  # 2.1 fields dropped
+    w21 = c.encode_message("READ_PHOTODIODE_REPLY", 9, **full)
+    f20, f21 = c.decode_frame(w20), c.decode_frame(w21)
+    assert f21.payload[:9] == f20.payload and len(f21.payload) == 17
+    assert dict(c.decode_message(f20, 0).values) == dict(samples=4, mean=500_000, sem=20)
+    assert dict(c.decode_message(f21, 1).values) == full
+    with pytest.raises(c.ProtocolError, match="payload is 17 bytes, expected 9"):
+        c.decode_message(f21, 0)
+    with pytest.raises(c.ProtocolError, match="payload is 9 bytes, expected 17"):
+        c.decode_message(f20, 1)
+    with pytest.raises(c.ProtocolError, match="missing field 'time_ms'"):
+        c.encode_message("READ_PHOTODIODE_REPLY", 9, samples=4, mean=1, sem=1)
+    for spec in c.MESSAGES.values():  # appended, never inserted: each version's fields prefix the next's
+        since = [f.since for f in spec.fields]
+        assert since == sorted(since) and spec.size_for(0) <= spec.size_for(c.PROTOCOL_MINOR) == spec.size
 
 
 def test_every_message_type_has_a_vector(vectors):

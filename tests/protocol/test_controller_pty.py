@@ -25,7 +25,7 @@ def rig(Emulator):
 
 def test_connect_reports_version_capabilities_and_watchdog(rig):
     emu, ctl, clock = rig
-    assert (ctl.info.major, ctl.info.minor, ctl.info.watchdog_s) == (2, 0, 10.0)
+    assert (ctl.info.major, ctl.info.minor, ctl.info.watchdog_s) == (2, 1, 10.0) and ctl.session_minor == 1
     st = ctl.status()
     assert not st.flags & fp.FLAG_NOT_CONFIGURED and not st.light_on and st.temperature_c == 25.0
 
@@ -211,3 +211,40 @@ def test_soak_with_random_faults_every_command_executes_exactly_once(Emulator):
             assert emu.executed["TRIGGER"] == 40 and len(emu.trigger_times) == 40
             assert ctl.retry_count > 3 and emu.duplicates > 0
     assert not emu.light_on  # close() switched the light off
+
+
+def test_photodiode_reading_is_timestamped_on_the_controllers_clock(rig):
+    """SPEC.md §4.4 over the pty: time_ms is the uptime (STATUS's clock) of the samples; successive
+    readings differ by the simulated time between them; the host places the reading on its Clock."""
+    emu, ctl, clock = rig
+    ctl.set_light(True, 1.0)
+    up0 = ctl.status().uptime_s
+    a = ctl.read_photodiode(8)
+    clock.sleep(2.345)
+    b = ctl.read_photodiode(8)
+    assert a.uptime == pytest.approx(up0, abs=0.0015) and a.span == 0.0 and a.samples == 8
+    assert b.uptime - a.uptime == pytest.approx(2.345, abs=0.0015)
+    assert b.time == clock.now() and b.time - a.time == pytest.approx(2.345)
+    mean, sem = b  # the (mean, sem) pair it always was
+    assert (mean, sem) == (b.mean, b.sem) and mean == pytest.approx(emu.light_output(), abs=5 * sem)
+
+
+def test_a_2_0_controller_and_a_2_0_host_still_talk(Emulator):
+    """Minor versions are compatible both ways (SPEC.md §3): this host with a 2.0 controller reads
+    photodiode values without timestamp; a 2.0 host (raw bytes) gets the 9-byte 2.0 reply."""
+    clock = SimClock(3.0)
+    with Emulator(clock, minor=0) as emu:
+        with RigController.open(emu.path, clock=clock, timeout=0.3) as ctl:
+            assert (ctl.info.minor, ctl.session_minor) == (0, 0)
+            pd = ctl.read_photodiode(4)
+            assert pd.uptime is None and pd.span is None and pd.time == 3.0 and 0 <= pd.mean < 0.05
+    from protocol.test_emulator_spec import Raw
+    with Emulator(clock) as emu:
+        r = Raw(emu.path)
+        try:
+            [m] = r.ask(fp.encode_message("HELLO", 1, major=2, minor=0))
+            assert (m["minor"], emu.session_minor) == (1, 0)  # the controller is 2.1, the session 2.0
+            [m] = r.ask(fp.encode_message("READ_PHOTODIODE", 2, samples=4))
+            assert set(m.values) == {"samples", "mean", "sem"}  # the 9-byte reply of 2.0
+        finally:
+            r.port.close()

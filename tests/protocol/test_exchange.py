@@ -25,12 +25,15 @@ class ScriptedPort:
         self.closed = False
         self._rx = bytearray()
         self.flushes = 0
+        self.clock, self.latency = None, 0.0  # a SimClock advanced by `latency` s per exchange, if set
 
     def write(self, data):
         assert self.used < len(self.pairs), f"unexpected write {bytes(data).hex(' ')}"
         sent, reply = self.pairs[self.used]
         assert bytes(data) == sent, f"pair {self.used}: sent {bytes(data).hex(' ')}, spec says {sent.hex(' ')}"
         self.used += 1
+        if self.clock is not None:
+            self.clock.sleep(self.latency)
         self._rx += reply
         return len(data)
 
@@ -57,8 +60,9 @@ class ScriptedPort:
         assert self.used == len(self.pairs), f"only {self.used} of {len(self.pairs)} exchanges happened"
 
 
-HELLO = h("00 05 01 01 02 02 01 90 88 E8 AF 87 00")
-HELLO_REPLY = h("00 05 81 01 0B 02 02 1F 01 05 01 40 10 27 01 01 8B BB F5 F8 8F 00")
+HELLO = h("00 06 01 01 02 02 01 CA 9F 9B 8A 84 00")  # HELLO 2.1
+HELLO_REPLY = h("00 07 81 01 0B 02 01 1F 06 01 02 40 10 27 01 01 98 AD CD 98 80 00")  # v2.1, firmware 0x0201
+HELLO_REPLY_20 = h("00 05 81 01 0B 02 02 1F 01 05 01 40 10 27 01 01 8B BB F5 F8 8F 00")  # a 2.0 controller
 SET_WATCHDOG_10S = h("00 06 07 02 04 10 27 01 01 E7 A2 E1 A3 88 00")
 SET_WATCHDOG_REPLY = h("00 06 87 02 04 10 27 01 01 93 BF D9 88 87 00")
 HANDSHAKE = [(HELLO, HELLO_REPLY), (SET_WATCHDOG_10S, SET_WATCHDOG_REPLY)]
@@ -79,8 +83,9 @@ def test_session_reads_like_the_spec():
         (h("00 03 06 04 01 B6 AC D7 B8 84 00"), h("00 05 86 04 0E 04 01 07 80 E9 09 40 E2 01 03 10 27 01 01 9D DD DA C9 82 00")),
         # TRIGGER seq 5: 20000 µs                        -> TRIGGER_REPLY count 1
         (h("00 06 05 05 04 20 4E 01 01 9A 8D 9E BA 85 00"), h("00 06 85 05 08 20 4E 01 02 01 01 01 01 C7 CD F3 84 8B 00")),
-        # READ_PHOTODIODE seq 6: 16 samples              -> mean 0.987654, sem 0.0005
-        (h("00 05 04 06 01 10 D5 FF A4 A2 83 00"), h("00 08 84 06 09 10 06 12 0F 03 F4 01 01 01 C0 D8 C4 FC 81 00")),
+        # READ_PHOTODIODE seq 6: 16 samples  -> mean 0.987654, sem 0.0005, at uptime 123.457 s, over 1560 us
+        (h("00 05 04 06 01 10 D5 FF A4 A2 83 00"),
+         h("00 08 84 06 11 10 06 12 0F 03 F4 01 01 04 41 E2 01 03 18 06 01 01 80 D8 CF FB 88 00")),
         # HEARTBEAT seq 7                                -> HEARTBEAT_REPLY
         (h("00 03 02 07 01 B5 B5 B3 E9 8E 00"), h("00 03 82 07 01 F6 DB AE B0 86 00")),
     ])
@@ -91,10 +96,34 @@ def test_session_reads_like_the_spec():
     assert (st.light_on, st.estop, st.interlock_open) == (True, False, False)
     assert st.light_level == pytest.approx(32768 / 65535) and st.temperature_c == 25.37 and st.uptime_s == 123.456
     ctl.trigger_camera(0.02)
-    assert ctl.read_photodiode(16) == pytest.approx((0.987654, 0.0005))
+    port.clock, port.latency = ctl.clock, 0.005  # the exchange takes 5 ms of the host's clock
+    sent = ctl.clock.now()
+    pd = ctl.read_photodiode(16)
+    assert pd == pytest.approx((0.987654, 0.0005))  # still the (mean, sem) pair
+    assert (pd.samples, pd.uptime, pd.span) == (16, 123.457, pytest.approx(0.00156))
+    assert pd.time == pytest.approx(sent + 0.005 - 0.00078)  # the reply's arrival less half the span
     ctl.heartbeat()
     port.assert_all_used()
-    assert ctl.retry_count == 0 and ctl.stale_replies == 0
+    assert ctl.retry_count == 0 and ctl.stale_replies == 0 and ctl.session_minor == 1
+
+
+def test_a_2_0_controller_gives_readings_without_timestamp():
+    """SPEC.md §3: HELLO_REPLY says 2.0, so the session is 2.0: the 9-byte photodiode reply is the
+    answer, and a 17-byte one is not (wrong size for the session: refused as corrupted)."""
+    port = ScriptedPort([(HELLO, HELLO_REPLY_20), (SET_WATCHDOG_10S, SET_WATCHDOG_REPLY),
+                         (h("00 05 04 03 01 10 B1 93 D8 FE 80 00"),  # READ_PHOTODIODE seq 3: 16 samples
+                          h("00 08 84 03 09 10 06 12 0F 03 F4 01 01 01 E7 D2 FF F7 8D 00")),
+                         # READ_PHOTODIODE seq 4, sent twice, answered twice with a 2.1-sized reply
+                         *[(h("00 05 04 04 01 10 D8 DB 99 D9 87 00"),
+                            h("00 08 84 04 11 10 06 12 0F 03 F4 01 01 04 41 E2 01 03 18 06 01 01 BF 86 A4 C7 8F 00"))] * 2])
+    ctl = RigController(port, clock=SimClock(5.0), timeout=0.05, retries=1)
+    assert ctl.connect().minor == 0 and ctl.session_minor == 0
+    pd = ctl.read_photodiode(16)
+    assert pd == pytest.approx((0.987654, 0.0005)) and (pd.uptime, pd.span, pd.time) == (None, None, 5.0)
+    from gonio.errors import ChecksumError
+    with pytest.raises(ChecksumError, match="corrupted reply to READ_PHOTODIODE"):
+        ctl.read_photodiode(16)
+    port.assert_all_used()
 
 
 def test_error_reply_becomes_emergency_stop_with_code():

@@ -33,8 +33,9 @@ def test_soft_start_ramps_the_pwm_linearly_then_holds(fw):
 def test_photodiode_timestamp_and_trigger_pulse_in_simulated_time(fw):
     emu, ctl, clock = fw
     clock.sleep(2.5)
-    ctl.read_photodiode(4)
+    pd = ctl.read_photodiode(4)
     assert emu.photodiode_time == pytest.approx(2.5, abs=0.002)  # uptime at the reading, from the timer HAL
+    assert (pd.uptime, pd.span, pd.time) == (emu.photodiode_time, 0.0, clock.now())  # as the reply carried it
     ctl.trigger_camera(0.020)
     assert ctl.status().flags & 0x40  # TRIGGER_ACTIVE
     clock.sleep(0.0199)

@@ -1,9 +1,9 @@
 """Lit spheres (gonio.render), the self-contained HTML report and the interactive viewer, opened in a real
-headless browser (Debian's Chromium driven by Playwright). Screenshots are kept in the test's temp dir."""
+headless browser (Debian's Chromium driven by Playwright; one browser, session, fit and report shared by
+the tests: conftest.py). Screenshots are kept in ``screenshots/`` of the run's temp dir."""
 
 from __future__ import annotations
 
-import hashlib
 import os
 import signal
 import subprocess
@@ -17,14 +17,11 @@ import pytest
 
 from gonio.brdf import make
 from gonio.cli.main import main
-from gonio.io.merl import MerlTable, cell_directions, write_merl
+from gonio.io.merl import MerlTable
 from gonio.lights import DirectionalLight, PointLight, SpotLight
 from gonio.render import light_from_angles, render_sphere, sphere_points, tonemap
 
 REPO = Path(__file__).resolve().parents[2]
-CHROMIUM = "/usr/bin/chromium"
-ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
-        "--disable-component-update", "--disable-sync"]
 
 
 # -- the renderer ---------------------------------------------------------------------------------------
@@ -52,9 +49,9 @@ def test_lights_add_and_a_spot_light_lights_only_its_cone():
     assert np.all(img[mask & (r_xy < np.tan(np.radians(1.5)) * 0.95)] > 0)
 
 
-def test_a_measured_table_renders_like_its_model_and_ambient_is_lambert_exact():
+def test_a_measured_table_renders_like_its_model_and_ambient_is_lambert_exact(cells):
     model = make("lambert+ggx", **{"diffuse.albedo": [0.4, 0.3, 0.2], "lobe1.alpha": 0.3, "lobe1.f0": 0.9})
-    wi, wo, *_ = cell_directions()
+    wi, wo, _ = cells
     v = model.eval(wi, wo)
     v[(wi[..., 2] <= 0) | (wo[..., 2] <= 0)] = np.nan
     table = MerlTable(v)
@@ -72,31 +69,7 @@ def test_a_measured_table_renders_like_its_model_and_ambient_is_lambert_exact():
     assert img.dtype == np.uint8 and img.max() == 255 and img[~b.mask].max() == 0
 
 
-# -- report and viewer in a real browser ------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def inputs(tmp_path_factory):
-    d = tmp_path_factory.mktemp("report")
-    session = d / "session"
-    assert main(["measure", "--sim", "--plan", "in_plane", "--theta-i", "30", "--theta-o-step", "20", "--quiet",
-                 "--out", str(session)]) == 0
-    wi, wo, *_ = cell_directions()
-    v = make("microfacet", kd=0.2, ks=0.6, alpha=0.2, f0=0.9).eval(wi, wo)
-    v[(wi[..., 2] <= 0) | (wo[..., 2] <= 0)] = np.nan
-    write_merl(d / "table.binary", MerlTable(v))
-    return session, d / "table.binary"
-
-
-@pytest.fixture(scope="module")
-def browser():
-    if not os.path.exists(CHROMIUM):
-        pytest.skip("needs Debian's chromium (installed by .ci/run)")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is part of gonio[dev]")
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-        yield b
-        b.close()
-
-
+# -- report and viewer in a real browser (shared fixtures: conftest.py) -----------------------------------
 def _open(browser, url, *, offline: bool):
     ctx = browser.new_context(viewport={"width": 1300, "height": 1500})
     if offline:  # networking off: anything but the file itself is refused
@@ -110,25 +83,24 @@ def _open(browser, url, *, offline: bool):
     return ctx, page, errors
 
 
-def _digest(d: Path):
-    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(d.iterdir())}
 
 
-def test_report_is_self_contained_and_every_figure_renders(inputs, browser, tmp_path, capsys):
-    session, table = inputs
-    before = _digest(session)
-    out = tmp_path / "report.html"
-    assert main(["report", str(session), str(table), "-o", str(out)]) == 0
-    assert "wrote" in capsys.readouterr().out
-    text = out.read_text()
+def test_report_is_self_contained_and_only_reads(report):
+    assert "wrote" in report.stdout
+    assert report.after == report.before  # the report only reads
+    text = report.path.read_text()
     import re
 
     assert re.search(r"\d+ samples are too few to render the measured data", text)  # said, not silently left out
     assert "random subset" in text  # the table's on-the-fly fit is a preview on a subset, and says so
     assert not re.search(r"<(script|link|img)[^>]+(src|href)=[\"']https?:", text)  # nothing fetched from a network
-    ctx, page, errors = _open(browser, out.as_uri(), offline=True)
+
+
+def test_report_opens_offline_and_every_figure_renders(browser, report, screenshots):
+    ctx, page, errors = _open(browser, report.path.as_uri(), offline=True)
     try:
-        page.wait_for_timeout(500)
+        page.wait_for_function("Array.from(document.querySelectorAll('div.figure')).every("
+                               "f => f.querySelector('.main-svg') !== null)")
         n_fig = page.locator("div.figure").count()
         assert n_fig >= 2 * 3  # per input: coverage, slices, residuals
         for k in range(n_fig):
@@ -140,21 +112,20 @@ def test_report_is_self_contained_and_every_figure_renders(inputs, browser, tmp_
         assert min(widths) > 0
         assert page.locator("table.comparison tr").count() == 1 + 2  # two inputs: one comparison table
         assert not errors, errors
-        shot = tmp_path / "report.png"
+        shot = screenshots / "report.png"
         page.screenshot(path=str(shot), full_page=True)
         print(f"report screenshot: {shot}")
     finally:
         ctx.close()
-    assert _digest(session) == before  # the report only reads
 
 
-def test_viewer_sliders_rerender_and_nothing_is_written(inputs, browser, tmp_path):
+def test_viewer_sliders_rerender_and_nothing_is_written(browser, inputs, fit_json, screenshots, digest):
     from gonio.report import load_entries
     from gonio.viewer import make_server
 
     session, _table = inputs
-    before = _digest(session)
-    server = make_server(load_entries([str(session)]), port=0)
+    before = digest(session)
+    server = make_server(load_entries([str(session)], [str(fit_json)]), port=0)  # the run's fit, not a new one
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
     url = f"http://127.0.0.1:{server.server_address[1]}/"
@@ -175,19 +146,20 @@ def test_viewer_sliders_rerender_and_nothing_is_written(inputs, browser, tmp_pat
             page.dispatch_event("#ti-0", "input")
             page.wait_for_function("document.getElementById('live-slice-0').querySelector('.main-svg') !== null")
             assert not errors, errors
-            page.screenshot(path=str(tmp_path / "viewer.png"))
-            print(f"viewer screenshot: {tmp_path / 'viewer.png'}")
+            page.screenshot(path=str(screenshots / "viewer.png"))
+            print(f"viewer screenshot: {screenshots / 'viewer.png'}")
         finally:
             ctx.close()
     finally:
         server.shutdown()
         server.server_close()
-    assert _digest(session) == before
+    assert digest(session) == before
 
 
-def test_view_command_serves_and_stops_cleanly_on_ctrl_c(inputs):
+def test_view_command_serves_and_stops_cleanly_on_ctrl_c(inputs, fit_json):
     session, _ = inputs
-    proc = subprocess.Popen([sys.executable, "-m", "gonio.cli.main", "view", str(session), "--no-browser"],
+    proc = subprocess.Popen([sys.executable, "-m", "gonio.cli.main", "view", str(session), "--model", str(fit_json),
+                             "--no-browser"],
                             cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
@@ -202,7 +174,7 @@ def test_view_command_serves_and_stops_cleanly_on_ctrl_c(inputs):
     assert proc.returncode == 0 and "stopped" in out and "Traceback" not in err
 
 
-def test_model_json_gives_bounds_flags_and_transparent_spheres(inputs, tmp_path, capsys):
+def test_model_json_gives_bounds_flags_and_transparent_spheres(inputs, fit_json, tmp_path, capsys):
     import base64
     import re
 
@@ -211,10 +183,9 @@ def test_model_json_gives_bounds_flags_and_transparent_spheres(inputs, tmp_path,
     from gonio.report import Entry, fit_table
 
     session, _ = inputs
-    fit_json = tmp_path / "fit.json"
-    assert main(["fit", str(session), "--model", "microfacet", "--json", str(fit_json), "--quiet"]) == 0
     out = tmp_path / "r.html"
     assert main(["report", str(session), "--model", str(fit_json), "-o", str(out)]) == 0
+    assert "wrote" in capsys.readouterr().out
     text = out.read_text()
     assert "microfacet (fit.json)" in text and "<th>bounds</th>" in text and "<h2>Comparison</h2>" not in text
     uri = re.search(r'class="sphere" alt="microfacet[^"]*" src="data:image/png;base64,([^"]+)"', text).group(1)

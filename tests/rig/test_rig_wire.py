@@ -8,6 +8,7 @@ import dynamixel_sdk as sdk
 import pytest
 
 from gonio.rig.control_table import load_control_table
+from gonio.rig.dynamixel import PortHandler
 from sim import dxl_packet as P
 from sim.clock import SimClock
 from sim.servo_bus import HW_OVERLOAD, ServoBus
@@ -37,7 +38,9 @@ def test_byte_stuffing_round_trip_and_parser_skips_garbage():
 def sdk_bus():
     clock = SimClock()
     with ServoBus({1: "XM540-W270", 2: "XM430-W350", 3: "XM430-W350"}, clock, noise_ticks=0.0) as bus:
-        port = sdk.PortHandler(bus.path)
+        # the SDK's packet handler on gonio's PortHandler: the SDK's own busy-polls for its 34 ms timeout, which
+        # on a loaded machine starves the emulator thread it waits for (these tests then failed with RX_TIMEOUT)
+        port = PortHandler(bus.path, latency_timer_ms=50.0)
         assert port.openPort() and port.setBaudRate(1_000_000)
         yield bus, port, sdk.PacketHandler(2.0), clock
         port.closePort()
