@@ -117,12 +117,14 @@ def _register():
         return None
 
     for fn in _jit.JITABLE:
-        register_jitable(fn)
+        register_jitable(error_model="numpy")(fn)
     return numba
 
 
 _LOOP = """
 def loop(wi, wo, params, w, f0, const, out):
+    r0_, r1_, r2_ = const[0], const[1], const[2]
+{setup}
     for i in range(wi.shape[0]):
         ix, iy, iz = wi[i, 0], wi[i, 1], wi[i, 2]
         ox, oy, oz = wo[i, 0], wo[i, 1], wo[i, 2]
@@ -132,17 +134,24 @@ def loop(wi, wo, params, w, f0, const, out):
             out[i, 2] = 0.0
             continue
         p = pair_geometry(ix, iy, iz, ox, oy, oz, TINY)
-        r0, r1, r2 = const[0], const[1], const[2]
+        r0, r1, r2 = r0_, r1_, r2_
 {lobes}
         out[i, 0] = r0
         out[i, 1] = r1
         out[i, 2] = r2
 """
+_SETUP = """
+    w{j}0, w{j}1, w{j}2 = w[{j}, 0], w[{j}, 1], w[{j}, 2]
+    f{j}0, f{j}1, f{j}2 = f0[{j}, 0], f0[{j}, 1], f0[{j}, 2]
+    p{j}0, p{j}1, p{j}2 = params[{j}, 0], params[{j}, 1], params[{j}, 2]"""
 _LOBE = """
         s = {spec}(p, {params})
-        r0 += w[{j}, 0] * (s * schlick_m(f0[{j}, 0], p.m))
-        r1 += w[{j}, 1] * (s * schlick_m(f0[{j}, 1], p.m))
-        r2 += w[{j}, 2] * (s * schlick_m(f0[{j}, 2], p.m))"""
+        r0 += w{j}0 * (s * schlick_m(f{j}0, p.m))
+        r1 += w{j}1 * (s * schlick_m(f{j}1, p.m))
+        r2 += w{j}2 * (s * schlick_m(f{j}2, p.m))"""
+#: numba options: ``error_model="numpy"`` (a float division by zero gives inf/nan as in NumPy, not an
+#: exception; the formulas guard their divisions anyway).
+_OPTIONS = {"nogil": True, "error_model": "numpy"}
 
 
 @functools.lru_cache(maxsize=None)
@@ -150,15 +159,17 @@ def _kernel(kinds: tuple):
     """The loop for lobes of spec functions ``SPECS[k] for k in kinds``, compiled on first use (per process).
 
     Generated from :data:`_LOOP`: one block per lobe, so each sum's loop is straight-line code (no dispatch
-    per pair). Schlick's factor is applied to every lobe (f0 = 1 for lobes without one gives F = 1 exactly).
+    per pair), with the lobes' parameters read before the loop (what depends on them alone is computed once,
+    not per pair). Schlick's factor is applied to every lobe (f0 = 1 for lobes without one gives F = 1
+    exactly).
     """
     numba = _register()
     names = {f"spec{k}": SPECS[k] for k in set(kinds)}
-    blocks = []
+    setup, blocks = [], []
     for j, k in enumerate(kinds):
         nparam = SPECS[k].__code__.co_argcount - 1
-        args = ", ".join(f"params[{j}, {q}]" for q in range(nparam))
-        blocks.append(_LOBE.format(spec=f"spec{k}", params=args, j=j))
+        setup.append(_SETUP.format(j=j))
+        blocks.append(_LOBE.format(spec=f"spec{k}", params=", ".join(f"p{j}{q}" for q in range(nparam)), j=j))
     namespace = {"pair_geometry": pair_geometry, "schlick_m": schlick_m, "TINY": _TINY, **names}
-    exec(_LOOP.format(lobes="".join(blocks)), namespace)
-    return numba.njit(nogil=True)(namespace["loop"])
+    exec(_LOOP.format(setup="".join(setup), lobes="".join(blocks)), namespace)
+    return numba.njit(**_OPTIONS)(namespace["loop"])

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio._jit import jitable
+from gonio._jit import jitable, select
 from gonio.brdf.base import BRDF, Param
-from gonio.brdf.microfacet import ALPHA_MIN, beckmann_d_core, clamp_alpha, vgroove_g_core
+from gonio.brdf.microfacet import ALPHA_MIN, beckmann_d_parts, clamp_alpha, vgroove_g_parts
 from gonio.brdf.pairs import Lobe
 
 __all__ = ["CookTorrance", "cook_torrance_spec"]
@@ -15,12 +15,15 @@ __all__ = ["CookTorrance", "cook_torrance_spec"]
 @jitable
 def cook_torrance_spec(p, roughness):
     """The Cook-Torrance lobe without colour and Fresnel, D G / ((n·wi)(n·wo)) with D = π × the normalized
-    Beckmann D (:func:`gonio.brdf.microfacet.beckmann_d_core`, Walter et al. 2007, eq. 25) and the V-groove
-    G (:func:`gonio.brdf.microfacet.vgroove_g_core`), on the shared geometry ``p``
+    Beckmann D (:func:`gonio.brdf.microfacet.beckmann_d_parts`, Walter et al. 2007, eq. 25) and the V-groove
+    G (:func:`gonio.brdf.microfacet.vgroove_g_parts`), on the shared geometry ``p``
     (:func:`gonio.brdf.pairs.pair_geometry`); Cook & Torrance 1982, lecture notes ``004_6b0fa14dcb48ed2f.txt``."""
     m = clamp_alpha(roughness)
-    d = np.pi * beckmann_d_core(p.s2h / (m * m), p.hz, m, m, p.tiny)
-    return d * vgroove_g_core(p.iz, p.oz, p.hz, p.oh, p.tiny) / p.cc
+    im = 1.0 / m
+    tiny = p.tiny
+    dn, dd = beckmann_d_parts(p.th2 * (im * im), np.maximum(p.hz * p.hz, tiny), m, m, tiny)
+    gn, gd = vgroove_g_parts(p.iz, p.oz, p.hz, p.oh, tiny)
+    return select(p.hz > 0.0, np.pi * dn * gn / (dd * gd * p.cc), 0.0)
 
 
 class CookTorrance(BRDF):

@@ -13,7 +13,7 @@ import numpy as np
 from gonio._jit import jitable, select
 
 __all__ = ["schlick", "schlick_m", "one_minus_cos_d", "one_minus_cos_d_xyz", "schlick_rational_power", "f0_from_eta",
-           "dielectric", "dielectric_core", "conductor"]
+           "dielectric", "dielectric_core", "dielectric_parts", "conductor"]
 
 
 def _prep(cos_theta, *consts):
@@ -115,13 +115,29 @@ def dielectric(cos_theta, eta) -> np.ndarray:
 @jitable
 def dielectric_core(c, eta):
     """:func:`dielectric` for ``c`` = cos θ_i already in [0, 1] (arrays broadcasting against ``eta``, or
-    scalars); the formula of Born & Wolf §1.5 given there."""
-    s2t = (1.0 - c * c) / (eta * eta)
+    scalars): the quotient of :func:`dielectric_parts`."""
+    num, den = dielectric_parts(c, eta)
+    return num / den
+
+
+@jitable
+def dielectric_parts(c, eta):
+    """The exact dielectric Fresnel reflectance of :func:`dielectric` (Born & Wolf §1.5) as num / den, for
+    c = cos θ_i in [0, 1]: with B = max(c + η cos θ_t, 1e-30), D = max(η c + cos θ_t, 1e-30),
+    F = (r_s² + r_p²)/2 = ((c − η cos θ_t)² D² + (η c − cos θ_t)² B²) / (2 B² D²), clamped to [0, 1];
+    (1, 1) under total internal reflection. A fraction so a lobe divides once."""
+    s2t = (1.0 - c * c) * (1.0 / (eta * eta))
     ct = np.sqrt(np.maximum(1.0 - s2t, 0.0))
-    rs = (c - eta * ct) / np.maximum(c + eta * ct, 1e-30)
-    rp = (eta * c - ct) / np.maximum(eta * c + ct, 1e-30)
-    f = 0.5 * (rs * rs + rp * rp)
-    return select(s2t >= 1.0, 1.0, np.minimum(np.maximum(f, 0.0), 1.0))
+    a = c - eta * ct
+    b = np.maximum(c + eta * ct, 1e-30)
+    p = eta * c - ct
+    d = np.maximum(eta * c + ct, 1e-30)
+    b2 = b * b
+    d2 = d * d
+    den = 2.0 * b2 * d2
+    num = np.minimum(np.maximum(a * a * d2 + p * p * b2, 0.0), den)
+    tir = s2t >= 1.0
+    return select(tir, 1.0, num), select(tir, 1.0, den)
 
 
 def conductor(cos_theta, eta, k) -> np.ndarray:

@@ -6,17 +6,16 @@ import numpy as np
 
 from gonio._jit import jitable, select
 from gonio.brdf.base import BRDF, Param
-from gonio.brdf.microfacet import ALPHA_MIN, clamp_alpha, ggx_g1_core
+from gonio.brdf.microfacet import ALPHA_MIN, _visible, clamp_alpha, ggx_g1_den
 from gonio.brdf.pairs import Lobe
 
-__all__ = ["GTR", "gtr_d", "gtr_spec"]
+__all__ = ["GTR", "gtr_d", "gtr_norm", "gtr_shape", "gtr_spec"]
 
 #: Roughness ceiling: the normalization has a removable singularity at α = 1 (a uniform distribution).
 ALPHA_MAX = 0.999
 
 
-@jitable
-def gtr_d(cos_h, alpha, gamma):
+def gtr_d(cos_h, alpha, gamma) -> np.ndarray:
     """Normalized GTR distribution of microfacet normals (B. Burley, "Physically-Based Shading at Disney",
     SIGGRAPH 2012 course notes, §5.4 and Appendix B):
 
@@ -24,31 +23,46 @@ def gtr_d(cos_h, alpha, gamma):
     c = (1 − α²) / (π ln(1/α²))  (γ = 1),
 
     so that ∫ D cos θh dω = 1 (derived by u = 1 − (1 − α²) cos²θh). γ = 2 is GGX (c = α²/π), γ = 1 Burley's
-    clearcoat lobe; small γ gives the long tails of measured materials. 1 − (α²)^(1−γ) is formed with
-    ``expm1`` so γ → 1 is continuous. α is clamped to [1e-4, 0.999]; the base α² cos²θh + sin²θh ≥ α² > 0.
-    ``cos_h`` an array or a scalar, ``alpha`` and ``gamma`` scalars.
+    clearcoat lobe; small γ gives the long tails of measured materials. α is clamped to [1e-4, 0.999].
+    The formulas are :func:`gtr_norm` (c) and :func:`gtr_shape`.
     """
+    return gtr_shape(cos_h, alpha, gamma, gtr_norm(alpha, gamma))
+
+
+@jitable
+def gtr_norm(alpha, gamma):
+    """The normalization c of :func:`gtr_d` (Burley 2012, Appendix B; scalars): (1 − α²)(1 − γ) /
+    (π (1 − (α²)^(1−γ))) with 1 − (α²)^(1−γ) formed by ``expm1`` so γ → 1 is continuous, and
+    (1 − α²) / (π ln(1/α²)) at γ = 1."""
     a2 = np.minimum(np.maximum(alpha, ALPHA_MIN), ALPHA_MAX) ** 2
     lna2 = np.log(a2)
     g1 = 1.0 - gamma
     if abs(g1) < 1e-9:
-        c = (1.0 - a2) / (np.pi * -lna2)
-    else:
-        c = (1.0 - a2) * g1 / (np.pi * -np.expm1(g1 * lna2))
+        return (1.0 - a2) / (np.pi * -lna2)
+    return (1.0 - a2) * g1 / (np.pi * -np.expm1(g1 * lna2))
+
+
+@jitable
+def gtr_shape(cos_h, alpha, gamma, c):
+    """D(θh) = c / (α² cos²θh + sin²θh)^γ of :func:`gtr_d` given its normalization ``c`` (:func:`gtr_norm`);
+    0 for cos θh ≤ 0. The base α² cos²θh + sin²θh ≥ α² > 0."""
+    a2 = np.minimum(np.maximum(alpha, ALPHA_MIN), ALPHA_MAX) ** 2
     c2 = np.minimum(np.maximum(cos_h, 0.0), 1.0) ** 2
     q = a2 * c2 + (1.0 - c2)
     return select(cos_h > 0.0, c * np.exp(-gamma * np.log(q)), 0.0)
 
 
 @jitable
-def gtr_spec(p, alpha, gamma):
+def gtr_spec(p, alpha, gamma, c):
     """The GTR lobe of :class:`GTR` without colour and Fresnel: D_GTR G2 / (4 cos θi cos θo) (Walter et al.
-    2007, eq. 20 with D of :func:`gtr_d` and the GGX Smith G1 of eq. 34, :func:`gonio.brdf.microfacet.ggx_g1_core`,
-    Burley 2012 §5.6) on the shared geometry ``p`` (:func:`gonio.brdf.pairs.pair_geometry`)."""
+    2007, eq. 20 with D of :func:`gtr_d` and the GGX Smith G1 of eq. 34, Burley 2012 §5.6) on the shared
+    geometry ``p`` (:func:`gonio.brdf.pairs.pair_geometry`); G1(v) = 2 cos θ_v / S_v
+    (:func:`gonio.brdf.microfacet.ggx_g1_den`), so D G2 / (4 cos θi cos θo) = D / (S_i S_o). ``c`` is D's
+    normalization :func:`gtr_norm` (computed once per model)."""
     a = clamp_alpha(alpha)
     a2 = a * a
-    g = ggx_g1_core(a2 * p.ti2, p.ih * p.iz > 0.0) * ggx_g1_core(a2 * p.to2, p.oh * p.oz > 0.0)
-    return gtr_d(p.hz, alpha, gamma) * g / (4.0 * p.cc)
+    s = ggx_g1_den(p.iz, a2 * p.si2) * ggx_g1_den(p.oz, a2 * p.so2)
+    return select(_visible(p), gtr_shape(p.hz, alpha, gamma, c) / s, 0.0)
 
 
 class GTR(BRDF):
@@ -85,4 +99,5 @@ class GTR(BRDF):
     energy_conserving = False
 
     def _lobes(self):
-        return self.kd / np.pi, [Lobe(gtr_spec, (self.alpha, self.gamma), self.ks, self.f0)]
+        return self.kd / np.pi, [Lobe(gtr_spec, (self.alpha, self.gamma, gtr_norm(self.alpha, self.gamma)), self.ks,
+                                      self.f0)]

@@ -40,6 +40,11 @@ __all__ = [
     "smith_g1",
     "smith_g2",
     "vgroove_g",
+    "ggx_d_den",
+    "beckmann_d_parts",
+    "ggx_g1_den",
+    "beckmann_g1_parts",
+    "vgroove_g_parts",
     "ggx_spec",
     "beckmann_spec",
     "Microfacet",
@@ -73,21 +78,24 @@ def beckmann_d(h, alpha_x, alpha_y=None) -> np.ndarray:
     D(h) = exp(−(h_x²/α_x² + h_y²/α_y²) / h_z²) / (π α_x α_y h_z⁴)   for h_z > 0, else 0
 
     (Walter et al. 2007, eq. 25; anisotropic form as in Mitsuba 3). Isotropic when ``alpha_y`` is
-    omitted. ∫ D(h) (h·n) dω_h = 1. The formula is :func:`beckmann_d_core`.
+    omitted. ∫ D(h) (h·n) dω_h = 1. The formula is :func:`beckmann_d_parts`.
     """
     ax = clamp_alpha(alpha_x)
     ay = ax if alpha_y is None else clamp_alpha(alpha_y)
-    return beckmann_d_core(_stretch(h[..., 0], h[..., 1], ax, ay), h[..., 2], ax, ay, _tiny(h))
+    hz = h[..., 2]
+    tiny = _tiny(h)
+    c2 = np.maximum(hz * hz, tiny)
+    num, den = beckmann_d_parts(_stretch(h[..., 0], h[..., 1], ax, ay) / c2, c2, ax, ay, tiny)
+    return select(hz > 0.0, num / den, 0.0)
 
 
 @jitable
-def beckmann_d_core(e, hz, ax, ay, tiny):
-    """Beckmann D(h) = exp(−e / h_z²) / (π α_x α_y h_z⁴) for h_z > 0, else 0, from the stretched slope
-    e = h_x²/α_x² + h_y²/α_y² (Walter et al. 2007, eq. 25; Mitsuba 3's anisotropic form). The exponential
-    is evaluated before the division so grazing half vectors give 0, not 0/0."""
-    c2 = np.maximum(hz * hz, tiny)
-    d = np.exp(-(e / c2)) / (np.pi * ax * ay * np.maximum(c2 * c2, tiny))
-    return select(hz > 0.0, d, 0.0)
+def beckmann_d_parts(x, c2, ax, ay, tiny):
+    """Beckmann D = num / den for h_z > 0 (Walter et al. 2007, eq. 25; Mitsuba 3's anisotropic form):
+    num = exp(−x), den = π α_x α_y max(c2², tiny), with x = (h_x²/α_x² + h_y²/α_y²) / c2 and
+    c2 = max(h_z², tiny). Returned as a fraction so a lobe divides once; the exponential underflows to 0 at
+    grazing half vectors instead of giving 0/0."""
+    return np.exp(-x), np.pi * ax * ay * np.maximum(c2 * c2, tiny)
 
 
 def ggx_d(h, alpha_x, alpha_y=None) -> np.ndarray:
@@ -97,20 +105,20 @@ def ggx_d(h, alpha_x, alpha_y=None) -> np.ndarray:
 
     (Walter et al. 2007, eq. 33, written with h_x, h_y, h_z instead of tan θ_h so it is exact at
     θ_h = 0 and 90°; anisotropic form of Heitz 2014, eq. 85). ∫ D(h) (h·n) dω_h = 1. The formula is
-    :func:`ggx_d_core`.
+    :func:`ggx_d_den`.
     """
     ax = clamp_alpha(alpha_x)
     ay = ax if alpha_y is None else clamp_alpha(alpha_y)
-    return ggx_d_core(_stretch(h[..., 0], h[..., 1], ax, ay), h[..., 2], ax, ay)
+    hz = h[..., 2]
+    return select(hz > 0.0, 1.0 / ggx_d_den(_stretch(h[..., 0], h[..., 1], ax, ay), hz, ax, ay), 0.0)
 
 
 @jitable
-def ggx_d_core(e, hz, ax, ay):
-    """GGX D(h) = 1 / (π α_x α_y (e + h_z²)²) for h_z > 0, else 0, from the stretched slope
-    e = h_x²/α_x² + h_y²/α_y² (Walter et al. 2007, eq. 33; Heitz 2014, eq. 85)."""
+def ggx_d_den(e, hz, ax, ay):
+    """1/D of GGX for h_z > 0: π α_x α_y (e + h_z²)², from the stretched slope e = h_x²/α_x² + h_y²/α_y²
+    (Walter et al. 2007, eq. 33; Heitz 2014, eq. 85). A reciprocal so a lobe divides once."""
     q = e + hz * hz
-    d = 1.0 / (np.pi * ax * ay * q * q)
-    return select(hz > 0.0, d, 0.0)
+    return np.pi * ax * ay * q * q
 
 
 def distribution_d(name: str, h, alpha_x, alpha_y=None) -> np.ndarray:
@@ -127,43 +135,48 @@ def smith_g1(name: str, v, h, alpha_x, alpha_y=None) -> np.ndarray:
 
     With ``t² = (α_x² v_x² + α_y² v_y²) / v_z²`` (α² tan²θ_v, anisotropic as in Heitz 2014):
 
-    - GGX (exact, Walter et al. 2007, eq. 34): G1 = 2 / (1 + √(1 + t²)) (:func:`ggx_g1_core`).
+    - GGX (exact, Walter et al. 2007, eq. 34): G1 = 2 / (1 + √(1 + t²)) = 2|v_z| / S
+      (:func:`ggx_g1_den`).
     - Beckmann (Walter et al. 2007, eq. 27, the rational approximation Mitsuba 3 uses):
       a = 1/t; G1 = (3.535 a + 2.181 a²) / (1 + 2.276 a + 2.577 a²) for a < 1.6, else 1
-      (:func:`beckmann_g1_core`).
+      (:func:`beckmann_g1_parts`).
 
-    G1 = 1 at normal incidence (t = 0) and 0 where the microfacet is seen from behind
+    G1 = 1 at normal incidence (t = 0), 0 at v_z = 0, and 0 where the microfacet is seen from behind
     ((v·h) v_z ≤ 0), as in Mitsuba 3.
     """
     ax = clamp_alpha(alpha_x)
     ay = ax if alpha_y is None else clamp_alpha(alpha_y)
     vz = v[..., 2]
-    tiny = _tiny(v)
-    t2 = ((ax * v[..., 0]) ** 2 + (ay * v[..., 1]) ** 2) / np.maximum(vz * vz, tiny)
-    visible = (v[..., 0] * h[..., 0] + v[..., 1] * h[..., 1] + v[..., 2] * h[..., 2]) * vz > 0.0
+    xy = (ax * v[..., 0]) ** 2 + (ay * v[..., 1]) ** 2
     if name == "ggx":
-        return ggx_g1_core(t2, visible)
-    if name == "beckmann":
-        return beckmann_g1_core(t2, visible, tiny)
-    raise ValueError(f"unknown microfacet distribution {name!r}; known: {', '.join(DISTRIBUTIONS)}")
+        g = 2.0 * np.abs(vz) / ggx_g1_den(vz, xy)
+    elif name == "beckmann":
+        num, den = beckmann_g1_parts(np.abs(vz), np.sqrt(xy))
+        g = num / den
+    else:
+        raise ValueError(f"unknown microfacet distribution {name!r}; known: {', '.join(DISTRIBUTIONS)}")
+    visible = (v[..., 0] * h[..., 0] + v[..., 1] * h[..., 1] + v[..., 2] * h[..., 2]) * vz > 0.0
+    return select(visible, select(xy == 0.0, 1.0, g), 0.0)
 
 
 @jitable
-def ggx_g1_core(t2, visible):
-    """GGX Smith G1 = 2 / (1 + √(1 + t²)) from t² = α² tan²θ_v (Walter et al. 2007, eq. 34); 0 where not
-    ``visible`` ((v·h) v_z ≤ 0)."""
-    g = 2.0 / (1.0 + np.sqrt(1.0 + t2))
-    return select(visible, g, 0.0)
+def ggx_g1_den(vz, xy):
+    """S = |v_z| + √(v_z² + xy), with xy = α_x² v_x² + α_y² v_y²: the GGX Smith G1 of Walter et al. 2007,
+    eq. 34, 2 / (1 + √(1 + α² tan²θ_v)), is 2|v_z| / S (multiplied through by |v_z|: no tan, finite at the
+    horizon), so G1(v) / (2 cos θ_v) = 1/S."""
+    return np.abs(vz) + np.sqrt(vz * vz + xy)
 
 
 @jitable
-def beckmann_g1_core(t2, visible, tiny):
-    """Beckmann Smith G1 from t² = α² tan²θ_v, Walter et al. 2007, eq. 27 (Mitsuba 3's rational
-    approximation): a = 1/t, G1 = (3.535 a + 2.181 a²) / (1 + 2.276 a + 2.577 a²) for a < 1.6, else 1;
-    1 at t = 0; 0 where not ``visible``."""
-    a = 1.0 / np.sqrt(np.maximum(t2, tiny))
-    g = select(a >= 1.6, 1.0, (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a))
-    return select(visible, select(t2 == 0.0, 1.0, g), 0.0)
+def beckmann_g1_parts(c, sa):
+    """Beckmann Smith G1 = num / den from c = |cos θ_v| and sa = α sin θ_v (anisotropic: √(α_x² v_x² + α_y² v_y²)):
+    Walter et al. 2007, eq. 27 (Mitsuba 3's rational approximation) in a = 1/(α tan θ_v) = c / sa,
+    (3.535 a + 2.181 a²) / (1 + 2.276 a + 2.577 a²) for a < 1.6, else 1, with numerator and denominator
+    multiplied by sa² (no division, no tan: exact at θ_v = 0 and 90°): num = 3.535 c sa + 2.181 c²,
+    den = sa² + 2.276 c sa + 2.577 c²; (1, 1) where c ≥ 1.6 sa."""
+    big = c >= 1.6 * sa
+    return (select(big, 1.0, 3.535 * c * sa + 2.181 * c * c),
+            select(big, 1.0, sa * sa + 2.276 * c * sa + 2.577 * c * c))
 
 
 def smith_g2(name: str, wi, wo, h, alpha_x, alpha_y=None) -> np.ndarray:
@@ -174,50 +187,57 @@ def smith_g2(name: str, wi, wo, h, alpha_x, alpha_y=None) -> np.ndarray:
 
 def vgroove_g(wi, wo, h) -> np.ndarray:
     """V-groove shadowing-masking of Torrance-Sparrow / Blinn 1977 / Cook-Torrance 1982
-    (:func:`vgroove_g_core` on the cosines)."""
+    (:func:`vgroove_g_parts` on the cosines)."""
     oh = wo[..., 0] * h[..., 0] + wo[..., 1] * h[..., 1] + wo[..., 2] * h[..., 2]
-    return vgroove_g_core(wi[..., 2], wo[..., 2], h[..., 2], oh, _tiny(h))
+    num, den = vgroove_g_parts(wi[..., 2], wo[..., 2], h[..., 2], oh, _tiny(h))
+    return num / den
 
 
 @jitable
-def vgroove_g_core(iz, oz, hz, oh, tiny):
+def vgroove_g_parts(iz, oz, hz, oh, tiny):
     """V-groove shadowing-masking of Torrance-Sparrow / Blinn 1977 / Cook-Torrance 1982:
 
-    G = min(1, 2 (n·h)(n·wo) / (wo·h), 2 (n·h)(n·wi) / (wo·h))
+    G = min(1, 2 (n·h)(n·wo) / (wo·h), 2 (n·h)(n·wi) / (wo·h)), clamped at 0
 
     (lecture notes ``004_6b0fa14dcb48ed2f.txt``, "Full Cook-Torrance Lobe"), from n·wi = ``iz``,
-    n·wo = ``oz``, n·h = ``hz`` and wo·h = ``oh``. wo·h is guarded against 0 (only reached for wi = −wo,
-    where h = n by convention).
+    n·wo = ``oz``, n·h = ``hz`` and wo·h = ``oh``, as G = num / den with den = max(wo·h, tiny) > 0 and
+    num = max(min(den, 2 (n·h) min-term), 0) (the same value: the division by den > 0 is monotone).
+    wo·h is guarded against 0 (only reached for wi = −wo, where h = n by convention).
     """
-    oh = np.maximum(oh, tiny)
-    g = np.minimum(1.0, np.minimum(2.0 * hz * oz / oh, 2.0 * hz * iz / oh))
-    return np.maximum(g, 0.0)
+    den = np.maximum(oh, tiny)
+    return np.maximum(np.minimum(den, np.minimum(2.0 * hz * oz, 2.0 * hz * iz)), 0.0), den
+
+
+@jitable
+def _visible(p):
+    """h above the surface and wi, wo on the visible side of the microfacet (the G1 condition (v·h) v_z > 0)."""
+    return (p.hz > 0.0) & (p.ih * p.iz > 0.0) & (p.oh * p.oz > 0.0)
 
 
 @jitable
 def ggx_spec(p, alpha):
     """GGX lobe of :class:`Microfacet` without colour and Fresnel: D G2 / (4 cos θi cos θo) (Walter et al.
-    2007, eq. 20 with D eq. 33 (:func:`ggx_d_core`), separable Smith G2 eq. 23 of G1 eq. 34
-    (:func:`ggx_g1_core`)) on the shared geometry ``p`` (:func:`gonio.brdf.pairs.pair_geometry`)."""
+    2007, eq. 20 with D eq. 33 and separable Smith G2 eq. 23 of G1 eq. 34) on the shared geometry ``p``
+    (:func:`gonio.brdf.pairs.pair_geometry`). With G1(v) = 2 cos θ_v / S_v (:func:`ggx_g1_den`) the cosines
+    cancel: D G2 / (4 cos θi cos θo) = 1 / (D⁻¹ S_i S_o), D⁻¹ of :func:`ggx_d_den` — one division."""
     a = clamp_alpha(alpha)
     a2 = a * a
-    d = ggx_d_core(p.s2h / a2, p.hz, a, a)
-    g = ggx_g1_core(a2 * p.ti2, p.ih * p.iz > 0.0) * ggx_g1_core(a2 * p.to2, p.oh * p.oz > 0.0)
-    return d * g / (4.0 * p.cc)
+    den = ggx_d_den(p.s2h * (1.0 / a2), p.hz, a, a) * ggx_g1_den(p.iz, a2 * p.si2) * ggx_g1_den(p.oz, a2 * p.so2)
+    return select(_visible(p), 1.0 / den, 0.0)
 
 
 @jitable
 def beckmann_spec(p, alpha):
     """Beckmann lobe of :class:`Microfacet` without colour and Fresnel: D G2 / (4 cos θi cos θo) (Walter
-    et al. 2007, eq. 20 with D eq. 25 (:func:`beckmann_d_core`) and G1 eq. 27 (:func:`beckmann_g1_core`))
-    on the shared geometry ``p``."""
+    et al. 2007, eq. 20 with D eq. 25 (:func:`beckmann_d_parts`) and G1 eq. 27 (:func:`beckmann_g1_parts`))
+    on the shared geometry ``p``; the fractions are multiplied out and divided once."""
     a = clamp_alpha(alpha)
-    a2 = a * a
     tiny = p.tiny
-    d = beckmann_d_core(p.s2h / a2, p.hz, a, a, tiny)
-    g = (beckmann_g1_core(a2 * p.ti2, p.ih * p.iz > 0.0, tiny)
-         * beckmann_g1_core(a2 * p.to2, p.oh * p.oz > 0.0, tiny))
-    return d * g / (4.0 * p.cc)
+    c2 = np.maximum(p.hz * p.hz, tiny)
+    dn, dd = beckmann_d_parts(p.th2 * (1.0 / (a * a)), c2, a, a, tiny)
+    gin, gid = beckmann_g1_parts(p.iz, a * p.si)
+    gon, god = beckmann_g1_parts(p.oz, a * p.so)
+    return select(_visible(p), (dn * gin * gon) / (dd * gid * god * (4.0 * p.cc)), 0.0)
 
 
 #: Spec function of each distribution.

@@ -29,9 +29,10 @@ __all__ = ["Pair", "Lobe", "pair_geometry", "evaluate"]
 
 #: Per-pair quantities shared by the lobes (arrays on the NumPy path, scalars in a compiled loop):
 #: ``iz, oz`` cos θi, cos θo; ``hz`` cos θh; ``s2h`` = h_x² + h_y² (sin²θh); ``ih, oh`` wi·h, wo·h;
-#: ``ti2, to2`` tan²θi, tan²θo (guarded at the horizon); ``cc`` = max(cos θi cos θo, tiny);
-#: ``m`` = 1 − cos θd without cancellation; ``tiny`` the dtype's smallest normal number.
-Pair = namedtuple("Pair", "iz oz hz s2h ih oh ti2 to2 cc m tiny")
+#: ``si2, so2`` sin²θi, sin²θo (x² + y²); ``si, so`` sin θi, sin θo; ``th2`` tan²θh (a guarded
+#: division); ``cc`` = max(cos θi cos θo, tiny); ``m`` = 1 − cos θd without cancellation; ``tiny`` the
+#: dtype's smallest normal number.
+Pair = namedtuple("Pair", "iz oz hz s2h ih oh si2 so2 si so th2 cc m tiny")
 
 
 class Lobe(NamedTuple):
@@ -47,33 +48,52 @@ class Lobe(NamedTuple):
 def pair_geometry(ix, iy, iz, ox, oy, oz, tiny):
     """:data:`Pair` of the directions wi = (ix, iy, iz), wo = (ox, oy, oz) (arrays or scalars).
 
-    h = normalize(wi + wo) (:func:`gonio.geometry.half_vector_xyz`), tan²θ = (x² + y²)/max(z², tiny) (the
-    Smith t² of Walter et al. 2007 before the α² factor), 1 − cos θd from
-    :func:`gonio.brdf.fresnel.one_minus_cos_d_xyz`.
+    h = normalize(wi + wo) (:func:`gonio.geometry.half_vector_xyz`), sin θ = √(x² + y²),
+    tan²θh = (h_x² + h_y²) / max(h_z², tiny), 1 − cos θd from :func:`gonio.brdf.fresnel.one_minus_cos_d_xyz`.
+    On a compiled path the fields a lobe does not use are never computed.
     """
     hx, hy, hz = half_vector_xyz(ix, iy, iz, ox, oy, oz, tiny)
+    si2 = ix * ix + iy * iy
+    so2 = ox * ox + oy * oy
+    s2h = hx * hx + hy * hy
     return Pair(
-        iz, oz, hz, hx * hx + hy * hy,
+        iz, oz, hz, s2h,
         ix * hx + iy * hy + iz * hz, ox * hx + oy * hy + oz * hz,
-        (ix * ix + iy * iy) / np.maximum(iz * iz, tiny), (ox * ox + oy * oy) / np.maximum(oz * oz, tiny),
+        si2, so2, np.sqrt(si2), np.sqrt(so2),
+        s2h / np.maximum(hz * hz, tiny),
         np.maximum(iz * oz, tiny),
         one_minus_cos_d_xyz(ix, iy, iz, ox, oy, oz, hx, hy, hz),
         tiny,
     )
 
 
+#: Pairs per block of :func:`evaluate`: the temporaries of a block stay in the CPU cache.
+BLOCK = 8192
+
+
 def evaluate(const, lobes, wi, wo) -> np.ndarray:
     """``const + Σ lobes`` at the pairs ``(wi, wo)`` (broadcast arrays ``(..., 3)``): shape ``(..., 3)``.
 
     The geometry is computed once (:func:`pair_geometry`) and shared by every lobe; per-pair work is done
-    on per-pair arrays, and only the colour combination on ``(..., 3)``.
+    on per-pair arrays, only the colour combination on ``(..., 3)``; large inputs go in blocks of
+    :data:`BLOCK` pairs (element-wise, so the values do not depend on the blocking).
     """
     shape = wi.shape[:-1] + (3,)
     if not lobes:
         return np.broadcast_to(const, shape)
-    dtype = wi.dtype
+    n = wi.size // 3
+    if n <= BLOCK:
+        return np.broadcast_to(_evaluate(const, lobes, wi, wo), shape)
+    a, b = wi.reshape(-1, 3), wo.reshape(-1, 3)
+    out = np.empty((n, 3), dtype=np.result_type(wi.dtype, _evaluate(const, lobes, a[:1], b[:1]).dtype))
+    for start in range(0, n, BLOCK):
+        out[start:start + BLOCK] = _evaluate(const, lobes, a[start:start + BLOCK], b[start:start + BLOCK])
+    return out.reshape(shape)
+
+
+def _evaluate(const, lobes, wi, wo):
     p = pair_geometry(wi[..., 0], wi[..., 1], wi[..., 2], wo[..., 0], wo[..., 1], wo[..., 2],
-                      np.finfo(dtype).tiny)
+                      np.finfo(wi.dtype).tiny)
     total = const
     m = None
     for lobe in lobes:
@@ -83,4 +103,4 @@ def evaluate(const, lobes, wi, wo) -> np.ndarray:
                 m = p.m[..., None]
             s = s * schlick_m(lobe.f0, m)
         total = total + lobe.weight * s
-    return np.broadcast_to(total, shape)
+    return total
