@@ -93,3 +93,19 @@ def test_sum_shares_geometry_and_equals_terms_summed(backend):
     mixed = make("lambert+ggx+ward", **{"diffuse.albedo": 0.2, "lobe1.alpha": 0.2, "lobe2.ks": 0.3})
     parts = sum(p.eval(wi, wo) for p in mixed.parts)
     _assert_same(mixed.eval(wi, wo, backend="numpy"), parts)
+
+
+def test_kernel_cache_file_is_keyed_by_the_source(tmp_path, monkeypatch):
+    monkeypatch.setenv("GONIO_KERNEL_CACHE", str(tmp_path))
+    src = "def loop(x):\n    return x + 1\n"
+    a = compiled._cached_module(src, "0.0")
+    assert a is not None and a.loop(1) == 2 and a.__file__.startswith(str(tmp_path))
+    assert compiled._cached_module(src, "0.0").__file__ == a.__file__  # same source: the same file (and numba cache)
+    b = compiled._cached_module(src.replace("+ 1", "+ 2"), "0.0")
+    c = compiled._cached_module(src, "0.1")  # another numba: another file
+    assert len({a.__file__, b.__file__, c.__file__}) == 3 and b.loop(1) == 3
+    monkeypatch.setenv("GONIO_KERNEL_CACHE", "off")
+    assert compiled._cached_module(src, "0.0") is None
+    monkeypatch.setenv("GONIO_KERNEL_CACHE", str(tmp_path / "file"))
+    (tmp_path / "file").write_text("not a directory")
+    assert compiled._cached_module(src, "0.0") is None  # not writable: compiled in memory instead
