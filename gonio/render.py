@@ -29,7 +29,7 @@ from gonio.errors import ConfigError
 from gonio.geometry import frame_from_normal, to_local
 from gonio.lights import DirectionalLight, Light
 
-__all__ = ["Render", "render_sphere", "sphere_points", "tonemap", "light_from_angles", "png_bytes"]
+__all__ = ["Render", "render_sphere", "sphere_points", "tonemap", "light_from_angles", "png_bytes", "white_point"]
 
 
 @dataclass(frozen=True)
@@ -140,14 +140,21 @@ def render_sphere(brdf, lights: Iterable[Light], *, size: int = 128, ambient=0.0
     return Render(image, mask, int(bad.sum()))
 
 
+def white_point(radiance: np.ndarray) -> float:
+    """The radiance :func:`tonemap` maps to white by default: the 99.5th percentile of the lit pixels'
+    values (1 when nothing is lit). Images meant to be compared are tonemapped with the same one."""
+    r = np.asarray(radiance, dtype=np.float64)
+    lit = r[np.any(r > 0, axis=-1)]
+    return float(np.percentile(lit, 99.5)) if lit.size else 1.0
+
+
 def tonemap(radiance: np.ndarray, *, white: float | None = None) -> np.ndarray:
     """An 8-bit sRGB image for display: ``radiance / white`` (default: the 99.5th percentile of the
     lit pixels, so a specular highlight may clip), clipped to [0, 1], sRGB transfer function (IEC
     61966-2-1), rounded."""
     r = np.asarray(radiance, dtype=np.float64)
     if white is None:
-        lit = r[np.any(r > 0, axis=-1)]
-        white = float(np.percentile(lit, 99.5)) if lit.size else 1.0
+        white = white_point(r)
     x = np.clip(r / max(white, 1e-300), 0.0, 1.0)
     srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
     return np.rint(srgb * 255.0).astype(np.uint8)

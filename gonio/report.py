@@ -26,7 +26,7 @@ import numpy as np
 
 from gonio.errors import ConfigError
 from gonio.geometry import from_spherical
-from gonio.render import png_bytes
+from gonio.render import png_bytes, white_point
 
 __all__ = ["Entry", "load_entries", "build_report", "sphere_panel", "slice_figure", "fit_table", "comparison_table",
            "LIGHT_ANGLES_DEG"]
@@ -243,20 +243,19 @@ def sphere_panel(entry: Entry, *, size: int = 96) -> str:
         ([f"error of {k}" for k in entry.fits] if measured is not None else [])
     for theta in LIGHT_ANGLES_DEG:
         cells = [f"{theta:g}°"]
-        ref = None
+        ref = white = None
         if measured is not None:
             try:
                 rad, img, r = sphere_images(measured, theta, size=size)
-                ref, white = rad, None
+                ref, white = rad, white_point(rad)  # the models' spheres on the measured one's scale
                 cells.append(f'<img class="sphere" alt="measured, light at {theta:g} deg" src="{_png(img, r.mask)}">'
                              + (f"<br><small>{r.missing} px not measured</small>" if r.missing else ""))
             except Exception as exc:  # noqa: BLE001 - e.g. anisotropic samples that do not tabulate
                 cells.append(f"<small>{html.escape(str(exc))[:120]}</small>")
-                ref = None
+                ref = white = None
         errs = []
         for label, (model, _rep) in entry.fits.items():
-            rad, img, rm = sphere_images(model, theta, size=size,
-                                         white=float(np.percentile(ref[ref > 0], 99.5)) if ref is not None and np.any(ref > 0) else None)
+            rad, img, rm = sphere_images(model, theta, size=size, white=white)
             cells.append(f'<img class="sphere" alt="{html.escape(label)}, light at {theta:g} deg" src="{_png(img, rm.mask)}">')
             if ref is not None:
                 with np.errstate(divide="ignore", invalid="ignore"):

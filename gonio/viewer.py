@@ -11,7 +11,6 @@ it was started with.
 from __future__ import annotations
 
 import html
-import json
 import threading
 import urllib.parse
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import time
+from functools import partial
 from pathlib import Path
 
 
@@ -58,3 +59,32 @@ def run(command: str, args, fn, paths, options: dict, columns=None) -> int:
     failed = sum(r.get("status") == "failed" for r in rows)
     print(f"{len(rows)} sources, {len(rows) - failed} ok, {failed} failed; summary written to {summary}")
     return 1 if failed else 0
+
+
+def run_each(command: str, args, run_one, output_name) -> int:
+    """A command with one output per source (``gonio export``, ``gonio plot``): one source runs
+    ``run_one(args)``; several write ``output_name(source, opts)`` each into the directory ``-o``
+    names (:func:`output_row`) and print the summary (:func:`run`)."""
+    paths = sources(args)
+    if not is_batch(args, paths):
+        args.source = str(paths[0])
+        return run_one(args)
+    out_dir = output_dir("-o", args.output)
+    opts = {k: v for k, v in vars(args).items() if k not in ("func", "source", "output")}
+    opts["out_dir"] = str(out_dir)
+    return run(command, args, partial(output_row, run_one, output_name), paths, opts,
+               ["source", "status", "output", "error"])
+
+
+def output_row(run_one, output_name, source: str, opts: dict) -> dict:
+    """One source of a batch: ``run_one`` with its output in ``opts["out_dir"]`` (its own printing
+    suppressed: the summary speaks for it); its summary row."""
+    import argparse
+    import contextlib
+    import io
+
+    out = Path(opts["out_dir"]) / output_name(source, opts)
+    ns = argparse.Namespace(**{k: v for k, v in opts.items() if k != "out_dir"}, source=source, output=str(out))
+    with contextlib.redirect_stdout(io.StringIO()):
+        run_one(ns)
+    return {"output": str(out)}

@@ -53,28 +53,14 @@ def load_model(path):
 
 
 def run(args) -> int:
-    paths = many.sources(args)
-    if many.is_batch(args, paths):
-        out_dir = many.output_dir("-o", args.output)
-        opts = {k: v for k, v in vars(args).items() if k not in ("func", "source", "output")}
-        opts["out_dir"] = str(out_dir)
-        return many.run("plot", args, plot_row, paths, opts, ["source", "status", "output", "error"])
-    args.source = str(paths[0])
-    return run_one(args)
+    return many.run_each("plot", args, run_one, output_name)
 
 
-def plot_row(source: str, opts: dict) -> dict:
-    """Plot one source of a batch into ``opts["out_dir"]``; its summary row."""
-    import argparse
-    import contextlib
-    import io
+def output_name(source: str, opts: dict) -> str:
+    """The file name of ``source``'s output in a batch's output directory."""
     from pathlib import Path
 
-    out = Path(opts["out_dir"]) / f"{Path(source).name}-{opts['kind']}.png"
-    ns = argparse.Namespace(**{k: v for k, v in opts.items() if k != "out_dir"}, source=source, output=str(out))
-    with contextlib.redirect_stdout(io.StringIO()):
-        run_one(ns)
-    return {"output": str(out)}
+    return f"{Path(source).name}-{opts['kind']}.png"
 
 
 def run_one(args) -> int:
