@@ -179,7 +179,7 @@ def improve(nodes: np.ndarray, cost, nbr_idx: list[list[int]], nbr_cost: list[li
             if gain <= best:
                 continue
             for e, o in ((s1, sl), (sl, s1)) if s1 != sl else ((s1, s1),):
-                for c, dec in zip(cand_i[e], cand_c[e]):
+                for c, dec in zip(nbr_idx[e], nbr_cost[e]):
                     if dec >= gain - best:
                         break
                     if c in seg:

@@ -141,6 +141,7 @@ def _boruvka(q: np.ndarray, model, idx: np.ndarray, dist: np.ndarray, tick) -> f
     total = 0.0
     joined = 0
     rows = np.arange(n)
+    shared = None  # a k-d tree over all poses, built when a component's lists never leave it
     while joined < n - 1:
         tick(joined)
         lab = _find(parent, rows)
@@ -166,15 +167,13 @@ def _boruvka(q: np.ndarray, model, idx: np.ndarray, dist: np.ndarray, tick) -> f
         edges_u.append(sel)
         edges_v.append(cv[sel])
         edges_w.append(cd[sel])
-        for c in unresolved:
-            # a k-d tree over the other components' poses, queried by this component's poses
-            members = np.flatnonzero(lab == c)
-            others = np.flatnonzero(lab != c)
-            j, t = _query(q, model, others, members, 1)
-            w = int(np.argmin(t[:, 0]))
-            edges_u.append(members[w:w + 1])
-            edges_v.append(j[w])
-            edges_w.append(t[w])
+        if unresolved.size:
+            if shared is None:
+                shared = (_tree(q, model, q), _scaled_like(q, q, model))
+            eu, ev, ew = _outgoing(q, model, lab, unresolved, *shared, 2 * idx.shape[1] + 2)
+            edges_u.append(eu)
+            edges_v.append(ev)
+            edges_w.append(ew)
         eu = np.concatenate(edges_u)
         ev = np.concatenate(edges_v)
         ew = np.concatenate(edges_w)
@@ -189,6 +188,86 @@ def _boruvka(q: np.ndarray, model, idx: np.ndarray, dist: np.ndarray, tick) -> f
                 total += w
                 joined += 1
     return total
+
+
+def _radius(model, w: float) -> float:
+    """The scaled Chebyshev distance beyond which every move takes longer than ``w`` (the inverse of
+    :func:`_floor`: ``F(x) ≤ w`` iff some joint's ``t_j(x v_j) ≤ w``), slightly widened; inf for inf."""
+    if not np.isfinite(w):
+        return np.inf
+    v, a = model.vmax, model.amax
+    d = np.where(w <= 2.0 * v / a, (w / 2.0) ** 2 * a, (w - v / a) * v)  # t_j(d) = w, per joint
+    return float(np.max(d / v)) * (1.0 + 1e-9) + 1e-12
+
+
+def _outgoing(q: np.ndarray, model, lab: np.ndarray, comps: np.ndarray, tree, sq: np.ndarray, k0: int,
+              kmax: int = 64, chunk: int = 4096):
+    """The cheapest edge from each component in ``comps`` (labels ``lab``) to another component, exactly:
+    ``(u, v, w)`` arrays, one edge per component.
+
+    Every member is queried in the k-d tree over all poses for its ``kk`` nearest (kk doubling): its
+    nearest pose of another component is exact once found at a time ≤ the floor of the last returned
+    distance (module docstring); a member stops early when that floor already reaches its component's
+    cheapest edge so far (it cannot beat it). Members still open at ``kk > kmax`` (deep inside a large
+    component) are resolved by a k-d tree over the other components' poses."""
+    n = q.shape[0]
+    comp_w = np.full(n, np.inf)
+    comp_u = np.zeros(n, np.int64)
+    comp_v = np.zeros(n, np.int64)
+
+    def offer(u, v, w):
+        o = np.argsort(-w, kind="stable")  # fancy assignment keeps the last: the cheapest
+        u, v, w = u[o], v[o], w[o]
+        better = w < comp_w[lab[u]]
+        u, v, w = u[better], v[better], w[better]
+        comp_w[lab[u]], comp_u[lab[u]], comp_v[lab[u]] = w, u, v
+
+    todo = np.flatnonzero(np.isin(lab, comps))
+    kk = min(n, k0)
+    while todo.size and kk <= kmax:
+        keep = []
+        for lo in range(0, todo.size, chunk):
+            rows = todo[lo:lo + chunk]
+            cheb, cand = tree.query(sq[rows], k=kk, p=np.inf)
+            cand = cand.reshape(rows.size, kk)
+            t = model.move_time(q[rows][:, None, :], q[cand])
+            t[lab[cand] == lab[rows][:, None]] = np.inf
+            j = t.argmin(axis=1)
+            w = t[np.arange(rows.size), j]
+            ok = np.isfinite(w)
+            offer(rows[ok], cand[np.arange(rows.size), j][ok], w[ok])
+            floor = _floor(model, cheb.reshape(rows.size, kk)[:, -1])
+            keep.append((rows, w, floor))
+        if kk >= n:
+            todo = todo[:0]
+            break
+        # open: the nearest other-component pose may be unlisted and cheaper than the component's best
+        todo = np.concatenate([r[(w > f) & (f < comp_w[lab[r]])] for r, w, f in keep])
+        kk = min(n, kk * 2)
+    for c in np.unique(lab[todo]):
+        # members deep inside a large component: a k-d tree over the other components' poses, searched
+        # only within the radius where an edge could beat the component's best so far
+        members = todo[lab[todo] == c]
+        others = np.flatnonzero(lab != c)
+        sub = _tree(q[others], model, q)
+        r = _radius(model, comp_w[c])
+        kq = min(others.size, 8)
+        cheb, j = sub.query(sq[members], k=kq, p=np.inf, distance_upper_bound=r)
+        cheb, j = cheb.reshape(members.size, kq), j.reshape(members.size, kq)
+        found = j < others.size
+        jj = others[np.where(found, j, 0)]
+        t = np.where(found, model.move_time(q[members][:, None, :], q[jj]), np.inf)
+        best = t.argmin(axis=1)
+        w = t[np.arange(members.size), best]
+        # exact when every pose within the radius was listed, or the best beats the floor of the last
+        exact = ~found[:, -1] | (w <= _floor(model, cheb[:, -1]))
+        ok = np.isfinite(w)
+        offer(members[ok], jj[np.arange(members.size), best][ok], w[ok])
+        rest = members[~exact]
+        if rest.size:
+            j1, t1 = _query(q, model, others, rest, 1)
+            offer(rest, j1[:, 0], t1[:, 0])
+    return comp_u[comps], comp_v[comps], comp_w[comps]
 
 
 class NearestUnvisited:

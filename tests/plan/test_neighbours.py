@@ -60,3 +60,35 @@ def test_clusters_far_apart_are_joined(rig_model):
     centres = rng.uniform(-3, 3, (6, 4))
     q = np.concatenate([c + rng.normal(0, 1e-3, (40, 4)) for c in centres])
     assert mst_move_time(q, rig_model) == pytest.approx(o._mst_move_time_dense(q, rig_model), rel=1e-12)
+
+
+@pytest.mark.parametrize("kind", sorted(MODELS))
+def test_cheapest_outgoing_edges_by_both_paths(rig_model, kind):
+    """Borůvka's cheapest edge out of each component, found by the batched k-nearest queries or (kmax=0)
+    only by the radius-bounded search over the other components, equals a dense scan."""
+    model = MODELS[kind](rig_model)
+    rng = np.random.default_rng(2)
+    q = np.concatenate([c + rng.uniform(-0.3, 0.3, (150, 4)) for c in rng.uniform(-3, 3, (3, 4))])
+    lab = np.repeat(np.arange(3) * 150, 150)  # three large components, labelled by their first pose
+    lab[::37] = 7  # and a sparse fourth one inside them
+    comps = np.unique(lab)
+    full = model.move_time(q[:, None, :], q[None, :, :])
+    expect = [full[np.ix_(lab == c, lab != c)].min() for c in comps]
+    tree, sq = nb._tree(q, model, q), nb._scaled_like(q, q, model)
+    for kmax in (64, 26, 0):  # batched; one batch then the radius search; the radius search alone
+        u, v, w = nb._outgoing(q, model, lab, comps, tree, sq, 26, kmax=kmax)
+        np.testing.assert_allclose(w, expect, rtol=1e-12)
+        np.testing.assert_allclose(model.move_time(q[u], q[v]), w, rtol=1e-12)
+        assert np.all(lab[u] == comps) and np.all(lab[v] != comps)
+
+
+@pytest.mark.parametrize("kind", sorted(MODELS))
+def test_radius_inverts_the_floor(rig_model, kind):
+    """Beyond _radius(w) every move takes longer than w, and just inside it one may not: the radius
+    bounding the search of Borůvka's fallback is the inverse of the k-d tree floor F."""
+    model = MODELS[kind](rig_model)
+    for w in (1e-4, 0.05, 0.5, 1.0, 3.0, 20.0):
+        r = nb._radius(model, w)
+        assert nb._floor(model, r) >= w * (1 - 1e-9)
+        assert nb._floor(model, (r - 1e-12) * (1 - 1e-6)) < w  # less the widening for round-off
+    assert nb._radius(model, np.inf) == np.inf
