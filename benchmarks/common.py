@@ -67,3 +67,19 @@ def time_call(fn: Callable[[], object], *, min_time: float = 0.2, repeat: int = 
                 break
         best = min(best, elapsed / n)
     return best
+
+
+def time_median(fn: Callable[[], object], *, repeat: int = 5, cpu: bool = True) -> float:
+    """Median seconds per call of ``fn`` over ``repeat`` calls after one warm-up call (compilation, caches).
+
+    ``cpu``: CPU time of this process (``time.process_time``: what one core spends, less disturbed by
+    other users of a shared machine than wall time); else wall time.
+    """
+    clock = time.process_time if cpu else time.perf_counter
+    fn()
+    times = []
+    for _ in range(repeat):
+        start = clock()
+        fn()
+        times.append(clock() - start)
+    return sorted(times)[len(times) // 2]

@@ -209,6 +209,28 @@ def _plot_calibration(ax, tables) -> bool:
     return True
 
 
+def _labtime(q):
+    from benchmarks import bench_labtime
+
+    return bench_labtime.run(q)
+
+
+def _plot_labtime(ax, tables) -> bool:
+    t = _find(tables, "strategy", "lab/bound", "p95 rel err")
+    if t is None or not t.rows:
+        return False
+    x = _col(t, "lab/bound").astype(float)
+    y = _col(t, "p95 rel err").astype(float)
+    ax.plot(x, y, "o")
+    for xi, yi, name in zip(x, y, _col(t, "strategy")):
+        ax.annotate(str(name).split(":")[0].split(",")[0][:28], (xi, yi), textcoords="offset points", xytext=(6, 4),
+                    fontsize=7)
+    _mark_default(ax, t, x, y)
+    ax.set(xlabel="simulated lab time / lower bound", ylabel="p95 relative error vs true BRDF", xscale="log",
+           title="Light warm-up and dark frames: lab time vs accuracy")
+    return True
+
+
 TRADES = [
     Trade("plans", "Plan density and kind → lab time vs BRDF error", _plans, _plot_plans),
     Trade("capture", "Exposure brackets and frames averaged → lab time vs noise", _capture, _plot_capture),
@@ -219,6 +241,8 @@ TRADES = [
     Trade("realdata", "Real measured materials → selected fit and time vs published fits", _realdata, _plot_realdata),
     Trade("calibration", "Rig geometric calibration → lab time vs wi/wo and lobe error on as-built rigs", _calibration,
           _plot_calibration),
+    Trade("labtime", "Light warm-up and dark frames → lab time vs its lower bound vs accuracy", _labtime,
+          _plot_labtime),
 ]
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from gonio._jit import jitable, select
 from gonio.errors import ConfigError
 
 __all__ = [
@@ -24,6 +25,7 @@ __all__ = [
     "to_spherical",
     "reflect",
     "half_vector",
+    "half_vector_xyz",
     "orthonormal_basis",
     "frame_from_normal",
     "to_local",
@@ -107,20 +109,31 @@ def half_vector(wi, wo) -> np.ndarray:
     For ``wi = -wo`` there is no half vector; the function returns the surface normal +z
     (where θh = 0, a value every model in :mod:`gonio.brdf` treats as finite). Keeps a float32
     input float32 (the models' float32 evaluation path); anything else is computed in float64.
+    The formula is :func:`half_vector_xyz`.
     """
     wi, wo = np.asarray(wi), np.asarray(wo)
     if wi.dtype != np.float32 or wo.dtype != np.float32:
         wi, wo = _vec(wi), _vec(wo)
     elif wi.shape[-1:] != (3,) or wo.shape[-1:] != (3,):
         raise ValueError(f"expected vectors of shape (..., 3), got shapes {wi.shape} and {wo.shape}")
-    s = wi + wo
-    n2 = s[..., 0] * s[..., 0] + s[..., 1] * s[..., 1] + s[..., 2] * s[..., 2]
-    ok = n2 > np.finfo(s.dtype).tiny * 1e6
-    inv = 1.0 / np.sqrt(np.where(ok, n2, 1.0))
-    h = s * inv[..., None]
-    z = np.zeros_like(h)
-    z[..., 2] = 1.0
-    return np.where(ok[..., None], h, z)
+    wi, wo = np.broadcast_arrays(wi, wo)
+    tiny = np.finfo(wi.dtype).tiny
+    return np.stack(half_vector_xyz(wi[..., 0], wi[..., 1], wi[..., 2], wo[..., 0], wo[..., 1], wo[..., 2], tiny),
+                    axis=-1)
+
+
+@jitable
+def half_vector_xyz(ix, iy, iz, ox, oy, oz, tiny):
+    """Components ``(hx, hy, hz)`` of the half vector normalize(wi + wo) (Blinn 1977; lecture notes 000),
+    from the components of wi and wo (arrays or scalars; ``tiny`` the smallest normal number of their
+    dtype). Where |wi + wo|² ≤ 10⁶·tiny (wi = −wo) the result is the normal (0, 0, 1)."""
+    sx = ix + ox
+    sy = iy + oy
+    sz = iz + oz
+    n2 = sx * sx + sy * sy + sz * sz
+    ok = n2 > tiny * 1e6
+    inv = 1.0 / np.sqrt(select(ok, n2, 1.0))
+    return select(ok, sx * inv, 0.0), select(ok, sy * inv, 0.0), select(ok, sz * inv, 1.0)
 
 
 def orthonormal_basis(n) -> tuple[np.ndarray, np.ndarray]:

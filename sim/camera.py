@@ -63,7 +63,20 @@ class SensorModel:
     dn_per_electron : float or None
         System gain K at analogue gain 1; default maps the full well to ~95 % of the range.
     read_noise_e, dark_current_e : float
-        Read noise (electrons rms) and dark current (electrons per second).
+        Read noise (electrons rms) and dark current (electrons per second at ``dark_ref_c``).
+    dark_doubling_c, dark_ref_c : float
+        The dark current doubles every ``dark_doubling_c`` kelvin of sensor temperature above
+        ``dark_ref_c`` (EMVA Standard 1288 R4.0, 2021, §"Temperature dependency of the dark current":
+        ``μ_I(T) = μ_I,ref · 2^((T − T_ref)/T_d)``; typical CMOS sensors 6–8 K).
+    dsnu : float
+        Dark signal non-uniformity: each pixel's dark current is ``1 + dsnu · z`` (z standard normal,
+        clipped at 0) times the mean, a fixed pattern of the sensor (EMVA 1288 §"DSNU").
+    ambient_c, heating_c, thermal_tau : float
+        Sensor temperature ``T(t) = ambient + heating · (1 − exp(−t/τ))`` after power-on (first-order
+        self-heating of the camera housing, Newton's law of cooling); 0 heating: constant ``ambient``.
+    reports_temperature : bool
+        Frames carry the sensor temperature (``meta["sensor_temp_c"]``, 0.1 °C steps), as cameras with a
+        GenICam ``DeviceTemperature`` feature do.
     black_level : float or None
         Pedestal in DN; default 2^(bits−6) for linear sensors, 0 for 8-bit gamma.
     responsivity : 3 floats
@@ -80,6 +93,13 @@ class SensorModel:
     dn_per_electron: float | None = None
     read_noise_e: float = 3.0
     dark_current_e: float = 20.0
+    dark_doubling_c: float = 6.5
+    dark_ref_c: float = 25.0
+    dsnu: float = 0.0
+    ambient_c: float = 25.0
+    heating_c: float = 0.0
+    thermal_tau: float = 1200.0
+    reports_temperature: bool = True
     black_level: float | None = None
     responsivity: tuple[float, float, float] = (3.0e6, 3.4e6, 2.6e6)
     linear: bool = True
@@ -97,6 +117,16 @@ class SensorModel:
             object.__setattr__(self, "dn_per_electron", 0.95 * (2 ** self.bit_depth) / self.full_well)
         if self.black_level is None:
             object.__setattr__(self, "black_level", float(2 ** (self.bit_depth - 6)) if self.linear else 0.0)
+
+    def temperature(self, t_on: float) -> float:
+        """Sensor temperature (°C) ``t_on`` seconds after power-on (see the class docstring)."""
+        if self.heating_c == 0.0:
+            return self.ambient_c
+        return self.ambient_c + self.heating_c * (1.0 - float(np.exp(-max(t_on, 0.0) / self.thermal_tau)))
+
+    def dark_rate(self, temperature: float) -> float:
+        """Mean dark current (electrons per second) at ``temperature`` (°C), EMVA 1288's doubling law."""
+        return self.dark_current_e * 2.0 ** ((temperature - self.dark_ref_c) / self.dark_doubling_c)
 
     @property
     def saturation(self) -> int:
@@ -202,6 +232,8 @@ class SimCamera:
         self._sample_key: bytes | None = None
         self._sample_scene = self._sample_cached = None
         self._closed = False
+        self._t_power = clock.now() if clock is not None else 0.0  #: power-on: the sensor starts at ambient
+        self._dsnu: np.ndarray | None = None
 
     def reseed(self, seed) -> None:
         """Restart the noise generator from ``seed`` (anything ``numpy.random.default_rng`` takes, e.g.
@@ -230,6 +262,20 @@ class SimCamera:
         if self._light_output is not None:
             return float(self._light_output())
         return self._level if self._on else 0.0
+
+    def sensor_temperature(self) -> float:
+        """The sensor's temperature now (°C, :meth:`SensorModel.temperature`)."""
+        return self.sensor.temperature((self.clock.now() if self.clock is not None else 0.0) - self._t_power)
+
+    def _dark_pattern(self, shape) -> np.ndarray | None:
+        """Relative dark current of every pixel (DSNU), a fixed pattern of the sensor: drawn once from a
+        constant seed, not from the session's (the same sensor in every session); None without DSNU."""
+        if self.sensor.dsnu <= 0.0:
+            return None
+        if self._dsnu is None or self._dsnu.shape != tuple(shape):
+            z = np.random.default_rng(0x5E750).standard_normal(shape)
+            self._dsnu = np.maximum(1.0 + self.sensor.dsnu * z, 0.0).astype(np.float32)
+        return self._dsnu
 
     # -- rendering ------------------------------------------------------------------------------
     def _ray_maps(self) -> tuple[np.ndarray, np.ndarray]:
@@ -441,7 +487,14 @@ class SimCamera:
         level = self.light_level()
         t0 = self.clock.now() if self.clock is not None else 0.0
         rate = self.electron_rate()
-        mean_e = rate * np.float32(level * exposure) + np.float32(sn.dark_current_e * exposure)
+        temp = self.sensor_temperature()
+        dark_e = np.float32(sn.dark_rate(temp) * exposure)
+        mean_e = rate * np.float32(level * exposure)
+        pattern = self._dark_pattern(mean_e.shape)
+        if pattern is None:
+            mean_e += dark_e
+        else:
+            mean_e += pattern * dark_e
         e = self._shot_and_read(mean_e)
         np.minimum(e, np.float32(sn.full_well), out=e)
         if sn.linear:
@@ -456,7 +509,8 @@ class SimCamera:
             self.clock.sleep(exposure + sn.readout)
         return Frame(pixels=pixels, exposure=float(exposure), gain=float(gain), bit_depth=sn.bit_depth,
                      black_level=float(sn.black_level), timestamp=t0, linear=sn.linear,
-                     meta={"device": "sim", "light_output": level})
+                     meta={"device": "sim", "light_output": level,
+                           **({"sensor_temp_c": round(temp, 1)} if sn.reports_temperature else {})})
 
     def _shot_and_read(self, mean_e: np.ndarray) -> np.ndarray:
         """Electrons after shot noise (Poisson; its normal approximation above

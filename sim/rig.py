@@ -24,8 +24,9 @@ source)``; the servo encoder noise restarts at every arrival from ``(seed, servo
 set (one light-off period) restarts the camera noise from ``(seed, "dark")``. So a pose measured in a
 resumed session gives bit for bit the frames, readings and samples of an uninterrupted one, provided
 the deterministic, path-dependent physics is off or equal: the backlash (which side of the play the
-last move left the load on) and the light's warm-up drift (lab time since switch-on) —
-``SimRigConfig(backlash_ticks=0, warmup_depth=0)``, what the bit-identity tests use.
+last move left the load on), the light's warm-up drift (lab time since switch-on) and the camera
+sensor's self-heating (lab time since power-on: the dark level) —
+``SimRigConfig(backlash_ticks=0, warmup_depth=0, sensor_heating_c=0)``, what the bit-identity tests use.
 """
 
 from __future__ import annotations
@@ -65,7 +66,8 @@ class SimRigConfig:
     ``gonio resume`` rebuilds the same rig).
 
     Camera: ``width`` × ``height`` pixels, focal length ``focal_px``. Servos: position noise and
-    backlash in ticks. Light: warm-up depth and time constant (s), photodiode noise.
+    backlash in ticks. Light: warm-up depth and time constant (s), photodiode noise. Camera sensor:
+    self-heating and dark non-uniformity (the dark level's drift).
     """
 
     seed: int = 0
@@ -79,6 +81,14 @@ class SimRigConfig:
     warmup_depth: float = 0.05
     warmup_tau: float = 120.0
     pd_noise: float = 0.002
+    #: Camera sensor: self-heating after power-on (K, first-order with ``sensor_thermal_tau`` s) and dark
+    #: signal non-uniformity (relative rms of the per-pixel dark current): the dark level drifts with the
+    #: sensor temperature during a session (sim.camera.SensorModel); 0 heating: a constant dark level
+    sensor_heating_c: float = 8.0
+    sensor_thermal_tau: float = 1200.0
+    sensor_dsnu: float = 0.2
+    #: frames carry the sensor temperature (``meta["sensor_temp_c"]``); False: a camera that does not report it
+    sensor_reports_temperature: bool = True
     #: How the host reaches the camera: ``direct`` (in-process) or ``gige`` (sim.gige_camera over GigE Vision).
     camera_link: str = "direct"
     #: Camera faults, :meth:`sim.faults.FrameFaults.from_spec` (``"black=0.05,stale=0.01"``; empty: none).
@@ -240,7 +250,9 @@ class SimRig:
                                              self.clock, faults=controller_faults, seed=cfg.seed + 1,
                                              warmup_depth=cfg.warmup_depth, warmup_tau=cfg.warmup_tau,
                                              pd_noise=cfg.pd_noise)
-        self.sensor = SensorModel(bit_depth=cfg.bit_depth)
+        self.sensor = SensorModel(bit_depth=cfg.bit_depth, heating_c=cfg.sensor_heating_c,
+                                  thermal_tau=cfg.sensor_thermal_tau, dsnu=cfg.sensor_dsnu,
+                                  reports_temperature=cfg.sensor_reports_temperature)
         self.layout = layout or TargetLayout()
         self.calibration = cfg.calibration()
         scene = SimScene(self.layout, self.material, light_intensity=cfg.light_intensity)

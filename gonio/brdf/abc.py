@@ -13,11 +13,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from gonio._jit import jitable
 from gonio.brdf.base import BRDF, Param
-from gonio.brdf.fresnel import dielectric
-from gonio.brdf.microfacet import _tiny, half_vector, vgroove_g
+from gonio.brdf.fresnel import dielectric, dielectric_core
+from gonio.brdf.microfacet import half_vector, vgroove_g_core
+from gonio.brdf.pairs import Lobe
 
-__all__ = ["ABCMicrofacet", "ABCSmooth", "abc_s"]
+__all__ = ["ABCMicrofacet", "ABCSmooth", "abc_s", "abc_s_core", "abc_spec"]
 
 #: Upper bound of B: ~1/B is the lobe width in (1 − cos θh); 1e7 resolves lobes far narrower than a
 #: MERL cell at θh = 0 (Löw's fits reach B ≈ 6·10⁶ for fabrics' grazing lobes).
@@ -28,10 +30,28 @@ def abc_s(x, A, B, C) -> np.ndarray:
     """The ABC function S(x) = A / (1 + B x)^C (Löw et al. 2012, eq. 7, with x the squared frequency).
 
     Computed as A · exp(−C · log1p(B x)) so large B·x underflows to 0 instead of overflowing.
-    ``A`` may be RGB (last axis 3); ``x`` has the sample shape.
+    ``A`` may be RGB (last axis 3); ``x`` has the sample shape. The formula is :func:`abc_s_core`.
     """
-    s = np.exp(-C * np.log1p(B * np.maximum(x, 0.0)))
-    return s[..., None] * A
+    return abc_s_core(x, B, C)[..., None] * A
+
+
+@jitable
+def abc_s_core(x, B, C):
+    """S(x)/A = (1 + B x)^−C = exp(−C · log1p(B x)) (Löw et al. 2012, eq. 7; see :func:`abc_s`), x clamped
+    at 0; arrays or scalars."""
+    return np.exp(-C * np.log1p(B * np.maximum(x, 0.0)))
+
+
+@jitable
+def abc_spec(p, B, C, eta):
+    """The lobe of :class:`ABCMicrofacet` without its colour A: D F G / (π cos θi cos θo) with
+    D/A = (1 + B (1 − cos θh))^−C (:func:`abc_s_core`), F the exact dielectric Fresnel at θd
+    (:func:`gonio.brdf.fresnel.dielectric_core`) and G the V-groove shadowing
+    (:func:`gonio.brdf.microfacet.vgroove_g_core`) (Löw et al. 2012, §5, eqs. 12–13), on the shared
+    geometry ``p`` (:func:`gonio.brdf.pairs.pair_geometry`)."""
+    d = abc_s_core(1.0 - np.minimum(np.maximum(p.hz, 0.0), 1.0), B, C)
+    f = dielectric_core(np.minimum(np.maximum(p.ih, 0.0), 1.0), eta)
+    return d * (f * vgroove_g_core(p.iz, p.oz, p.hz, p.oh, p.tiny) / (np.pi * p.cc))
 
 
 class ABCMicrofacet(BRDF):
@@ -71,14 +91,8 @@ class ABCMicrofacet(BRDF):
     }
     energy_conserving = False
 
-    def _eval(self, wi, wo):
-        h = half_vector(wi, wo)
-        d = abc_s(1.0 - np.clip(h[..., 2], 0.0, 1.0), self.A, self.B, self.C)
-        g = vgroove_g(wi, wo, h)
-        cos_d = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
-        f = dielectric(cos_d, self.eta)
-        denom = np.pi * np.maximum(wi[..., 2] * wo[..., 2], _tiny(wi))
-        return self.kd / np.pi + d * (f * g / denom)[..., None]
+    def _lobes(self):
+        return self.kd / np.pi, [Lobe(abc_spec, (self.B, self.C, self.eta), self.A)]
 
 
 class ABCSmooth(BRDF):

@@ -153,7 +153,7 @@ class BRDF:
         """Fitting bounds ``(lo, hi)`` of every numeric parameter."""
         return {k: (p.lo, p.hi) for k, p in cls.PARAMS.items() if p.kind != "choice"}
 
-    def eval(self, wi, wo, dtype=np.float64) -> np.ndarray:
+    def eval(self, wi, wo, dtype=np.float64, backend: str = "auto") -> np.ndarray:
         """BRDF value f(wi, wo) in 1/sr, RGB on the last axis, shape ``broadcast(wi, wo)[:-1] + (3,)``.
 
         ``wi`` (toward the light) and ``wo`` (toward the camera) are unit vectors in the local frame.
@@ -162,16 +162,35 @@ class BRDF:
         ``dtype`` (default float64) is the floating type of the computation and the result;
         ``np.float32`` evaluates with float32 inputs and parameters (faster, less accurate: see
         ``python -m benchmarks brdf``). The finiteness guarantees at the extremes are for float64.
+
+        ``backend``: ``"numpy"`` the NumPy reference path; ``"compiled"`` the numba-compiled loop of
+        :mod:`gonio.brdf.compiled` (float64 only; the optional extra ``gonio[fast]``; ValueError if it
+        cannot be used); ``"auto"`` (default) the compiled loop for float64 arrays of
+        ≥ :data:`gonio.brdf.compiled.MIN_PAIRS` pairs when numba is installed and the model has a compiled
+        form, else NumPy. Both give the same values (≤ 1e-12 relative, a test). The environment variable
+        ``GONIO_BRDF_BACKEND=numpy`` makes ``"auto"`` mean NumPy.
         """
         dtype = np.dtype(dtype)
+        if backend not in ("auto", "numpy", "compiled"):
+            raise ValueError(f"backend must be 'auto', 'numpy' or 'compiled', not {backend!r}")
         wi = np.asarray(wi, dtype=dtype)
         wo = np.asarray(wo, dtype=dtype)
         wi, wo = np.broadcast_arrays(wi, wo)
+        if backend != "numpy":
+            from gonio.brdf import compiled
+
+            if compiled.wanted(self, wi, dtype, backend):
+                return compiled.evaluate(self, wi, wo)
         above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
         model = self if dtype == np.float64 else self._astype(dtype)
         with np.errstate(all="ignore"):
             value = np.broadcast_to(model._eval(wi, wo), wi.shape[:-1] + (3,))
         return np.where(above[..., None], value, dtype.type(0.0))
+
+    def _lobes(self):
+        """``(const, [Lobe, ...])`` when the model is ``const + Σ lobes`` on shared pair geometry
+        (:mod:`gonio.brdf.pairs`; such models get a compiled form), else None."""
+        return None
 
     def _astype(self, dtype) -> "BRDF":
         """A twin whose numeric parameters are of ``dtype`` (for :meth:`eval` with ``dtype``)."""
@@ -180,8 +199,14 @@ class BRDF:
         object.__setattr__(twin, "_params", MappingProxyType(cast))
         return twin
 
-    def _eval(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
-        raise NotImplementedError
+    def _eval(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        """Values above the horizon; models written as lobes (:meth:`_lobes`) need not override it."""
+        lobes = self._lobes()
+        if lobes is None:  # pragma: no cover - abstract
+            raise NotImplementedError
+        from gonio.brdf.pairs import evaluate
+
+        return evaluate(*lobes, wi, wo)
 
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={v!r}" for k, v in self.params.items())

@@ -4,11 +4,23 @@ from __future__ import annotations
 
 import numpy as np
 
+from gonio._jit import jitable
 from gonio.brdf.base import BRDF, Param
-from gonio.brdf.fresnel import one_minus_cos_d, schlick
-from gonio.brdf.microfacet import ALPHA_MIN, _tiny, beckmann_d, half_vector, vgroove_g
+from gonio.brdf.microfacet import ALPHA_MIN, beckmann_d_core, clamp_alpha, vgroove_g_core
+from gonio.brdf.pairs import Lobe
 
-__all__ = ["CookTorrance"]
+__all__ = ["CookTorrance", "cook_torrance_spec"]
+
+
+@jitable
+def cook_torrance_spec(p, roughness):
+    """The Cook-Torrance lobe without colour and Fresnel, D G / ((n·wi)(n·wo)) with D = π × the normalized
+    Beckmann D (:func:`gonio.brdf.microfacet.beckmann_d_core`, Walter et al. 2007, eq. 25) and the V-groove
+    G (:func:`gonio.brdf.microfacet.vgroove_g_core`), on the shared geometry ``p``
+    (:func:`gonio.brdf.pairs.pair_geometry`); Cook & Torrance 1982, lecture notes ``004_6b0fa14dcb48ed2f.txt``."""
+    m = clamp_alpha(roughness)
+    d = np.pi * beckmann_d_core(p.s2h / (m * m), p.hz, m, m, p.tiny)
+    return d * vgroove_g_core(p.iz, p.oz, p.hz, p.oh, p.tiny) / p.cc
 
 
 class CookTorrance(BRDF):
@@ -46,11 +58,5 @@ class CookTorrance(BRDF):
     }
     energy_conserving = False
 
-    def _eval(self, wi, wo):
-        h = half_vector(wi, wo)
-        d = np.pi * beckmann_d(h, self.roughness)
-        g = vgroove_g(wi, wo, h)
-        oh = wo[..., 0] * h[..., 0] + wo[..., 1] * h[..., 1] + wo[..., 2] * h[..., 2]
-        denom = np.maximum(wi[..., 2] * wo[..., 2], _tiny(wi))
-        spec = (d * g / denom)[..., None] * schlick(self.f0, oh, one_minus_cos_d(wi, wo, h))
-        return self.kd / np.pi + self.ks / np.pi * spec
+    def _lobes(self):
+        return self.kd / np.pi, [Lobe(cook_torrance_spec, (self.roughness,), self.ks / np.pi, self.f0)]

@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["schlick", "one_minus_cos_d", "schlick_rational_power", "f0_from_eta", "dielectric", "conductor"]
+from gonio._jit import jitable, select
+
+__all__ = ["schlick", "schlick_m", "one_minus_cos_d", "one_minus_cos_d_xyz", "schlick_rational_power", "f0_from_eta",
+           "dielectric", "dielectric_core", "conductor"]
 
 
 def _prep(cos_theta, *consts):
@@ -40,20 +43,39 @@ def schlick(f0, cos_theta, one_minus_cos=None) -> np.ndarray:
     cancellation (see :func:`one_minus_cos_d`), and ``cos_theta`` is then only used for its shape.
     """
     c, (f0,) = _prep(cos_theta if one_minus_cos is None else one_minus_cos, f0)
-    m = 1.0 - c if one_minus_cos is None else c
+    return schlick_m(f0, 1.0 - c if one_minus_cos is None else c)
+
+
+@jitable
+def schlick_m(f0, m):
+    """Schlick's F = f0 + (1 − f0) m⁵ from m = 1 − cos θ (Schlick 1994, eq. 15; see :func:`schlick`).
+    Arrays (broadcasting) or scalars."""
     m2 = m * m
     return f0 + (1.0 - f0) * (m2 * m2 * m)
 
 
 def one_minus_cos_d(wi, wo, h) -> np.ndarray:
-    """1 − cos θ_d for unit wi, wo and their half vector h, without cancellation near θ_d = 0.
+    """1 − cos θ_d for unit wi, wo and their half vector h, without cancellation near θ_d = 0
+    (:func:`one_minus_cos_d_xyz` on the components)."""
+    return one_minus_cos_d_xyz(wi[..., 0], wi[..., 1], wi[..., 2], wo[..., 0], wo[..., 1], wo[..., 2],
+                               h[..., 0], h[..., 1], h[..., 2])
 
-    1 − cos θ = |w − h|²/2 for unit vectors (law of cosines); averaging the wi and wo forms makes the
-    result exactly symmetric in (wi, wo), so Fresnel-weighted models stay reciprocal to the last bit.
+
+@jitable
+def one_minus_cos_d_xyz(ix, iy, iz, ox, oy, oz, hx, hy, hz):
+    """1 − cos θ_d from the components of unit wi, wo and their half vector h (arrays or scalars).
+
+    1 − cos θ = |w − h|²/2 for unit vectors (law of cosines), free of the cancellation of 1 − w·h near
+    θ_d = 0; averaging the wi and wo forms makes the result exactly symmetric in (wi, wo), so
+    Fresnel-weighted models stay reciprocal to the last bit.
     """
-    di = wi - h
-    do = wo - h
-    return 0.25 * (np.sum(di * di, axis=-1) + np.sum(do * do, axis=-1))
+    ax = ix - hx
+    ay = iy - hy
+    az = iz - hz
+    bx = ox - hx
+    by = oy - hy
+    bz = oz - hz
+    return 0.25 * ((ax * ax + ay * ay + az * az) + (bx * bx + by * by + bz * bz))
 
 
 def schlick_rational_power(t, s) -> np.ndarray:
@@ -87,13 +109,19 @@ def dielectric(cos_theta, eta) -> np.ndarray:
     (M. Born, E. Wolf, *Principles of Optics*, §1.5; Walter et al. 2007, eq. 22 is the same function.)
     """
     c, (eta,) = _prep(cos_theta, eta)
+    return dielectric_core(c, eta)
+
+
+@jitable
+def dielectric_core(c, eta):
+    """:func:`dielectric` for ``c`` = cos θ_i already in [0, 1] (arrays broadcasting against ``eta``, or
+    scalars); the formula of Born & Wolf §1.5 given there."""
     s2t = (1.0 - c * c) / (eta * eta)
-    tir = s2t >= 1.0
     ct = np.sqrt(np.maximum(1.0 - s2t, 0.0))
     rs = (c - eta * ct) / np.maximum(c + eta * ct, 1e-30)
     rp = (eta * c - ct) / np.maximum(eta * c + ct, 1e-30)
     f = 0.5 * (rs * rs + rp * rp)
-    return np.where(tir, 1.0, np.clip(f, 0.0, 1.0))
+    return select(s2t >= 1.0, 1.0, np.minimum(np.maximum(f, 0.0), 1.0))
 
 
 def conductor(cos_theta, eta, k) -> np.ndarray:

@@ -4,17 +4,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from gonio._jit import jitable, select
 from gonio.brdf.base import BRDF, Param
-from gonio.brdf.fresnel import one_minus_cos_d, schlick
-from gonio.brdf.microfacet import ALPHA_MIN, _tiny, half_vector, smith_g2
+from gonio.brdf.microfacet import ALPHA_MIN, clamp_alpha, ggx_g1_core
+from gonio.brdf.pairs import Lobe
 
-__all__ = ["GTR", "gtr_d"]
+__all__ = ["GTR", "gtr_d", "gtr_spec"]
 
 #: Roughness ceiling: the normalization has a removable singularity at α = 1 (a uniform distribution).
 ALPHA_MAX = 0.999
 
 
-def gtr_d(cos_h, alpha, gamma) -> np.ndarray:
+@jitable
+def gtr_d(cos_h, alpha, gamma):
     """Normalized GTR distribution of microfacet normals (B. Burley, "Physically-Based Shading at Disney",
     SIGGRAPH 2012 course notes, §5.4 and Appendix B):
 
@@ -23,18 +25,30 @@ def gtr_d(cos_h, alpha, gamma) -> np.ndarray:
 
     so that ∫ D cos θh dω = 1 (derived by u = 1 − (1 − α²) cos²θh). γ = 2 is GGX (c = α²/π), γ = 1 Burley's
     clearcoat lobe; small γ gives the long tails of measured materials. 1 − (α²)^(1−γ) is formed with
-    ``expm1`` so γ → 1 is continuous. α is clamped to [1e-4, 0.999].
+    ``expm1`` so γ → 1 is continuous. α is clamped to [1e-4, 0.999]; the base α² cos²θh + sin²θh ≥ α² > 0.
+    ``cos_h`` an array or a scalar, ``alpha`` and ``gamma`` scalars.
     """
-    a2 = np.clip(alpha, ALPHA_MIN, ALPHA_MAX) ** 2
+    a2 = np.minimum(np.maximum(alpha, ALPHA_MIN), ALPHA_MAX) ** 2
     lna2 = np.log(a2)
     g1 = 1.0 - gamma
     if abs(g1) < 1e-9:
         c = (1.0 - a2) / (np.pi * -lna2)
     else:
         c = (1.0 - a2) * g1 / (np.pi * -np.expm1(g1 * lna2))
-    c2 = np.clip(cos_h, 0.0, 1.0) ** 2
+    c2 = np.minimum(np.maximum(cos_h, 0.0), 1.0) ** 2
     q = a2 * c2 + (1.0 - c2)
-    return np.where(cos_h > 0.0, c * np.exp(-gamma * np.log(np.maximum(q, _tiny(q)))), 0.0)
+    return select(cos_h > 0.0, c * np.exp(-gamma * np.log(q)), 0.0)
+
+
+@jitable
+def gtr_spec(p, alpha, gamma):
+    """The GTR lobe of :class:`GTR` without colour and Fresnel: D_GTR G2 / (4 cos θi cos θo) (Walter et al.
+    2007, eq. 20 with D of :func:`gtr_d` and the GGX Smith G1 of eq. 34, :func:`gonio.brdf.microfacet.ggx_g1_core`,
+    Burley 2012 §5.6) on the shared geometry ``p`` (:func:`gonio.brdf.pairs.pair_geometry`)."""
+    a = clamp_alpha(alpha)
+    a2 = a * a
+    g = ggx_g1_core(a2 * p.ti2, p.ih * p.iz > 0.0) * ggx_g1_core(a2 * p.to2, p.oh * p.oz > 0.0)
+    return gtr_d(p.hz, alpha, gamma) * g / (4.0 * p.cc)
 
 
 class GTR(BRDF):
@@ -70,11 +84,5 @@ class GTR(BRDF):
     }
     energy_conserving = False
 
-    def _eval(self, wi, wo):
-        h = half_vector(wi, wo)
-        d = gtr_d(h[..., 2], self.alpha, self.gamma)
-        g = smith_g2("ggx", wi, wo, h, self.alpha)
-        oh = np.sum(wo * h, axis=-1)
-        denom = 4.0 * np.maximum(wi[..., 2] * wo[..., 2], _tiny(wi))
-        spec = (d * g / denom)[..., None] * schlick(self.f0, oh, one_minus_cos_d(wi, wo, h))
-        return self.kd / np.pi + self.ks * spec
+    def _lobes(self):
+        return self.kd / np.pi, [Lobe(gtr_spec, (self.alpha, self.gamma), self.ks, self.f0)]

@@ -22,5 +22,5 @@ class Lambert(BRDF):
     name = "lambert"
     PARAMS = {"albedo": Param("rgb", 0.0, 1.0, doc="diffuse albedo rho in [0, 1], per RGB channel")}
 
-    def _eval(self, wi, wo):
-        return np.broadcast_to(self.albedo / np.pi, wi.shape[:-1] + (3,))
+    def _lobes(self):
+        return self.albedo / np.pi, []

@@ -110,12 +110,36 @@ class Sum(BRDF):
         """The term models (with their fixed parameters filled in), in order."""
         return self._parts
 
+    def _lobes(self):
+        """The terms' lobes together (one shared geometry for all of them), if every term is written as
+        lobes (:meth:`gonio.brdf.base.BRDF._lobes`); else None."""
+        parts = [p._lobes() for p in self._parts]
+        if any(p is None for p in parts):
+            return None
+        return _combine(parts)
+
     def _eval(self, wi, wo):
-        total = None
-        for part in self._parts:
-            v = part._eval(wi, wo)
-            total = v if total is None else total + v
+        """Σ terms: the terms written as lobes share one geometry (:func:`gonio.brdf.pairs.evaluate`), the
+        others are evaluated on their own and added."""
+        from gonio.brdf.pairs import evaluate
+
+        described = [(p, p._lobes()) for p in self._parts]
+        shared = [d for _, d in described if d is not None]
+        total = evaluate(*_combine(shared), wi, wo) if shared else None
+        for part, d in described:
+            if d is None:
+                v = part._eval(wi, wo)
+                total = v if total is None else total + v
         return total
+
+
+def _combine(parts):
+    """``(const, lobes)`` of a sum from those of its terms: constants added, lobes concatenated."""
+    const, lobes = parts[0][0], list(parts[0][1])
+    for c, ls in parts[1:]:
+        const = const + c
+        lobes += ls
+    return const, lobes
 
 
 @functools.lru_cache(maxsize=None)

@@ -80,6 +80,17 @@ def register(sub) -> None:
                         "rig file (sim/as_built.py). Recorded in the manifest's sim.as_built")
     p.add_argument("--plan-file", metavar="PLAN.json", help="run the plan saved by 'gonio plan NAME --out PLAN.json' "
                    "(validated and solved again on this rig) instead of generating one")
+    p.add_argument("--accurate", action="store_true",
+                   help="the conservative light and dark strategy: wait until the light is stable (about 4 min) "
+                        "and re-measure the whole dark set (light off, warm-up again) every 15 min; default: "
+                        "measure at once, drift corrected from the photodiode, dark frames modelled from the "
+                        "first dark set and checked with one light-off frame (benchmarks/bench_labtime.py)")
+    p.add_argument("--warmup-wait", type=float, default=None, metavar="S",
+                   help="seconds to let the light stabilise before the first pose (default 0: the photodiode "
+                        "corrects the drift)")
+    p.add_argument("--darks", choices=("model", "measured"), default=None,
+                   help="model (default): dark frames predicted per pixel from the first dark set and the sensor "
+                        "temperature, checked on schedule; measured: the whole set re-measured on schedule")
     p.add_argument("--out", metavar="DIR", help="new session directory (default ./gonio-session-YYYYmmdd-HHMMSS)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.set_defaults(func=run_measure)
@@ -273,13 +284,46 @@ def _check_out(out: str) -> None:
 
 
 # -- running -------------------------------------------------------------------------------------
-def _run_session(store, plan, devices, calibration, layout, *, before_pose, quiet: bool, resume_cmd: str) -> int:
-    from gonio.session.runner import SessionRunner, format_lab_time
+def _timing_args(args) -> dict:
+    """The session's light and dark strategy from ``--accurate``/``--warmup-wait``/``--darks`` (a dict of
+    :class:`gonio.plan.labtime.SessionTiming` fields for the manifest; validated here)."""
+    from gonio.errors import ConfigError
+    from gonio.plan.labtime import SessionTiming
 
+    d = {"warmup": "stable", "darks": "measured"} if args.accurate else {}
+    if args.warmup_wait is not None:
+        if args.accurate:
+            raise ConfigError.field("--warmup-wait", "warmup_wait", args.warmup_wait,
+                                    "--accurate waits until the light is stable: give one of them")
+        if not (0 <= args.warmup_wait <= 3600):
+            raise ConfigError.field("--warmup-wait", "warmup_wait", args.warmup_wait, "must be seconds in [0, 3600]")
+        d["warmup_min"] = float(args.warmup_wait)
+    if args.darks is not None:
+        d["darks"] = args.darks
+    SessionTiming(**d)
+    return d
+
+
+def _manifest_timing(manifest):
+    """The :class:`SessionTiming` a session recorded (``manifest["timing"]``; absent: the default)."""
+    from gonio.errors import ConfigError
+    from gonio.plan.labtime import SessionTiming
+
+    d = manifest.get("timing") or {}
+    known = {"warmup", "warmup_min", "darks"}
+    if not isinstance(d, dict) or set(d) - known:
+        raise ConfigError.field("manifest.json", "timing", d, f"must be an object with keys among {sorted(known)}")
+    return SessionTiming(**d)
+
+
+def _run_session(store, plan, devices, calibration, layout, *, before_pose, quiet: bool, resume_cmd: str) -> int:
+    from gonio.session.runner import RunnerSettings, SessionRunner, format_lab_time
+
+    settings = RunnerSettings(timing=_manifest_timing(store.manifest))
     if "adaptive" in store.manifest:  # a loop around the runner: rounds planned from the stored samples
         from gonio.session.adaptive import AdaptiveSession, model_table, rounds_table
 
-        result = AdaptiveSession(store, devices, calibration, layout, before_pose=before_pose,
+        result = AdaptiveSession(store, devices, calibration, layout, before_pose=before_pose, settings=settings,
                                  resume_command=resume_cmd, stream=None if quiet else sys.stderr).run()
         plan = store.manifest["plan"]["poses"]
         print(f"adaptive: {len(result.rounds)} rounds, "
@@ -288,7 +332,7 @@ def _run_session(store, plan, devices, calibration, layout, *, before_pose, quie
         if result.model is not None:
             print("\n".join(model_table(result.model)))
     else:
-        runner = SessionRunner(plan, store, devices, calibration, layout, before_pose=before_pose,
+        runner = SessionRunner(plan, store, devices, calibration, layout, before_pose=before_pose, settings=settings,
                                resume_command=resume_cmd, stream=None if quiet else sys.stderr)
         result = runner.run()
     total = store.sample_count
@@ -534,6 +578,9 @@ def run_measure(args) -> int:
         "material": material.to_dict() if material is not None else {"label": ""},
         "target": _target(args.target).to_dict(),
     }
+    timing = _timing_args(args)
+    if timing:
+        manifest["timing"] = timing
     if adaptive is not None:
         manifest["adaptive"] = adaptive["adaptive"]
     if args.sim:
@@ -590,11 +637,13 @@ def _say_plan(plan, store, quiet: bool, rig) -> None:
     from gonio.plan import estimate_plan
     from gonio.session.runner import format_lab_time
 
-    est = estimate_plan(plan, rig)
+    timing = _manifest_timing(store.manifest)
+    est = estimate_plan(plan, rig, timing)
     dropped = f", {plan.n_dropped} dropped ({plan.dropped_summary()})" if plan.n_dropped else ""
     eta = (f", estimated lab time {format_lab_time(est.optimized)} incl. {format_lab_time(est.startup)} of darks and "
            f"warm-up (lower bound {format_lab_time(est.lower_bound)})"
-           + ("; automatic exposure: estimated with the expected bracket" if est.auto_exposure else ""))
+           + ("; automatic exposure: estimated with the expected bracket" if est.auto_exposure else "")
+           + f"; {timing.describe()}")
     if plan.generator == "adaptive":
         p = plan.params
         budget = f"at most the lab budget {format_lab_time(p['lab_budget'])}" if p["lab_budget"] else "no lab budget"

@@ -181,6 +181,8 @@ def register(sub) -> None:
     p.add_argument("--time-budget", type=float, default=None, metavar="S",
                    help="cap on the seconds spent ordering (default: none, so the order is reproducible)")
     p.add_argument("--estimate", action="store_true", help="print lab time, lower bound and raster baseline")
+    p.add_argument("--accurate", action="store_true", help="estimate with gonio measure --accurate's light and dark "
+                   "strategy (wait for a stable light, re-measure the dark set) instead of the default")
     p.add_argument("--out", metavar="PLAN.json", help="write the plan as JSON")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
     p.set_defaults(func=run)
@@ -211,7 +213,10 @@ def run(args) -> int:
           f"gain {cap.gain:g}, settle {cap.settle:g} s, readout {cap.readout:g} s/frame -> "
           f"{cap.pose_time():.3f} s per pose + moves")
     if args.estimate:
-        e = estimate_plan(plan, rig)
+        from gonio.plan.labtime import SessionTiming
+
+        timing = SessionTiming.accurate() if args.accurate else SessionTiming()
+        e = estimate_plan(plan, rig, timing)
 
         def hms(t: float) -> str:
             return f"{t:10.1f} s  ({int(t // 3600)}:{int(t % 3600 // 60):02d}:{t % 60:04.1f})"
@@ -219,7 +224,9 @@ def run(args) -> int:
         a = e.account
         print(f"lab time, this order:                     {hms(e.optimized)}")
         print(f"  start-up (darks + warm-up) {a['startup']:.1f} s, moves {a['moves']:.1f} s, settle {a['settle']:.1f} s, "
-              f"capture {a['capture']:.1f} s, {a['refreshes']} dark re-measurements {a['refresh_time']:.1f} s")
+              f"capture {a['capture']:.1f} s, {a['refreshes']} dark {'re-measurements' if timing.darks == 'measured' else 'checks'} "
+              f"{a['refresh_time']:.1f} s")
+        print(f"  ({timing.describe()})")
         if e.auto_exposure:
             print("  (automatic exposure: capture estimated with the expected bracket; each pose's is chosen "
                   "while measuring)")

@@ -140,6 +140,7 @@ class Pipeline:
                                "8-bit frames with gonio.pipeline.hdr.calibrate_response first", device="camera")
             try:
                 px = self.check_frame(frame)
+                self.darks.note(frame)  # the sensor temperature modelled darks follow
                 if meter:  # against this exposure's dark frame if the session measured it: black, not dim
                     dark = self.darks.cached(exposure, gain)
                 self._signal(frame, px, levels=not meter, dark=dark)  # black, all-saturated, stale: retaken, then flagged

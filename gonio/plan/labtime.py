@@ -9,14 +9,22 @@ Costs (seconds of lab time), in the order the runner spends them (:mod:`gonio.se
 * **per pose**: the move (concurrent joints, trapezoidal profiles, :mod:`gonio.plan.ordering`), the
   settle time, one metering frame (it also locates the board) and the bracket: ``Σ_k n_k (t_k + r)``
   with ``r`` the per-frame readout/transfer time;
-* **dark re-measurement**: before a pose that starts more than ``dark_max_age`` after the last dark set
-  started, the whole dark set again and a new warm-up (switching the light off restarts it).
+* **dark re-measurement**: before a pose that starts more than ``dark_max_age`` after the last dark
+  measurement started: with ``darks="measured"`` the whole dark set again, with ``darks="model"`` (the
+  default) ``dark_check_frames`` light-off frames at the set's longest exposure that re-measure the
+  modelled dark current (:class:`gonio.pipeline.dark.DarkModel`); then the warm-up again (switching the
+  light off restarts it).
+
+Warm-up (``warmup``): ``"corrected"`` (the default) switches the light on, checks the photodiode sees
+it, waits ``warmup_min`` (0 by default) and measures: every frame is normalized by the photodiode
+reading taken with it (and, in relative mode, by the white reference in the same frame), which removes
+the warm-up drift (benchmarks/bench_labtime.py measures the accuracy). ``"stable"`` (``gonio measure
+--accurate``, the conservative choice) waits until two photodiode readings one ``warmup_step`` apart
+agree: at least one step (its lower bound), ``warmup_expected`` on average (the estimate; the simulated
+lamp, depth 5 %, τ = 120 s, needs 210 s to reach 1e-3 between readings 15 s apart).
 
 A frame costs its exposure plus the readout/transfer time (the camera integrates, then reads out and
-transfers the frame; the EMVA 1288 timing model, EMVA Standard 1288 R4.0, 2021, §"Camera model"). The
-warm-up ends when two photodiode readings one ``warmup_step`` apart agree: at least one step (the lower
-bound), ``warmup_expected`` on average (the estimate; the simulated lamp, depth 5 %, τ = 120 s, needs
-210 s to reach 1e-3 between readings 15 s apart).
+transfers the frame; the EMVA 1288 timing model, EMVA Standard 1288 R4.0, 2021, §"Camera model").
 
 With automatic exposure the bracket of a pose is chosen while measuring: the estimate uses the plan's
 *expected* bracket (``CaptureSettings.exposures × frames``) and says so; the lower bound uses one
@@ -29,6 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gonio.errors import ConfigError
+
 __all__ = ["SessionTiming", "LabAccount", "dark_exposures", "pose_capture_time", "session_lab_time"]
 
 
@@ -38,23 +48,69 @@ class SessionTiming:
 
     Attributes
     ----------
+    warmup : str
+        ``"corrected"``: measure after ``warmup_min``, the photodiode corrects the drift; ``"stable"``:
+        wait until the photodiode is stable (see the module docstring).
+    warmup_min : float
+        ``"corrected"``: lab seconds to wait after switching the light on (a short stabilisation).
     warmup_step : float
-        Lab seconds between photodiode readings while the light warms up.
+        Lab seconds between photodiode readings while the light warms up (``"stable"``).
     warmup_expected : float
-        Expected warm-up of the light to a stable reading (the estimate; the bound uses one step).
+        ``"stable"``: expected warm-up of the light to a stable reading (the estimate; the bound uses one step).
+    darks : str
+        ``"model"``: the start-up dark set is fitted per pixel (:class:`gonio.pipeline.dark.DarkModel`) and
+        re-checked with ``dark_check_frames`` frames; ``"measured"``: the whole set is re-measured.
     dark_frames : int
         Frames averaged per dark exposure.
+    dark_check_frames : int
+        ``darks="model"``: light-off frames of a check.
     dark_max_age : float
-        Dark frames are re-measured (and the light warmed up again) when older than this.
+        Dark frames are re-measured (or the model checked) and the light warmed up again when older than this.
     ladder_extra : int
         Automatic exposure: rungs of the exposure ladder beyond the expected bracket, each side.
     """
 
+    warmup: str = "corrected"
+    warmup_min: float = 0.0
     warmup_step: float = 15.0
     warmup_expected: float = 225.0
+    darks: str = "model"
     dark_frames: int = 4
+    dark_check_frames: int = 1
     dark_max_age: float = 900.0
     ladder_extra: int = 2
+
+    def __post_init__(self):
+        if self.warmup not in ("corrected", "stable"):
+            raise ConfigError.field(None, "timing.warmup", self.warmup, "must be 'corrected' or 'stable'")
+        if self.darks not in ("model", "measured"):
+            raise ConfigError.field(None, "timing.darks", self.darks, "must be 'model' or 'measured'")
+        for name in ("warmup_min", "warmup_step", "warmup_expected", "dark_max_age"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v >= 0 and v == v):
+                raise ConfigError.field(None, f"timing.{name}", v, "must be seconds >= 0")
+        for name in ("dark_frames", "dark_check_frames"):
+            if int(getattr(self, name)) < 1:
+                raise ConfigError.field(None, f"timing.{name}", getattr(self, name), "must be >= 1")
+
+    @classmethod
+    def accurate(cls, **kw) -> "SessionTiming":
+        """The conservative strategy: wait for a stable light, re-measure the whole dark set on schedule."""
+        return cls(**{"warmup": "stable", "darks": "measured", **kw})
+
+    def warm_time(self, bound: bool = False) -> float:
+        """Lab seconds of one warm-up (``bound``: its minimum)."""
+        if self.warmup == "corrected":
+            return self.warmup_min
+        return self.warmup_step if bound else self.warmup_expected
+
+    def describe(self) -> str:
+        """One line for messages: the strategy and its knobs."""
+        warm = (f"drift-corrected from the photodiode (wait {self.warmup_min:g} s)" if self.warmup == "corrected"
+                else "wait until the light is stable")
+        dark = (f"modelled dark frames (checked every {self.dark_max_age:g} s)" if self.darks == "model"
+                else f"dark frames re-measured every {self.dark_max_age:g} s")
+        return f"light: {warm}; {dark}"
 
 
 def dark_exposures(capture, timing: SessionTiming | None = None) -> tuple[float, ...]:
@@ -92,7 +148,7 @@ class LabAccount:
     moves: float
     settle: float
     capture: float
-    refreshes: int  #: dark re-measurements (each with a warm-up)
+    refreshes: int  #: dark re-measurements or model checks (each with a warm-up)
     refresh_time: float
     ends: np.ndarray  #: lab time at the end of each pose, from the session's start
 
@@ -113,8 +169,10 @@ def session_lab_time(move_times, capture, timing: SessionTiming | None = None, *
     timing = timing or SessionTiming()
     m = np.asarray(move_times, dtype=np.float64).reshape(-1)
     n = m.size
-    darks = timing.dark_frames * sum(t + capture.readout for t in dark_exposures(capture, timing))
-    warm = timing.warmup_step if bound else timing.warmup_expected
+    exps = dark_exposures(capture, timing)
+    darks = timing.dark_frames * sum(t + capture.readout for t in exps)
+    warm = timing.warm_time(bound)
+    recheck = darks if timing.darks == "measured" else timing.dark_check_frames * (max(exps) + capture.readout)
     cap = pose_capture_time(capture, bound=bound, timing=timing)
     cost = m + capture.settle + cap
     t0 = darks + warm if startup else 0.0
@@ -134,11 +192,11 @@ def session_lab_time(move_times, capture, timing: SessionTiming | None = None, *
             break
         t_start = float(starts[j])
         t_dark = t_start
-        t = t_start + darks + warm
+        t = t_start + recheck + warm
         refreshes += 1
         ends[i + j] = t + c[j]
         t = float(ends[i + j])
         i += j + 1
     total = float(ends[-1]) if n else t0
     return LabAccount(total=total, startup=t0, moves=float(m.sum()), settle=n * capture.settle, capture=n * cap,
-                      refreshes=refreshes, refresh_time=refreshes * (darks + warm), ends=ends)
+                      refreshes=refreshes, refresh_time=refreshes * (recheck + warm), ends=ends)

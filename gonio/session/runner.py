@@ -309,13 +309,23 @@ class SessionRunner:
         return exc
 
     def warm_up(self) -> float:
-        """Switch the light on and wait (lab time, watchdog fed) until the photodiode is stable.
+        """Switch the light on and wait (lab time, watchdog fed) as the timing's ``warmup`` says.
 
-        Stable: ``|p_k − p_{k−1}| ≤ tol · p_k`` for two readings ``warmup_step`` apart, and both above
-        4 standard uncertainties of a reading. Returns the lab seconds spent."""
+        ``"corrected"``: one photodiode reading must see the light (above 4 standard uncertainties of a
+        reading), then ``warmup_min`` seconds; the drift that follows is corrected frame by frame from the
+        photodiode (:mod:`gonio.pipeline.hdr`). ``"stable"``: until ``|p_k − p_{k−1}| ≤ tol · p_k`` for two
+        readings ``warmup_step`` apart, both above 4 standard uncertainties. Returns the lab seconds spent."""
         st, ctl = self.settings, self.dev.controller
         t0 = self.clock.now()
         ctl.set_light(True, st.light_level)
+        if st.timing.warmup == "corrected":
+            p, u = ctl.read_photodiode(st.warmup_samples)
+            if p <= 4 * u:
+                raise HardwareError(f"light: photodiode reads {p:g} ± {u:g} after switching on: the light is off "
+                                    "or failed", device="light")
+            if st.timing.warmup_min > 0:
+                ctl.wait(st.timing.warmup_min)
+            return self.clock.now() - t0
         prev = None
         for _ in range(int(math.ceil(st.warmup_max / st.timing.warmup_step)) + 1):  # bounded
             p, u = ctl.read_photodiode(st.warmup_samples)
@@ -355,15 +365,33 @@ class SessionRunner:
                             f"(tolerance {st.joint_tolerance_deg:g} deg)", device=worst)
 
     def _refresh_darks(self) -> bool:
-        """Measure the whole dark set (every exposure the session may use) if it is older than
-        ``dark_max_age`` (or was never measured); then warm the light up again."""
-        now = self.clock.now()
-        if self._darks_at is not None and now - self._darks_at <= self.settings.timing.dark_max_age:
+        """Measure the whole dark set (every exposure the session may use) if it was never measured, or
+        when older than ``dark_max_age``: again (``darks="measured"``) or, with ``darks="model"``, fit the
+        per-pixel dark model to the first set and afterwards check it with ``dark_check_frames`` light-off
+        frames at the set's longest exposure. Then warm the light up again (switching it off restarts it)."""
+        now, tm = self.clock.now(), self.settings.timing
+        if self._darks_at is not None and now - self._darks_at <= tm.dark_max_age:
             return False
         self._darks_at = now
-        self.pipeline.darks.refresh(self.dark_exposures, self.plan.capture.gain)  # one light-off period
+        darks, gain = self.pipeline.darks, self.plan.capture.gain
+        if tm.darks == "model" and darks.model is not None:
+            darks.check(max(self.dark_exposures), gain, tm.dark_check_frames)  # one short light-off period
+        else:
+            darks.refresh(self.dark_exposures, gain)  # one light-off period
+            if tm.darks == "model":
+                darks.fit_model(gain)
         self.warm_up()  # switching the light off and on restarts its warm-up
         return True
+
+    def _dark_meta(self) -> dict:
+        """The dark model's state for the pose's meta (modelled darks only): scale k of the dark current
+        and the sensor temperature it was predicted at."""
+        dc = self.pipeline.darks
+        if dc.model is None:
+            return {}
+        k, u = dc.model.scale(dc.temperature)
+        return {"dark_model": {"k": k, "u_k": u, "sensor_temp_c": dc.temperature,
+                               "doubling_c": dc.model.doubling_c, "checks": len(dc.model.checks)}}
 
     def _measure(self, index: int) -> tuple:
         from gonio.pipeline.target import CameraPose
@@ -405,6 +433,7 @@ class SessionRunner:
                            "min": float(pd.min()) if pd.size else None, "max": float(pd.max()) if pd.size else None},
             "board_found": res.board is not None,
             "darks_refreshed": darks,
+            **self._dark_meta(),
             "lab_time_s": float(self.clock.now()),
             "run_lab_time_s": float(self.clock.now() - self._lab0),  # lab time of this run so far
             "timing": timing,
@@ -453,7 +482,10 @@ class SessionRunner:
                 self.check_devices()
                 t_warm = self.clock.now()
                 if self._refresh_darks():  # darks first (light off), then one warm-up; still fresh: nothing to say
-                    self._say(f"darks measured ({len(self.dark_exposures)} exposures), light stable after "
+                    light = ("stable after" if self.timing.warmup == "stable" else
+                             "on (drift corrected from the photodiode) after")
+                    self._say(f"darks measured ({len(self.dark_exposures)} exposures"
+                              f"{', modelled' if self.timing.darks == 'model' else ''}), light {light} "
                               f"{format_lab_time(self.clock.now() - t_warm)} lab")
                 n_todo = failed_run = 0
                 for k in remaining:

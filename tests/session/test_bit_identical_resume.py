@@ -20,9 +20,11 @@ from sim.seeding import pose_rng
 from tests.session.conftest import small_plan
 
 REPO = Path(__file__).resolve().parents[2]
-#: backlash and warm-up drift are deterministic physics of the path (which side of the play, lab time since
-#: the light came on), which a resumed run legitimately does differently; every *random* source is per pose
-CONFIG = dict(seed=5, width=240, height=180, focal_px=285.0, backlash_ticks=0.0, warmup_depth=0.0)
+#: backlash, warm-up drift and the sensor's self-heating are deterministic physics of the path (which side of
+#: the play, lab time since the light came on / the camera was powered), which a resumed run legitimately does
+#: differently; every *random* source is per pose
+CONFIG = dict(seed=5, width=240, height=180, focal_px=285.0, backlash_ticks=0.0, warmup_depth=0.0,
+              sensor_heating_c=0.0)
 COLUMNS = ("wi", "wo", "f", "sigma", "n_pixels", "flags", "pose")
 
 

@@ -1,0 +1,32 @@
+"""Formulas written once for NumPy arrays *and* for a compiled loop (docs/architecture.md §6).
+
+A function marked :func:`jitable` is plain Python over arrays-or-scalars: NumPy evaluates it on whole
+arrays (the reference path), and :mod:`gonio.brdf.compiled` hands the very same function to numba
+(``numba.extending.register_jitable``), which compiles it for one sample inside a loop. So a formula
+has one hand-kept copy; the compiled path is generated from it.
+
+Rules for a jitable function: arithmetic, ``np.sqrt/exp/log/log1p/expm1/maximum/minimum`` and
+:func:`select` (never ``np.where``, ``np.clip`` or axis reductions, which mean something else on a
+scalar); it may call other jitable functions; anything dtype-dependent (the ``tiny`` guards) comes in
+as an argument, so float32 arrays stay float32.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["jitable", "select", "JITABLE"]
+
+#: Every function marked :func:`jitable`, in definition order (registered with numba on first use).
+JITABLE: list = []
+
+
+def jitable(fn):
+    """Mark ``fn`` as usable both on NumPy arrays and inside a numba-compiled loop (returns ``fn``)."""
+    JITABLE.append(fn)
+    return fn
+
+
+def select(cond, a, b):
+    """``a`` where ``cond`` else ``b``: ``np.where`` on arrays; ``a if cond else b`` when compiled."""
+    return np.where(cond, a, b)

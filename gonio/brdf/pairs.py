@@ -1,0 +1,86 @@
+"""Geometry of a direction pair, computed once and shared by the lobes of a model (the NumPy path).
+
+Models built from microfacet-type lobes (``microfacet``, ``cook-torrance``, ``gtr``, ``abc`` and sums of
+them with ``lambert``) describe themselves as ``const + Σ lobes`` (:meth:`gonio.brdf.base.BRDF._lobes`):
+
+    f_c(wi, wo) = const_c + Σ_l w_lc · s_l(P) · F_lc,     F_lc = f0_lc + (1 − f0_lc)(1 − cos θd)⁵
+
+where P = :func:`pair_geometry` (half vector, cosines, tan², 1 − cos θd: what every lobe needs, computed
+once per pair however many lobes there are), s_l a lobe's *spec function* (e.g.
+:func:`gonio.brdf.microfacet.ggx_spec`: D G / (4 cos θi cos θo)), w_lc its colour weight and F_lc
+Schlick's Fresnel factor (Schlick 1994, eq. 15; omitted when the lobe has no f0).
+
+:func:`evaluate` is the NumPy reference; :mod:`gonio.brdf.compiled` runs the *same* functions (they are
+:func:`gonio._jit.jitable`) per pair in a numba-compiled loop.
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+from typing import Callable, NamedTuple
+
+import numpy as np
+
+from gonio._jit import jitable
+from gonio.brdf.fresnel import one_minus_cos_d_xyz, schlick_m
+from gonio.geometry import half_vector_xyz
+
+__all__ = ["Pair", "Lobe", "pair_geometry", "evaluate"]
+
+#: Per-pair quantities shared by the lobes (arrays on the NumPy path, scalars in a compiled loop):
+#: ``iz, oz`` cos θi, cos θo; ``hz`` cos θh; ``s2h`` = h_x² + h_y² (sin²θh); ``ih, oh`` wi·h, wo·h;
+#: ``ti2, to2`` tan²θi, tan²θo (guarded at the horizon); ``cc`` = max(cos θi cos θo, tiny);
+#: ``m`` = 1 − cos θd without cancellation; ``tiny`` the dtype's smallest normal number.
+Pair = namedtuple("Pair", "iz oz hz s2h ih oh ti2 to2 cc m tiny")
+
+
+class Lobe(NamedTuple):
+    """One term ``w_c · spec(P, *params) · F_c`` of a model (see the module docstring)."""
+
+    spec: Callable
+    params: tuple
+    weight: np.ndarray
+    f0: np.ndarray | None = None
+
+
+@jitable
+def pair_geometry(ix, iy, iz, ox, oy, oz, tiny):
+    """:data:`Pair` of the directions wi = (ix, iy, iz), wo = (ox, oy, oz) (arrays or scalars).
+
+    h = normalize(wi + wo) (:func:`gonio.geometry.half_vector_xyz`), tan²θ = (x² + y²)/max(z², tiny) (the
+    Smith t² of Walter et al. 2007 before the α² factor), 1 − cos θd from
+    :func:`gonio.brdf.fresnel.one_minus_cos_d_xyz`.
+    """
+    hx, hy, hz = half_vector_xyz(ix, iy, iz, ox, oy, oz, tiny)
+    return Pair(
+        iz, oz, hz, hx * hx + hy * hy,
+        ix * hx + iy * hy + iz * hz, ox * hx + oy * hy + oz * hz,
+        (ix * ix + iy * iy) / np.maximum(iz * iz, tiny), (ox * ox + oy * oy) / np.maximum(oz * oz, tiny),
+        np.maximum(iz * oz, tiny),
+        one_minus_cos_d_xyz(ix, iy, iz, ox, oy, oz, hx, hy, hz),
+        tiny,
+    )
+
+
+def evaluate(const, lobes, wi, wo) -> np.ndarray:
+    """``const + Σ lobes`` at the pairs ``(wi, wo)`` (broadcast arrays ``(..., 3)``): shape ``(..., 3)``.
+
+    The geometry is computed once (:func:`pair_geometry`) and shared by every lobe; per-pair work is done
+    on per-pair arrays, and only the colour combination on ``(..., 3)``.
+    """
+    shape = wi.shape[:-1] + (3,)
+    if not lobes:
+        return np.broadcast_to(const, shape)
+    dtype = wi.dtype
+    p = pair_geometry(wi[..., 0], wi[..., 1], wi[..., 2], wo[..., 0], wo[..., 1], wo[..., 2],
+                      np.finfo(dtype).tiny)
+    total = const
+    m = None
+    for lobe in lobes:
+        s = lobe.spec(p, *lobe.params)[..., None]
+        if lobe.f0 is not None:
+            if m is None:
+                m = p.m[..., None]
+            s = s * schlick_m(lobe.f0, m)
+        total = total + lobe.weight * s
+    return np.broadcast_to(total, shape)

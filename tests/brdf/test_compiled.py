@@ -1,0 +1,95 @@
+"""The compiled BRDF path (numba, optional) against the NumPy reference, and sums sharing their geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gonio.brdf import make
+from gonio.brdf import compiled
+from gonio.geometry import from_spherical
+
+from .strategies import special_pairs
+
+#: Every model with a compiled form, with parameters away from the defaults (RGB colours, f0 < 1).
+COMPILED = [
+    ("microfacet", dict(kd=[0.1, 0.2, 0.3], ks=[0.5, 0.4, 0.3], alpha=0.13, f0=[0.9, 0.5, 0.04])),
+    ("microfacet", dict(kd=0.2, ks=0.7, alpha=0.3, f0=0.04, distribution="beckmann")),
+    ("microfacet", dict(alpha=1e-4)),
+    ("cook-torrance", dict(kd=0.2, ks=[0.5, 0.4, 0.3], roughness=0.25, f0=[0.04, 0.1, 0.9])),
+    ("gtr", dict(kd=0.1, ks=0.6, alpha=0.15, gamma=1.0, f0=0.05)),
+    ("gtr", dict(alpha=0.4, gamma=0.6)),
+    ("abc", dict(kd=0.1, A=[2.0, 3.0, 4.0], B=800.0, C=0.7, eta=1.6)),
+    ("lambert", dict(albedo=[0.2, 0.5, 0.8])),
+    ("lambert+2ggx", {"diffuse.albedo": 0.3, "lobe1.ks": 0.3, "lobe1.alpha": 0.05, "lobe1.f0": 0.04,
+                      "lobe2.ks": [0.2, 0.1, 0.3], "lobe2.alpha": 0.4}),
+    ("lambert+beckmann+cook-torrance", {"diffuse.albedo": 0.1, "lobe1.alpha": 0.2, "lobe2.roughness": 0.3}),
+]
+
+
+def _directions():
+    """Random pairs (some below the horizon), the special pairs (grazing, poles, wi = −wo) and wi = wo."""
+    rng = np.random.default_rng(7)
+    n = 600  # ≥ MIN_PAIRS with the rest, so backend="auto" takes the compiled path too
+    wi = from_spherical(np.arccos(rng.uniform(-0.2, 1, n)), rng.uniform(0, 2 * np.pi, n))
+    wo = from_spherical(np.arccos(rng.uniform(-0.2, 1, n)), rng.uniform(0, 2 * np.pi, n))
+    sw, so = special_pairs()
+    return np.concatenate([wi, sw, wi]), np.concatenate([wo, so, wi])
+
+
+def _assert_same(a, b):
+    assert a.shape == b.shape and np.all(np.isfinite(a))
+    np.testing.assert_array_less(np.abs(a - b), 1e-12 * np.abs(b) + 1e-300)  # exact where b is 0
+
+
+@pytest.mark.parametrize("name,params", COMPILED, ids=[f"{n}-{i}" for i, (n, _) in enumerate(COMPILED)])
+def test_compiled_equals_numpy(name, params):
+    pytest.importorskip("numba")
+    model = make(name, **params)
+    assert compiled.supports(model)
+    wi, wo = _directions()
+    ref = model.eval(wi, wo, backend="numpy")
+    fast = model.eval(wi, wo, backend="compiled")
+    _assert_same(fast, ref)
+    below = (wi[:, 2] <= 0) | (wo[:, 2] <= 0)
+    assert np.all(fast[below] == 0.0) and np.all(fast >= 0.0)
+    assert compiled.wanted(model, wi, np.dtype(np.float64), "auto")
+    np.testing.assert_array_equal(model.eval(wi, wo), fast)
+    # n-d shapes and broadcasting go through the same flattening
+    grid = model.eval(wi[:12].reshape(3, 4, 3), wo[:4], backend="compiled")
+    _assert_same(grid, model.eval(wi[:12].reshape(3, 4, 3), wo[:4], backend="numpy"))
+
+
+def test_backend_choice():
+    m = make("ward", kd=0.2)
+    assert not compiled.supports(m)
+    assert not compiled.supports(make("lambert+ward", **{"diffuse.albedo": 0.2}))
+    wi, wo = _directions()
+    assert not compiled.wanted(make("microfacet"), wi[:10], np.dtype(np.float64), "auto")  # small: NumPy
+    assert not compiled.wanted(make("microfacet"), wi, np.dtype(np.float32), "auto")
+    if compiled.available():
+        with pytest.raises(ValueError, match="no compiled form"):
+            m.eval(wi, wo, backend="compiled")
+    else:
+        with pytest.raises(ValueError, match="gonio\\[fast\\]"):
+            make("microfacet").eval(wi, wo, backend="compiled")
+    with pytest.raises(ValueError, match="backend"):
+        m.eval(wi, wo, backend="fast")
+
+
+@pytest.mark.parametrize("backend", ["numpy", "compiled"])
+def test_sum_shares_geometry_and_equals_terms_summed(backend):
+    if backend == "compiled":
+        pytest.importorskip("numba")
+    wi, wo = _directions()
+    params = {"diffuse.albedo": [0.2, 0.3, 0.1], "lobe1.ks": 0.3, "lobe1.alpha": 0.05, "lobe1.f0": 0.04,
+              "lobe2.ks": 0.2, "lobe2.alpha": 0.4, "lobe2.f0": [0.9, 0.6, 0.3]}
+    total = make("lambert+2ggx", **params).eval(wi, wo, backend=backend)
+    terms = (make("lambert", albedo=params["diffuse.albedo"]).eval(wi, wo, backend="numpy")
+             + make("microfacet", kd=0, ks=0.3, alpha=0.05, f0=0.04).eval(wi, wo, backend="numpy")
+             + make("microfacet", kd=0, ks=0.2, alpha=0.4, f0=[0.9, 0.6, 0.3]).eval(wi, wo, backend="numpy"))
+    _assert_same(total, terms)
+    # a sum with a term that is not written as lobes: the others still share one geometry, same values
+    mixed = make("lambert+ggx+ward", **{"diffuse.albedo": 0.2, "lobe1.alpha": 0.2, "lobe2.ks": 0.3})
+    parts = sum(p.eval(wi, wo) for p in mixed.parts)
+    _assert_same(mixed.eval(wi, wo, backend="numpy"), parts)
