@@ -10,7 +10,7 @@
 * the packet timeout's latency term set per port (``latency_timer_ms``, the SDK's module-global
   ``LATENCY_TIMER`` is left alone), so a loaded CI machine can use a generous value;
 * no busy-polling while a reply is awaited: the SDK calls ``readPort`` in a tight loop until its
-  timeout; here ``readPort`` blocks in ``select`` (at most :data:`POLL_WAIT_S`) when nothing has
+  timeout; here ``readPort`` blocks in ``select`` (until the packet timeout) when nothing has
   arrived, so the waiting thread gives up the CPU and the GIL — on a loaded machine the device side (a
   USB adapter's driver, or the simulator's servo thread in the same process) then answers within the
   timeout instead of being starved by the loop that waits for it;
@@ -113,10 +113,6 @@ class _CheckedPacketHandler(sdk.Protocol2PacketHandler):
         return rxpacket, result, error
 
 
-#: Longest single wait of :meth:`PortHandler.readPort` for bytes (the SDK re-checks its timeout after each).
-POLL_WAIT_S = 0.005
-
-
 class PortHandler(sdk.PortHandler):
     """``PortHandler`` whose packet timeout uses this port's latency timer instead of the module global,
     and whose ``readPort`` waits for bytes in ``select`` instead of returning at once (module docstring)."""
@@ -124,19 +120,6 @@ class PortHandler(sdk.PortHandler):
     def __init__(self, name: str, latency_timer_ms: float):
         super().__init__(name)
         self.latency_timer_ms = float(latency_timer_ms)
-
-    def readPort(self, length):  # noqa: N802 - SDK name
-        data = self.ser.read(length)
-        if data or length <= 0:
-            return data
-        left_ms = self.packet_timeout - self.getTimeSinceStart() if self.packet_timeout else 0.0
-        try:
-            fd = self.ser.fileno()
-        except (AttributeError, OSError, ValueError):  # a port without a descriptor: the SDK's own polling
-            return data
-        if left_ms > 0 and select.select([fd], [], [], min(left_ms / 1000.0, POLL_WAIT_S))[0]:
-            data = self.ser.read(length)
-        return data
 
     def setPacketTimeout(self, packet_length):  # noqa: N802 - SDK name
         self.packet_start_time = self.getCurrentTime()
