@@ -134,8 +134,19 @@ def controller_class(kind: str):
     if kind == "python":
         return ControllerEmulator
     if kind == "firmware":
-        from sim.firmware import FirmwareController
-        return FirmwareController
+        from sim import firmware
+
+        try:
+            firmware.library()  # built on first use: needs make and a C compiler
+        except (OSError, RuntimeError) as exc:
+            import warnings
+
+            why = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:160]
+            warnings.warn(f"sim rig: the firmware's host build is not available ({why}); the simulated rig controller "
+                          "is the Python emulator of the same protocol (apt-get install gcc make for the firmware)",
+                          stacklevel=2)
+            return ControllerEmulator
+        return firmware.FirmwareController
     if kind == "simavr":
         from sim.simavr import SimavrController
         return SimavrController

@@ -53,3 +53,19 @@ def test_watchdog_cuts_the_light_after_host_silence(fw):
     assert emu.light_on
     clock.sleep(period * 0.2)
     assert not emu.light_on and ctl.status().flags & 0x08  # WATCHDOG_TRIPPED
+
+
+def test_without_a_c_compiler_the_simulated_rig_falls_back_to_the_python_emulator(tmp_path, monkeypatch):
+    """A new machine without make/gcc still runs `gonio measure --sim`: one warning naming what to install,
+    and the Python emulator of the same protocol instead of the firmware's host build."""
+    import sim.firmware as fw
+    from sim.controller import ControllerEmulator
+    from sim.rig import controller_class
+
+    monkeypatch.setattr(fw, "_lib", None)
+    monkeypatch.setattr(fw, "LIBRARY", tmp_path / "build" / "libgoniofw.so")  # not built yet
+    monkeypatch.setenv("PATH", str(tmp_path))  # no make, no gcc
+    with pytest.warns(UserWarning, match="apt-get install gcc make"):
+        cls = controller_class("firmware")
+    assert cls is ControllerEmulator
+    assert not (tmp_path / "build" / "libgoniofw.so").exists()
