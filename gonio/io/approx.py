@@ -155,9 +155,8 @@ class Exported:
         if self.error < TOLERANCE or approx:
             return self
         why = "; ".join(dict.fromkeys(self.reasons)) or "its formulas differ from the model's"
-        raise ConfigError.field(option, self.target, f"relative error {self.error:.3g}",
-                                f"cannot represent the model exactly ({why}); pass --approx to write the closest "
-                                f"{self.target} material anyway")
+        raise ConfigError(f"{option}: {self.target} cannot represent the model exactly (relative error "
+                          f"{self.error:.3g}: {why}); pass --approx to write the closest {self.target} material anyway")
 
     def write(self, path, option: str) -> "Exported":
         """Write :attr:`text` to ``path``; a failure is one line naming ``option``."""
