@@ -72,7 +72,11 @@ def test_no_highlight_on_the_tile_is_said_so(scene):
     cam, calib, layout = scene
     pose, uv = _place(cam, 30.0, 45.0)  # 15° off the mirror direction: the reflection is off the 80 mm tile
     found = find_highlight(cam, calib)
-    assert found.highlight is None and "no highlight" in found.reason and "\n" not in found.reason
+    # Refused in one line. Which reason depends on the noise realization (the camera's RNG state, so on the
+    # tests run before on this camera): nothing stands out of the noise, or the brightest thing in view is
+    # a broad diffuse patch (the white reference or the board), larger than a light's reflection can be.
+    assert found.highlight is None and "\n" not in found.reason
+    assert "no highlight" in found.reason or "not the light" in found.reason, found.reason
 
 
 def test_a_highlight_cut_by_the_tile_s_edge_is_refused(scene):
