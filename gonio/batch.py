@@ -77,6 +77,37 @@ def _guarded(fn: Callable[..., dict], source: str, options: dict) -> dict:
     return {"source": source, **row}
 
 
+#: Environment variables that set the thread count of the BLAS/OpenMP libraries NumPy and SciPy load.
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
+
+
+def _spawn():
+    import multiprocessing
+
+    return multiprocessing.get_context("spawn")
+
+
+class _one_thread_workers:
+    """While worker processes start, their BLAS/OpenMP libraries are told to use one thread each (the
+    workers already share the cores between them: N workers × N BLAS threads would oversubscribe them, as
+    Dask's workers avoid by the same setting). Started by ``spawn``, the workers read these variables
+    when they load NumPy; a forked worker would inherit the parent's already-started thread pools."""
+
+    def __enter__(self):
+        self._saved = {k: os.environ.get(k) for k in THREAD_VARS}
+        for k in THREAD_VARS:
+            os.environ.setdefault(k, "1")
+        return self
+
+    def __exit__(self, *exc):
+        for k, v in self._saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+        return False
+
+
 def run_batch(fn: Callable[[str, dict], dict], sources: Sequence[Path | str], options: dict, *,
               jobs: int | None = None, scheduler: str | None = None, desc: str = "") -> list[dict]:
     """One row per source from ``fn(str(source), options)`` (a module-level function, so it can be
@@ -96,7 +127,7 @@ def run_batch(fn: Callable[[str, dict], dict], sources: Sequence[Path | str], op
     if jobs <= 1:
         return [_guarded(fn, s, options) for s in progress(names, total=len(names), desc=desc, unit="source")]
     rows: list[dict | None] = [None] * len(names)
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
+    with _one_thread_workers(), ProcessPoolExecutor(max_workers=jobs, mp_context=_spawn()) as pool:
         futures = {pool.submit(_guarded, fn, s, options): k for k, s in enumerate(names)}
         for fut in progress(as_completed(futures), total=len(futures), desc=desc, unit="source"):
             rows[futures[fut]] = fut.result()
