@@ -130,8 +130,8 @@ def finish_from_directory(d, manifest, *, rig_file=None) -> int:
 def _new_session(args, rig, text, src, plan) -> int:
     from pathlib import Path
 
-    from gonio.cli.measure import (_calibration_dict, _calibration_from_toml, _check_out, _hw_session, _material,
-                                   _open_hw_devices, _rig_record, _sim_session)
+    from gonio.cli.measure import (_calibration_dict, _check_out, _hw_session, _material, _rig_record, _sim_session,
+                                   open_hardware)
     from gonio.errors import ConfigError
     from gonio.session.geocal_observe import calibration_layout
     from gonio.session.store import SessionStore
@@ -149,8 +149,6 @@ def _new_session(args, rig, text, src, plan) -> int:
         "geocal": {"out": str(out), "note": f"source rig: {src}"},
     }
     if args.sim:
-        from dataclasses import replace
-
         from gonio.plugins import plugin
 
         simrig = plugin("sim.rig")
@@ -162,16 +160,7 @@ def _new_session(args, rig, text, src, plan) -> int:
         manifest["geocal"]["note"] += f"; simulated as-built rig ({as_built.source})"
         store = SessionStore.create(session, manifest)
         return _sim_session(store, plan, store.manifest, args.quiet)
-    from gonio.rig.clock import RealClock
-
-    description = _calibration_from_toml(args.calibration)
-    calibration = description.calibration
-    manifest["hardware"] = {"servo_port": args.servo_port, "controller_port": args.controller_port,
-                            "camera": args.camera}
-    manifest["calibration"] = description.to_dict()
-    description.camera.check_session(args.calibration)
-    devices = _open_hw_devices(rig, manifest["hardware"], description.camera, RealClock(),
-                               size=(calibration.width, calibration.height))
+    calibration, devices = open_hardware(args, rig, manifest)
     try:
         store = SessionStore.create(session, manifest)
     except BaseException:

@@ -247,6 +247,34 @@ def _manifest_calibration(manifest, where: str, fallback=None):
     return _calibration_from_dict(c, where)
 
 
+def open_hardware(args, rig, manifest: dict, *, before_open=None):
+    """A real rig's devices from ``--servo-port``, ``--controller-port``, ``--camera`` and
+    ``--calibration`` (CAMERA.toml), recorded in ``manifest`` (``hardware`` with the camera's own
+    identity, ``calibration``); ``before_open(calibration)`` runs before any device is opened. The
+    devices are opened before the session directory exists: a rig that does not start leaves nothing.
+    Returns ``(calibration, devices)``."""
+    from gonio.rig.clock import RealClock
+
+    description = _calibration_from_toml(args.calibration)
+    calibration = description.calibration
+    manifest["hardware"] = {"servo_port": args.servo_port, "controller_port": args.controller_port,
+                            "camera": args.camera}
+    manifest["calibration"] = description.to_dict()
+    if before_open is not None:
+        before_open(calibration)
+    description.camera.check_session(args.calibration)
+    devices = _open_hw_devices(rig, manifest["hardware"], description.camera, RealClock(),
+                               size=(calibration.width, calibration.height))
+    identity = getattr(devices.camera, "identity", None)
+    if callable(identity):  # what the camera says it is (vendor, model, serial, ...)
+        try:
+            manifest["hardware"]["camera_identity"] = identity()
+        except BaseException:
+            devices.close()
+            raise
+    return calibration, devices
+
+
 def _record_detector(manifest: dict, calibration, rig, *, pinhole: bool) -> None:
     """``detector`` (how it was computed) and ``detector_solid_angle_sr`` (None with the reason if
     unknown) in the manifest: :mod:`gonio.session.detector`."""
@@ -626,21 +654,8 @@ def run_measure(args) -> int:
         store = SessionStore.create(out, manifest)
         _say_plan(plan, store, args.quiet, rig)
         return _sim_session(store, plan, store.manifest, args.quiet)
-    description = _calibration_from_toml(args.calibration)
-    calibration = description.calibration
-    manifest["hardware"] = {"servo_port": args.servo_port, "controller_port": args.controller_port,
-                            "camera": args.camera}
-    manifest["calibration"] = description.to_dict()
-    _record_detector(manifest, calibration, rig, pinhole=False)
-    from gonio.rig.clock import RealClock
-
-    # the devices are opened before the session directory exists: a rig that does not start leaves nothing
-    description.camera.check_session(args.calibration)
-    devices = _open_hw_devices(rig, manifest["hardware"], description.camera, RealClock(),
-                               size=(calibration.width, calibration.height))
-    identity = getattr(devices.camera, "identity", None)
-    if callable(identity):  # what the camera says it is (vendor, model, serial, ...)
-        manifest["hardware"]["camera_identity"] = identity()
+    calibration, devices = open_hardware(args, rig, manifest,
+                                         before_open=lambda c: _record_detector(manifest, c, rig, pinhole=False))
     try:
         store = SessionStore.create(out, manifest)
     except BaseException:
