@@ -13,12 +13,7 @@ from __future__ import annotations
 
 import importlib
 import io
-import os
 import random
-import shutil
-import signal
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path

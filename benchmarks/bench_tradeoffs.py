@@ -65,7 +65,6 @@ def overhead_lab(result) -> float:
 
 def fit_error(samples, wi, wo, f_true, n_starts: int = 4) -> tuple[float, float]:
     """Fit :data:`MATERIAL`'s model to ``samples``: ``(relative RMS error over (wi, wo), fit seconds)``."""
-    from gonio.brdf import make
     from gonio.fit import fit
     from gonio.plan.adaptive import relative_rms
 

@@ -7,7 +7,6 @@ One place turns a file that cannot be read, is not text, or is not valid TOML in
 
 from __future__ import annotations
 
-from pathlib import Path
 
 from gonio.errors import ConfigError
 

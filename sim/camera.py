@@ -16,7 +16,7 @@ output the controller emulator's reference photodiode reports.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np

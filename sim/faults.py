@@ -168,7 +168,6 @@ class FrameFaults:
 
     def apply(self, capture):
         """The frame ``capture()`` returns, or its faulty version (or a timeout)."""
-        import dataclasses
 
         from gonio.errors import HardwareTimeout
 

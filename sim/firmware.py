@@ -20,7 +20,6 @@ import threading
 from collections import Counter
 from pathlib import Path
 
-import numpy as np
 
 from firmware_protocol import codec as fp
 from sim.controller import ALL_CAPABILITIES, OVERTEMP_C, ControllerEmulator

@@ -25,10 +25,8 @@ import numpy as np
 
 from gonio.brdf.abc import abc_spec
 from gonio.brdf.cook_torrance import cook_torrance_spec
-from gonio.brdf.fresnel import schlick_m
 from gonio.brdf.gtr import gtr_spec
 from gonio.brdf.microfacet import beckmann_spec, ggx_spec
-from gonio.brdf.pairs import pair_geometry
 
 __all__ = ["MIN_PAIRS", "SPECS", "available", "supports", "wanted", "evaluate"]
 

@@ -36,7 +36,6 @@ import re
 from types import MappingProxyType
 from typing import Any
 
-import numpy as np
 
 from gonio.brdf.base import BRDF, Param
 from gonio.brdf.blinn_phong import BlinnPhong

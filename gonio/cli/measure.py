@@ -14,8 +14,6 @@ rig and measures only the remaining poses.
 
 from __future__ import annotations
 
-import argparse
-import math
 import sys
 import time
 

@@ -271,7 +271,6 @@ def _print_adaptive(args, plan, rig) -> int:
 def _write(args, plan) -> None:
     import json
     import os
-    from pathlib import Path
 
     from gonio.errors import ConfigError
 

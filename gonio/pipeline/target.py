@@ -101,7 +101,6 @@ class CharucoSpec:
     def check_dictionary(self) -> None:
         """The dictionary exists and holds a marker for every white square (⌊columns·rows/2⌋ markers;
         OpenCV's CharucoBoard numbers them from 0): ConfigError otherwise, before OpenCV asserts."""
-        import cv2
 
         d = self.board().getDictionary()
         n_markers, have = self.squares[0] * self.squares[1] // 2, int(d.bytesList.shape[0])

@@ -44,13 +44,13 @@ import math
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Mapping
 
 import numpy as np
 
 from gonio.config import parse_toml, read_text
 from gonio.errors import ConfigError, UnreachablePose
-from gonio.geometry import dirs_from_angles, dot, from_spherical
+from gonio.geometry import dirs_from_angles, dot
 
 
 __all__ = ["Joint", "Rig", "load_rig", "read_rig_text", "trapezoid_time", "trapezoid_progress", "JOINT_NAMES", "LAYOUTS", "REASONS"]
