@@ -15,8 +15,7 @@ from sim.mirror_tile import CalibrationTile
 from sim.rig import SimRigConfig
 
 
-@pytest.fixture(scope="module")
-def scene():
+def _scene():
     from gonio.brdf import make
 
     layout = calibration_layout()
@@ -24,6 +23,11 @@ def scene():
     cam = SimCamera(cfg.calibration(), SensorModel(), SimScene(layout, make("lambert", albedo=0.5),
                                                               tile=CalibrationTile(rect=layout.sample)))
     return cam, cfg.calibration(), layout
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return _scene()
 
 
 def _place(cam, light_el_deg, cam_el_deg, az_deg=20.0, light_r=0.6, cam_r=0.4):
@@ -68,15 +72,11 @@ def test_a_saturated_highlight_is_refused_and_the_search_shortens_the_exposure(s
     assert found.highlight.peak_dn < sat - f.black_level
 
 
-def test_no_highlight_on_the_tile_is_said_so(scene):
-    cam, calib, layout = scene
+def test_no_highlight_on_the_tile_is_said_so():
+    cam, calib, layout = _scene()  # its own camera: the noise drawn does not depend on the tests run before
     pose, uv = _place(cam, 30.0, 45.0)  # 15° off the mirror direction: the reflection is off the 80 mm tile
     found = find_highlight(cam, calib)
-    # Refused in one line. Which reason depends on the noise realization (the camera's RNG state, so on the
-    # tests run before on this camera): nothing stands out of the noise, or the brightest thing in view is
-    # a broad diffuse patch (the white reference or the board), larger than a light's reflection can be.
-    assert found.highlight is None and "\n" not in found.reason
-    assert "no highlight" in found.reason or "not the light" in found.reason, found.reason
+    assert found.highlight is None and "no highlight" in found.reason and "\n" not in found.reason
 
 
 def test_a_highlight_cut_by_the_tile_s_edge_is_refused(scene):
