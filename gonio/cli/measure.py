@@ -339,7 +339,10 @@ def _manifest_timing(manifest):
     known = {"warmup", "warmup_min", "darks"}
     if not isinstance(d, dict) or set(d) - known:
         raise ConfigError.field("manifest.json", "timing", d, f"must be an object with keys among {sorted(known)}")
-    return SessionTiming(**d)
+    try:
+        return SessionTiming(**d)
+    except ConfigError as exc:
+        raise ConfigError(f"manifest.json: {exc}") from None
 
 
 def _run_session(store, plan, devices, calibration, layout, *, before_pose, quiet: bool, resume_cmd: str) -> int:

@@ -42,6 +42,10 @@ from gonio.errors import ConfigError
 __all__ = ["SessionTiming", "LabAccount", "dark_exposures", "pose_capture_time", "session_lab_time"]
 
 
+#: Longest wait or age a session's timing may name (a day): a larger one is a damaged or hostile value.
+MAX_SECONDS = 86400.0
+
+
 @dataclass(frozen=True)
 class SessionTiming:
     """Session-level lab-time knobs shared by the runner (which spends them) and the estimator.
@@ -87,8 +91,8 @@ class SessionTiming:
             raise ConfigError.field(None, "timing.darks", self.darks, "must be 'model' or 'measured'")
         for name in ("warmup_min", "warmup_step", "warmup_expected", "dark_max_age"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and v >= 0 and v == v):
-                raise ConfigError.field(None, f"timing.{name}", v, "must be seconds >= 0")
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and 0 <= v <= MAX_SECONDS):
+                raise ConfigError.field(None, f"timing.{name}", v, f"must be seconds in [0, {MAX_SECONDS:g}]")
         for name in ("dark_frames", "dark_check_frames"):
             if int(getattr(self, name)) < 1:
                 raise ConfigError.field(None, f"timing.{name}", getattr(self, name), "must be >= 1")

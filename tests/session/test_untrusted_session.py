@@ -245,3 +245,20 @@ def test_the_lab_time_of_a_killed_run_survives_the_resume(tmp_path, capsys):
     killed, resumed = manifest["runs"]
     assert killed["status"] == "killed" and killed["lab_time_s"] == pytest.approx(before, rel=1e-12)
     assert session_status(d)["lab_time"] == pytest.approx(before + resumed["lab_time_s"], rel=1e-12)
+
+
+@pytest.mark.parametrize("timing, message", [({"warmup_min": 1e308}, "timing.warmup_min"),
+                                             ({"warmup_min": True}, "timing.warmup_min"),
+                                             ({"darks": "none"}, "timing.darks"),
+                                             ({"warmup": "stable", "extra": 1}, "timing")])
+def test_crafted_timing_is_one_line_naming_the_manifest_and_nothing_is_lost(session, capsys, timing, message):
+    """The light/dark strategy a session recorded is read back as untrusted input: a wait of 1e308 s (or
+    true) would hang resume; every bad value is one line naming manifest.json, and the samples stay."""
+    _edit_manifest(session, timing=timing, exit_status=None)
+    data = (session / "samples.jsonl").read_bytes()
+    (session / "samples.jsonl").write_bytes(data[:data.index(b"\n") + 1])  # something left to measure
+    kept = (session / "samples.jsonl").read_bytes()
+    assert main(["resume", str(session)]) == 2
+    errors = [ln for ln in _one_line(capsys) if "error:" in ln]
+    assert len(errors) == 1 and "manifest.json" in errors[0] and message in errors[0], errors
+    assert (session / "samples.jsonl").read_bytes() == kept
