@@ -119,7 +119,7 @@ def accuracy_table(quick: bool = False) -> Table:
     from gonio.brdf import make
     from gonio.cli.measure import DEFAULT_PLAN, default_plan_params
     from gonio.plan import estimate_plan, make_plan
-    from gonio.plan.labtime import SessionTiming
+    from gonio.plan.labtime import MAX_SECONDS, SessionTiming
     from gonio.session.store import load_session
     from sim.rig import DEFAULT_MATERIAL
 
@@ -134,8 +134,8 @@ def accuracy_table(quick: bool = False) -> Table:
     rows = strategies()
     rows.insert(DEFAULT_ROW + 1 if not quick else len(rows), ("modelled darks, camera without a temperature reading",
                                                               SessionTiming(), {"sensor_reports_temperature": False}))
-    rows.append(("stale darks: never re-measured (not offered)", SessionTiming(darks="measured",
-                                                                                dark_max_age=math.inf), {}))
+    rows.append(("stale darks: never re-measured in the session (not offered)", SessionTiming(darks="measured",
+                                                                                dark_max_age=MAX_SECONDS), {}))
     if quick:
         rows = [rows[0], rows[DEFAULT_ROW]]
     truth = make(DEFAULT_MATERIAL["model"], **DEFAULT_MATERIAL["params"])
