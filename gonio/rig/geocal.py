@@ -38,7 +38,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from gonio.errors import ConfigError
-from gonio.rig.chain import ARM_FIELDS, TURNTABLE_FIELDS, ChainErrors, chain_forward
+from gonio.rig.chain import ARM_FIELDS, CAMERA_FIELDS, TURNTABLE_FIELDS, ChainErrors, chain_forward
 
 __all__ = ["CameraObservation", "HighlightObservation", "GeoCalResult", "DegeneratePoses", "calibrate_geometry",
            "calibration_plan", "calibrated_rig_text", "RANK_TOL", "MAX_SIGMA"]
@@ -183,7 +183,7 @@ def check_pose_set(rig, cams, highs) -> None:
 
     if len(cams) < 8:
         raise DegeneratePoses(f"calibration poses: {len(cams)} camera poses; need at least 8 (the camera arm has "
-                              f"{len(ARM_FIELDS)} unknowns)")
+                              f"{len(CAMERA_FIELDS)} unknowns)")
     if len(highs) < 8:
         raise DegeneratePoses(f"calibration poses: {len(highs)} views of the light's reflection; need at least 8 "
                               f"(the light arm has {len(ARM_FIELDS)} unknowns)")
@@ -381,8 +381,8 @@ def calibrated_rig_text(declared_text: str, result: GeoCalResult, *, note: str =
 
     lines += ["[calibration.rms]", *(f"{k} = {v:.4g}" for k, v in result.rms.items())]
     lines += ["[calibration.not_identified]", *(f'"{k}" = "{v}"' for k, v in result.not_identified.items())]
-    for prefix, fields in (("light", ARM_FIELDS), ("camera", ARM_FIELDS), ("turntable", TURNTABLE_FIELDS)):
+    for prefix, fields in (("light", ARM_FIELDS), ("camera", CAMERA_FIELDS), ("turntable", TURNTABLE_FIELDS)):
         lines += table(prefix, fields, getattr(e, prefix))
-    for prefix, fields in (("light", ARM_FIELDS), ("camera", ARM_FIELDS), ("turntable", TURNTABLE_FIELDS)):
+    for prefix, fields in (("light", ARM_FIELDS), ("camera", CAMERA_FIELDS), ("turntable", TURNTABLE_FIELDS)):
         lines += sigma_table(prefix, fields)
     return declared_text.rstrip("\n") + "\n" + "\n".join(lines) + "\n"
