@@ -74,7 +74,8 @@ def print_result(res, refused=()) -> None:
         else:
             print(f"  {name:26s} {value:+9.4f} ± {sigma:.4f} {unit}")
     print("  residual RMS: " + ", ".join(f"{k} {v:.3g}" for k, v in res.rms.items())
-          + f"; {res.n_observations['camera']} board poses, {res.n_observations['highlight']} highlights")
+          + f"; {res.n_observations['camera']} board poses, {res.n_observations['highlight']} highlights; "
+          f"least squares started from the {res.start} geometry")
     if refused:
         print(f"  {len(refused)} poses without a highlight or a board pose, e.g. pose {refused[0][0]}: {refused[0][1]}")
 

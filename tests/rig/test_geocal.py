@@ -132,3 +132,41 @@ def test_calibrate_check_and_a_session_on_the_calibrated_rig(rig, tmp_path, caps
     assert len(rec["sha256"]) == 64 and "light" in rec["calibration"]["uncertainty"]
     assert main(["calibrate", "rig", "--rig", str(out), "--sim", "--estimate"]) != 0
     assert "already calibrated" in capsys.readouterr().err
+
+
+def test_a_bad_declared_geometry_the_hand_eye_start_and_the_joint_fit(rig, plan):
+    """Servo horns 15° off on both arms (and the camera 5° askew on its bracket): the closed-form
+    robot-world/hand-eye solution (gonio.rig.handeye, Shah 2013; OpenCV's calibrateRobotWorldHandEye where the
+    installed OpenCV exposes it) already puts the camera arm near the truth; the joint least squares started
+    there and started from the declared geometry reach the same estimate, the truth within 3σ."""
+    from gonio.rig.handeye import camera_arm_start, robot_world_hand_eye
+
+    ab = AsBuilt.from_seed(rig, 21)
+    for arm in (ab.errors.light, ab.errors.camera):
+        arm["d_az_deg"], arm["d_el_deg"] = 15.0, -15.0
+    ab.errors.camera["mount_z_deg"] = 5.0
+    cams, highs = observe(ab, plan, 21)
+    truth = ab.errors.folded()
+    start = camera_arm_start(rig, cams)
+    for k in ("d_az_deg", "d_el_deg", "tilt_x_deg", "tilt_y_deg", "mount_z_deg"):
+        assert abs(start[k] - truth.camera[k]) < 0.5, k  # vs 15° from the declared geometry
+    he = calibrate_geometry(rig, cams, highs)
+    de = calibrate_geometry(rig, cams, highs, start="declared")
+    assert he.start == "hand-eye" and de.start == "declared"
+    sig = np.array([he.sigma[n] for n in he.errors.names()])
+    ok = np.isfinite(sig)
+    assert np.all(np.abs(he.errors.vector() - de.errors.vector())[ok] < 0.02 * sig[ok])  # the same optimum
+    assert np.all(np.abs(he.errors.vector() - truth.vector())[ok] < 3 * sig[ok])
+    # the NumPy solver is the closed form itself: exact on noise-free poses
+    rng = np.random.default_rng(0)
+    from gonio.rig.chain import _rx, _ry, _rz
+
+    RY, RZ = _rx(np.asarray(0.1)) @ _rz(np.asarray(-0.3)), _ry(np.asarray(0.2)) @ _rx(np.asarray(0.05))
+    tY, tZ = np.array([0.01, -0.02, 0.003]), np.array([0.0, 0.1, 0.4])
+    RB = _rz(rng.uniform(-3, 3, 10)) @ _ry(rng.uniform(-1, 1, 10))
+    tB = rng.normal(0, 0.1, (10, 3))
+    RA = RZ @ RB @ RY.T
+    tA = (RZ @ tB[..., None])[..., 0] + tZ - (RA @ tY[:, None])[..., 0]
+    got = robot_world_hand_eye(RA, tA, RB, tB, use_opencv=False)
+    for a, b in zip(got, (RY, tY, RZ, tZ)):
+        np.testing.assert_allclose(a, b, atol=1e-9)
