@@ -113,15 +113,26 @@ def test_calibrate_check_and_a_session_on_the_calibrated_rig(rig, tmp_path, caps
     out.write_text(calibrated_rig_text(read_rig_text("default")[0], res))
     cal = load_rig(out)
     assert cal.geometry_errors is not None
-    assert main(["calibrate", "check", "--sim", "--sim-as-built", "7", "--rig", str(out)]) == 0
+    # `calibrate check`: a short session on the simulated as-built rig (rendered frames, board + highlight)
+    assert main(["calibrate", "check", "--sim", "--sim-as-built", "7", "--rig", str(out), "--quiet",
+                 "--session", str(tmp_path / "c1")]) == 0
     after = capsys.readouterr().out
-    assert main(["calibrate", "check", "--sim", "--sim-as-built", "7"]) == 0
+    assert main(["calibrate", "check", "--sim", "--sim-as-built", "7", "--quiet", "--session", str(tmp_path / "c0")]) == 1
     before = capsys.readouterr().out
 
-    def wi_median(text):
-        return float(text.split("wi median ")[1].split("°")[0])
+    def seen(text, name):  # p95 of the error against what the camera saw
+        return float(text.split(f"  {name} vs the ")[1].split("p95 ")[1].split("°")[0])
 
-    assert wi_median(after) < 0.1 < 0.5 < wi_median(before)
+    def truth(text):
+        return float(text.split("vs the simulated truth: wi median ")[1].split("°")[0])
+
+    assert truth(after) < 0.1 < 0.5 < truth(before)
+    assert seen(after, "wi") < 0.25 < 1.0 < seen(before, "wi") and seen(after, "wo") < 0.25 < 1.0 < seen(before, "wo")
+    assert after.strip().splitlines()[-1].startswith("verdict: OK: ")
+    verdict = before.strip().splitlines()[-1]
+    assert verdict.startswith("verdict: RECALIBRATE: ") and "> 0.25°" in verdict
+    assert main(["calibrate", "check", "--sim", "--threshold", "-1", "--session", str(tmp_path / "c2")]) != 0
+    assert "--threshold = '-1': expected degrees in (0, 90]" in capsys.readouterr().err
     # a session on a calibrated rig records the rig's uncertainties with its SHA-256
     d = tmp_path / "s"
     assert main(["measure", "--sim", "--quiet", "--plan", "in_plane", "--theta-i-step", "40", "--theta-o-step", "40",
