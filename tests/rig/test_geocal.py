@@ -181,3 +181,25 @@ def test_a_bad_declared_geometry_the_hand_eye_start_and_the_joint_fit(rig, plan)
     got = robot_world_hand_eye(RA, tA, RB, tB, use_opencv=False)
     for a, b in zip(got, (RY, tY, RZ, tZ)):
         np.testing.assert_allclose(a, b, atol=1e-9)
+
+
+def test_the_camera_mounting_rotation_is_estimated_or_said_not_identified(rig, plan, fits):
+    """The mounting rotation (camera.mount_*_deg) turns the image, not the camera's position: the board's
+    orientation and the highlights determine it (recovered in the seeded fits above). Board poses whose
+    orientation is unknown (±60°) and no highlight cannot: it is reported not identified and kept at 0 in the
+    calibrated rig file, while the arm's parameters that positions determine are still estimated."""
+    from dataclasses import replace
+
+    for ab, res in fits:
+        for k in ("mount_x_deg", "mount_y_deg", "mount_z_deg"):
+            assert abs(res.errors.camera[k] - ab.errors.camera[k]) < 3 * res.sigma[f"camera.{k}"] < 0.1
+    ab = AsBuilt.from_seed(rig, 4)
+    cams, _ = observe(ab, plan, 4)
+    cams = [replace(c, cov=np.diag([0.2 ** 2] * 3 + [60.0 ** 2] * 3)) for c in cams]
+    res = calibrate_geometry(rig, cams, [], check=False)
+    for k in ("mount_x_deg", "mount_y_deg", "mount_z_deg"):
+        assert "too large" in res.not_identified[f"camera.{k}"] and res.errors.camera[k] == 0.0
+    assert "camera.d_az_deg" not in res.not_identified
+    assert abs(res.errors.camera["d_az_deg"] - ab.errors.camera["d_az_deg"]) < 3 * res.sigma["camera.d_az_deg"]
+    text = calibrated_rig_text(read_rig_text("default")[0], res)
+    assert '"camera.mount_z_deg" = "uncertainty' in text and "\nmount_z_deg = 0\n" in text
