@@ -63,8 +63,9 @@ def calibration_session_plan(rig, *, quick: bool = False):
 
 def check_session_plan(rig):
     """The poses ``gonio calibrate check`` re-measures: every other ChArUco pose of the quick calibration plan
-    (two azimuths per elevation) and its highlight poses at the exact mirror direction at 30° and 65° of
-    elevation (6 azimuths): 20 poses, about a minute of lab time."""
+    (two azimuths per elevation) and its highlight poses at the exact mirror direction at 30° and 50° of
+    elevation (6 azimuths; higher, the board is seen too obliquely for a precise pose): 20 poses, about a
+    minute of lab time."""
     from dataclasses import replace
 
     plan = calibration_session_plan(rig, quick=True)
@@ -72,7 +73,7 @@ def check_session_plan(rig):
     cam = [i for i, k in enumerate(kinds) if k == "camera"][::2]
     light_el = np.round(np.degrees(j[:, rig.names.index("light_el")])) if "light_el" in rig.names else None
     hi = [i for i, k in enumerate(kinds) if k == "highlight" and abs(j[i, 1] + j[i, 3]) < 1e-9
-          and (light_el is None or light_el[i] in (30.0, 65.0))]
+          and (light_el is None or light_el[i] in (30.0, 50.0))]
     idx = cam + hi
     return replace(plan, poses=plan.poses[idx], joints=j[idx],
                    params={**plan.params, "kinds": [kinds[i] for i in idx], "check": True})

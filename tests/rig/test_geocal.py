@@ -98,22 +98,33 @@ def test_a_degenerate_pose_set_is_refused_in_one_line(rig, plan, cut, reason):
     assert "\n" not in str(info.value)
 
 
-def test_calibrate_check_and_a_session_on_the_calibrated_rig(rig, tmp_path, capsys):
-    """The calibrated file (here from geometric observations: the rendered session is tests/session/
-    test_geocal_session.py's and the benchmark's) makes `calibrate check` and a measurement use the true geometry."""
+@pytest.fixture(scope="module")
+def calibrated_7(rig, tmp_path_factory):
+    """A calibrated rig file for as-built rig 7 (from geometric observations: the rendered session is
+    tests/session/test_geocal_session.py's and the benchmark's), and what print_result printed."""
+    import contextlib
+    import io
+
     from gonio.cli.calibrate import print_result
-    from gonio.cli.main import main
 
     ab = AsBuilt.from_seed(rig, 7)
     res = calibrate_geometry(rig, *observe(ab, calibration_plan(rig, quick=True), 7))
-    print_result(res)
-    printed = capsys.readouterr().out
-    assert "not identified" in printed and "±" in printed
-    out = tmp_path / "cal.toml"
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        print_result(res)
+    out = tmp_path_factory.mktemp("cal7") / "cal.toml"
     out.write_text(calibrated_rig_text(read_rig_text("default")[0], res))
-    cal = load_rig(out)
-    assert cal.geometry_errors is not None
-    # `calibrate check`: a short session on the simulated as-built rig (rendered frames, board + highlight)
+    return out, buf.getvalue()
+
+
+def test_calibrate_check_re_measures_the_rig_and_gives_a_verdict(calibrated_7, tmp_path, capsys):
+    """`gonio calibrate check`: a short session on the simulated as-built rig (rendered frames: the board pose
+    and the highlight, as on a rig); the calibrated file passes, the declared one is told to recalibrate."""
+    from gonio.cli.main import main
+
+    out, printed = calibrated_7
+    assert "not identified" in printed and "±" in printed and "started from the hand-eye geometry" in printed
+    assert load_rig(out).geometry_errors is not None
     assert main(["calibrate", "check", "--sim", "--sim-as-built", "7", "--rig", str(out), "--quiet",
                  "--session", str(tmp_path / "c1")]) == 0
     after = capsys.readouterr().out
@@ -129,11 +140,19 @@ def test_calibrate_check_and_a_session_on_the_calibrated_rig(rig, tmp_path, caps
     assert truth(after) < 0.1 < 0.5 < truth(before)
     assert seen(after, "wi") < 0.25 < 1.0 < seen(before, "wi") and seen(after, "wo") < 0.25 < 1.0 < seen(before, "wo")
     assert after.strip().splitlines()[-1].startswith("verdict: OK: ")
+    assert main(["resume", str(tmp_path / "c1")]) == 0  # a finished check session: its report again
+    assert capsys.readouterr().out.strip().splitlines()[-1] == after.strip().splitlines()[-1]
     verdict = before.strip().splitlines()[-1]
     assert verdict.startswith("verdict: RECALIBRATE: ") and "> 0.25°" in verdict
     assert main(["calibrate", "check", "--sim", "--threshold", "-1", "--session", str(tmp_path / "c2")]) != 0
     assert "--threshold = '-1': expected degrees in (0, 90]" in capsys.readouterr().err
-    # a session on a calibrated rig records the rig's uncertainties with its SHA-256
+    assert not (tmp_path / "c2").exists()
+
+
+def test_a_session_on_the_calibrated_rig_records_its_uncertainties(calibrated_7, tmp_path, capsys):
+    from gonio.cli.main import main
+
+    out, _ = calibrated_7
     d = tmp_path / "s"
     assert main(["measure", "--sim", "--quiet", "--plan", "in_plane", "--theta-i-step", "40", "--theta-o-step", "40",
                  "--sim-resolution", "160x120", "--sim-as-built", "7", "--rig", str(out), "--out", str(d)]) == 0
