@@ -18,7 +18,6 @@ one-line verdict against ``--threshold`` (exit status 1 when over it).
 
 from __future__ import annotations
 
-import math
 import sys
 
 #: What a hardware calibration session needs besides --out (the option, what it is).
@@ -241,7 +240,6 @@ def _hardware_needs(args, action: str) -> None:
 
 def run(args) -> int:
     from gonio.errors import ConfigError
-    from gonio.rig.geocal import calibration_plan
     from gonio.rig.kinematics import load_rig, read_rig_text
 
     if not args.sim and not args.rig and not getattr(args, "estimate", False):
