@@ -37,7 +37,6 @@ def register(sub) -> None:
         sp.add_argument("--sim-as-built", metavar="SEED|ERRORS.toml", default="0",
                         help="the simulated rig's assembly errors: a seed or a TOML file (default seed 0)")
         sp.add_argument("--seed", type=int, default=0, help="seed of the simulation's noise")
-        sp.add_argument("--quick", action="store_true", help="fewer poses (coarser azimuth steps)")
         sp.set_defaults(func=run)
 
     def hardware(sp):
@@ -52,6 +51,7 @@ def register(sub) -> None:
     rig.add_argument("--out", metavar="CALIBRATED.toml", help="calibrated rig file to write (never overwritten)")
     rig.add_argument("--session", metavar="DIR", help="the calibration session's directory (default: OUT.session)")
     rig.add_argument("--estimate", action="store_true", help="only print the plan and its lab time")
+    rig.add_argument("--quick", action="store_true", help="fewer poses (coarser azimuth steps)")
     hardware(rig)
     check = csub.add_parser("check", help="re-measure a few poses and report the angular error left (wi, wo)")
     common(check)
