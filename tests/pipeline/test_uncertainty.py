@@ -10,7 +10,7 @@ import pytest
 
 from gonio.pipeline.markers import BoardPose
 from gonio.pipeline.target import CameraPose
-from gonio.pipeline.uncertainty import local_h_gradient, plane_transfer
+from gonio.pipeline.uncertainty import local_h_gradient, plane_transfer, tile_average_bias
 from gonio.plan.generators import make_plan
 from gonio.session.runner import SessionRunner, open_devices
 from gonio.session.store import SessionStore, load_session
@@ -42,6 +42,15 @@ def test_true_material_has_reduced_chi_square_near_one(tmp_path):
     rel = np.abs(good.f / material.eval(good.wi, good.wo) - 1)
     print("chi2_red R, G, B:", np.round(chi2, 3), " median |rel|:", np.round(np.median(rel, axis=0), 4))
     assert np.all((chi2 > 0.5) & (chi2 < 2.0)), chi2
+    # calibrated |z| (a Gaussian: median 0.674, p95 1.96). Measured over seeds 0-2: median 0.68-0.80, p95
+    # 2.17-2.24, mean z -0.14..+0.10; the residual excess (chi2 ~1.25) is common to a pose's samples (per-pose
+    # mean z std ~1.0 against ~0.64 within a pose), largest at grazing half angles: a per-pose term (light
+    # position, camera pose or white normalization) is still somewhat small. Tiles reported at their mean
+    # direction (the curvature bias of a tile mean, gonio.pipeline.uncertainty) removed the bias that
+    # made the values sit below a glossy lobe (default plan, 6 seeds: mean z -0.23 -> -0.02)
+    az = np.abs(z)
+    assert 0.55 <= np.median(az) <= 0.85 and 1.7 <= np.percentile(az, 95) <= 2.4, (np.median(az), np.percentile(az, 95))
+    assert abs(np.mean(z)) < 0.3
     # the accuracy itself is unchanged: well inside 1 % median, 5 % p95
     assert np.all(np.median(rel, axis=0) <= 0.01) and np.all(np.percentile(rel, 95, axis=0) <= 0.05)
 
@@ -82,3 +91,27 @@ def test_board_pose_perturbations_follow_the_covariance():
     shifts = sorted(np.linalg.norm(q.centre - centre) for q in poses)
     assert shifts[-1] == pytest.approx(1e-3, rel=0.05)
     assert shifts[0] < 2e-4
+
+
+def test_tile_average_bias_is_half_the_trace_of_curvature_times_spread():
+    """f = a + g·h + ½ hᵀHh on a 5x5 tile grid (jittered): every tile's mean over pixels spread with
+    covariance Σ exceeds f at the mean half vector by ½ tr(HΣ) (border tiles take the nearest interior tile's H)."""
+    n = 5
+    rng = np.random.default_rng(1)
+    h = np.zeros((n * n, 3))
+    h[:, 0] = np.repeat(np.linspace(-0.05, 0.05, n), n) + 0.002 * rng.standard_normal(n * n)
+    h[:, 1] = np.tile(np.linspace(-0.05, 0.05, n), n) + 0.002 * rng.standard_normal(n * n)
+    H = np.array([[-40.0, 6.0], [6.0, -25.0]])
+    f0 = 0.5 + h[:, :2] @ [1.0, -2.0] + 0.5 * np.einsum("ti,ij,tj->t", h[:, :2], H, h[:, :2])
+    cov = np.array([[4e-5, 1e-5], [1e-5, 2e-5]])
+    covs = np.broadcast_to(cov, (n * n, 2, 2))  # one spread for every tile: the excess cancels in the fit
+    want = 0.5 * np.einsum("ij,tij->t", H, covs)
+    f = (f0 + want)[:, None] * [1.0, 0.5, 0.25]  # tile means (each its own curvature excess), three channels
+    got = tile_average_bias(f, h, covs, n)
+    np.testing.assert_allclose(got, want[:, None] * [1.0, 0.5, 0.25], rtol=1e-3)
+    # a flat field has no excess; a NaN tile gets none and spoils none of its neighbours' fits
+    assert np.allclose(tile_average_bias(np.ones((n * n, 3)), h, covs, n), 0.0, atol=1e-12)
+    f_nan = f.copy()
+    f_nan[0] = np.nan
+    got = tile_average_bias(f_nan, h, covs, n)
+    assert np.all(got[0] == 0.0) and np.all(np.isfinite(got))
