@@ -41,15 +41,14 @@ def test_true_material_has_reduced_chi_square_near_one(tmp_path):
     chi2 = np.mean(z**2, axis=0)
     rel = np.abs(good.f / material.eval(good.wi, good.wo) - 1)
     print("chi2_red R, G, B:", np.round(chi2, 3), " median |rel|:", np.round(np.median(rel, axis=0), 4))
-    assert np.all((chi2 > 0.5) & (chi2 < 2.0)), chi2
-    # calibrated |z| (a Gaussian: median 0.674, p95 1.96). Measured over seeds 0-2: median 0.68-0.80, p95
-    # 2.17-2.24, mean z -0.14..+0.10; the residual excess (chi2 ~1.25) is common to a pose's samples (per-pose
-    # mean z std ~1.0 against ~0.64 within a pose), largest at grazing half angles: a per-pose term (light
-    # position, camera pose or white normalization) is still somewhat small. Tiles reported at their mean
-    # direction (the curvature bias of a tile mean, gonio.pipeline.uncertainty) removed the bias that
-    # made the values sit below a glossy lobe (default plan, 6 seeds: mean z -0.23 -> -0.02)
+    # calibrated (a Gaussian: chi2_red 1, median |z| 0.674, p95 1.96). Measured over seeds 0-2: chi2_red
+    # 1.02-1.20, median 0.65-0.77, p95 2.04-2.06, mean z -0.12..+0.12. Before the ChArUco corner floor of
+    # 0.1 px (gonio.pipeline.markers.MIN_CORNER_SIGMA_PX; the camera pose's covariance was ~3.6x small at
+    # 0.05 px) this seed gave chi2_red 1.19-1.27 and p95 2.17; before tiles were reported at their mean
+    # direction (gonio.pipeline.uncertainty.tile_average_bias) the values sat below a glossy lobe
+    assert np.all((chi2 > 0.8) & (chi2 < 1.15)), chi2
     az = np.abs(z)
-    assert 0.55 <= np.median(az) <= 0.85 and 1.7 <= np.percentile(az, 95) <= 2.4, (np.median(az), np.percentile(az, 95))
+    assert 0.55 <= np.median(az) <= 0.8 and 1.8 <= np.percentile(az, 95) <= 2.15, (np.median(az), np.percentile(az, 95))
     assert abs(np.mean(z)) < 0.3
     # the accuracy itself is unchanged: well inside 1 % median, 5 % p95
     assert np.all(np.median(rel, axis=0) <= 0.01) and np.all(np.percentile(rel, 95, axis=0) <= 0.05)
