@@ -94,8 +94,29 @@ class MotionModel:
 
     @classmethod
     def from_rig(cls, rig) -> "MotionModel":
-        """The speed/acceleration limits of a :class:`gonio.rig.kinematics.Rig` (no wrap joints)."""
+        """The speed/acceleration limits of a :class:`gonio.rig.kinematics.Rig` (no wrap joints), as the rig
+        file states them: what orders poses and bounds lab time (the servos never move faster)."""
         return cls(tuple(rig.names), rig.max_speed, rig.max_accel)
+
+    @classmethod
+    def as_run(cls, rig) -> "MotionModel":
+        """The limits :meth:`from_rig` states as the rig's servos run them: the driver writes each joint's
+        limits as Profile Velocity/Acceleration registers, rounded down to their units
+        (:meth:`gonio.rig.control_table.ControlTable.profile_limits`: the default rig's 80-90°/s² run 6-8 %
+        slower, which the lab-time estimate missed); a joint whose servo model has no control table keeps
+        its stated limits. Used for the moves of an estimate (:func:`gonio.plan.plan_move_times`), not for
+        ordering: unequal speed/acceleration ratios make the k-d tree's bound loose (:mod:`gonio.plan.neighbours`)."""
+        from gonio.errors import ConfigError
+        from gonio.rig.control_table import load_control_table
+
+        speed, accel = np.array(rig.max_speed, dtype=np.float64), np.array(rig.max_accel, dtype=np.float64)
+        for k, j in enumerate(rig.joints):
+            try:
+                table = load_control_table(j.model)
+            except ConfigError:
+                continue
+            speed[k], accel[k] = table.profile_limits(j.max_speed, j.max_accel, j.gear_ratio)
+        return cls(tuple(rig.names), speed, accel)
 
     @property
     def n_joints(self) -> int:

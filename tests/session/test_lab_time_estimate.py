@@ -4,6 +4,7 @@ light/dark strategy and the conservative one (``gonio measure --accurate``)."""
 
 import math
 
+import numpy as np
 import pytest
 
 from gonio.plan import SessionTiming, estimate_plan, make_plan
@@ -57,6 +58,17 @@ def test_session_lab_time_between_lower_bound_and_estimate(tmp_path, name, param
     assert est.lower_bound <= result.lab_time <= est.optimized * (1 + tol), (est.to_dict(), result.lab_time)
     # the runner's recorded estimate is the same model
     assert result.estimated_lab_time == pytest.approx(est.optimized, rel=0.05)
+    # the moves take what the servos' profiles (as written: registers rounded down) predict, not the rig
+    # file's nominal limits (the simulated servos' motion adds polling to the end of each move)
+    from gonio.plan import plan_move_times
+    from gonio.plan.ordering import MotionModel, path_move_time
+    from gonio.rig.kinematics import load_rig
+
+    moved = sum(t["move_lab"] for t in result.timings[1:]) - (len(plan) - 1) * plan.capture.settle
+    as_run = float(plan_move_times(plan)[1:].sum())
+    nominal = path_move_time(plan.joints, np.arange(len(plan)), MotionModel.from_rig(load_rig()))
+    print("moves: measured", moved, "as run", as_run, "nominal", nominal)
+    assert as_run <= moved <= 1.04 * as_run and abs(moved - as_run) < 0.5 * abs(moved - nominal)
 
 
 def test_default_strategy_spends_no_fixed_cost_beyond_the_dark_set(tmp_path):
