@@ -30,6 +30,7 @@ MICROFACET = [
     ("cook-torrance", "cook-torrance", {"kd": 0.2, "ks": 0.5, "roughness": 0.2, "f0": 0.04}),
     ("gtr (γ = 1.5)", "gtr", {"kd": 0.2, "ks": 0.5, "alpha": 0.2, "gamma": 1.5, "f0": 0.04}),
     ("abc", "abc", {"kd": 0.1, "A": 2.0, "B": 1000.0, "C": 0.8, "eta": 1.5}),
+    ("ashikhmin-shirley", "ashikhmin-shirley", {"rd": 0.5, "rs": 0.05, "nu": 100, "nv": 20}),
     ("lambert+2ggx", "lambert+2ggx", {"diffuse.albedo": 0.2, "lobe1.ks": 0.3, "lobe1.alpha": 0.05, "lobe1.f0": 0.04,
                                       "lobe2.ks": 0.2, "lobe2.alpha": 0.4, "lobe2.f0": 0.04}),
 ]

@@ -28,11 +28,11 @@ from gonio.geometry import half_vector_xyz
 __all__ = ["Pair", "Lobe", "pair_geometry", "evaluate"]
 
 #: Per-pair quantities shared by the lobes (arrays on the NumPy path, scalars in a compiled loop):
-#: ``iz, oz`` cos θi, cos θo; ``hz`` cos θh; ``s2h`` = h_x² + h_y² (sin²θh); ``ih, oh`` wi·h, wo·h;
+#: ``iz, oz`` cos θi, cos θo; ``hx, hy, hz`` the half vector (cos θh = hz); ``s2h`` = h_x² + h_y² (sin²θh); ``ih, oh`` wi·h, wo·h;
 #: ``si2, so2`` sin²θi, sin²θo (x² + y²); ``si, so`` sin θi, sin θo; ``th2`` tan²θh (a guarded
 #: division); ``cc`` = max(cos θi cos θo, tiny); ``m`` = 1 − cos θd without cancellation; ``tiny`` the
 #: dtype's smallest normal number.
-Pair = namedtuple("Pair", "iz oz hz s2h ih oh si2 so2 si so th2 cc m tiny")
+Pair = namedtuple("Pair", "iz oz hx hy hz s2h ih oh si2 so2 si so th2 cc m tiny")
 
 
 class Lobe(NamedTuple):
@@ -57,7 +57,7 @@ def pair_geometry(ix, iy, iz, ox, oy, oz, tiny):
     so2 = ox * ox + oy * oy
     s2h = hx * hx + hy * hy
     return Pair(
-        iz, oz, hz, s2h,
+        iz, oz, hx, hy, hz, s2h,
         ix * hx + iy * hy + iz * hz, ox * hx + oy * hy + oz * hz,
         si2, so2, np.sqrt(si2), np.sqrt(so2),
         s2h / np.maximum(hz * hz, tiny),
