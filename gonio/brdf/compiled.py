@@ -11,7 +11,7 @@ geometry of each pair (python -m benchmarks brdf).
 
 A model has a compiled form when it is written as lobes (:meth:`gonio.brdf.base.BRDF._lobes`) whose spec
 functions are all in :data:`SPECS`: ``microfacet`` (GGX, Beckmann), ``cook-torrance``, ``gtr``, ``abc``,
-``ashikhmin-shirley``, ``lambert`` and sums of them. Each loop is compiled on first use and its machine code
+``abc-smooth``, ``ashikhmin-shirley``, ``lambert`` and sums of them. Each loop is compiled on first use and its machine code
 kept on disk, keyed by a hash of the formulas' source (:func:`_cached_module`), so later processes load it in milliseconds.
 """
 
@@ -23,7 +23,7 @@ import os
 
 import numpy as np
 
-from gonio.brdf.abc import abc_spec
+from gonio.brdf.abc import abc_smooth_spec, abc_spec
 from gonio.brdf.ashikhmin_shirley import ashikhmin_shirley_diffuse, ashikhmin_shirley_spec
 from gonio.brdf.cook_torrance import cook_torrance_spec
 from gonio.brdf.gtr import gtr_spec
@@ -33,7 +33,7 @@ __all__ = ["MIN_PAIRS", "SPECS", "available", "supports", "wanted", "evaluate"]
 
 #: Spec functions the kernel dispatches on, by index (the kernel's if-chain follows this order).
 SPECS = (ggx_spec, beckmann_spec, cook_torrance_spec, gtr_spec, abc_spec, ashikhmin_shirley_spec,
-         ashikhmin_shirley_diffuse)
+         ashikhmin_shirley_diffuse, abc_smooth_spec)
 #: Most shape parameters of a spec function.
 MAX_PARAMS = 3
 #: ``backend="auto"`` uses the compiled loop from this many pairs on (below, the call overhead of
