@@ -8,7 +8,9 @@ has one hand-kept copy; the compiled path is generated from it.
 Rules for a jitable function: arithmetic, ``np.sqrt/exp/log/log1p/expm1/maximum/minimum`` and
 :func:`select` (never ``np.where``, ``np.clip`` or axis reductions, which mean something else on a
 scalar); it may call other jitable functions; anything dtype-dependent (the ``tiny`` guards) comes in
-as an argument, so float32 arrays stay float32.
+as an argument, so float32 arrays stay float32. Tuples a jitable function returns hold one type (floats: a
+condition is stored as 1.0/0.0, as :data:`gonio.brdf.pairs.Pair`'s ``vis``): a bool among floats makes numba
+build a mixed structure that keeps the compiled loop from being vectorized (3–7× slower).
 """
 
 from __future__ import annotations

@@ -15,11 +15,12 @@ import numpy as np
 
 from gonio._jit import jitable
 from gonio.brdf.base import BRDF, Param
-from gonio.brdf.fresnel import dielectric, dielectric_parts
-from gonio.brdf.microfacet import half_vector, vgroove_g_parts
+from gonio.brdf.fresnel import dielectric_core, dielectric_parts
+from gonio.brdf.microfacet import vgroove_g_parts
 from gonio.brdf.pairs import Lobe
 
-__all__ = ["ABCMicrofacet", "ABCSmooth", "abc_s", "abc_s_core", "abc_spec"]
+__all__ = ["ABCMicrofacet", "ABCSmooth", "abc_s", "abc_s_core", "abc_spec", "abc_smooth_spec", "abc_smooth_x",
+           "abc_fresnel"]
 
 #: Upper bound of B: ~1/B is the lobe width in (1 − cos θh); 1e7 resolves lobes far narrower than a
 #: MERL cell at θh = 0 (Löw's fits reach B ≈ 6·10⁶ for fabrics' grazing lobes).
@@ -58,6 +59,30 @@ def abc_spec(p, B, C, eta):
     fn, fd = dielectric_parts(np.minimum(np.maximum(p.ih, 0.0), 1.0), eta)
     gn, gd = vgroove_g_parts(p.iz, p.oz, p.hz, p.oh, p.tiny)
     return d * (fn * gn / (fd * gd * (np.pi * p.cc)))
+
+
+@jitable
+def abc_smooth_x(p):
+    """x = ‖wi⊥ + wo⊥‖², the squared projection of wi + wo on the surface plane (the frequency of Löw et al.
+    2012, §4, without the wavelength), from the pair geometry ``p``: wi + wo = |wi + wo| h and, for unit wi, wo,
+    |wi + wo| = 2 wi·h, so x = 4 (wi·h)² (h_x² + h_y²) (products of positive terms: no cancellation at the
+    specular peak, where x → 0)."""
+    return 4.0 * (p.ih * p.ih) * p.s2h
+
+
+@jitable
+def abc_fresnel(p, eta):
+    """The Fresnel factor of both ABC models: the exact dielectric reflectance at θd
+    (:func:`gonio.brdf.fresnel.dielectric_core`; Born & Wolf §1.5) of cos θd = wi·h clamped to [0, 1]."""
+    return dielectric_core(np.minimum(np.maximum(p.ih, 0.0), 1.0), eta)
+
+
+@jitable
+def abc_smooth_spec(p, B, C, eta):
+    """The lobe of :class:`ABCSmooth` without its colour A: S(x)/A · F(θd; η) (Löw et al. 2012, §4, eq. 7 with
+    F in place of Q) with x of :func:`abc_smooth_x`, S of :func:`abc_s_core`, F of :func:`abc_fresnel`, on the
+    shared geometry ``p`` (:func:`gonio.brdf.pairs.pair_geometry`)."""
+    return abc_s_core(abc_smooth_x(p), B, C) * abc_fresnel(p, eta)
 
 
 class ABCMicrofacet(BRDF):
@@ -128,10 +153,5 @@ class ABCSmooth(BRDF):
     PARAMS = dict(ABCMicrofacet.PARAMS)
     energy_conserving = False
 
-    def _eval(self, wi, wo):
-        px = wi[..., 0] + wo[..., 0]
-        py = wi[..., 1] + wo[..., 1]
-        s = abc_s(px * px + py * py, self.A, self.B, self.C)
-        h = half_vector(wi, wo)
-        f = dielectric(np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0), self.eta)
-        return self.kd / np.pi + s * f[..., None]
+    def _lobes(self):
+        return self.kd / np.pi, [Lobe(abc_smooth_spec, (self.B, self.C, self.eta), self.A)]

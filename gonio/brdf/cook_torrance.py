@@ -21,7 +21,7 @@ def cook_torrance_spec(p, roughness):
     m = clamp_alpha(roughness)
     im = 1.0 / m
     tiny = p.tiny
-    dn, dd = beckmann_d_parts(p.th2 * (im * im), np.maximum(p.hz * p.hz, tiny), m, m, tiny)
+    dn, dd = beckmann_d_parts(p.th2 * (im * im), np.maximum(p.hz2, tiny), m, m, tiny)
     gn, gd = vgroove_g_parts(p.iz, p.oz, p.hz, p.oh, tiny)
     return select(p.hz > 0.0, np.pi * dn * gn / (dd * gd * p.cc), 0.0)
 

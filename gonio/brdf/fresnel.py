@@ -12,8 +12,8 @@ import numpy as np
 
 from gonio._jit import jitable, select
 
-__all__ = ["schlick", "schlick_m", "one_minus_cos_d", "one_minus_cos_d_xyz", "schlick_rational_power", "f0_from_eta",
-           "dielectric", "dielectric_core", "dielectric_parts", "conductor"]
+__all__ = ["schlick", "schlick_m", "schlick_weight", "schlick_blend", "one_minus_cos_d", "one_minus_cos_d_xyz",
+           "schlick_rational_power", "f0_from_eta", "dielectric", "dielectric_core", "dielectric_parts", "conductor"]
 
 
 def _prep(cos_theta, *consts):
@@ -48,10 +48,24 @@ def schlick(f0, cos_theta, one_minus_cos=None) -> np.ndarray:
 
 @jitable
 def schlick_m(f0, m):
-    """Schlick's F = f0 + (1 − f0) m⁵ from m = 1 − cos θ (Schlick 1994, eq. 15; see :func:`schlick`).
-    Arrays (broadcasting) or scalars."""
+    """Schlick's F = f0 + (1 − f0) m⁵ from m = 1 − cos θ (Schlick 1994, eq. 15; see :func:`schlick`):
+    :func:`schlick_blend` of :func:`schlick_weight`. Arrays (broadcasting) or scalars."""
+    return schlick_blend(f0, schlick_weight(m))
+
+
+@jitable
+def schlick_weight(m):
+    """The angular factor m⁵ = (1 − cos θ)⁵ of Schlick's approximation (Schlick 1994, eq. 15), from m = 1 − cos θ:
+    what does not depend on f0 (a fit keeps it per dataset)."""
     m2 = m * m
-    return f0 + (1.0 - f0) * (m2 * m2 * m)
+    return m2 * m2 * m
+
+
+@jitable
+def schlick_blend(f0, w):
+    """Schlick's F = f0 + (1 − f0) w from its angular factor w = (1 − cos θ)⁵ (:func:`schlick_weight`;
+    Schlick 1994, eq. 15): affine in f0."""
+    return f0 + (1.0 - f0) * w
 
 
 def one_minus_cos_d(wi, wo, h) -> np.ndarray:

@@ -6,10 +6,10 @@ import numpy as np
 
 from gonio._jit import jitable, select
 from gonio.brdf.base import BRDF, Param
-from gonio.brdf.microfacet import ALPHA_MIN, _visible, clamp_alpha, ggx_g1_den
+from gonio.brdf.microfacet import ALPHA_MIN, clamp_alpha, ggx_g1_den
 from gonio.brdf.pairs import Lobe
 
-__all__ = ["GTR", "gtr_d", "gtr_norm", "gtr_shape", "gtr_spec"]
+__all__ = ["GTR", "gtr_d", "gtr_norm", "gtr_shape", "gtr_shape_c2", "gtr_spec"]
 
 #: Roughness ceiling: the normalization has a removable singularity at α = 1 (a uniform distribution).
 ALPHA_MAX = 0.999
@@ -24,7 +24,7 @@ def gtr_d(cos_h, alpha, gamma) -> np.ndarray:
 
     so that ∫ D cos θh dω = 1 (derived by u = 1 − (1 − α²) cos²θh). γ = 2 is GGX (c = α²/π), γ = 1 Burley's
     clearcoat lobe; small γ gives the long tails of measured materials. α is clamped to [1e-4, 0.999].
-    The formulas are :func:`gtr_norm` (c) and :func:`gtr_shape`.
+    The formulas are :func:`gtr_norm` (c) and :func:`gtr_shape_c2`.
     """
     return gtr_shape(cos_h, alpha, gamma, gtr_norm(alpha, gamma))
 
@@ -42,14 +42,19 @@ def gtr_norm(alpha, gamma):
     return (1.0 - a2) * g1 / (np.pi * -np.expm1(g1 * lna2))
 
 
-@jitable
 def gtr_shape(cos_h, alpha, gamma, c):
     """D(θh) = c / (α² cos²θh + sin²θh)^γ of :func:`gtr_d` given its normalization ``c`` (:func:`gtr_norm`);
-    0 for cos θh ≤ 0. The base α² cos²θh + sin²θh ≥ α² > 0."""
+    0 for cos θh ≤ 0 (:func:`gtr_shape_c2` of cos²θh)."""
+    return select(cos_h > 0.0, gtr_shape_c2(np.minimum(np.maximum(cos_h, 0.0), 1.0) ** 2, alpha, gamma, c), 0.0)
+
+
+@jitable
+def gtr_shape_c2(c2, alpha, gamma, c):
+    """D(θh) = c / (α² cos²θh + sin²θh)^γ of :func:`gtr_d` (Burley 2012, Appendix B) for cos θh > 0, from
+    c2 = cos²θh ≤ 1, as c · exp(−γ ln(α² c2 + 1 − c2)); the base is ≥ α² > 0."""
     a2 = np.minimum(np.maximum(alpha, ALPHA_MIN), ALPHA_MAX) ** 2
-    c2 = np.minimum(np.maximum(cos_h, 0.0), 1.0) ** 2
     q = a2 * c2 + (1.0 - c2)
-    return select(cos_h > 0.0, c * np.exp(-gamma * np.log(q)), 0.0)
+    return c * np.exp(-gamma * np.log(q))
 
 
 @jitable
@@ -61,8 +66,8 @@ def gtr_spec(p, alpha, gamma, c):
     normalization :func:`gtr_norm` (computed once per model)."""
     a = clamp_alpha(alpha)
     a2 = a * a
-    s = ggx_g1_den(p.iz, a2 * p.si2) * ggx_g1_den(p.oz, a2 * p.so2)
-    return select(_visible(p), gtr_shape(p.hz, alpha, gamma, c) / s, 0.0)
+    s = ggx_g1_den(p.iz, p.iz2, a2 * p.si2) * ggx_g1_den(p.oz, p.oz2, a2 * p.so2)
+    return select(p.vis > 0.0, gtr_shape_c2(np.minimum(p.hz2, 1.0), alpha, gamma, c) / s, 0.0)
 
 
 class GTR(BRDF):

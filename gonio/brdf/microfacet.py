@@ -46,6 +46,7 @@ __all__ = [
     "beckmann_g1_parts",
     "vgroove_g_parts",
     "ggx_spec",
+    "ggx_spec_den",
     "beckmann_spec",
     "Microfacet",
 ]
@@ -110,15 +111,15 @@ def ggx_d(h, alpha_x, alpha_y=None) -> np.ndarray:
     ax = clamp_alpha(alpha_x)
     ay = ax if alpha_y is None else clamp_alpha(alpha_y)
     hz = h[..., 2]
-    return select(hz > 0.0, 1.0 / ggx_d_den(_stretch(h[..., 0], h[..., 1], ax, ay), hz, ax, ay), 0.0)
+    return select(hz > 0.0, 1.0 / ggx_d_den(_stretch(h[..., 0], h[..., 1], ax, ay), hz * hz, ax, ay), 0.0)
 
 
 @jitable
-def ggx_d_den(e, hz, ax, ay):
+def ggx_d_den(e, hz2, ax, ay):
     """1/D of GGX for h_z > 0: π α_x α_y (e + h_z²)², from the stretched slope e = h_x²/α_x² + h_y²/α_y²
-    (Walter et al. 2007, eq. 33; Heitz 2014, eq. 85). A reciprocal so a lobe divides once."""
-    q = e + hz * hz
-    return np.pi * ax * ay * q * q
+    and hz2 = h_z² (Walter et al. 2007, eq. 33; Heitz 2014, eq. 85). A reciprocal so a lobe divides once."""
+    q = e + hz2
+    return (np.pi * ax * ay) * (q * q)
 
 
 def distribution_d(name: str, h, alpha_x, alpha_y=None) -> np.ndarray:
@@ -149,7 +150,7 @@ def smith_g1(name: str, v, h, alpha_x, alpha_y=None) -> np.ndarray:
     vz = v[..., 2]
     xy = (ax * v[..., 0]) ** 2 + (ay * v[..., 1]) ** 2
     if name == "ggx":
-        g = 2.0 * np.abs(vz) / ggx_g1_den(vz, xy)
+        g = 2.0 * np.abs(vz) / ggx_g1_den(np.abs(vz), vz * vz, xy)
     elif name == "beckmann":
         num, den = beckmann_g1_parts(np.abs(vz), np.sqrt(xy))
         g = num / den
@@ -160,11 +161,11 @@ def smith_g1(name: str, v, h, alpha_x, alpha_y=None) -> np.ndarray:
 
 
 @jitable
-def ggx_g1_den(vz, xy):
-    """S = |v_z| + √(v_z² + xy), with xy = α_x² v_x² + α_y² v_y²: the GGX Smith G1 of Walter et al. 2007,
-    eq. 34, 2 / (1 + √(1 + α² tan²θ_v)), is 2|v_z| / S (multiplied through by |v_z|: no tan, finite at the
-    horizon), so G1(v) / (2 cos θ_v) = 1/S."""
-    return np.abs(vz) + np.sqrt(vz * vz + xy)
+def ggx_g1_den(c, c2, xy):
+    """S = |v_z| + √(v_z² + xy) from c = |v_z|, c2 = v_z² and xy = α_x² v_x² + α_y² v_y²: the GGX Smith G1 of
+    Walter et al. 2007, eq. 34, 2 / (1 + √(1 + α² tan²θ_v)), is 2|v_z| / S (multiplied through by |v_z|: no
+    tan, finite at the horizon), so G1(v) / (2 cos θ_v) = 1/S."""
+    return c + np.sqrt(c2 + xy)
 
 
 @jitable
@@ -209,21 +210,23 @@ def vgroove_g_parts(iz, oz, hz, oh, tiny):
 
 
 @jitable
-def _visible(p):
-    """h above the surface and wi, wo on the visible side of the microfacet (the G1 condition (v·h) v_z > 0)."""
-    return (p.hz > 0.0) & (p.ih * p.iz > 0.0) & (p.oh * p.oz > 0.0)
-
-
-@jitable
 def ggx_spec(p, alpha):
     """GGX lobe of :class:`Microfacet` without colour and Fresnel: D G2 / (4 cos θi cos θo) (Walter et al.
     2007, eq. 20 with D eq. 33 and separable Smith G2 eq. 23 of G1 eq. 34) on the shared geometry ``p``
-    (:func:`gonio.brdf.pairs.pair_geometry`). With G1(v) = 2 cos θ_v / S_v (:func:`ggx_g1_den`) the cosines
-    cancel: D G2 / (4 cos θi cos θo) = 1 / (D⁻¹ S_i S_o), D⁻¹ of :func:`ggx_d_den` — one division."""
+    (:func:`gonio.brdf.pairs.pair_geometry`): 1 / :func:`ggx_spec_den` where the microfacet is visible
+    (``p.vis``), else 0."""
+    return select(p.vis > 0.0, 1.0 / ggx_spec_den(p, alpha), 0.0)
+
+
+@jitable
+def ggx_spec_den(p, alpha):
+    """1 / (D G2 / (4 cos θi cos θo)) of GGX for pairs above the horizon with a visible microfacet (see
+    :func:`ggx_spec`): with G1(v) = 2 cos θ_v / S_v (:func:`ggx_g1_den`; cos θ_v = |cos θ_v| above the horizon)
+    the cosines cancel, D G2 / (4 cos θi cos θo) = 1 / (D⁻¹ S_i S_o), D⁻¹ of :func:`ggx_d_den`: one division."""
     a = clamp_alpha(alpha)
     a2 = a * a
-    den = ggx_d_den(p.s2h * (1.0 / a2), p.hz, a, a) * ggx_g1_den(p.iz, a2 * p.si2) * ggx_g1_den(p.oz, a2 * p.so2)
-    return select(_visible(p), 1.0 / den, 0.0)
+    return (ggx_d_den(p.s2h * (1.0 / a2), p.hz2, a, a) * ggx_g1_den(p.iz, p.iz2, a2 * p.si2)
+            * ggx_g1_den(p.oz, p.oz2, a2 * p.so2))
 
 
 @jitable
@@ -233,11 +236,11 @@ def beckmann_spec(p, alpha):
     on the shared geometry ``p``; the fractions are multiplied out and divided once."""
     a = clamp_alpha(alpha)
     tiny = p.tiny
-    c2 = np.maximum(p.hz * p.hz, tiny)
+    c2 = np.maximum(p.hz2, tiny)
     dn, dd = beckmann_d_parts(p.th2 * (1.0 / (a * a)), c2, a, a, tiny)
     gin, gid = beckmann_g1_parts(p.iz, a * p.si)
     gon, god = beckmann_g1_parts(p.oz, a * p.so)
-    return select(_visible(p), (dn * gin * gon) / (dd * gid * god * (4.0 * p.cc)), 0.0)
+    return select(p.vis > 0.0, (dn * gin * gon) / (dd * gid * god * (4.0 * p.cc)), 0.0)
 
 
 #: Spec function of each distribution.

@@ -21,18 +21,21 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from gonio._jit import jitable
+from gonio._jit import jitable, select
 from gonio.brdf.fresnel import one_minus_cos_d_xyz, schlick_m
 from gonio.geometry import half_vector_xyz
 
 __all__ = ["Pair", "Lobe", "pair_geometry", "evaluate"]
 
 #: Per-pair quantities shared by the lobes (arrays on the NumPy path, scalars in a compiled loop):
-#: ``iz, oz`` cos θi, cos θo; ``hz`` cos θh; ``s2h`` = h_x² + h_y² (sin²θh); ``ih, oh`` wi·h, wo·h;
+#: ``iz, oz`` cos θi, cos θo; ``hx, hy, hz`` the half vector (cos θh = hz); ``s2h`` = h_x² + h_y² (sin²θh);
+#: ``hz2, iz2, oz2`` cos²θh, cos²θi, cos²θo; ``ih, oh`` wi·h, wo·h; ``vis`` 1.0 where h is above the surface and
+#: wi, wo on the visible side of the microfacet ((v·h) v_z > 0, the condition of the Smith G1), else 0.0 (a
+#: float, not a bool: every field of one type keeps the compiled loop vectorized);
 #: ``si2, so2`` sin²θi, sin²θo (x² + y²); ``si, so`` sin θi, sin θo; ``th2`` tan²θh (a guarded
 #: division); ``cc`` = max(cos θi cos θo, tiny); ``m`` = 1 − cos θd without cancellation; ``tiny`` the
 #: dtype's smallest normal number.
-Pair = namedtuple("Pair", "iz oz hz s2h ih oh si2 so2 si so th2 cc m tiny")
+Pair = namedtuple("Pair", "iz oz hx hy hz s2h hz2 iz2 oz2 ih oh vis si2 so2 si so th2 cc m tiny")
 
 
 class Lobe(NamedTuple):
@@ -50,17 +53,22 @@ def pair_geometry(ix, iy, iz, ox, oy, oz, tiny):
 
     h = normalize(wi + wo) (:func:`gonio.geometry.half_vector_xyz`), sin θ = √(x² + y²),
     tan²θh = (h_x² + h_y²) / max(h_z², tiny), 1 − cos θd from :func:`gonio.brdf.fresnel.one_minus_cos_d_xyz`.
-    On a compiled path the fields a lobe does not use are never computed.
+    On a compiled path the fields a lobe does not use are never computed; on the NumPy path what does not
+    depend on a lobe's parameters (squares, the visibility test) is computed once, for every lobe (and for
+    every parameter value a fit tries, :mod:`gonio.fit.kernels`).
     """
     hx, hy, hz = half_vector_xyz(ix, iy, iz, ox, oy, oz, tiny)
     si2 = ix * ix + iy * iy
     so2 = ox * ox + oy * oy
     s2h = hx * hx + hy * hy
+    hz2 = hz * hz
+    ih = ix * hx + iy * hy + iz * hz
+    oh = ox * hx + oy * hy + oz * hz
     return Pair(
-        iz, oz, hz, s2h,
-        ix * hx + iy * hy + iz * hz, ox * hx + oy * hy + oz * hz,
+        iz, oz, hx, hy, hz, s2h, hz2, iz * iz, oz * oz, ih, oh,
+        select((hz > 0.0) & (ih * iz > 0.0) & (oh * oz > 0.0), 1.0, 0.0),
         si2, so2, np.sqrt(si2), np.sqrt(so2),
-        s2h / np.maximum(hz * hz, tiny),
+        s2h / np.maximum(hz2, tiny),
         np.maximum(iz * oz, tiny),
         one_minus_cos_d_xyz(ix, iy, iz, ox, oy, oz, hx, hy, hz),
         tiny,

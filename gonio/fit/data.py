@@ -83,6 +83,16 @@ class FitData:
         n = self._half_norm
         return np.einsum("ij,ij->i", self.wi, self.half) if n is None else 0.5 * n
 
+    @cached_property
+    def pair(self):
+        """The per-pair geometry every lobe formula takes (:func:`gonio.brdf.pairs.pair_geometry`: half vector,
+        cosines and their squares, 1 − cos θd without cancellation, ...), arrays of shape (N,)."""
+        from gonio.brdf.pairs import pair_geometry
+
+        wi, wo = self.wi, self.wo
+        c = [np.ascontiguousarray(a[:, k], dtype=np.float64) for a in (wi, wo) for k in range(3)]
+        return pair_geometry(*c, float(np.finfo(np.float64).tiny))
+
     def subset(self, index) -> "FitData":
         """The samples selected by a mask or index array; geometry already computed here is shared (sliced),
         the rest is computed lazily (the folds of a cross-validation share one geometry)."""
@@ -91,6 +101,9 @@ class FitData:
         for name in _GEOMETRY:
             if name in self.__dict__ and self.__dict__[name] is not None:
                 sub.__dict__[name] = self.__dict__[name][index]
+        if "pair" in self.__dict__:
+            p = self.__dict__["pair"]
+            sub.__dict__["pair"] = type(p)(*(f[index] if isinstance(f, np.ndarray) else f for f in p))
         return sub
 
 

@@ -29,28 +29,33 @@ def _lambert(data, layout, shape):
 
 def _microfacet(data, layout, shape):
     """Walter et al. 2007 microfacet + Lambert (:class:`gonio.brdf.microfacet.Microfacet`): bases
-    kd → 1/π, ks → D(h) G2 F(wo·h) / (4 cos θi cos θo), from the shared pieces of
-    :mod:`gonio.brdf.microfacet` on the half vectors and cosines cached on the data.
+    kd → 1/π, ks → D(h) G2 F(wo·h) / (4 cos θi cos θo), from the model's own lobe formula
+    (:func:`gonio.brdf.microfacet.ggx_spec` / :func:`~gonio.brdf.microfacet.beckmann_spec`) on the pair
+    geometry cached on the data (:attr:`gonio.fit.data.FitData.pair`).
 
     f0 is fixed (per channel) or tied (one value, a shape parameter). Schlick's
     F = f0 + (1 − f0)(1 − cos θd)⁵ (Schlick 1994, eq. 15) is formed from the cached (1 − cos θd)⁵, and
     D G2/(4 cos θi cos θo) is kept for the last α, so a step in f0 alone costs two array operations.
     """
+    return _lobe_basis(data, layout, shape, _spec(data, layout.fixed["distribution"], shape["alpha"]))
+
+
+def _lobe_basis(data, layout, shape, spec):
+    """Offset and colour bases of ``kd/π + ks · spec · F`` (a Lambert term and one lobe with Schlick's F of a
+    tied f0 in ``shape`` or a fixed per-channel f0)."""
     import numpy as np
 
-    from gonio.brdf.fresnel import schlick
+    from gonio.brdf.fresnel import schlick_blend
 
     fixed = layout.fixed
-    name, alpha = fixed["distribution"], shape["alpha"]
-    spec = _spec(data, name, alpha)
     if "f0" in shape:
         f0 = float(shape["f0"])
         if f0 != 1.0:
-            spec = spec * (f0 + (1.0 - f0) * _schlick_m5(data))
+            spec = spec * schlick_blend(f0, _schlick_m5(data))
     else:
         f0 = np.asarray(fixed["f0"])
         if not np.all(f0 == 1.0):  # Schlick F = 1 exactly when f0 = 1
-            spec = spec[:, None] * _fresnel_cache(data, f0, schlick)
+            spec = spec[:, None] * _fresnel_cache(data, f0)
     basis = {"kd": np.full(len(data), 1.0 / np.pi), "ks": spec}
     offset = None
     for k in ("kd", "ks"):
@@ -61,88 +66,54 @@ def _microfacet(data, layout, shape):
 
 
 def _spec(data, name, alpha):
-    """D G2 / (4 cos θi cos θo) of distribution ``name`` at roughness ``alpha``, cached for the last few α
-    (Walter et al. 2007, eq. 20 without F)."""
+    """D G2 / (4 cos θi cos θo) of distribution ``name`` at roughness ``alpha`` (Walter et al. 2007, eq. 20
+    without F): the model's lobe formula (:data:`gonio.brdf.microfacet.SPECS`) on the data's cached pair
+    geometry, cached for the last few α."""
     import numpy as np
 
-    from gonio.brdf.microfacet import distribution_d, smith_g2
+    from gonio.brdf.microfacet import SPECS, ggx_spec_den
 
     specs = data.__dict__.setdefault("_kernel_cache", {}).setdefault("spec", {})
     key = (name, float(alpha))
     if key not in specs:
         if len(specs) >= 4:  # two lobes of a sum alternate: keep a few
             specs.clear()
-        if name == "ggx":
-            spec = _ggx_spec(data, alpha)
-        else:
-            h = data.half
-            spec = distribution_d(name, h, alpha) * smith_g2(name, data.wi, data.wo, h, alpha)
-            spec /= 4.0 * data.cos_i * data.cos_o
-        specs[key] = np.asarray(spec, dtype=np.float64)
+        with np.errstate(all="ignore"):  # as BRDF.eval: the formulas' guards, not warnings, handle the extremes
+            if name == "ggx":  # prepared data are above the horizon, where every microfacet is visible
+                specs[key] = 1.0 / ggx_spec_den(data.pair, float(alpha))  # = ggx_spec there, one pass less
+            else:
+                specs[key] = np.asarray(SPECS[name](data.pair, float(alpha)), dtype=np.float64)
     return specs[key]
 
 
 def _schlick_m5(data):
-    """(1 − cos θd)⁵ of Schlick's approximation, cached per dataset."""
-    import numpy as np
+    """(1 − cos θd)⁵ of Schlick's approximation (:func:`gonio.brdf.fresnel.schlick_weight` of the pair
+    geometry's cancellation-free 1 − cos θd), cached per dataset."""
+    from gonio.brdf.fresnel import schlick_weight
 
     cache = data.__dict__.setdefault("_kernel_cache", {})
     if "m5" not in cache:
-        m = 1.0 - np.clip(data.cos_d, 0.0, 1.0)
-        m2 = m * m
-        cache["m5"] = m2 * m2 * m
+        cache["m5"] = schlick_weight(data.pair.m)
     return cache["m5"]
 
 
 def _geometry(data):
-    """Cached per dataset: cos²θh, sin²θh, tan²θi, tan²θo and 1/(4 cos θi cos θo)."""
+    """Cached per dataset: cos²θh, sin²θh, tan²θi, tan²θo (for the derivative :func:`_ggx_spec_dalpha`)."""
     cache = data.__dict__.setdefault("_kernel_cache", {})
     if "ggx" not in cache:
-        c2h = data.cos_h ** 2
-        ci2, co2 = data.cos_i ** 2, data.cos_o ** 2
-        cache["ggx"] = (c2h, 1.0 - c2h, (1.0 - ci2) / ci2, (1.0 - co2) / co2, 0.25 / (data.cos_i * data.cos_o))
+        p = data.pair
+        cache["ggx"] = (p.hz2, p.s2h, p.si2 / p.iz2, p.so2 / p.oz2)
     return cache["ggx"]
 
 
-def _ggx_spec(data, alpha):
-    """D G2 / (4 cos θi cos θo) of GGX on cached geometry, for directions above the horizon.
-
-    The formulas of :func:`gonio.brdf.microfacet.ggx_d` and :func:`~gonio.brdf.microfacet.smith_g1`
-    (Walter et al. 2007, eqs. 33-34) written in θ instead of vector components:
-    D = 1/(π α² (sin²θh/α² + cos²θh)²), G1(v) = 2/(1 + √(1 + α² tan²θv)). For reflection above the
-    horizon wi·h > 0 always, so the visibility test of smith_g1 never applies. Equality with the
-    model is a test (tests/fit/test_fit.py::test_kernels_match_model_eval).
-    """
-    import numpy as np
-
-    from gonio.brdf.microfacet import clamp_alpha
-
-    c2h, s2h, t2i, t2o, inv4 = _geometry(data)
-    a2 = float(clamp_alpha(alpha)) ** 2
-    q = s2h / a2
-    q += c2h
-    q *= q
-    spec = inv4 / (np.pi * a2) / q
-    gi = t2i * a2
-    gi += 1.0
-    np.sqrt(gi, out=gi)
-    gi += 1.0
-    go = t2o * a2
-    go += 1.0
-    np.sqrt(go, out=go)
-    go += 1.0
-    gi *= go
-    spec *= 4.0
-    spec /= gi
-    return spec
-
-
-def _fresnel_cache(data, f0, schlick):
+def _fresnel_cache(data, f0):
     """Schlick F(wo·h) for fixed f0 depends only on the geometry: computed once per dataset."""
+    from gonio.brdf.fresnel import schlick_blend
+
     key = ("fresnel", tuple(f0.tolist()))
     cache = data.__dict__.setdefault("_kernel_cache", {})
     if key not in cache:
-        cache[key] = schlick(f0, data.cos_d)
+        cache[key] = schlick_blend(f0, _schlick_m5(data)[:, None])
     return cache[key]
 
 
@@ -160,7 +131,7 @@ def _ggx_spec_dalpha(data, alpha):
 
     if alpha <= ALPHA_MIN:
         return np.zeros(len(data))
-    c2h, s2h, t2i, t2o, _ = _geometry(data)
+    c2h, s2h, t2i, t2o = _geometry(data)
     a2 = float(alpha) ** 2
     dlog = 1.0 / a2 - 2.0 * c2h / (s2h + a2 * c2h)
     for t2 in (t2i, t2o):
@@ -304,36 +275,17 @@ def profile_for(layout):
 
 def _gtr(data, layout, shape):
     """Burley 2012's GTR lobe + Lambert (:class:`gonio.brdf.gtr.GTR`) on cached geometry: bases kd → 1/π,
-    ks → D_GTR(θh; α, γ) G2 F / (4 cos θi cos θo), with D of :func:`gonio.brdf.gtr.gtr_d`, the GGX Smith G2
-    written in tan²θ as in :func:`_ggx_spec`, and Schlick's F for a tied or fixed f0 (Schlick 1994, eq. 15).
+    ks → D_GTR(θh; α, γ) G2 F / (4 cos θi cos θo), the model's lobe formula (:func:`gonio.brdf.gtr.gtr_spec`)
+    on the pair geometry cached on the data, with Schlick's F for a tied or fixed f0 (Schlick 1994, eq. 15).
     Equality with the model is a test (tests/fit/test_real_data.py)."""
     import numpy as np
 
-    from gonio.brdf.fresnel import schlick
-    from gonio.brdf.gtr import gtr_d
-    from gonio.brdf.microfacet import clamp_alpha
+    from gonio.brdf.gtr import gtr_norm, gtr_spec
 
-    _, _, t2i, t2o, inv4 = _geometry(data)
     alpha, gamma = float(shape["alpha"]), float(shape["gamma"])
-    a2 = float(clamp_alpha(alpha)) ** 2
-    spec = gtr_d(data.cos_h, alpha, gamma) * inv4 * 4.0
-    spec /= (1.0 + np.sqrt(1.0 + a2 * t2i)) * (1.0 + np.sqrt(1.0 + a2 * t2o))
-    fixed = layout.fixed
-    if "f0" in shape:
-        f0 = float(shape["f0"])
-        if f0 != 1.0:
-            spec = spec * (f0 + (1.0 - f0) * _schlick_m5(data))
-    else:
-        f0 = np.asarray(fixed["f0"])
-        if not np.all(f0 == 1.0):
-            spec = spec[:, None] * _fresnel_cache(data, f0, schlick)
-    basis = {"kd": np.full(len(data), 1.0 / np.pi), "ks": spec}
-    offset = None
-    for k in ("kd", "ks"):
-        if k in fixed and np.any(np.asarray(fixed[k]) != 0):
-            b = basis[k] if basis[k].ndim == 2 else basis[k][:, None]
-            offset = (0.0 if offset is None else offset) + np.asarray(fixed[k]) * b
-    return offset, [basis[k] for k in layout.colour]
+    with np.errstate(all="ignore"):
+        spec = gtr_spec(data.pair, alpha, gamma, gtr_norm(alpha, gamma))
+    return _lobe_basis(data, layout, shape, spec)
 
 
 _gtr.supports = lambda L: {"alpha", "gamma"} <= set(L.shape) and ("f0" in L.fixed or "f0" in L.shape)

@@ -6,34 +6,32 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio.brdf.abc import abc_s
-from gonio.brdf.fresnel import dielectric
+from gonio.brdf.abc import abc_fresnel, abc_s_core, abc_smooth_x
 
 
 def _projected_x(data) -> np.ndarray:
-    """‖wi⊥ + wo⊥‖², the squared projection of wi + wo on the surface plane, cached per dataset."""
+    """‖wi⊥ + wo⊥‖² (:func:`gonio.brdf.abc.abc_smooth_x` of the data's pair geometry), cached per dataset."""
     cache = data.__dict__.setdefault("_kernel_cache", {})
     if "abc_x" not in cache:
-        px = data.wi[:, 0] + data.wo[:, 0]
-        py = data.wi[:, 1] + data.wo[:, 1]
-        cache["abc_x"] = px * px + py * py
+        cache["abc_x"] = abc_smooth_x(data.pair)
     return cache["abc_x"]
 
 
 def _fresnel(data, eta: float) -> np.ndarray:
-    """Exact dielectric Fresnel reflectance at θd (:func:`gonio.brdf.fresnel.dielectric`), kept for the last η."""
+    """Exact dielectric Fresnel reflectance at θd (:func:`gonio.brdf.abc.abc_fresnel`), kept for the last η."""
     cache = data.__dict__.setdefault("_kernel_cache", {})
     hit = cache.get("abc_fresnel")
     if hit is None or hit[0] != eta:
-        hit = cache["abc_fresnel"] = (eta, dielectric(np.clip(data.cos_d, 0.0, 1.0), eta))
+        hit = cache["abc_fresnel"] = (eta, abc_fresnel(data.pair, eta))
     return hit[1]
 
 
 def abc_smooth(data, layout, shape):
     """Löw et al. 2012's smooth-surface ABC model (:class:`gonio.brdf.abc.ABCSmooth`): bases kd → 1/π,
-    A → S(‖wi⊥ + wo⊥‖²; B, C) · F(θd; η) with S(x) = 1/(1 + B x)^C (their §4, eq. 7)."""
+    A → S(‖wi⊥ + wo⊥‖²; B, C) · F(θd; η) with S(x) = 1/(1 + B x)^C (their §4, eq. 7): the factors of the
+    model's lobe :func:`gonio.brdf.abc.abc_smooth_spec`, F kept for the last η."""
     p = {**layout.fixed, **shape}
-    s = abc_s(_projected_x(data), 1.0, p["B"], p["C"])[..., 0] * _fresnel(data, float(p["eta"]))
+    s = abc_s_core(_projected_x(data), float(p["B"]), float(p["C"])) * _fresnel(data, float(p["eta"]))
     basis = {"kd": np.full(len(data), 1.0 / np.pi), "A": s}
     offset = None
     for k in ("kd", "A"):

@@ -24,6 +24,22 @@ COMPILED = [
     ("lambert+2ggx", {"diffuse.albedo": 0.3, "lobe1.ks": 0.3, "lobe1.alpha": 0.05, "lobe1.f0": 0.04,
                       "lobe2.ks": [0.2, 0.1, 0.3], "lobe2.alpha": 0.4}),
     ("lambert+beckmann+cook-torrance", {"diffuse.albedo": 0.1, "lobe1.alpha": 0.2, "lobe2.roughness": 0.3}),
+    ("ashikhmin-shirley", dict(rd=[0.2, 0.5, 0.7], rs=[0.05, 0.5, 0.9], nu=100, nv=20)),
+    ("abc-smooth", dict(kd=0.1, A=[2.0, 3.0, 4.0], B=800.0, C=0.7, eta=1.6)),
+    # the ends of every shape parameter's range (narrowest and broadest lobes, flat and steep tails)
+    ("microfacet", dict(alpha=1.0, f0=0.0)),
+    ("microfacet", dict(alpha=1e-4, distribution="beckmann")),
+    ("microfacet", dict(alpha=1.0, distribution="beckmann", f0=0.0)),
+    ("cook-torrance", dict(roughness=1e-4, f0=1.0)),
+    ("cook-torrance", dict(roughness=1.0, f0=0.0)),
+    ("gtr", dict(alpha=1e-4, gamma=10.0)),
+    ("gtr", dict(alpha=0.999, gamma=0.5, f0=0.0)),
+    ("abc", dict(A=1e3, B=1e8, C=50.0, eta=100.0)),
+    ("abc", dict(A=0.5, B=1e-2, C=1e-3, eta=1.0)),
+    ("abc-smooth", dict(A=1e3, B=1e8, C=50.0, eta=100.0)),
+    ("abc-smooth", dict(A=0.5, B=1e-2, C=1e-3, eta=1.0)),
+    ("ashikhmin-shirley", dict(rd=1.0, rs=0.0, nu=0.0, nv=0.0)),
+    ("ashikhmin-shirley", dict(rd=0.0, rs=1.0, nu=1e6, nv=1.0)),
 ]
 
 
@@ -58,6 +74,19 @@ def test_compiled_equals_numpy(name, params):
     # n-d shapes and broadcasting go through the same flattening
     grid = model.eval(wi[:12].reshape(3, 4, 3), wo[:4], backend="compiled")
     _assert_same(grid, model.eval(wi[:12].reshape(3, 4, 3), wo[:4], backend="numpy"))
+
+
+def test_every_compiled_model_is_compared():
+    """Each registered model with a compiled form is in :data:`COMPILED` (a new one cannot skip the comparison)."""
+    from gonio.brdf import MODELS
+
+    def some(cls):  # the defaults, and the lower bound of a parameter without one
+        return cls(**{k: spec.lo for k, spec in cls.PARAMS.items() if spec.default is None})
+
+    with_form = {name for name, cls in MODELS.items() if compiled.supports(some(cls))}
+    assert {"microfacet", "cook-torrance", "gtr", "abc", "abc-smooth", "ashikhmin-shirley"} <= with_form
+    assert with_form - {"lambert+ggx", "lambert+2ggx", "lambert+beckmann", "lambert+2beckmann", "lambert+cook-torrance",
+                        "lambert+2cook-torrance"} <= {name for name, _ in COMPILED}
 
 
 def test_backend_choice():
