@@ -12,16 +12,44 @@ as the setter returns, ctypes keeps it for the server's lifetime.
 Pixel formats the fake device offers and this server fills: ``RGB8`` (default; the rendered frame as
 is, an 8-bit linear sensor), ``Mono8``/``Mono16`` (mean of R, G, B) and ``BayerRG8``/``GR8``/``GB8``/
 ``BG8`` (the rendered frame mosaiced).
+
+A rendering camera that reports its sensor temperature (``frame.meta["sensor_temp_c"]``, as
+:class:`sim.camera.SimCamera` does by default) is served with the SFNC feature ``DeviceTemperature``
+(°C, read-only; GenICam SFNC 2.7 §2.1 "DeviceControl"): the fake device's GenICam XML gets a
+``FloatReg`` at :data:`TEMPERATURE_REGISTER`, written before each frame leaves, so the host reads the
+temperature of the frame it has just received — what a machine-vision camera with a sensor
+thermometer offers.
 """
 
 from __future__ import annotations
 
 import ctypes
+import os
+import struct
+import tempfile
 import threading
 
 import numpy as np
 
-__all__ = ["GigECameraServer", "FILLABLE_FORMATS"]
+__all__ = ["GigECameraServer", "FILLABLE_FORMATS", "TEMPERATURE_REGISTER"]
+
+#: Register of the served ``DeviceTemperature`` (IEEE float32, big-endian): unused by the fake
+#: device's own XML (its registers are 0x48-0x30c; 0x1e0 lies between SensorWidth and TestRegister).
+TEMPERATURE_REGISTER = 0x1E0
+_TEMPERATURE_XML = f"""
+\t<Category Name="DeviceTemperatureControl" NameSpace="Custom">
+\t\t<pFeature>DeviceTemperature</pFeature>
+\t</Category>
+\t<FloatReg Name="DeviceTemperature" NameSpace="Standard">
+\t\t<Description>Sensor temperature of the last frame (degrees Celsius)</Description>
+\t\t<Address>0x{TEMPERATURE_REGISTER:x}</Address>
+\t\t<Length>4</Length>
+\t\t<AccessMode>RO</AccessMode>
+\t\t<pPort>Device</pPort>
+\t\t<Endianess>BigEndian</Endianess>
+\t\t<Unit>C</Unit>
+\t</FloatReg>
+"""
 
 #: PFNC pixel format codes (GenICam PFNC 2.x) of the formats this server fills.
 FILLABLE_FORMATS = {0x01080001: "Mono8", 0x01100007: "Mono16", 0x02180014: "RGB8",
@@ -74,9 +102,11 @@ class GigECameraServer:
     (the fake device's ``GainRaw`` is an integer; 1 = unity by default). Use as a context manager;
     :attr:`device` is what :class:`gonio.rig.aravis.AravisCamera` opens. Rendering errors are kept
     in :attr:`errors` (the frame is then left black, which the host's frame checks catch).
+    ``temperature``: serve ``DeviceTemperature`` (default: when the camera's sensor reports it).
     """
 
-    def __init__(self, camera, *, address: str = "127.0.0.1", serial: str = "GONIO-SIM", gain_scale: float = 1.0):
+    def __init__(self, camera, *, address: str = "127.0.0.1", serial: str = "GONIO-SIM", gain_scale: float = 1.0,
+                 temperature: bool | None = None):
         import gi
 
         gi.require_version("Aravis", "0.8")
@@ -91,11 +121,30 @@ class GigECameraServer:
         self._lock = threading.Lock()
         self._lib = _libaravis()
         self._callback = _FILL(self._fill)  # kept alive as long as the server
-        self._server = Aravis.GvFakeCamera.new(address, serial)
+        if temperature is None:
+            temperature = bool(getattr(getattr(camera, "sensor", None), "reports_temperature", False))
+        self.temperature = temperature
+        self._server = self._start(Aravis, address, serial, temperature)
         if self._server is None or not self._server.is_running():
             raise OSError(f"cannot start a GigE Vision fake camera on {address}")
-        fake = self._server.get_fake_camera()
-        self._lib.arv_fake_camera_set_fill_pattern(_gpointer(fake), self._callback, None)
+        self._fake = self._server.get_fake_camera()
+        self._lib.arv_fake_camera_set_fill_pattern(_gpointer(self._fake), self._callback, None)
+
+    @staticmethod
+    def _start(Aravis, address: str, serial: str, temperature: bool):
+        """The fake device, with the fake camera's own GenICam XML plus ``DeviceTemperature`` if asked."""
+        if not temperature:
+            return Aravis.GvFakeCamera.new(address, serial)
+        xml = Aravis.FakeCamera.new(serial).get_genicam_xml()[0]
+        if "<!-- Port -->" not in xml:
+            raise OSError("this Aravis's fake camera XML has no <!-- Port --> marker to add DeviceTemperature at")
+        fd, path = tempfile.mkstemp(prefix="gonio-gige-", suffix=".xml")
+        try:
+            with os.fdopen(fd, "w") as f:
+                f.write(xml.replace("\t<!-- Port -->", _TEMPERATURE_XML + "\t<!-- Port -->", 1))
+            return Aravis.GvFakeCamera.new_full(address, serial, path)  # the XML is read here
+        finally:
+            os.unlink(path)
 
     @property
     def device(self) -> str:
@@ -111,6 +160,9 @@ class GigECameraServer:
             exposure = max(exposure_us, 1) * 1e-6
             with self._lock:
                 frame = self.camera.capture(exposure, max(gain_raw * self.gain_scale, 1e-6))
+            temp = (frame.meta or {}).get("sensor_temp_c")
+            if self.temperature and temp is not None:
+                self._fake.write_register(TEMPERATURE_REGISTER, struct.unpack(">I", struct.pack(">f", temp))[0])
             px = np.asarray(frame.pixels)
             if px.ndim == 2:
                 px = np.repeat(px[..., None], 3, axis=2)
@@ -137,7 +189,7 @@ class GigECameraServer:
         import gc
 
         if self._server is not None:
-            self._server = None
+            self._server = self._fake = None
             gc.collect()
 
     def __enter__(self) -> "GigECameraServer":

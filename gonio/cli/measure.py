@@ -438,7 +438,8 @@ def _gige_sim_camera(sim, stack):
     from gonio.rig.aravis import AravisCamera
 
     try:
-        server = stack.enter_context(plugin("sim.gige_camera").GigECameraServer(sim.camera))
+        server = stack.enter_context(plugin("sim.gige_camera").GigECameraServer(
+            sim.camera, temperature=sim.sensor.reports_temperature))
     except (ImportError, ValueError, OSError) as exc:
         raise HardwareError(f"--sim-camera gige: cannot serve the simulated camera over GigE Vision ({exc})") from None
     cal = sim.calibration

@@ -23,6 +23,13 @@ controller's ``trigger_camera``) the camera waits on ``trigger_line`` (default `
 controller fires the exposure. A frame that does not arrive within the timeout is a
 :class:`~gonio.errors.HardwareTimeout`; an incomplete frame (lost packets) is retried by the caller
 like any other hardware fault.
+
+Sensor temperature: a camera with the SFNC feature ``DeviceTemperature`` (°C; with
+``DeviceTemperatureSelector`` set to ``Sensor`` where the camera has several thermometers) is read
+after every frame and recorded as ``frame.meta["sensor_temp_c"]``, which the dark-current model
+follows (:mod:`gonio.pipeline.dark`). A reading that is not a number in
+[:data:`SENSOR_TEMP_RANGE`] °C is left out of the frame (the model then uses its latest dark check) and
+counted in :attr:`AravisCamera.bad_temperatures`; a camera without the feature simply has no reading.
 """
 
 from __future__ import annotations
@@ -36,7 +43,11 @@ import numpy as np
 from gonio.errors import ConfigError, HardwareError, HardwareTimeout
 from gonio.rig.interfaces import Clock, Frame
 
-__all__ = ["AravisCamera", "PIXEL_FORMATS", "aravis_available", "list_devices"]
+__all__ = ["AravisCamera", "PIXEL_FORMATS", "SENSOR_TEMP_RANGE", "aravis_available", "list_devices"]
+
+#: Sensor temperatures (°C) accepted from a camera: beyond any operating range of an image sensor,
+#: a reading outside is a fault of the thermometer or the link, not a temperature.
+SENSOR_TEMP_RANGE = (-60.0, 150.0)
 
 #: PFNC pixel format → (bit depth, numpy dtype, Bayer pattern or None, channels).
 PIXEL_FORMATS = {
@@ -172,6 +183,9 @@ class AravisCamera:
         self.trigger_line = trigger_line
         #: Incomplete frames (lost packets) are taken again up to ``retries`` times; counted here.
         self.retries, self.incomplete = int(retries), 0
+        #: ``DeviceTemperature`` readings refused (not a number in :data:`SENSOR_TEMP_RANGE`).
+        self.bad_temperatures = 0
+        self._has_temperature = False
         self._aravis = Aravis = _aravis()
         self._cam = _open_device(Aravis, self.device)
         self._stream = None
@@ -198,6 +212,7 @@ class AravisCamera:
             payload = self._cam.get_payload()
             for _ in range(max(2, n_buffers)):
                 self._stream.push_buffer(Aravis.Buffer.new_allocate(payload))
+            self._has_temperature = self._select_sensor_thermometer()
             self._cam.start_acquisition()
         except (ConfigError, HardwareError):
             self.close()
@@ -228,6 +243,34 @@ class AravisCamera:
         finally:
             self._cam.start_acquisition()
         self._trigger = fn
+
+    def _select_sensor_thermometer(self) -> bool:
+        """Whether the camera has ``DeviceTemperature``; selects its ``Sensor`` thermometer if it has a
+        selector offering one (SFNC ``DeviceTemperatureSelector``)."""
+        dev = self._cam.get_device()
+        if not dev.is_feature_available("DeviceTemperature"):
+            return False
+        if dev.is_feature_available("DeviceTemperatureSelector"):
+            try:
+                if "Sensor" in dev.dup_available_enumeration_feature_values_as_strings("DeviceTemperatureSelector"):
+                    dev.set_string_feature_value("DeviceTemperatureSelector", "Sensor")
+            except Exception:  # noqa: BLE001 - the camera's default thermometer is then read
+                pass
+        return True
+
+    def sensor_temperature(self) -> float | None:
+        """The camera's ``DeviceTemperature`` now (°C, rounded to 0.1), or None without a valid reading."""
+        if not self._has_temperature or self._cam is None:
+            return None
+        try:
+            t = float(self._cam.get_device().get_float_feature_value("DeviceTemperature"))
+        except Exception:  # noqa: BLE001 - a failed read is a missing reading, not a failed frame
+            t = math.nan
+        lo, hi = SENSOR_TEMP_RANGE
+        if not lo <= t <= hi:  # NaN fails too
+            self.bad_temperatures += 1
+            return None
+        return round(t, 1)
 
     def _tune_gige_stream(self, Aravis) -> None:
         """A GigE Vision stream receives a frame as UDP packets: a socket buffer smaller than the frame
@@ -343,10 +386,12 @@ class AravisCamera:
         else:
             raise HardwareError(f"camera {self.device!r}: incomplete frame ({status}) {self.retries + 1} times "
                                 "(lost packets: check the link, the NIC's MTU and receive buffers)", device=self.device)
+        temp = self.sensor_temperature()
         return Frame(pixels=pixels, exposure=float(self._exposure), gain=float(gain), bit_depth=self.bit_depth,
                      black_level=self.black_level, timestamp=t0, linear=True,
                      meta={"device": self.device, "backend": "aravis", "pixel_format": self.pixel_format,
-                           "trigger": "hardware" if self.trigger is not None else "software"})
+                           "trigger": "hardware" if self.trigger is not None else "software",
+                           **({"sensor_temp_c": temp} if temp is not None else {})})
 
     def _one_frame(self, deadline: float, timeout: float):
         """Trigger one exposure and wait for its buffer: ``(pixels, "")``, or ``(None, status)`` for an

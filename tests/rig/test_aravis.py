@@ -160,6 +160,45 @@ def test_rendering_gige_camera_serves_what_the_host_asks(aravis):
         assert not server.errors
 
 
+class _Thermometer(_Known):
+    """A camera whose frames report a sensor temperature that climbs by 0.5 °C a frame, then one
+    impossible reading (a broken thermometer)."""
+
+    def __init__(self, temps):
+        super().__init__()
+        self.temps = list(temps)
+
+    def capture(self, exposure, gain=1.0, *, timeout=10.0):
+        f = super().capture(exposure, gain)
+        f.meta["sensor_temp_c"] = self.temps[len(self.asked) - 1]
+        return f
+
+
+def test_sensor_temperature_crosses_genicam_with_each_frame(aravis):
+    """DeviceTemperature (SFNC) is read after every frame into meta["sensor_temp_c"], the dark model's
+    input; a reading no sensor can have is left out and counted; a camera without the feature has none."""
+    from gonio.rig.aravis import AravisCamera
+    from sim.gige_camera import GigECameraServer
+
+    temps = [25.0, 25.5, 26.0, 999.0, 26.5]
+    with gige_lock():
+        with GigECameraServer(_Thermometer(temps), serial="GONIO-TEMP", temperature=True) as server:
+            cam = AravisCamera(server.device, _Clock(), pixel_format="RGB8", gain_unit="raw", width=64, height=48)
+            try:
+                got = [cam.capture(0.001 * (i + 1), 1.0, timeout=5).meta.get("sensor_temp_c") for i in range(5)]
+            finally:
+                cam.close()
+            assert got == [25.0, 25.5, 26.0, None, 26.5] and cam.bad_temperatures == 1
+            assert not server.errors
+        with GigECameraServer(_Known(), serial="GONIO-NOTEMP") as server:  # _Known has no sensor model
+            cam = AravisCamera(server.device, _Clock(), pixel_format="RGB8", gain_unit="raw", width=64, height=48)
+            try:
+                assert "sensor_temp_c" not in cam.capture(0.001, 1.0, timeout=5).meta
+            finally:
+                cam.close()
+            assert cam.bad_temperatures == 0
+
+
 def test_camera_toml_for_a_genicam_camera(tmp_path):
     from gonio.rig.calibration import load_camera_calibration
 
@@ -186,6 +225,9 @@ def test_simulated_session_through_a_gige_camera(aravis, tmp_path, capsys):
     assert code == 0, capsys.readouterr().err
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["sim"]["camera_link"] == "gige" and manifest["exit_status"] == "completed"
+    records = [json.loads(line.split(b" ", 1)[1]) for line in (out / "samples.jsonl").read_bytes().splitlines()]
+    temps = [r["meta"]["dark_model"]["sensor_temp_c"] for r in records if "dark_model" in r["meta"]]
+    assert temps and all(isinstance(t, float) and 20 < t < 40 for t in temps)  # read over GenICam
     assert main(["fit", str(out), "--model", "microfacet", "--json", str(tmp_path / "fit.json")]) == 0
     params = json.loads((tmp_path / "fit.json").read_text())["params"]
     assert params["alpha"] == pytest.approx(0.25, rel=0.05)
