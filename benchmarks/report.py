@@ -200,10 +200,11 @@ def _plot_calibration(ax, tables) -> bool:
     t = _find(tables, "geometry used by the host", "wi median", "wi p95")
     if t is None or not t.rows:
         return False
-    x = np.arange(len(t.rows))
+    keep = [i for i, v in enumerate(_col(t, "wi median")) if isinstance(v, float)]  # not the goal row (text)
+    x = np.arange(len(keep))
     for k, name in enumerate(("wi median", "wi p95", "wo median", "wo p95")):
-        ax.bar(x + (k - 1.5) * 0.2, _col(t, name).astype(float), width=0.2, label=name)
-    ax.set_xticks(x, [str(m) for m in _col(t, "geometry used by the host")], rotation=15, ha="right", fontsize=7)
+        ax.bar(x + (k - 1.5) * 0.2, _col(t, name)[keep].astype(float), width=0.2, label=name)
+    ax.set_xticks(x, [str(m) for m in _col(t, "geometry used by the host")[keep]], rotation=15, ha="right", fontsize=7)
     ax.set(ylabel="angular error vs truth (°)", yscale="log", title="As-built rigs: declared vs calibrated geometry")
     ax.legend()
     return True

@@ -2,10 +2,10 @@
 
 No real rig is built as its rig file says. :class:`AsBuilt` holds a rig's assembly errors
 (:class:`gonio.rig.chain.ChainErrors`: servo zero offsets, axis tilts and non-orthogonality, axes
-missing the sample centre, light/camera distances, the light's offset from its arm's plane, sample
-height), drawn from a seed (:meth:`AsBuilt.from_seed`, uniform within :data:`TOLERANCES`, a typical
-hand-assembled rig) or read from a TOML file (:meth:`AsBuilt.from_file`, same fields as
-:meth:`ChainErrors.to_dict`). The host only ever sees the declared rig file; :class:`sim.rig.SimRig`
+missing the sample centre, light/camera distances, the light's offset from its arm's plane, the
+camera's mounting rotation on its arm, sample height), drawn from a seed (:meth:`AsBuilt.from_seed`,
+uniform within :data:`TOLERANCES`, a typical hand-assembled rig) or read from a TOML file
+(:meth:`AsBuilt.from_file`, same fields as :meth:`ChainErrors.to_dict`). The host only ever sees the declared rig file; :class:`sim.rig.SimRig`
 places the camera and the light with :meth:`AsBuilt.camera_pose` / :meth:`AsBuilt.light_position`
 (the hook), so every frame is rendered on the as-built rig. ``AsBuilt.perfect(rig)`` (no errors) gives
 bit for bit the declared geometry.
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from gonio.errors import ConfigError
-from gonio.rig.chain import ARM_FIELDS, TURNTABLE_FIELDS, ChainErrors, chain_forward, true_directions
+from gonio.rig.chain import ARM_FIELDS, CAMERA_FIELDS, TURNTABLE_FIELDS, ChainErrors, chain_forward, true_directions
 
 __all__ = ["AsBuilt", "TOLERANCES", "observe", "parse_as_built", "render_observations"]
 
@@ -30,6 +30,7 @@ TOLERANCES = {
     "axis_x_mm": 3.0, "axis_y_mm": 3.0, "arc_x_mm": 3.0, "arc_z_mm": 3.0,  # axes missing the sample centre
     "d_radius_mm": 5.0,                          # light / camera distance
     "lateral_mm": 3.0,                           # device offset from its arm's plane
+    "mount_x_deg": 1.0, "mount_y_deg": 1.0, "mount_z_deg": 1.0,  # camera mounting rotation on its bracket
     "sample_height_mm": 1.0,
 }
 
@@ -54,7 +55,7 @@ class AsBuilt:
         def draw(fields):
             return {k: float(rng.uniform(-TOLERANCES[k], TOLERANCES[k])) for k in fields}
 
-        light, camera = draw(ARM_FIELDS), draw(ARM_FIELDS)
+        light, camera = draw(ARM_FIELDS), draw(CAMERA_FIELDS)
         turntable = draw(TURNTABLE_FIELDS) if rig.layout == "turntable" else {k: 0.0 for k in TURNTABLE_FIELDS}
         h = float(rng.uniform(-TOLERANCES["sample_height_mm"], TOLERANCES["sample_height_mm"]))
         return cls(rig, ChainErrors(light, camera, turntable, h), source=f"seed {int(seed)}")

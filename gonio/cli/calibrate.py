@@ -10,13 +10,14 @@ uncertainties, prints them (parameters not identified are said so) and writes th
 (``--out``: the declared file plus a ``[calibration]`` table), which ``gonio measure --rig CALIBRATED.toml``
 uses. On a rig: ``--rig RIG.toml --servo-port --controller-port --camera --calibration CAMERA.toml``; with
 ``--sim`` the simulated as-built rig (``--sim-as-built SEED|FILE``) renders the frames.
-``gonio calibrate check`` re-observes a few poses and reports the angular error left with a (calibrated)
-rig file (simulated: geometric observations, :func:`sim.as_built.observe`).
+``gonio calibrate check`` re-measures a few poses the same way (a short session,
+:func:`gonio.session.geocal_session.check_session_plan`, on the rig or the simulated as-built rig) and
+reports how far the rig file's wi and wo are from what the camera sees (:mod:`gonio.rig.geocheck`), with a
+one-line verdict against ``--threshold`` (exit status 1 when over it).
 """
 
 from __future__ import annotations
 
-import math
 import sys
 
 #: What a hardware calibration session needs besides --out (the option, what it is).
@@ -36,34 +37,29 @@ def register(sub) -> None:
         sp.add_argument("--sim-as-built", metavar="SEED|ERRORS.toml", default="0",
                         help="the simulated rig's assembly errors: a seed or a TOML file (default seed 0)")
         sp.add_argument("--seed", type=int, default=0, help="seed of the simulation's noise")
-        sp.add_argument("--quick", action="store_true", help="fewer poses (coarser azimuth steps)")
         sp.set_defaults(func=run)
+
+    def hardware(sp):
+        sp.add_argument("--servo-port", help="servo bus serial port (hardware)")
+        sp.add_argument("--controller-port", help="rig controller serial port (hardware)")
+        sp.add_argument("--camera", help="camera index, path or GigE id (hardware)")
+        sp.add_argument("--calibration", metavar="CAMERA.toml", help="the camera's intrinsics and settings (hardware)")
+        sp.add_argument("--quiet", action="store_true", help="no progress line")
 
     rig = csub.add_parser("rig", help="run a calibration session and write a calibrated rig file")
     common(rig)
     rig.add_argument("--out", metavar="CALIBRATED.toml", help="calibrated rig file to write (never overwritten)")
     rig.add_argument("--session", metavar="DIR", help="the calibration session's directory (default: OUT.session)")
     rig.add_argument("--estimate", action="store_true", help="only print the plan and its lab time")
-    rig.add_argument("--servo-port", help="servo bus serial port (hardware)")
-    rig.add_argument("--controller-port", help="rig controller serial port (hardware)")
-    rig.add_argument("--camera", help="camera index, path or GigE id (hardware)")
-    rig.add_argument("--calibration", metavar="CAMERA.toml", help="the camera's intrinsics and settings (hardware)")
-    rig.add_argument("--quiet", action="store_true", help="no progress line")
-    check = csub.add_parser("check", help="re-observe a few poses and report the angular error left")
+    rig.add_argument("--quick", action="store_true", help="fewer poses (coarser azimuth steps)")
+    hardware(rig)
+    check = csub.add_parser("check", help="re-measure a few poses and report the angular error left (wi, wo)")
     common(check)
-
-
-def _observations(args, declared, plan):
-    from gonio.errors import ConfigError
-
-    if not args.sim:
-        raise ConfigError("gonio calibrate check is not available on a rig yet (run `gonio calibrate rig` again "
-                          "and compare the estimates); use --sim for the simulated rig")
-    from gonio.plugins import plugin
-
-    sim = plugin("sim.rig")
-    as_built = sim.parse_as_built(declared, args.sim_as_built)
-    return as_built, sim.observe(as_built, plan, args.seed)
+    check.add_argument("--session", metavar="DIR",
+                       help="the check session's directory (default: ./calibrate-check-DATE-TIME)")
+    check.add_argument("--threshold", metavar="DEG", default="0.25",
+                       help="verdict threshold on the p95 of the wi and wo errors, degrees (default 0.25)")
+    hardware(check)
 
 
 def print_result(res, refused=()) -> None:
@@ -74,7 +70,8 @@ def print_result(res, refused=()) -> None:
         else:
             print(f"  {name:26s} {value:+9.4f} ± {sigma:.4f} {unit}")
     print("  residual RMS: " + ", ".join(f"{k} {v:.3g}" for k, v in res.rms.items())
-          + f"; {res.n_observations['camera']} board poses, {res.n_observations['highlight']} highlights")
+          + f"; {res.n_observations['camera']} board poses, {res.n_observations['highlight']} highlights; "
+          f"least squares started from the {res.start} geometry")
     if refused:
         print(f"  {len(refused)} poses without a highlight or a board pose, e.g. pose {refused[0][0]}: {refused[0][1]}")
 
@@ -100,11 +97,62 @@ def run_calibration_session(store, plan, devices, calibration, layout, *, before
             return 130
         return result.error.exit_code if result.error is not None else 3
     g = store.manifest["geocal"]
+    if "check" in g:
+        return report_check(store.directory, devices.rig, store.manifest)
     res, refused = finish_calibration(store.directory, devices.rig, store.manifest["rig"]["toml"], g["out"],
                                       note=g.get("note", ""))
     print_result(res, refused)
     print(f"wrote {g['out']} (use it with: gonio measure --rig {g['out']})")
     return 0
+
+
+def report_check(directory, rig, manifest) -> int:
+    """``gonio calibrate check``'s report from its session's records (:mod:`gonio.rig.geocheck`): the error of
+    the rig file's wi and wo against what the camera saw, and the verdict; 0 when within the threshold, else 1.
+    On the simulated rig also the error against the simulated truth (the manifest's ``sim.as_built``)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from gonio.errors import DataError
+    from gonio.rig.chain import ChainErrors, angle_between_deg, true_directions
+    from gonio.rig.geocheck import check_geometry
+    from gonio.session.geocal_session import observations_from_store
+
+    where = f"{directory}/manifest.json"
+    threshold = _threshold(manifest["geocal"]["check"].get("threshold_deg"), f"{where}: geocal.check.threshold_deg",
+                           error=DataError)
+    cams, highs, refused = observations_from_store(directory, rig)
+    chk = check_geometry(rig, cams, highs, threshold_deg=threshold)
+    name = manifest["rig"].get("source") or rig.name
+    print(f"{len(cams)} board poses and {len(highs)} highlights re-measured with {name}"
+          + (f" ({len(refused)} poses without one, e.g. pose {refused[0][0]}: {refused[0][1]})" if refused else "") + ":")
+    lines = chk.lines(str(name))
+    print("\n".join(lines[:-1]))
+    sim = manifest.get("sim")
+    if isinstance(sim, dict) and isinstance(sim.get("as_built"), dict):
+        truth = ChainErrors.from_dict({k: v for k, v in sim["as_built"].items() if k != "source"}, source=where)
+        j = np.stack([c.joints for c in cams])
+        twi, two = true_directions(replace(rig, geometry_errors=None), truth, j)
+        wi, wo = rig.directions(j)
+        ei, eo = angle_between_deg(wi, twi), angle_between_deg(wo, two)
+        print(f"  vs the simulated truth: wi median {np.median(ei):.3f}° (max {ei.max():.3f}°), "
+              f"wo median {np.median(eo):.3f}° (max {eo.max():.3f}°)")
+    print(lines[-1])
+    return 0 if chk.ok else 1
+
+
+def _threshold(value, where, error=None) -> float:
+    """A verdict threshold in degrees: a number in (0, 90]; else one line naming ``where``."""
+    from gonio.errors import ConfigError
+
+    try:
+        t = float(value)
+    except (TypeError, ValueError):
+        t = float("nan")
+    if isinstance(value, bool) or not (0.0 < t <= 90.0):
+        raise (error or ConfigError)(f"{where} = {str(value)[:40]!r}: expected degrees in (0, 90]")
+    return t
 
 
 def finish_from_directory(d, manifest, *, rig_file=None) -> int:
@@ -116,6 +164,8 @@ def finish_from_directory(d, manifest, *, rig_file=None) -> int:
     from gonio.session.geocal_session import finish_calibration
     from gonio.session.store import MANIFEST
 
+    if "check" in manifest["geocal"]:
+        return report_check(d, _manifest_rig(manifest, str(Path(d) / MANIFEST), rig_file), manifest)
     out = Path(manifest["geocal"]["out"])
     if out.exists():
         print(f"{d}: the calibrated rig file {out} is written; nothing to do")
@@ -127,7 +177,7 @@ def finish_from_directory(d, manifest, *, rig_file=None) -> int:
     return 0
 
 
-def _new_session(args, rig, text, src, plan) -> int:
+def _new_session(args, rig, text, src, plan, check: dict | None = None) -> int:
     from pathlib import Path
 
     from gonio.cli.measure import (_calibration_dict, _check_out, _hw_session, _material, _rig_record, _sim_session,
@@ -136,17 +186,24 @@ def _new_session(args, rig, text, src, plan) -> int:
     from gonio.session.geocal_observe import calibration_layout
     from gonio.session.store import SessionStore
 
-    out = Path(args.out).resolve()
-    if out.exists():
-        raise ConfigError(f"--out {args.out}: exists: the calibrated rig file is never overwritten")
-    session = args.session or f"{args.out}.session"
+    if check is None:
+        out = Path(args.out).resolve()
+        if out.exists():
+            raise ConfigError(f"--out {args.out}: exists: the calibrated rig file is never overwritten")
+        session = args.session or f"{args.out}.session"
+        geocal = {"out": str(out), "note": f"source rig: {src}"}
+    else:
+        import time
+
+        session = args.session or time.strftime("calibrate-check-%Y%m%d-%H%M%S")
+        geocal = {"check": check, "note": f"rig file checked: {src}"}
     _check_out(session)
     manifest = {
         "mode": "sim" if args.sim else "hardware",
         "command": ["gonio", *sys.argv[1:]] if sys.argv and sys.argv[0].endswith(("gonio", "main.py")) else None,
         "seed": args.seed, "plan": plan, "rig": _rig_record(rig, src, text),
         "material": {"label": "calibration tile"}, "target": calibration_layout().to_dict(),
-        "geocal": {"out": str(out), "note": f"source rig: {src}"},
+        "geocal": geocal,
     }
     if args.sim:
         from gonio.plugins import plugin
@@ -169,9 +226,20 @@ def _new_session(args, rig, text, src, plan) -> int:
     return _hw_session(store, plan, store.manifest, rig, calibration, args.quiet, devices=devices)
 
 
+def _hardware_needs(args, action: str) -> None:
+    """Refuse, in one line naming every missing option, a hardware run without its devices."""
+    from gonio.errors import ConfigError
+
+    if args.sim:
+        return
+    missing = [f"{o} ({what})" for o, key, what in HARDWARE_OPTIONS if not getattr(args, key)]
+    if missing:
+        raise ConfigError(f"gonio calibrate {action} on a rig needs {', '.join(missing)} (or --sim for the "
+                          "simulated rig)")
+
+
 def run(args) -> int:
     from gonio.errors import ConfigError
-    from gonio.rig.geocal import calibration_plan
     from gonio.rig.kinematics import load_rig, read_rig_text
 
     if not args.sim and not args.rig and not getattr(args, "estimate", False):
@@ -183,11 +251,8 @@ def run(args) -> int:
         from gonio.session.geocal_session import calibration_lab_time, calibration_session_plan
         from gonio.session.runner import format_lab_time
 
-        if not args.sim and not args.estimate:
-            missing = [f"{o} ({what})" for o, key, what in HARDWARE_OPTIONS if not getattr(args, key)]
-            if missing:
-                raise ConfigError(f"gonio calibrate rig on a rig needs {', '.join(missing)} (or --sim for the "
-                                  "simulated rig)")
+        if not args.estimate:
+            _hardware_needs(args, "rig")
         if rig.geometry_errors is not None:
             raise ConfigError(f"{src}: already calibrated ([calibration] table): calibrate from the declared rig file")
         if rig.layout != "arms":
@@ -203,27 +268,16 @@ def run(args) -> int:
         if not args.out:
             raise ConfigError("gonio calibrate rig: --out CALIBRATED.toml is required (or --estimate)")
         return _new_session(args, rig, text, src, plan)
-    # check: a quick plan's poses, the error of the rig file's geometry against what the camera sees
-    import numpy as np
+    # check: a few poses re-measured on the rig (or the simulated as-built rig) through the same session path
+    from gonio.session.geocal_session import calibration_lab_time, check_session_plan
+    from gonio.session.runner import format_lab_time
 
-    from gonio.rig.chain import angle_between_deg
-    from gonio.rig.geocal import _residual_blocks
-
-    declared = load_rig(text=text.split("\n# ---- geometric calibration")[0], source=src) \
-        if rig.geometry_errors is not None else rig
-    plan = calibration_plan(declared, quick=True)
-    truth, (cams, highs) = _observations(args, declared, plan)
-    blocks = _residual_blocks(rig, rig.geometry_errors or type(truth.errors)(), cams, highs)
-    cam_deg = np.linalg.norm(blocks["camera_deg"].reshape(-1, 3), axis=1)
-    hi_deg = np.degrees(np.linalg.norm(blocks["highlight_mrad"].reshape(-1, 2), axis=1) * 1e-3)
-    print(f"{len(cams)} ChArUco + {len(highs)} highlight poses re-observed with {src}:")
-    print(f"  camera orientation vs ChArUco: median {np.median(cam_deg):.3f}°, max {cam_deg.max():.3f}°")
-    print(f"  light reflection direction:    median {np.median(hi_deg):.3f}°, max {hi_deg.max():.3f}°")
-    if args.sim:
-        j = np.concatenate([plan["camera"], plan["highlight"]])
-        twi, two = truth.directions(j)
-        wi, wo = rig.directions(j)
-        ei, eo = angle_between_deg(wi, twi), angle_between_deg(wo, two)
-        print(f"  vs the simulated truth: wi median {np.median(ei):.3f}° (max {ei.max():.3f}°), "
-              f"wo median {np.median(eo):.3f}° (max {eo.max():.3f}°)")
-    return 0 if math.isfinite(float(np.median(hi_deg))) else 1
+    threshold = _threshold(args.threshold, "--threshold")
+    _hardware_needs(args, "check")
+    if rig.layout != "arms":
+        raise ConfigError(f"{src}: layout {rig.layout!r}: the calibration plan supports the 'arms' layout only")
+    plan = check_session_plan(rig)
+    kinds = plan.params["kinds"]
+    print(f"check plan: {kinds.count('camera')} ChArUco poses + {kinds.count('highlight')} highlight poses (the "
+          f"calibration tile on the stage), estimated lab time {format_lab_time(calibration_lab_time(plan, rig))}")
+    return _new_session(args, rig, text, src, plan, check={"threshold_deg": threshold})

@@ -14,7 +14,8 @@ Model (one arm; a Denavit–Hartenberg-like product of exponentials, Hayati & Mi
     Q   = A(tx, ty) · Rz(az + δaz) · Rx(β) · Ry(el + δel)
     c   = (ox, oy, 0) + A(tx, ty) · Rz(az + δaz) · (ex, 0, ez)
     p   = c + Q · (0, lat, r + δr)                 (device position, lab frame)
-    camera: looks along −Q·ẑ (at the arc centre), its x axis along Q·ŷ
+    camera: looks along −Q·ẑ (at the arc centre), its x axis along Q·ŷ, then turned by its mounting
+            rotation M = Rx(mx)·Ry(my)·Rz(mz) about its own axes (R = M · R_arm; rows = camera axes)
 
 ``A(tx, ty) = Rx(tx)·Ry(ty)`` tilts the azimuth axis, ``β`` is the elevation axis's non-orthogonality,
 ``(ox, oy)`` is where the azimuth axis pierces the sample plane, ``(ex, ez)`` the arc centre's offset
@@ -24,6 +25,10 @@ elevation axis). The turntable layout turns the lab into the sample frame by
 every position is finally expressed relative to it. ``dh`` and a common ``ez`` of both arms have
 the same effect (only ``ez − dh`` is observable): :data:`ARM_FIELDS` keeps ``ez`` per arm and the
 calibration reports ``dh`` as not identified.
+
+The camera's mounting rotation on its arm (:data:`CAMERA_FIELDS`: how its bracket holds it) does not move
+it, so it changes no direction wi/wo; it turns the image, i.e. the board poses and where the light's
+highlight appears, and the calibration must estimate it to use them. The light, a point source, has none.
 
 Units in :class:`ChainErrors`: angles in degrees, lengths in millimetres (what a lab types in a TOML).
 """
@@ -37,7 +42,7 @@ import numpy as np
 
 from gonio.errors import ConfigError
 
-__all__ = ["ARM_FIELDS", "TURNTABLE_FIELDS", "ChainErrors", "chain_forward", "true_directions", "angle_between_deg"]
+__all__ = ["ARM_FIELDS", "CAMERA_FIELDS", "TURNTABLE_FIELDS", "ChainErrors", "chain_forward", "true_directions", "angle_between_deg"]
 
 #: Per-arm error fields: name → (unit, description).
 ARM_FIELDS = {
@@ -53,6 +58,13 @@ ARM_FIELDS = {
     "d_radius_mm": ("mm", "device distance error from the arc centre"),
     "lateral_mm": ("mm", "device offset from the arm plane (along the elevation axis)"),
 }
+#: Camera arm error fields: the arm's, plus the camera's mounting rotation about its own axes.
+CAMERA_FIELDS = {
+    **ARM_FIELDS,
+    "mount_x_deg": ("deg", "camera mounting rotation about its x axis (image rows tilt)"),
+    "mount_y_deg": ("deg", "camera mounting rotation about its y axis (image columns pan)"),
+    "mount_z_deg": ("deg", "camera mounting rotation about its optical axis (image roll)"),
+}
 #: Turntable error fields (turntable layout only).
 TURNTABLE_FIELDS = {
     "d_az_deg": ("deg", "turntable zero-offset error"),
@@ -65,12 +77,16 @@ def _zero_arm() -> dict:
     return {k: 0.0 for k in ARM_FIELDS}
 
 
+def _zero_camera() -> dict:
+    return {k: 0.0 for k in CAMERA_FIELDS}
+
+
 @dataclass
 class ChainErrors:
     """Assembly errors of a rig (all zero: the declared, perfect rig). See the module docstring."""
 
     light: dict = field(default_factory=_zero_arm)
-    camera: dict = field(default_factory=_zero_arm)
+    camera: dict = field(default_factory=_zero_camera)
     turntable: dict = field(default_factory=lambda: {k: 0.0 for k in TURNTABLE_FIELDS})
     sample_height_mm: float = 0.0
 
@@ -84,19 +100,19 @@ class ChainErrors:
 
     # -- flat parameter vector (the calibration's unknowns) ---------------------------------------
     def names(self) -> list[str]:
-        return ([f"light.{k}" for k in ARM_FIELDS] + [f"camera.{k}" for k in ARM_FIELDS]
+        return ([f"light.{k}" for k in ARM_FIELDS] + [f"camera.{k}" for k in CAMERA_FIELDS]
                 + [f"turntable.{k}" for k in TURNTABLE_FIELDS] + ["sample_height_mm"])
 
     def vector(self) -> np.ndarray:
-        return np.array([self.light[k] for k in ARM_FIELDS] + [self.camera[k] for k in ARM_FIELDS]
+        return np.array([self.light[k] for k in ARM_FIELDS] + [self.camera[k] for k in CAMERA_FIELDS]
                         + [self.turntable[k] for k in TURNTABLE_FIELDS] + [self.sample_height_mm], dtype=np.float64)
 
     @classmethod
     def from_vector(cls, v) -> "ChainErrors":
         v = [float(x) for x in np.asarray(v, dtype=np.float64).ravel()]
-        na, nt = len(ARM_FIELDS), len(TURNTABLE_FIELDS)
-        return cls(dict(zip(ARM_FIELDS, v[:na])), dict(zip(ARM_FIELDS, v[na:2 * na])),
-                   dict(zip(TURNTABLE_FIELDS, v[2 * na:2 * na + nt])), v[2 * na + nt])
+        na, nc, nt = len(ARM_FIELDS), len(CAMERA_FIELDS), len(TURNTABLE_FIELDS)
+        return cls(dict(zip(ARM_FIELDS, v[:na])), dict(zip(CAMERA_FIELDS, v[na:na + nc])),
+                   dict(zip(TURNTABLE_FIELDS, v[na + nc:na + nc + nt])), v[na + nc + nt])
 
     def to_dict(self) -> dict:
         return {"light": dict(self.light), "camera": dict(self.camera), "turntable": dict(self.turntable),
@@ -113,7 +129,7 @@ class ChainErrors:
             if key == "sample_height_mm":
                 out.sample_height_mm = _number(source, key, value, 20.0)
                 continue
-            fields = {"light": ARM_FIELDS, "camera": ARM_FIELDS, "turntable": TURNTABLE_FIELDS}.get(key)
+            fields = {"light": ARM_FIELDS, "camera": CAMERA_FIELDS, "turntable": TURNTABLE_FIELDS}.get(key)
             if fields is None:
                 raise ConfigError(f"{source}: unknown section {key!r} (expected light, camera, turntable, sample_height_mm)")
             if not isinstance(value, dict):
@@ -181,6 +197,12 @@ def chain_forward(rig, errors: ChainErrors, joints):
     # camera axes: x = arm's azimuth tangent (Q·ŷ), z = toward the arc centre (−Q·ẑ), y = z × x
     x, z = Q[..., :, 1], -Q[..., :, 2]
     R = np.stack([x, np.cross(z, x), z], axis=-2)
+    m = errors.camera
+    if m.get("mount_x_deg", 0.0) or m.get("mount_y_deg", 0.0) or m.get("mount_z_deg", 0.0):
+        d = math.radians
+        M = (_rx(np.asarray(d(m["mount_x_deg"]))) @ _ry(np.asarray(d(m["mount_y_deg"])))
+             @ _rz(np.asarray(d(m["mount_z_deg"]))))
+        R = M @ R
     if s is not None:  # lab → sample frame: the turntable's rotation, inverted
         t = errors.turntable
         T = (_rx(np.asarray(math.radians(t["tilt_x_deg"]))) @ _ry(np.asarray(math.radians(t["tilt_y_deg"])))

@@ -38,7 +38,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from gonio.errors import ConfigError
-from gonio.rig.chain import ARM_FIELDS, TURNTABLE_FIELDS, ChainErrors, chain_forward
+from gonio.rig.chain import ARM_FIELDS, CAMERA_FIELDS, TURNTABLE_FIELDS, ChainErrors, chain_forward
 
 __all__ = ["CameraObservation", "HighlightObservation", "GeoCalResult", "DegeneratePoses", "calibrate_geometry",
            "calibration_plan", "calibrated_rig_text", "RANK_TOL", "MAX_SIGMA"]
@@ -93,6 +93,10 @@ class GeoCalResult:
     rms: dict[str, float] = field(default_factory=dict)   # per observation kind, in its unit
     n_observations: dict[str, int] = field(default_factory=dict)
     residuals: np.ndarray | None = None
+    #: where the least squares started: "hand-eye" (:mod:`gonio.rig.handeye`) or "declared" (and why)
+    start: str = "declared"
+    #: residual evaluations the least squares needed (all passes)
+    nfev: int = 0
 
     def table(self) -> list[tuple[str, float, float, str]]:
         """(name, value, standard uncertainty, unit or 'not identified: why') per parameter."""
@@ -183,7 +187,7 @@ def check_pose_set(rig, cams, highs) -> None:
 
     if len(cams) < 8:
         raise DegeneratePoses(f"calibration poses: {len(cams)} camera poses; need at least 8 (the camera arm has "
-                              f"{len(ARM_FIELDS)} unknowns)")
+                              f"{len(CAMERA_FIELDS)} unknowns)")
     if len(highs) < 8:
         raise DegeneratePoses(f"calibration poses: {len(highs)} views of the light's reflection; need at least 8 "
                               f"(the light arm has {len(ARM_FIELDS)} unknowns)")
@@ -201,13 +205,16 @@ def check_pose_set(rig, cams, highs) -> None:
 
 
 def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera: str = "chain",
-                       weighted: bool = True, board_scale_sigma: float = BOARD_SCALE_SIGMA,
+                       weighted: bool = True, start: str = "hand-eye", board_scale_sigma: float = BOARD_SCALE_SIGMA,
                        principal_point_sigma: float = PRINCIPAL_POINT_SIGMA,
                        board_origin_sigma_mm: float = BOARD_ORIGIN_SIGMA_MM) -> GeoCalResult:
     """Estimate the rig's :class:`ChainErrors` from camera and highlight observations (module docstring).
 
     ``weighted``: residuals whitened by each observation's own covariance where every observation of a
-    kind has one (then rescaled by the kind's scatter); ``highlight_camera``: see :func:`_residual_blocks`."""
+    kind has one (then rescaled by the kind's scatter); ``highlight_camera``: see :func:`_residual_blocks`.
+    ``start``: ``"hand-eye"`` starts the camera arm from the closed-form robot-world/hand-eye solution of the
+    board poses (:func:`gonio.rig.handeye.camera_arm_start`; arms layout), ``"declared"`` from the declared
+    geometry (all errors 0)."""
     cams, highs = list(cams), list(highs)
     white = {"camera": _whiteners(cams, 6, 1.0), "highlight": _whiteners(highs, 2, 1e3)} if weighted else {}
     kw = {"highlight_camera": highlight_camera, "white": white}
@@ -224,6 +231,10 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
         free.remove(names.index("light.d_az_deg"))
     scale = {k: 1.0 for k in _residual_blocks(rig, ChainErrors(), cams, highs, **kw)}
     x = np.zeros(len(names))
+    started = "declared"
+    if start == "hand-eye" and rig.layout == "arms" and cams:
+        started = _hand_eye_start(rig, cams, x, names)
+    nfev = 0
 
     def fun(p, idx, scale, cams=cams, highs=highs):
         v = x.copy()
@@ -235,6 +246,7 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
     for _ in range(3):  # solve, drop what the data cannot determine, reweight by each kind's scatter
         sol = least_squares(fun, x[idx], args=(idx, scale), method="lm", x_scale=1.0)
         x[idx] = sol.x
+        nfev += sol.nfev
         J = sol.jac
         col = np.linalg.norm(J, axis=0)
         col[col == 0] = 1.0
@@ -250,6 +262,7 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
             idx = [i for i in idx if i not in bad]
     sol = least_squares(fun, x[idx], args=(idx, scale), method="lm")
     x[idx] = sol.x
+    nfev += sol.nfev
     r = sol.fun
     m, n = len(r), len(idx)
     s2 = float(r @ r) / max(m - n, 1)
@@ -310,7 +323,25 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
     blocks = _residual_blocks(rig, ChainErrors.from_vector(x), cams, highs, highlight_camera=highlight_camera)
     return GeoCalResult(ChainErrors.from_vector(x), sigma, not_identified,
                         rms={k: float(np.sqrt(np.mean(v ** 2))) for k, v in blocks.items()},
-                        n_observations={"camera": len(cams), "highlight": len(highs)}, residuals=r)
+                        n_observations={"camera": len(cams), "highlight": len(highs)}, residuals=r,
+                        start=started, nfev=nfev)
+
+
+def _hand_eye_start(rig, cams, x, names) -> str:
+    """Put the hand-eye solution's camera arm fields into ``x`` (in place) if it is finite and within
+    :class:`ChainErrors`'s bounds; returns the start's name (or why it was not used)."""
+    from gonio.rig.handeye import camera_arm_start
+
+    try:
+        start = camera_arm_start(rig, cams)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        return f"declared (hand-eye failed: {exc})"
+    for k, v in start.items():
+        if not (math.isfinite(v) and abs(v) <= (180.0 if k.endswith("_deg") else 100.0)):
+            return f"declared (hand-eye gave camera.{k} = {v:.3g})"
+    for k, v in start.items():
+        x[names.index(f"camera.{k}")] = v
+    return "hand-eye"
 
 
 def calibration_plan(rig, *, quick: bool = False) -> dict[str, np.ndarray]:
@@ -381,8 +412,8 @@ def calibrated_rig_text(declared_text: str, result: GeoCalResult, *, note: str =
 
     lines += ["[calibration.rms]", *(f"{k} = {v:.4g}" for k, v in result.rms.items())]
     lines += ["[calibration.not_identified]", *(f'"{k}" = "{v}"' for k, v in result.not_identified.items())]
-    for prefix, fields in (("light", ARM_FIELDS), ("camera", ARM_FIELDS), ("turntable", TURNTABLE_FIELDS)):
+    for prefix, fields in (("light", ARM_FIELDS), ("camera", CAMERA_FIELDS), ("turntable", TURNTABLE_FIELDS)):
         lines += table(prefix, fields, getattr(e, prefix))
-    for prefix, fields in (("light", ARM_FIELDS), ("camera", ARM_FIELDS), ("turntable", TURNTABLE_FIELDS)):
+    for prefix, fields in (("light", ARM_FIELDS), ("camera", CAMERA_FIELDS), ("turntable", TURNTABLE_FIELDS)):
         lines += sigma_table(prefix, fields)
     return declared_text.rstrip("\n") + "\n" + "\n".join(lines) + "\n"

@@ -28,7 +28,7 @@ from gonio.errors import HardwareError, UnreachablePose
 from gonio.rig.geocal import CameraObservation, HighlightObservation
 from gonio.session.runner import SessionRunner
 
-__all__ = ["GENERATOR", "calibration_session_plan", "calibration_lab_time", "CalibrationRunner",
+__all__ = ["GENERATOR", "calibration_session_plan", "check_session_plan", "calibration_lab_time", "CalibrationRunner",
            "observations_from_store", "finish_calibration"]
 
 #: The plan generator's name: a session whose plan has it is a calibration session.
@@ -59,6 +59,24 @@ def calibration_session_plan(rig, *, quick: bool = False):
     capture = CaptureSettings(exposures=(BOARD_EXPOSURE, 5e-5, 5e-5, 5e-5), frames=1, settle=0.5, auto_exposure=False)
     return Plan(np.stack([ti, pi_, to, po], -1), capture=capture, generator=GENERATOR,
                 params={"kinds": kinds, "quick": bool(quick), "tile_m": list(TILE)}, joints=joints)
+
+
+def check_session_plan(rig):
+    """The poses ``gonio calibrate check`` re-measures: every other ChArUco pose of the quick calibration plan
+    (two azimuths per elevation) and its highlight poses at the exact mirror direction at 30° and 50° of
+    elevation (6 azimuths; higher, the board is seen too obliquely for a precise pose): 20 poses, about a
+    minute of lab time."""
+    from dataclasses import replace
+
+    plan = calibration_session_plan(rig, quick=True)
+    kinds, j = plan.params["kinds"], plan.joints
+    cam = [i for i, k in enumerate(kinds) if k == "camera"][::2]
+    light_el = np.round(np.degrees(j[:, rig.names.index("light_el")])) if "light_el" in rig.names else None
+    hi = [i for i, k in enumerate(kinds) if k == "highlight" and abs(j[i, 1] + j[i, 3]) < 1e-9
+          and (light_el is None or light_el[i] in (30.0, 50.0))]
+    idx = cam + hi
+    return replace(plan, poses=plan.poses[idx], joints=j[idx],
+                   params={**plan.params, "kinds": [kinds[i] for i in idx], "check": True})
 
 
 def calibration_lab_time(plan, rig, start=None) -> float:

@@ -93,12 +93,13 @@ def test_response_with_a_linear_camera_and_bad_curve_files(tmp_path):
     (BASE + "[noise]\nfoo = 1\n", "noise.foo"),
     (BASE, "camera.linear = False"),
 ])
-@pytest.mark.parametrize("command", [["measure"], ["calibrate", "rig"]])
+@pytest.mark.parametrize("command", [["measure"], ["calibrate", "rig"], ["calibrate", "check"]])
 def test_measure_refuses_the_camera_before_creating_a_session(tmp_path, capsys, text, expect, command):
     cal = _write(tmp_path, text)
-    out = tmp_path / ("session" if command == ["measure"] else "calibrated.toml")
+    out = tmp_path / {"measure": "session", "rig": "calibrated.toml", "check": "check.session"}[command[-1]]
     rc = main([*command, "--rig", "default", "--servo-port", "/dev/null", "--controller-port", "/dev/null",
-               "--camera", "0", "--calibration", str(cal), "--out", str(out), "--quiet"])
+               "--camera", "0", "--calibration", str(cal), "--session" if command[-1] == "check" else "--out", str(out),
+               "--quiet"])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and expect in err and "\n" not in err and "Traceback" not in err
     assert not out.exists() and not list(tmp_path.glob("*.session"))
