@@ -195,8 +195,7 @@ class Pipeline:
             if hi >= (1 - SATURATION_MARGIN) * rng:
                 factor = 1 / 8
             t_new = float(np.clip(t * factor, st.exposure.min_exposure, st.exposure.max_exposure))
-            if abs(t_new - t) <= 1e-3 * t:
-                board, cam_pose = self._locate(frame, px, camera_pose_hint)
+            if abs(t_new - t) <= 1e-3 * t:  # no other exposure to try: this frame's (failed) search stands
                 break
             t = t_new
             frame, px, level, _ = self._grab(t, gain, meter=True)

@@ -92,7 +92,14 @@ def to_gray8(pixels: np.ndarray, bit_depth: int, black_level: float = 0.0) -> np
     """
     img = np.asarray(pixels, dtype=np.float32)
     if img.ndim == 3:
-        img = img.mean(axis=2)
+        # the channels' mean as ``img.mean(axis=2)`` computes it (float32, summed in channel order, divided by
+        # the count), bit for bit, in whole-plane operations: numpy's reduction over a short last axis is ~15×
+        # slower on a frame
+        acc = img[..., 0].copy()
+        for k in range(1, img.shape[2]):
+            acc += img[..., k]
+        acc /= np.float32(img.shape[2])
+        img = acc
     img = img - np.float32(black_level)
     hi = float(np.percentile(img[::4, ::4], 99.0))
     scale = 230.0 / hi if hi > 0 else 1.0
