@@ -28,7 +28,7 @@ import numpy as np
 from gonio.errors import ConfigError, DataError, GonioError
 from gonio.fit.data import DEFAULT_MAX_THETA_DEG, FitData, prepare
 from gonio.fit.kernels import jacobian_for, profile_for
-from gonio.fit.layout import (CHANNELS, Layout, SubSpace, auto_tied, make_basis, model_class, resolve_fixed,
+from gonio.fit.layout import (CHANNELS, Basis, Layout, SubSpace, auto_tied, make_basis, model_class, resolve_fixed,
                               separated)
 from gonio.fit.losses import LOSSES, Loss, get_loss
 from gonio.fit.result import FitResult

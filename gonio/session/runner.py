@@ -356,7 +356,7 @@ class SessionRunner:
     # -- one pose -------------------------------------------------------------------------------
     def _move(self, index: int) -> tuple[dict, dict]:
         """Solve nearest the current joints, move, settle, verify; returns (target, measured)."""
-        rig, axes, ctl, st = self.dev.rig, self.dev.axes, self.dev.controller, self.settings
+        axes, ctl, st = self.dev.axes, self.dev.controller, self.settings
         self.safety_check()
         current = axes.positions()
         target = self._target(index, current)
