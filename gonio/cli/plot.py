@@ -74,7 +74,8 @@ def run_one(args) -> int:
         raise ConfigError.field("--theta-i", "theta_i", args.theta_i, "must be in [0, 90) degrees")
     from gonio.io.outputs import check_output
 
-    check_output(args.output, option="-o", force=args.force, suffixes=(".png", ".pdf", ".svg"))
+    check_output(args.output, option="-o", force=args.force, suffixes=(".png", ".pdf", ".svg"),
+                 inputs=[args.source, *([args.model] if args.model else [])])
     plots.figure(1, 1)  # fail early, with the install hint, when matplotlib is missing
     model = load_model(args.model) if args.model else None
     src = load_source(args.source)

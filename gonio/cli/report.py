@@ -46,7 +46,8 @@ def run_report(args) -> int:
     from gonio.io.outputs import check_output
     from gonio.report import build_report
 
-    out = check_output(args.output, option="-o", force=args.force, suffixes=(".html", ".htm"))
+    out = check_output(args.output, option="-o", force=args.force, suffixes=(".html", ".htm"),
+                       inputs=[*args.source, *(args.model or [])])
     page = build_report(_entries(args), title="gonio report: " + ", ".join(Path(s).name for s in args.source))
     try:
         out.write_text(page, encoding="utf-8")
