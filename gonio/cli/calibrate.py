@@ -202,9 +202,12 @@ def _new_session(args, rig, text, src, plan, check: dict | None = None) -> int:
     from gonio.session.store import SessionStore
 
     if check is None:
+        from gonio.io.outputs import check_output
+
         out = Path(args.out).resolve()
         if out.exists():
             raise ConfigError(f"--out {args.out}: exists: the calibrated rig file is never overwritten")
+        check_output(args.out, option="--out", suffixes=(".toml",))  # not into a session, its directory exists
         session = args.session or f"{args.out}.session"
         geocal = {"out": str(out), "note": f"source rig: {src}"}
     else:
@@ -212,7 +215,7 @@ def _new_session(args, rig, text, src, plan, check: dict | None = None) -> int:
 
         session = args.session or time.strftime("calibrate-check-%Y%m%d-%H%M%S")
         geocal = {"check": check, "note": f"rig file checked: {src}"}
-    _check_out(session)
+    _check_out(session, option="--session")
     manifest = {
         "mode": "sim" if args.sim else "hardware",
         "command": ["gonio", *sys.argv[1:]] if sys.argv and sys.argv[0].endswith(("gonio", "main.py")) else None,

@@ -34,6 +34,9 @@ def _digest(d):
     ["plot", "{s}", "--kind", "coverage", "-o", "{s}/cov.png"],
     ["plan", "in_plane", "--out", "{s}/manifest.json"],
     ["tabulate", "{s}", "-o", "{s}/t.binary"],
+    ["measure", "--sim", "--quiet", "--out", "{s}/inner"],
+    ["calibrate", "rig", "--sim", "--quick", "--quiet", "--out", "{s}/cal.toml"],
+    ["calibrate", "check", "--sim", "--quiet", "--session", "{s}/check"],
 ])
 def test_no_output_lands_in_a_session(session, tmp_path, capsys, argv):
     link = tmp_path / "innocent.binary"
@@ -112,3 +115,34 @@ def test_a_batch_refuses_two_sources_with_one_output_name(session, tmp_path, cap
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "same output name s.npz" in err[0], err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_session_that_did_not_finish_is_said_so_when_loaded(session, tmp_path, capsys):
+    """An interrupted or killed session still loads (its samples are real), with one warning line saying
+    how much of the plan it holds and the resume command; a completed one loads silently."""
+    import shutil
+    import warnings
+
+    import gonio
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        gonio.load(session)  # completed: no warning
+    half = tmp_path / "half"
+    shutil.copytree(session, half)
+    lines = (half / "samples.jsonl").read_bytes().splitlines(keepends=True)
+    (half / "samples.jsonl").write_bytes(b"".join(lines[:2]))
+    manifest = json.loads((half / "manifest.json").read_text())
+    manifest["exit_status"] = None  # killed
+    (half / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.warns(UserWarning, match=r"not complete \(no exit status: killed, or still running\): 2 of \d+ poses"):
+        assert len(gonio.load(half).samples) > 0
+    assert main(["tabulate", str(half)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("gonio: warning:") and f"gonio resume {half}" in err[0], err
+
+
+def test_a_session_directory_refused_names_the_option_that_chose_it(session, capsys):
+    assert main(["calibrate", "check", "--sim", "--quiet", "--session", str(session)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--session" in err[0] and "--out" not in err[0], err
