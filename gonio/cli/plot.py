@@ -83,6 +83,10 @@ def run_one(args) -> int:
     samples, table = src.samples, src.table
     if samples is None and table is None:  # an evaluable material (RGL .bsdf): its samples on a grid
         samples = src.to_samples()
+    if table is None and len(samples) == 0:
+        from gonio.errors import DataError
+
+        raise DataError(f"{src.path}: no samples to plot (an empty export or a session stopped before its first pose)")
     if args.kind == "polar":
         fig = plots.polar_slice(samples=samples, table=table if samples is None else None,
                                 theta_i_deg=args.theta_i, tol_deg=args.tol, title=title)

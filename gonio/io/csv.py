@@ -8,6 +8,7 @@ exactly.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -48,7 +49,9 @@ def read_csv(path) -> SampleSet:
             missing = [c for c in COLUMNS if c not in header]
             if missing:
                 raise DataError(f"{path}: CSV header lacks column {missing[0]!r}")
-            data = np.loadtxt(fh, delimiter=",", ndmin=2, usecols=[header.index(c) for c in COLUMNS])
+            with warnings.catch_warnings():  # a header without rows is an empty set, said by the caller
+                warnings.filterwarnings("ignore", message="loadtxt: input contained no data")
+                data = np.loadtxt(fh, delimiter=",", ndmin=2, usecols=[header.index(c) for c in COLUMNS])
     except OSError as exc:
         raise DataError(f"{path}: cannot read CSV ({exc.strerror or exc})") from None
     except ValueError as exc:

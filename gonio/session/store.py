@@ -215,6 +215,18 @@ def _read_manifest(d: Path) -> dict:
     return manifest
 
 
+def missing_poses(manifest, present: int) -> int:
+    """Poses the manifest counted at its last stop (``pose_count``) that ``samples.jsonl`` no longer holds,
+    neither as good nor as damaged records nor moved to quarantine by a repair: records lost (a truncated
+    or replaced file). 0 when none are missing or the manifest does not say."""
+    count = manifest.get("pose_count")
+    if isinstance(count, bool) or not isinstance(count, int):
+        return 0
+    repairs = manifest.get("repairs") if isinstance(manifest.get("repairs"), list) else []
+    moved = sum(len(r["quarantined"]) for r in repairs if isinstance(r, dict) and isinstance(r.get("quarantined"), list))
+    return max(0, count - present - moved)
+
+
 def load_session(path) -> tuple[dict, SampleSet]:
     """``(manifest, samples)`` of a session directory, read-only; a torn last record is ignored.
 
