@@ -107,7 +107,7 @@ def export_model(args) -> int:
     if args.format == "mitsuba":
         from gonio.io.mitsuba import write_mitsuba
 
-        ex = write_mitsuba(model, out, approx=args.approx)
+        ex = write_mitsuba(model, out, approx=args.approx, option="-o")
     elif args.format == "pbrt":
         from gonio.io.pbrt import write_pbrt
 
