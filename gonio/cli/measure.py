@@ -77,7 +77,8 @@ def register(sub) -> None:
                         "sample height) drawn from SEED or read from a TOML file; the host still uses the declared "
                         "rig file (sim/as_built.py). Recorded in the manifest's sim.as_built")
     p.add_argument("--plan-file", metavar="PLAN.json", help="run the plan saved by 'gonio plan NAME --out PLAN.json' "
-                   "(validated and solved again on this rig) instead of generating one")
+                   "(validated and solved again on this rig) instead of generating one; a session directory: "
+                   "the plan it ran")
     p.add_argument("--accurate", action="store_true",
                    help="the conservative light and dark strategy: wait until the light is stable (about 4 min) "
                         "and re-measure the whole dark set (light off, warm-up again) every 15 min; default: "
