@@ -318,9 +318,10 @@ def _brackets(quick: bool):
     rows = [("fixed: 1 exposure (16 ms) × 1 frame", fixed(exposures=(0.016,), frames=1)),
             ("fixed: 1 exposure (16 ms) × 4 frames", fixed(exposures=(0.016,), frames=4)),
             ("fixed: 3 exposures × 1 frame", fixed(frames=1)),
-            ("fixed: 3 exposures (4, 16, 64 ms) × 2 frames", fixed()),
+            ("fixed: 3 exposures (4, 16, 64 ms) × 2 frames", fixed(frames=2)),
             ("fixed: 3 exposures × 4 frames", fixed(frames=4)),
-            ("fixed: 5 exposures (1–256 ms) × 2 frames", fixed(exposures=(0.001, 0.004, 0.016, 0.064, 0.256))),
+            ("fixed: 5 exposures (1–256 ms) × 2 frames", fixed(exposures=(0.001, 0.004, 0.016, 0.064, 0.256),
+                                                              frames=2)),
             ("automatic exposure per pose", CaptureSettings())]
     return [rows[0], rows[3], rows[6]] if quick else rows
 

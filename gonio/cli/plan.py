@@ -212,7 +212,7 @@ def run(args) -> int:
         why = plan.dropped_summary()
         print(f"dropped {plan.n_dropped} poses: {why}")
     cap = plan.capture
-    bracket = f"exposures {', '.join(f'{e:g}' for e in cap.exposures)} s x {cap.frames} frames"
+    bracket = f"exposures {', '.join(f'{e:g}' for e in cap.exposures)} s x {cap.frames} frame{'s' * (cap.frames != 1)}"
     print(f"capture: {'automatic exposure per pose (expected ' + bracket + ')' if cap.auto_exposure else bracket}, "
           f"gain {cap.gain:g}, settle {cap.settle:g} s, readout {cap.readout:g} s/frame -> "
           f"{cap.pose_time():.3f} s per pose + moves")

@@ -64,6 +64,9 @@ class PoseResult:
     board: BoardPose | None
     camera_pose: CameraPose
     light: list[float]
+    #: when each ``light`` reading was taken (:class:`gonio.rig.interfaces.PhotodiodeReading`): the host
+    #: clock's time, the controller's uptime and the sampling span, seconds (None where not known)
+    light_times: list[tuple] = field(default_factory=list)
 
 
 class Pipeline:
@@ -149,7 +152,9 @@ class Pipeline:
                 continue
             if self.light is None:
                 return frame, px, 1.0, 0.0
-            level, u = self.light.read_photodiode()
+            reading = self.light.read_photodiode()
+            level, u = reading
+            self._read_at = tuple(getattr(reading, k, None) for k in ("time", "uptime", "span"))
             return frame, px, float(level), float(u)
         raise last  # type: ignore[misc]
 
@@ -208,10 +213,14 @@ class Pipeline:
         if plan is None:
             plan = self._meter(frame, px, level, roi, gain)
         # 2. capture the bracket, darks, merge
-        stacks, darks, lights = [], [], []
+        stacks, darks, lights, times = [], [], [], []
         for t_k, n_k in zip(plan.exposures, plan.frames):
             cached = self.darks.cached(t_k, plan.gain)  # the runner measures the dark set before the poses
-            grabs = [self._grab(t_k, plan.gain, dark=cached) for _ in range(n_k)]
+            grabs = []
+            for _ in range(n_k):
+                self._read_at = (None, None, None)
+                grabs.append(self._grab(t_k, plan.gain, dark=cached))
+                times.append(self._read_at)
             d = self.darks.get(t_k, plan.gain)
             lv = [g[2] for g in grabs]
             lights.extend(lv)
@@ -229,7 +238,7 @@ class Pipeline:
                                       min_snr=st.min_snr, pose_index=pose_index, flags=flags,
                                       pose_perturbations=perturb, light_sigma=st.light_position_sigma)
         self._next_exposure = plan.exposures[0]
-        return PoseResult(samples, plan, board, cam_pose, lights)
+        return PoseResult(samples, plan, board, cam_pose, lights, times)
 
     def _meter(self, frame: Frame, px: np.ndarray, level: float, roi, gain: float) -> CapturePlan:
         """Find signal rates of the sample and white pixels; re-meter (bounded) when saturated or dark."""

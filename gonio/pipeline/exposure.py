@@ -84,9 +84,14 @@ def plan_bracket(rate_bright: float, rate_dim: float, range_dn: float, n_pixels:
     """Choose a bracket from metered signal rates (DN/s at gain 1 above black).
 
     Shortest exposure ``t₁ = high · range / rate_bright`` (brightest pixel below saturation); then
-    ×``step`` until the dimmest pixel reaches ``low · range`` or ``max_brackets``. Frames per
+    ×``step`` until the dimmest pixel reaches ``low · range`` or ``max_brackets``. Frames at the longest
     exposure: ``n = ⌈(SNR_target / (SNR_px √N_pix))²⌉`` where ``SNR_px`` is the dimmest pixel's SNR
-    at the longest exposure under the EMVA 1288 noise model, clamped to [min_frames, max_frames].
+    there under the EMVA 1288 noise model, clamped to [min_frames, max_frames]. A shorter exposure
+    ``t_k`` only serves pixels that saturate at ``t_{k+1}`` (the merge weights each exposure by its inverse
+    variance, :func:`gonio.pipeline.hdr.merge_linear`, Granados et al. 2010), whose signal at ``t_k`` is at
+    least ``(1 − margin) · range · t_k / t_{k+1}``: its frames are the same formula at that signal (or at the
+    dimmest pixel's, if brighter), never more than the longest exposure's. Averaging the longest
+    exposure's frame count at every exposure would only buy SNR the bright pixels already have.
     With ``settings.ladder``, ``t₁`` is rounded down to a rung (the brightest pixel stays below
     ``high``) and the bracket continues on the following rungs.
     """
@@ -107,8 +112,13 @@ def plan_bracket(rate_bright: float, rate_dim: float, range_dn: float, n_pixels:
                           or rate_dim * g * exposures[-1] >= s.low * range_dn * (1 - 1e-9)):
             break
         exposures.append(float(t))
-    frames = _frames(exposures[-1], rate_dim, range_dn, n_pixels, noise, s, g, dark_dn_per_s)
-    return CapturePlan(tuple(exposures), (frames,) * len(exposures), g)
+    from gonio.pipeline.hdr import SATURATION_MARGIN
+
+    n_long = _frames(exposures[-1], rate_dim, range_dn, n_pixels, noise, s, g, dark_dn_per_s)
+    frames = [min(n_long, _frames(t, max(rate_dim, (1 - SATURATION_MARGIN) * range_dn / (g * t_next)), range_dn,
+                                  n_pixels, noise, s, g, dark_dn_per_s))
+              for t, t_next in zip(exposures[:-1], exposures[1:])]
+    return CapturePlan(tuple(exposures), (*frames, n_long), g)
 
 
 def _frames(t_long, rate_dim, range_dn, n_pixels, noise, s, g, dark_dn_per_s) -> int:

@@ -23,7 +23,7 @@ from gonio import samples as S
 from gonio.geometry import dot, normalize, to_local
 from gonio.pipeline.hdr import HdrImage
 from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
-from gonio.pipeline.uncertainty import geometry_variance
+from gonio.pipeline.uncertainty import geometry_variance, tile_average_bias
 from gonio.samples import SampleSet
 
 __all__ = ["Roi", "build_roi", "reflectance_samples"]
@@ -124,6 +124,21 @@ def build_roi(pose: CameraPose, calib: CameraCalibration, layout: TargetLayout, 
     return Roi(rows, cols, p, label, white, n * n)
 
 
+def _tile_average_bias(f, wi, wo, lg, n, nt: int, frame) -> np.ndarray:
+    """:func:`gonio.pipeline.uncertainty.tile_average_bias` from the pixels that make each tile's mean
+    (``wi``/``wo`` per pixel, ``lg`` their tiles, ``n`` per tile; ``frame``: the mounted sample's)."""
+    h = normalize(wi + wo)
+    if frame is not None:
+        h = to_local(h, frame)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m = np.stack([np.bincount(lg, h[:, k], minlength=nt) for k in range(2)], -1) / n[:, None]
+        mm = np.stack([np.bincount(lg, h[:, a] * h[:, b], minlength=nt) for a, b in ((0, 0), (0, 1), (1, 1))],
+                      -1) / n[:, None]
+    cxx, cxy, cyy = (mm[:, 0] - m[:, 0] ** 2, mm[:, 1] - m[:, 0] * m[:, 1], mm[:, 2] - m[:, 1] ** 2)
+    cov = np.stack([np.stack([cxx, cxy], -1), np.stack([cxy, cyy], -1)], -2)
+    return tile_average_bias(f, m, cov, int(round(np.sqrt(nt))))
+
+
 def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_position, layout: TargetLayout, *,
                         absolute_scale=None, min_snr: float = 10.0, pose_index: int = -1, flags: int = 0,
                         light_rel_sigma: float = 0.0, pose_perturbations=(), light_sigma: float = 0.0) -> SampleSet:
@@ -209,6 +224,8 @@ def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_positio
     with np.errstate(invalid="ignore", divide="ignore"):
         f = fsum / n[:, None]
         var = vsum / n[:, None] ** 2 + f**2 * (kI_var / kI**2 + light_rel_sigma**2)
+    if chans == 3 and nt >= 9:  # the tile mean's excess over f at the mean direction (curved lobe)
+        f = f - _tile_average_bias(f, wi[good], wo[good], lg, n, nt, None if flat else frame)
     if hdr.light_weight is not None and hdr.light_rel_var is not None and hdr.light_rel_var.any():
         aw = hdr.light_weight[:, good] * f_px  # (K, Ngood, C)
         with np.errstate(invalid="ignore", divide="ignore"):

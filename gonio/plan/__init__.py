@@ -37,11 +37,12 @@ def _rig(rig):
 
 def plan_move_times(plan: Plan, rig=None, *, start=None, indices=None, sequential: bool = False):
     """Move time before each pose of ``plan`` (or of ``plan.poses[indices]``, in that order), seconds:
-    from ``start`` (joint vector) to the first pose (0 when ``start`` is None), then pose to pose."""
+    from ``start`` (joint vector) to the first pose (0 when ``start`` is None), then pose to pose, at the
+    speeds the servos run (:meth:`MotionModel.as_run`)."""
     import numpy as np
 
     rig = _rig(rig)
-    model = MotionModel.from_rig(rig)
+    model = MotionModel.as_run(rig)  # the servos' profiles as written (slower than stated: rounded down)
     q = np.asarray(_plan_joints(plan, rig), dtype=np.float64)
     if indices is not None:
         q = q[np.asarray(indices, dtype=np.int64)]

@@ -27,8 +27,11 @@ A frame costs its exposure plus the readout/transfer time (the camera integrates
 transfers the frame; the EMVA 1288 timing model, EMVA Standard 1288 R4.0, 2021, §"Camera model").
 
 With automatic exposure the bracket of a pose is chosen while measuring: the estimate uses the plan's
-*expected* bracket (``CaptureSettings.exposures × frames``) and says so; the lower bound uses one
-frame at the ladder's shortest exposure.
+*expected* bracket (``CaptureSettings.exposures × frames``, by default 4/16/64 ms × 1: what
+:func:`gonio.pipeline.exposure.plan_bracket` chooses where a sample tile has tens of pixels or more, 37 of
+the default plan's 38 poses in the simulated sessions of benchmarks/bench_labtime.py) and says so. The
+lower bound is what every pose costs at least: the metering frame at the exposure the runner meters at
+(the expected bracket's shortest) and one frame at the ladder's shortest exposure.
 """
 
 from __future__ import annotations
@@ -133,14 +136,15 @@ def dark_exposures(capture, timing: SessionTiming | None = None) -> tuple[float,
 def pose_capture_time(capture, *, bound: bool = False, timing: SessionTiming | None = None) -> float:
     """Lab seconds of one pose's capture: a metering frame plus ``Σ_k n_k (t_k + readout)``.
 
-    ``bound``: a true lower bound (metering frame of readout only; automatic exposure: one frame at
-    the ladder's shortest exposure)."""
+    The runner meters every pose at ``capture.exposures[0]`` (:mod:`gonio.session.runner`), so the metering
+    frame costs that exposure plus the readout in the estimate and in the bound. ``bound``: a true lower
+    bound (automatic exposure: a bracket of one frame at the ladder's shortest exposure; a fixed bracket is
+    captured as given). The estimate with automatic exposure: the expected bracket and frames."""
     r = capture.readout
-    if bound:
-        if getattr(capture, "auto_exposure", False):
-            return r + (min(dark_exposures(capture, timing)) + r)
-        return r + capture.frames * sum(e + r for e in capture.exposures)
-    return (capture.exposures[0] + r) + capture.frames * sum(e + r for e in capture.exposures)
+    meter = capture.exposures[0] + r
+    if bound and getattr(capture, "auto_exposure", False):
+        return meter + (min(dark_exposures(capture, timing)) + r)
+    return meter + capture.frames * sum(e + r for e in capture.exposures)
 
 
 @dataclass(frozen=True)

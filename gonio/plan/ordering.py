@@ -94,8 +94,29 @@ class MotionModel:
 
     @classmethod
     def from_rig(cls, rig) -> "MotionModel":
-        """The speed/acceleration limits of a :class:`gonio.rig.kinematics.Rig` (no wrap joints)."""
+        """The speed/acceleration limits of a :class:`gonio.rig.kinematics.Rig` (no wrap joints), as the rig
+        file states them: what orders poses and bounds lab time (the servos never move faster)."""
         return cls(tuple(rig.names), rig.max_speed, rig.max_accel)
+
+    @classmethod
+    def as_run(cls, rig) -> "MotionModel":
+        """The limits :meth:`from_rig` states as the rig's servos run them: the driver writes each joint's
+        limits as Profile Velocity/Acceleration registers, rounded down to their units
+        (:meth:`gonio.rig.control_table.ControlTable.profile_limits`: the default rig's 80-90°/s² run 6-8 %
+        slower, which the lab-time estimate missed); a joint whose servo model has no control table keeps
+        its stated limits. Used for the moves of an estimate (:func:`gonio.plan.plan_move_times`), not for
+        ordering: unequal speed/acceleration ratios make the k-d tree's bound loose (:mod:`gonio.plan.neighbours`)."""
+        from gonio.errors import ConfigError
+        from gonio.rig.control_table import load_control_table
+
+        speed, accel = np.array(rig.max_speed, dtype=np.float64), np.array(rig.max_accel, dtype=np.float64)
+        for k, j in enumerate(rig.joints):
+            try:
+                table = load_control_table(j.model)
+            except ConfigError:
+                continue
+            speed[k], accel[k] = table.profile_limits(j.max_speed, j.max_accel, j.gear_ratio)
+        return cls(tuple(rig.names), speed, accel)
 
     @property
     def n_joints(self) -> int:
@@ -366,7 +387,12 @@ def optimize_order(joints, model: MotionModel, *, start=None, seed: int = 0, tim
     if timings is not None:
         timings.update({"tour": t1 - t0, "local search": time.perf_counter() - t1, "tour cpu": c1 - c0,
                         "local search cpu": time.process_time() - c1})
-    return tour[1:-1].copy()
+    perm = tour[1:-1].copy()
+    if nbrs is not None:  # the ordered plan's estimate needs them again (its spanning tree): renumbered
+        inv = np.empty(n, np.int64)
+        inv[perm] = np.arange(n)
+        _nb.remember(q[perm], model, (inv[nbrs[0][perm]], nbrs[1][perm]))
+    return perm
 
 
 def _optimize_order_reference(joints, model: MotionModel, *, start=None, seed: int = 0, max_passes: int = 30,
@@ -396,7 +422,8 @@ def _optimize_order_reference(joints, model: MotionModel, *, start=None, seed: i
 def mst_move_time(joints, model: MotionModel, *, start=None) -> float:
     """Weight of the minimum spanning tree of the poses (and ``start``) under concurrent move time.
 
-    Borůvka rounds over exact k-d tree neighbour lists (:func:`gonio.plan.neighbours.mst_weight`),
+    Borůvka rounds over exact k-d tree neighbour lists (:func:`gonio.plan.neighbours.mst_weight`; the
+    lists :func:`optimize_order` built when these are the poses it ordered, else new ones),
     O(N log N) on spread poses; the same weight as Prim's (:func:`_mst_move_time_dense`, the reference).
     """
     q = _check(joints, model)
@@ -404,7 +431,7 @@ def mst_move_time(joints, model: MotionModel, *, start=None) -> float:
         q = np.vstack([np.asarray(start, dtype=np.float64)[None, :], q])
     if not _nb.supported(model) or q.shape[0] < 64:
         return _mst_move_time_dense(q, model)
-    return _nb.mst_weight(q, model)
+    return _nb.mst_weight(q, model, nbrs=_nb.recall(q, model))  # the lists ordering built, if these poses
 
 
 def _mst_move_time_dense(joints, model: MotionModel, *, start=None) -> float:

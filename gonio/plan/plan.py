@@ -40,7 +40,9 @@ class CaptureSettings:
         ``auto_exposure`` the *expected* bracket: the lab-time estimate uses it, the exposure ladder
         (whose dark frames the session measures) is built around it.
     frames : int
-        Frames averaged per exposure (expected frames with ``auto_exposure``).
+        Frames averaged per exposure (with ``auto_exposure`` the expected frames: automatic exposure
+        averages more only where a sample tile is too small or too dim for the target SNR in one frame,
+        :func:`gonio.pipeline.exposure.plan_bracket`).
     gain : float
         Analogue gain (linear, 1 = unity).
     readout : float
@@ -55,7 +57,7 @@ class CaptureSettings:
     """
 
     exposures: tuple[float, ...] = (0.004, 0.016, 0.064)
-    frames: int = 2
+    frames: int = 1
     gain: float = 1.0
     readout: float = 0.05
     settle: float = 0.3

@@ -101,6 +101,15 @@ class ControlTable:
         """rad/s of the horn → velocity register units (rounded down, so a speed limit holds; at least 1)."""
         return max(1, math.floor(rad_s * 60.0 / (2.0 * math.pi) / self.velocity_unit_rpm + 1e-9))
 
+    def profile_limits(self, max_speed: float, max_accel: float, gear_ratio: float = 1.0) -> tuple[float, float]:
+        """Joint-side speed (rad/s) and acceleration (rad/s²) a servo really runs at when the driver writes
+        ``max_speed``/``max_accel`` (joint side, through ``gear_ratio``) as Profile Velocity/Acceleration:
+        the registers round down (:meth:`rad_s_to_velocity`), so e.g. 80°/s² runs at 73.8°/s² on an X series
+        servo (214.577 rev/min² units)."""
+        g = float(gear_ratio)
+        return (self.velocity_to_rad_s(self.rad_s_to_velocity(max_speed * g)) / g,
+                self.acceleration_to_rad_s2(self.rad_s2_to_acceleration(max_accel * g)) / g)
+
     def acceleration_to_rad_s2(self, units: float) -> float:
         """Acceleration register units (214.577 rev/min²) → rad/s² of the horn."""
         return units * self.acceleration_unit_rpm2 * 2.0 * math.pi / 3600.0

@@ -214,6 +214,18 @@ class _Progress:
             self.stream.flush()
 
 
+def _reading_times(times) -> dict:
+    """The photodiode readings' timestamps for a pose's meta (docs/formats.md): per bracket frame, in
+    capture order, the host clock's time (``time_s``, lab seconds), the controller's uptime (``uptime_s``,
+    protocol ≥ 2.1, else null) and the sampling span (``span_s``); omitted where nothing is known."""
+    out = {}
+    for i, key in enumerate(("time_s", "uptime_s", "span_s")):
+        vals = [None if t[i] is None else float(t[i]) for t in times]
+        if any(v is not None for v in vals):
+            out[key] = vals
+    return out
+
+
 class SessionRunner:
     """Run ``plan`` into ``store`` on ``devices``; see the module docstring.
 
@@ -435,7 +447,8 @@ class SessionRunner:
             "auto_exposure": self.bracket is None,
             "gain": float(res.plan.gain),
             "photodiode": {"mean": float(pd.mean()) if pd.size else None,
-                           "min": float(pd.min()) if pd.size else None, "max": float(pd.max()) if pd.size else None},
+                           "min": float(pd.min()) if pd.size else None, "max": float(pd.max()) if pd.size else None,
+                           **_reading_times(res.light_times)},
             "board_found": res.board is not None,
             "darks_refreshed": darks,
             **self._dark_meta(),

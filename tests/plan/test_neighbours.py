@@ -92,3 +92,26 @@ def test_radius_inverts_the_floor(rig_model, kind):
         assert nb._floor(model, r) >= w * (1 - 1e-9)
         assert nb._floor(model, (r - 1e-12) * (1 - 1e-6)) < w  # less the widening for round-off
     assert nb._radius(model, np.inf) == np.inf
+
+
+@pytest.mark.parametrize("kind", sorted(MODELS))
+def test_estimate_reuses_the_lists_ordering_built(rig_model, kind, monkeypatch):
+    """optimize_order keeps its neighbour lists renumbered for the ordered poses; the spanning tree of
+    those poses (estimate_plan's bound) reuses them instead of new k-d tree queries, with Prim's weight.
+    Other poses (a different set, or one pose moved) build their own lists."""
+    model = MODELS[kind](rig_model)
+    q = np.random.default_rng(4).uniform(-3.0, 3.0, (300, 4))
+    perm = o.optimize_order(q, model, seed=1)
+    ordered = np.array(q[perm])  # a copy, as Plan stores it
+    idx, dist = nb.recall(ordered, model)
+    full = model.move_time(ordered[:, None, :], ordered[None, :, :])
+    np.fill_diagonal(full, np.inf)
+    np.testing.assert_array_equal(np.take_along_axis(full, idx, 1), dist)  # renumbered right
+    np.testing.assert_array_equal(dist, np.sort(full, axis=1)[:, :dist.shape[1]])  # still the k nearest
+    calls = []
+    monkeypatch.setattr(nb, "knn", lambda *a, **k: calls.append(a) or (_ for _ in ()).throw(AssertionError))
+    assert mst_move_time(ordered, model) == pytest.approx(o._mst_move_time_dense(ordered, model), rel=1e-12)
+    assert not calls
+    moved = ordered.copy()
+    moved[0, 0] += 1e-9
+    assert nb.recall(moved, model) is None and nb.recall(q, model) is None

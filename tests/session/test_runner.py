@@ -103,6 +103,13 @@ def test_session_measures_every_pose_with_meta_and_accurate_values(tmp_path, ses
         assert 1 <= len(meta["exposures_s"]) and set(meta["exposures_s"]) <= set(manifest["last_run"]["exposure"]["dark_exposures_s"])
         assert 0.9 < meta["photodiode"]["mean"] < 1.05
         assert meta["lab_time_s"] > 0
+        # every bracket frame's reading is timestamped (protocol 2.1): on the lab clock before the pose's
+        # record, on the controller's clock in increasing order, the window as long as the samples take
+        pd = meta["photodiode"]
+        assert len(pd["time_s"]) == len(pd["uptime_s"]) == len(pd["span_s"]) == sum(meta["frames"])
+        assert all(0 < t <= meta["lab_time_s"] for t in pd["time_s"])
+        assert pd["time_s"] == sorted(pd["time_s"]) and pd["uptime_s"] == sorted(pd["uptime_s"])
+        assert all(s_ >= 0 for s_ in pd["span_s"])
     good = samples.good()
     assert len(good) > 0.8 * len(samples)
     truth = s.sim.material.eval(good.wi, good.wo)
