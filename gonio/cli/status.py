@@ -17,12 +17,7 @@ def session_status(directory) -> dict:
 
     from gonio.session.store import _killed_run, _read_manifest, _samples_path, missing_poses, scan_samples
 
-    from gonio.errors import DataError
-
     d = Path(directory)
-    if d.is_file():
-        raise DataError(f"{d}: is a file, not a session directory (gonio status takes the directory gonio measure "
-                        "--out made)")
     manifest = _read_manifest(d)
     scan = scan_samples(_samples_path(d, manifest))
     plan = manifest.get("plan") or {}

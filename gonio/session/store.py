@@ -200,6 +200,10 @@ def _killed_run(manifest: Mapping[str, Any], scan: ScanResult) -> dict | None:
 
 def _read_manifest(d: Path) -> dict:
     path = d / MANIFEST
+    if d.is_file():
+        raise DataError(f"{d}: is a file, not a session directory (the directory gonio measure --out made)")
+    if not d.exists():
+        raise DataError(f"{d}: no such session directory")
     if not path.exists() and not path.is_symlink():
         raise DataError(f"{path}: no session manifest (is {d} a session directory?)")
     data = read_file_nofollow(path, MAX_MANIFEST, "manifest")

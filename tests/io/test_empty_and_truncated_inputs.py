@@ -75,6 +75,7 @@ def test_a_complete_session_loads_without_a_warning_and_status_on_a_file_names_i
         warnings.simplefilter("error")
         gonio.load(session)
     assert "MISSING" not in (main(["status", str(session)]), capsys.readouterr().out)[1]
-    assert main(["status", str(empty_csv)]) != 0
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "is a file, not a session directory" in err[0], err
+    for command in ("status", "repair"):
+        assert main([command, str(empty_csv)]) != 0
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "is a file, not a session directory" in err[0], err
