@@ -42,6 +42,10 @@ def load_model(path):
             report = json.load(fh)
     except OSError as exc:
         raise ConfigError.field("--model", "model", path, f"cannot read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:  # not text: say what it is (a MERL table, an NPZ, ...)
+        from gonio.io.sniff import describe
+
+        raise ConfigError(f"{path}: not a fit result (gonio fit --json FIT.json): it looks like {describe(path)}") from None
     except ValueError as exc:
         raise ConfigError(f"{path}: not valid JSON ({exc})") from None
     if isinstance(report, dict) and "model" not in report and isinstance(report.get("winner"), dict):

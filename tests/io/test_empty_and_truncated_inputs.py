@@ -79,3 +79,17 @@ def test_a_complete_session_loads_without_a_warning_and_status_on_a_file_names_i
         assert main([command, str(empty_csv)]) != 0
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "is a file, not a session directory" in err[0], err
+
+
+def test_a_data_file_given_as_a_fit_result_says_what_it_is(tmp_path):
+    from gonio.cli.plot import load_model
+    from gonio.errors import ConfigError
+    from gonio.io.merl import MerlTable, write_merl
+
+    import numpy as np
+
+    table = tmp_path / "t.binary"
+    write_merl(table, MerlTable(np.full((90, 90, 180, 3), np.nan)))
+    with pytest.raises(ConfigError, match=r"t.binary: not a fit result \(gonio fit --json FIT.json\): it looks like a "
+                                          r"MERL BRDF binary"):
+        load_model(table)
