@@ -210,7 +210,9 @@ def _write_new(path, text: str, force: bool) -> None:
     from gonio.io.outputs import check_output
 
     p = check_output(path, option="output", force=force)
+    from gonio.io.outputs import write_text_atomically
+
     try:
-        p.write_text(text, encoding="utf-8")
+        write_text_atomically(p, text)
     except OSError as exc:
         raise ConfigError.field(None, "output", str(p), f"cannot write ({exc.strerror or exc})") from None

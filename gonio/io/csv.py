@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from gonio.errors import DataError
+from gonio.io.outputs import written_atomically
 from gonio.samples import SampleSet
 
 __all__ = ["COLUMNS", "write_csv", "read_csv"]
@@ -29,7 +30,7 @@ def write_csv(path, samples: SampleSet) -> Path:
     table = np.column_stack([ti, pi_, to, po, samples.f, samples.sigma,
                              samples.flags, samples.n_pixels, samples.pose])
     try:
-        with open(path, "w", encoding="utf-8", newline="") as fh:
+        with written_atomically(path, "w", encoding="utf-8", newline="") as fh:
             np.savetxt(fh, table, fmt=["%.17g"] * 10 + ["%d"] * 3, delimiter=",",
                        header=",".join(COLUMNS), comments="")
     except OSError as exc:

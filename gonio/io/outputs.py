@@ -9,11 +9,12 @@ refusal, not 1,093 measured samples overwritten.
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
 from pathlib import Path
 
 from gonio.errors import ConfigError
 
-__all__ = ["check_output", "check_output_dir", "session_root"]
+__all__ = ["check_output", "check_output_dir", "session_root", "written_atomically", "write_text_atomically"]
 
 def session_root(path: Path) -> Path | None:
     """The session directory ``path`` lies in (the nearest ancestor holding a manifest), if any."""
@@ -94,3 +95,26 @@ def check_output_dir(path, *, option: str) -> Path:
     if d.exists() and not d.is_dir():
         raise ConfigError.field(None, option, str(path), "with several sources this must be a directory")
     return d
+
+
+@contextmanager
+def written_atomically(path, mode: str = "w", **open_kw):
+    """Open a temporary file beside ``path`` for writing; when the block ends normally it is renamed onto
+    ``path`` (``os.replace``: atomic on one file system), else (an error, Ctrl-C) removed. A reader never
+    sees a half-written export (a CSV cut at a line boundary reads as a smaller valid one), and a failed
+    ``--force`` leaves the previous file as it was."""
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, mode, **open_kw) as fh:
+            yield fh
+        os.replace(tmp, p)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_text_atomically(path, text: str) -> None:
+    """``path``'s content replaced by ``text`` (UTF-8) through :func:`written_atomically`."""
+    with written_atomically(path, "w", encoding="utf-8") as fh:
+        fh.write(text)

@@ -133,7 +133,8 @@ def test_a_session_that_did_not_finish_is_said_so_when_loaded(session, tmp_path,
     lines = (half / "samples.jsonl").read_bytes().splitlines(keepends=True)
     (half / "samples.jsonl").write_bytes(b"".join(lines[:2]))
     manifest = json.loads((half / "manifest.json").read_text())
-    manifest["exit_status"] = None  # killed
+    manifest["exit_status"] = None  # killed in its first run: the manifest counted nothing yet
+    manifest["pose_count"] = manifest["sample_count"] = 0
     (half / "manifest.json").write_text(json.dumps(manifest))
     with pytest.warns(UserWarning, match=r"not complete \(no exit status: killed, or still running\): 2 of \d+ poses"):
         assert len(gonio.load(half).samples) > 0
@@ -146,3 +147,22 @@ def test_a_session_directory_refused_names_the_option_that_chose_it(session, cap
     assert main(["calibrate", "check", "--sim", "--quiet", "--session", str(session)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--session" in err[0] and "--out" not in err[0], err
+
+
+def test_an_export_interrupted_while_writing_leaves_the_previous_file(session, tmp_path, monkeypatch):
+    """Ctrl-C (or a full disk) in the middle of writing --force over an export: the old file stays whole and no
+    half-written file (a CSV cut at a line boundary reads as a smaller, valid one) takes its name."""
+    import numpy as np
+
+    out = tmp_path / "e.csv"
+    assert main(["export", str(session), "--format", "csv", "-o", str(out)]) == 0
+    before = out.read_bytes()
+    real = np.savetxt
+
+    def savetxt_then_interrupt(fh, *a, **kw):
+        real(fh, *a, **kw)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(np, "savetxt", savetxt_then_interrupt)
+    assert main(["export", str(session), "--format", "csv", "-o", str(out), "--force"]) == 130
+    assert out.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["e.csv"]
