@@ -40,7 +40,13 @@ def as_samples(data):
     to_samples = getattr(data, "to_samples", None)
     if to_samples is None:
         raise TypeError(f"expected a path, a gonio.load() result or a SampleSet, not {type(data).__name__}")
-    return to_samples()
+    samples = to_samples()
+    if len(samples) == 0:  # named here, where the source's name is known (the fit only sees the samples)
+        from gonio.errors import DataError
+
+        raise DataError(f"{getattr(data, 'path', 'data')}: holds no samples (an empty export or a session "
+                        "stopped before its first pose)")
+    return samples
 
 
 def fit(data, model: str = "microfacet", *, fix: dict | None = None, **options):

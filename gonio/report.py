@@ -79,6 +79,11 @@ def load_entries(sources: Sequence[str], fit_files: Sequence[str] = (), *, fit_m
                       report))
     for src in sources:
         data = gonio.load(src)
+        if data.samples is not None and len(data.samples) == 0 and data.table is None:
+            from gonio.errors import DataError
+
+            raise DataError(f"{src}: holds no samples to show (an empty export or a session stopped before its "
+                            "first pose)")
         e = Entry(Path(src).name or str(src), data)
         if given:
             e.fits = {label: (model, rep) for label, model, rep in given}

@@ -20,6 +20,21 @@ from __future__ import annotations
 
 import sys
 
+#: ``gonio calibrate --help`` (plain text: the module docstring's Sphinx roles are for the API docs).
+DESCRIPTION = (
+    "gonio calibrate rig lays out the calibration poses (ChArUco poses of the camera arm, mirror-highlight poses "
+    "of the light arm, inside the declared joint limits and collision zones), prints their number and lab-time "
+    "estimate, then runs them as a session (same moves, safety checks, crash-safe store and progress line as a "
+    "measurement; an interrupted session continues with gonio resume DIR): each pose's frames give the board "
+    "pose and the light's highlight in the tile on the stage. At the end it estimates the rig's assembly errors "
+    "with their uncertainties, prints them (parameters not identified are said so) and writes the calibrated "
+    "rig file (--out: the declared file plus a [calibration] table), which gonio measure --rig CALIBRATED.toml "
+    "uses. On a rig: --rig RIG.toml --servo-port --controller-port --camera --calibration CAMERA.toml; with "
+    "--sim the simulated as-built rig (--sim-as-built SEED|FILE) renders the frames. gonio calibrate check "
+    "re-measures a few poses the same way (a short session, on the rig or the simulated as-built rig) and "
+    "reports how far the rig file's wi and wo are from what the camera sees, with a one-line verdict against "
+    "--threshold (exit status 1 when over it).")
+
 #: What a hardware calibration session needs besides --out (the option, what it is).
 HARDWARE_OPTIONS = (("--rig", "rig", "the declared rig file"), ("--servo-port", "servo_port", "the servo bus port"),
                     ("--controller-port", "controller_port", "the rig controller port"),
@@ -28,7 +43,7 @@ HARDWARE_OPTIONS = (("--rig", "rig", "the declared rig file"), ("--servo-port", 
 
 def register(sub) -> None:
     p = sub.add_parser("calibrate", help="geometric calibration of the rig (servo zeros, axes, arm lengths)",
-                       description=__doc__.split("\n\n")[1])
+                       description=DESCRIPTION)
     csub = p.add_subparsers(dest="calibrate_command", metavar="ACTION", required=True)
 
     def common(sp):
@@ -187,9 +202,12 @@ def _new_session(args, rig, text, src, plan, check: dict | None = None) -> int:
     from gonio.session.store import SessionStore
 
     if check is None:
+        from gonio.io.outputs import check_output
+
         out = Path(args.out).resolve()
         if out.exists():
             raise ConfigError(f"--out {args.out}: exists: the calibrated rig file is never overwritten")
+        check_output(args.out, option="--out", suffixes=(".toml",))  # not into a session, its directory exists
         session = args.session or f"{args.out}.session"
         geocal = {"out": str(out), "note": f"source rig: {src}"}
     else:
@@ -197,7 +215,7 @@ def _new_session(args, rig, text, src, plan, check: dict | None = None) -> int:
 
         session = args.session or time.strftime("calibrate-check-%Y%m%d-%H%M%S")
         geocal = {"check": check, "note": f"rig file checked: {src}"}
-    _check_out(session)
+    _check_out(session, option="--session")
     manifest = {
         "mode": "sim" if args.sim else "hardware",
         "command": ["gonio", *sys.argv[1:]] if sys.argv and sys.argv[0].endswith(("gonio", "main.py")) else None,

@@ -53,6 +53,28 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def check_merl_output(args):
+    """The MERL output ``-o`` and its sidecar checked (:func:`gonio.io.outputs.check_output`), before any work."""
+    from gonio.io.merl_sidecar import sidecar_path
+    from gonio.io.outputs import check_output
+
+    out = str(check_output(args.output, option="-o", force=args.force, inputs=[args.source]))
+    check_output(sidecar_path(out), option="-o (its sidecar)", force=args.force, inputs=[args.source])
+    return out
+
+
+def write_merl_table(out: str, table, src, tab) -> str:
+    """Write ``table`` as a MERL binary at ``out`` and, beside it, the sidecar that says which cells were
+    measured and which filled (:mod:`gonio.io.merl_sidecar`), so no reader of gonio takes a filled cell
+    for a measurement. Returns the sidecar's path."""
+    from gonio.io.merl import write_merl
+    from gonio.io.merl_sidecar import build_sidecar, sidecar_path, write_sidecar
+
+    write_merl(out, table)
+    return write_sidecar(sidecar_path(out), build_sidecar(table, source=str(src.path), tabulation=tab,
+                                                          manifest=src.manifest, filled=src.filled))
+
+
 def run(args) -> int:
     return many.run_each("export", args, run_one, output_name)
 
@@ -70,7 +92,7 @@ def export_model(args) -> int:
     from gonio.io.outputs import check_output
 
     suffixes = {"mitsuba": (".xml", ".json"), "pbrt": (".pbrt",), "gltf": (".gltf",)}[args.format]
-    out = check_output(args.output, option="-o", force=args.force, suffixes=suffixes)
+    out = check_output(args.output, option="-o", force=args.force, suffixes=suffixes, inputs=[args.source])
     from pathlib import Path
 
     from gonio.errors import ConfigError
@@ -85,7 +107,7 @@ def export_model(args) -> int:
     if args.format == "mitsuba":
         from gonio.io.mitsuba import write_mitsuba
 
-        ex = write_mitsuba(model, out, approx=args.approx)
+        ex = write_mitsuba(model, out, approx=args.approx, option="-o")
     elif args.format == "pbrt":
         from gonio.io.pbrt import write_pbrt
 
@@ -104,8 +126,6 @@ def run_one(args) -> int:
     if args.format in RENDERERS:
         return export_model(args)
     from gonio.io.csv import write_csv
-    from gonio.io.merl import write_merl
-    from gonio.io.merl_sidecar import build_sidecar, sidecar_path, write_sidecar
     from gonio.io.npz import build_metadata, write_npz
     from gonio.io.outputs import check_output
     from gonio.io.source import load_source
@@ -113,10 +133,11 @@ def run_one(args) -> int:
     from gonio.tabulate import tabulate
 
     kwargs = tabulation_kwargs(args)
-    out = str(check_output(args.output, option="-o", force=args.force,
-                           suffixes=None if args.format == "merl" else (f".{args.format}",)))
-    if args.format == "merl":  # refused before any work, like the main output
-        check_output(sidecar_path(out), option="-o (its sidecar)", force=args.force)
+    if args.format == "merl":  # refused before any work, the sidecar too
+        out = check_merl_output(args)
+    else:
+        out = str(check_output(args.output, option="-o", force=args.force, inputs=[args.source],
+                               suffixes=(f".{args.format}",)))
     src = load_source(args.source)
     if src.samples is None and args.format == "csv":
         raise ConfigError.field("--format", "format", "csv",
@@ -135,9 +156,7 @@ def run_one(args) -> int:
                 raise
             extra["table_omitted"] = str(exc)  # e.g. anisotropic: the NPZ keeps the 4-D samples only
     if args.format == "merl":
-        write_merl(out, table)
-        side = write_sidecar(sidecar_path(out), build_sidecar(table, source=str(src.path), tabulation=tab,
-                                                              manifest=src.manifest, filled=src.filled))
+        side = write_merl_table(out, table, src, tab)
     elif args.format == "csv":
         write_csv(out, src.samples)
     else:

@@ -90,9 +90,14 @@ def fit_row(source: str, opts: dict) -> dict:
     """One summary row of a batch fit; writes ``json_dir/NAME.json`` when asked."""
     from pathlib import Path
 
+    target = None
+    if opts.get("json_dir"):  # checked before the fit: e.g. never over a MERL table's sidecar
+        from gonio.io.outputs import check_output
+
+        target = check_output(Path(opts["json_dir"]) / f"{Path(source).name}.json", option="--json",
+                              force=opts["force"], inputs=[source])
     result, sel = fit_one(source, opts)
-    if opts.get("json_dir"):
-        target = Path(opts["json_dir"]) / f"{Path(source).name}.json"
+    if target is not None:
         (sel or result).to_json(target, force=opts["force"])
     return {"model": result.model_name, "n_used": result.n_used, "rms_rel": result.rms_rel,
             "chi2_red": result.chi2_red, "seconds": round(result.seconds, 3),
@@ -108,9 +113,11 @@ def run(args) -> int:
                 from gonio.errors import ConfigError
 
                 raise ConfigError.field(option, option.lstrip("-"), value, "takes one source (fit each one alone)")
+        summary = many.summary_path("fit", args, paths)  # both refused before anything is created
         opts["json_dir"] = str(many.output_dir("--json", args.json, required=False) or "") or None
         return many.run("fit", args, fit_row, paths, opts,
-                        ["source", "status", "model", "n_used", "rms_rel", "chi2_red", "seconds", "params", "error"])
+                        ["source", "status", "model", "n_used", "rms_rel", "chi2_red", "seconds", "params", "error"],
+                        summary=summary)
     args.source = str(paths[0])
     return run_one(args)
 
@@ -123,10 +130,10 @@ def run_one(args) -> int:
     renderers = (("--pbrt", args.pbrt, ".pbrt"), ("--gltf", args.gltf, ".gltf"))
     for option, value, suffix in renderers:
         if value:
-            check_output(value, option=option, force=args.force, suffixes=(suffix,))
+            check_output(value, option=option, force=args.force, suffixes=(suffix,), inputs=[args.source])
     for option, value in (("--json", args.json), ("--mitsuba", args.mitsuba)):
         if value:  # refused before minutes of fitting, not after
-            check_output(value, option=option, force=args.force)
+            check_output(value, option=option, force=args.force, inputs=[args.source])
     result, sel = fit_one(args.source, opts)
     if sel is not None:
         print("\n".join(sel.table_lines()))

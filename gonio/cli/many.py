@@ -35,26 +35,45 @@ def is_batch(args, paths) -> bool:
 def output_dir(flag: str, value: str | None, required: bool = True) -> Path | None:
     """The directory that receives one output per source (created if missing)."""
     from gonio.errors import ConfigError
+    from gonio.io.outputs import check_output_dir
 
     if value is None:
         if required:
             raise ConfigError.field(flag, flag.lstrip("-"), None, "with several sources, name a directory for the outputs")
         return None
-    d = Path(value)
-    if d.exists() and not d.is_dir():
-        raise ConfigError.field(flag, flag.lstrip("-"), value, "with several sources this must be a directory")
-    d.mkdir(parents=True, exist_ok=True)
+    d = check_output_dir(value, option=flag)  # never a session directory or inside one
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError.field(None, flag, value, f"cannot create the directory ({exc.strerror or exc})") from None
     return d
 
 
-def run(command: str, args, fn, paths, options: dict, columns=None) -> int:
+def summary_path(command: str, args, paths) -> Path:
+    """Where the summary CSV goes, checked before the batch runs (:func:`gonio.io.outputs.check_output`):
+    ``--summary``, never a session's file or one of the sources, an existing file only with ``--force``; by
+    default a new ``./gonio-COMMAND-summary-DATE.csv``."""
+    from gonio.io.outputs import check_output
+
+    if args.summary:
+        return check_output(args.summary, option="--summary", force=getattr(args, "force", False),
+                            suffixes=(".csv",), inputs=paths)
+    stem = f"gonio-{command}-summary-{time.strftime('%Y%m%d-%H%M%S')}"
+    name, n = f"{stem}.csv", 1
+    while Path(name).exists():  # two batches in the same second: never over the first one's summary
+        name, n = f"{stem}-{n}.csv", n + 1
+    return check_output(name, option="--summary", inputs=paths)
+
+
+def run(command: str, args, fn, paths, options: dict, columns=None, summary: Path | None = None) -> int:
     """Run ``fn`` over ``paths`` (:func:`gonio.batch.run_batch`), print the summary table, write its
-    CSV; exit code 1 if any source failed, else 0."""
+    CSV (``summary``, else :func:`summary_path`); exit code 1 if any source failed, else 0."""
     from gonio.batch import format_table, run_batch, write_summary_csv
 
+    if summary is None:
+        summary = summary_path(command, args, paths)  # refused before the batch runs, not after
     rows = run_batch(fn, paths, options, jobs=args.jobs, scheduler=args.scheduler, desc=f"gonio {command}")
     print("\n".join(format_table(rows, columns)))
-    summary = args.summary or f"gonio-{command}-summary-{time.strftime('%Y%m%d-%H%M%S')}.csv"
     write_summary_csv(summary, rows)
     failed = sum(r.get("status") == "failed" for r in rows)
     print(f"{len(rows)} sources, {len(rows) - failed} ok, {failed} failed; summary written to {summary}")
@@ -69,11 +88,21 @@ def run_each(command: str, args, run_one, output_name) -> int:
     if not is_batch(args, paths):
         args.source = str(paths[0])
         return run_one(args)
-    out_dir = output_dir("-o", args.output)
     opts = {k: v for k, v in vars(args).items() if k not in ("func", "source", "output")}
+    seen: dict[str, Path] = {}
+    for p in paths:  # two sources, one output name: the second would replace the first's output
+        name = output_name(str(p), opts)
+        if name in seen:
+            from gonio.errors import ConfigError
+
+            raise ConfigError.field(None, "SOURCE", str(p), f"has the same output name {name} as {seen[name]}; "
+                                    "export them in separate runs (or rename one)")
+        seen[name] = p
+    summary = summary_path(command, args, paths)  # both refused before anything is created
+    out_dir = output_dir("-o", args.output)
     opts["out_dir"] = str(out_dir)
     return run(command, args, partial(output_row, run_one, output_name), paths, opts,
-               ["source", "status", "output", "error"])
+               ["source", "status", "output", "error"], summary=summary)
 
 
 def output_row(run_one, output_name, source: str, opts: dict) -> dict:

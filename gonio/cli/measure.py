@@ -77,7 +77,8 @@ def register(sub) -> None:
                         "sample height) drawn from SEED or read from a TOML file; the host still uses the declared "
                         "rig file (sim/as_built.py). Recorded in the manifest's sim.as_built")
     p.add_argument("--plan-file", metavar="PLAN.json", help="run the plan saved by 'gonio plan NAME --out PLAN.json' "
-                   "(validated and solved again on this rig) instead of generating one")
+                   "(validated and solved again on this rig) instead of generating one; a session directory: "
+                   "the plan it ran")
     p.add_argument("--accurate", action="store_true",
                    help="the conservative light and dark strategy: wait until the light is stable (about 4 min) "
                         "and re-measure the whole dark set (light off, warm-up again) every 15 min; default: "
@@ -290,23 +291,30 @@ def _default_out() -> str:
     return time.strftime("gonio-session-%Y%m%d-%H%M%S")
 
 
-def _check_out(out: str) -> None:
-    """Refuse, before anything starts, a directory holding a session or one that cannot be created."""
+def _check_out(out: str, option: str = "--out") -> None:
+    """Refuse, before anything starts, a directory holding a session or one that cannot be created
+    (one line naming ``option``, the option that chose the directory)."""
     import os
     from pathlib import Path
 
     from gonio.errors import ConfigError
     from gonio.session.store import MANIFEST, SAMPLES
 
+    from gonio.io.outputs import session_root
+
     d = Path(out)
     if d.exists() and not d.is_dir():
-        raise ConfigError.field("--out", "session directory", out, "exists and is not a directory")
+        raise ConfigError.field(option, "session directory", out, "exists and is not a directory")
+    root = session_root(Path(os.path.realpath(d.absolute())) / "manifest.json")  # d itself, or inside another
+    if root is not None and root != Path(os.path.realpath(d.absolute())):
+        raise ConfigError.field(option, "session directory", out, f"is inside the session directory {root}: a "
+                                "session holds only what it measured (choose a directory elsewhere)")
     if any((d / n).exists() for n in (MANIFEST, SAMPLES)):
-        raise ConfigError.field("--out", "session directory", out,
+        raise ConfigError.field(option, "session directory", out,
                                 f"holds another session; choose a new directory or `gonio resume {out}`")
     parent = d if d.exists() else next((p for p in d.absolute().parents if p.exists()), Path("/"))
     if not os.access(parent, os.W_OK | os.X_OK):
-        raise ConfigError.field("--out", "session directory", out, f"not writable ({parent} is read-only to you)")
+        raise ConfigError.field(option, "session directory", out, f"not writable ({parent} is read-only to you)")
 
 
 # -- running -------------------------------------------------------------------------------------

@@ -194,6 +194,10 @@ def run(args) -> int:
     from gonio.plan import GENERATORS, estimate_plan
     from gonio.rig.kinematics import load_rig
 
+    if args.out:  # refused before the plan is computed and ordered (10^5 poses take seconds), not after
+        from gonio.io.outputs import check_output
+
+        check_output(args.out, option="--out", force=getattr(args, "force", False), suffixes=(".json",))
     rig = load_rig(args.rig)
     # source=None: the CLI's own prefix ("gonio plan: error: ") already names the command
     plan = plan_from_args(args, args.name, rig, where="NAME", source=None, time_budget=args.time_budget)

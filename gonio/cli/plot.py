@@ -42,6 +42,10 @@ def load_model(path):
             report = json.load(fh)
     except OSError as exc:
         raise ConfigError.field("--model", "model", path, f"cannot read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:  # not text: say what it is (a MERL table, an NPZ, ...)
+        from gonio.io.sniff import describe
+
+        raise ConfigError(f"{path}: not a fit result (gonio fit --json FIT.json): it looks like {describe(path)}") from None
     except ValueError as exc:
         raise ConfigError(f"{path}: not valid JSON ({exc})") from None
     if isinstance(report, dict) and "model" not in report and isinstance(report.get("winner"), dict):
@@ -74,7 +78,8 @@ def run_one(args) -> int:
         raise ConfigError.field("--theta-i", "theta_i", args.theta_i, "must be in [0, 90) degrees")
     from gonio.io.outputs import check_output
 
-    check_output(args.output, option="-o", force=args.force, suffixes=(".png", ".pdf", ".svg"))
+    check_output(args.output, option="-o", force=args.force, suffixes=(".png", ".pdf", ".svg"),
+                 inputs=[args.source, *([args.model] if args.model else [])])
     plots.figure(1, 1)  # fail early, with the install hint, when matplotlib is missing
     model = load_model(args.model) if args.model else None
     src = load_source(args.source)
@@ -82,6 +87,10 @@ def run_one(args) -> int:
     samples, table = src.samples, src.table
     if samples is None and table is None:  # an evaluable material (RGL .bsdf): its samples on a grid
         samples = src.to_samples()
+    if table is None and len(samples) == 0:
+        from gonio.errors import DataError
+
+        raise DataError(f"{src.path}: no samples to plot (an empty export or a session stopped before its first pose)")
     if args.kind == "polar":
         fig = plots.polar_slice(samples=samples, table=table if samples is None else None,
                                 theta_i_deg=args.theta_i, tol_deg=args.tol, title=title)

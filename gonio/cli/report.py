@@ -46,10 +46,13 @@ def run_report(args) -> int:
     from gonio.io.outputs import check_output
     from gonio.report import build_report
 
-    out = check_output(args.output, option="-o", force=args.force, suffixes=(".html", ".htm"))
+    out = check_output(args.output, option="-o", force=args.force, suffixes=(".html", ".htm"),
+                       inputs=[*args.source, *(args.model or [])])
     page = build_report(_entries(args), title="gonio report: " + ", ".join(Path(s).name for s in args.source))
+    from gonio.io.outputs import write_text_atomically
+
     try:
-        out.write_text(page, encoding="utf-8")
+        write_text_atomically(out, page)
     except OSError as exc:
         raise ConfigError.field(None, "-o", str(out), f"cannot write ({exc.strerror or exc})") from None
     print(f"wrote {out} ({len(page) / 1e6:.1f} MB, self-contained)")

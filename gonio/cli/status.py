@@ -15,7 +15,7 @@ def session_status(directory) -> dict:
     """The facts ``gonio status`` prints, as a dict (read-only; nothing in DIR changes)."""
     from pathlib import Path
 
-    from gonio.session.store import _killed_run, _read_manifest, _samples_path, scan_samples
+    from gonio.session.store import _killed_run, _read_manifest, _samples_path, missing_poses, scan_samples
 
     d = Path(directory)
     manifest = _read_manifest(d)
@@ -60,7 +60,9 @@ def session_status(directory) -> dict:
         "failed_poses": [(k, why) for k, why in _failed_poses(manifest) if k not in done],
         "damaged": scan.describe_damage() if scan.damaged else None,
         "n_damaged": len(scan.damaged),
+        "missing_poses": missing_poses(manifest, len(done) + len(scan.damaged)),
     }
+
 
 
 def _failed_poses(manifest) -> list[tuple[int, str]]:
@@ -93,6 +95,9 @@ def run(args) -> int:
     status = s["exit_status"] or "none (still running, or killed: resume with `gonio resume DIR`)"
     print(f"exit status:  {status}")
     print(f"started:      {s['started']}; stopped: {s['stopped'] or '-'}; resumed {s['resumes']} time(s)")
+    if s["missing_poses"]:
+        print(f"MISSING: {s['missing_poses']} pose(s) the manifest counted at its last stop are not in samples.jsonl "
+              "(a truncated or replaced file?); restore it from a backup, or `gonio resume DIR` measures them again")
     if s["duplicates"]:
         print(f"note: {s['duplicates']} pose(s) recorded more than once; the last record of each is used")
     if s["failed_poses"]:

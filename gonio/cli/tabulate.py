@@ -18,21 +18,20 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from gonio.cli.export import tabulation_kwargs
+    from gonio.cli.export import check_merl_output, tabulation_kwargs, write_merl_table
     from gonio.errors import ConfigError
-    from gonio.io.merl import write_merl
     from gonio.io.source import load_source
     from gonio.tabulate import tabulate
 
     kwargs = tabulation_kwargs(args)
+    out = check_merl_output(args) if args.output else None  # refused before any work, not after
     src = load_source(args.source)
     if src.samples is None:
         raise ConfigError.field(None, "DIR", str(src.path), "is a MERL table, not a set of samples to tabulate")
     tab = tabulate(src.samples, source=str(src.path), **kwargs)
     print(tab.summary())
-    if args.output:
-        from gonio.io.outputs import check_output
-
-        write_merl(check_output(args.output, option="-o", force=args.force), tab.table)
-        print(f"wrote {args.output}")
+    if out:
+        side = write_merl_table(out, tab.table, src, tab)
+        print(f"wrote {out}")
+        print(f"wrote {side} (what the table holds: source, measured and filled cells)")
     return 0

@@ -159,8 +159,11 @@ class FitResult:
             flag = "  AT BOUND: " + ", ".join(f"{c} {w}" for c, w in b.items()) if b else ""
             lines.append(f"  {k:<18} {_fmt(v):<36} {u}{flag}")
         if self.metrics:
-            lines.append("  error: " + "  ".join(f"{k} {_fmt(v)}" for k, v in self.metrics.items())
-                         + "  (cube-root cosine-weighted, Ngan et al. 2005; rendered spheres)")
+            # image_rel is None when no pixel of the rendered spheres has a measured sample near it
+            lines.append("  error: " + "  ".join(f"{k} {'n/a' if v is None else _fmt(v)}" for k, v in self.metrics.items())
+                         + "  (cube-root cosine-weighted, Ngan et al. 2005; rendered spheres"
+                         + ("; n/a: the data are too sparse to render them" if None in self.metrics.values() else "")
+                         + ")")
         if self.energy:
             e = self.energy
             lines.append(f"  energy: max directional albedo {e['albedo_max']:.4g} at theta_i {e['theta_deg']:g} deg"
@@ -207,7 +210,9 @@ def _write_new(path, text: str, force: bool) -> None:
     from gonio.io.outputs import check_output
 
     p = check_output(path, option="output", force=force)
+    from gonio.io.outputs import write_text_atomically
+
     try:
-        p.write_text(text, encoding="utf-8")
+        write_text_atomically(p, text)
     except OSError as exc:
         raise ConfigError.field(None, "output", str(p), f"cannot write ({exc.strerror or exc})") from None

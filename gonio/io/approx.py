@@ -160,10 +160,10 @@ class Exported:
 
     def write(self, path, option: str) -> "Exported":
         """Write :attr:`text` to ``path``; a failure is one line naming ``option``."""
-        from pathlib import Path
+        from gonio.io.outputs import write_text_atomically
 
         try:
-            Path(path).write_text(self.text, encoding="utf-8")
+            write_text_atomically(path, self.text)
         except OSError as exc:
             raise ConfigError.field(option, option.lstrip("-"), str(path), f"cannot write ({exc.strerror or exc})") from None
         return self

@@ -8,11 +8,13 @@ exactly.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from gonio.errors import DataError
+from gonio.io.outputs import written_atomically
 from gonio.samples import SampleSet
 
 __all__ = ["COLUMNS", "write_csv", "read_csv"]
@@ -28,7 +30,7 @@ def write_csv(path, samples: SampleSet) -> Path:
     table = np.column_stack([ti, pi_, to, po, samples.f, samples.sigma,
                              samples.flags, samples.n_pixels, samples.pose])
     try:
-        with open(path, "w", encoding="utf-8", newline="") as fh:
+        with written_atomically(path, "w", encoding="utf-8", newline="") as fh:
             np.savetxt(fh, table, fmt=["%.17g"] * 10 + ["%d"] * 3, delimiter=",",
                        header=",".join(COLUMNS), comments="")
     except OSError as exc:
@@ -48,7 +50,9 @@ def read_csv(path) -> SampleSet:
             missing = [c for c in COLUMNS if c not in header]
             if missing:
                 raise DataError(f"{path}: CSV header lacks column {missing[0]!r}")
-            data = np.loadtxt(fh, delimiter=",", ndmin=2, usecols=[header.index(c) for c in COLUMNS])
+            with warnings.catch_warnings():  # a header without rows is an empty set, said by the caller
+                warnings.filterwarnings("ignore", message="loadtxt: input contained no data")
+                data = np.loadtxt(fh, delimiter=",", ndmin=2, usecols=[header.index(c) for c in COLUMNS])
     except OSError as exc:
         raise DataError(f"{path}: cannot read CSV ({exc.strerror or exc})") from None
     except ValueError as exc:

@@ -231,9 +231,10 @@ def _roughplastic_candidate(model, wi, wo):
     return roughplastic_dict(dec.diffuse, lobe.ks, float(lobe.f0[0]), lobe.alpha, lobe.distribution, wi, wo)
 
 
-def write_mitsuba(model, path, *, approx: bool = False):
+def write_mitsuba(model, path, *, approx: bool = False, option: str = "--mitsuba"):
     """``path`` ending in ``.xml``: the scene-file element; otherwise the dictionary as JSON. Returns the
-    :class:`gonio.io.approx.Exported` (its :meth:`describe` says exact or the error)."""
+    :class:`gonio.io.approx.Exported` (its :meth:`describe` says exact or the error). ``option`` is the
+    command-line option named in a refusal (``--mitsuba`` of gonio fit, ``-o`` of gonio export)."""
     from pathlib import Path
 
-    return mitsuba_export(model, Path(path), approx=approx).write(path, "--mitsuba")
+    return mitsuba_export(model, Path(path), approx=approx, option=option).write(path, option)

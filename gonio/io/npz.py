@@ -106,7 +106,9 @@ def write_npz(path, samples: SampleSet, metadata: Mapping[str, Any], table: Merl
         raise DataError(f"{path}: metadata cannot be written as JSON ({exc})") from None
     arrays["metadata"] = np.array([text])
     try:
-        with open(path, "wb") as fh:
+        from gonio.io.outputs import written_atomically
+
+        with written_atomically(path, "wb") as fh:
             np.savez_compressed(fh, **arrays)
     except OSError as exc:
         raise DataError(f"{path}: cannot write NPZ ({exc.strerror or exc})") from None

@@ -9,11 +9,12 @@ refusal, not 1,093 measured samples overwritten.
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
 from pathlib import Path
 
 from gonio.errors import ConfigError
 
-__all__ = ["check_output", "session_root"]
+__all__ = ["check_output", "check_output_dir", "session_root", "written_atomically", "write_text_atomically"]
 
 def session_root(path: Path) -> Path | None:
     """The session directory ``path`` lies in (the nearest ancestor holding a manifest), if any."""
@@ -23,11 +24,41 @@ def session_root(path: Path) -> Path | None:
     return None
 
 
-def check_output(path, *, option: str, force: bool = False, suffixes: tuple[str, ...] | None = None) -> Path:
+def _input_files(inputs) -> list[Path]:
+    """The files a command reads from ``inputs`` (paths): each file, and a MERL table's sidecar when it
+    has one (:mod:`gonio.io.merl_sidecar`: which cells were filled, not measured)."""
+    from gonio.errors import DataError
+    from gonio.io.merl_sidecar import read_sidecar, sidecar_path
+
+    files = []
+    for i in inputs:
+        q = Path(i).expanduser()
+        files.append(q)
+        if q.suffix.lower() == ".binary":
+            side = sidecar_path(q)
+            try:
+                ours = read_sidecar(side) is not None
+            except DataError:
+                ours = True  # a damaged sidecar is still the table's: not ours to replace
+            if ours:
+                files.append(side)
+    return files
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.realpath(a) == os.path.realpath(b) or (a.exists() and b.exists() and os.path.samefile(a, b))
+    except OSError:
+        return False
+
+
+def check_output(path, *, option: str, force: bool = False, suffixes: tuple[str, ...] | None = None,
+                 inputs=()) -> Path:
     """``path`` if an output may be written there, else a one-line :class:`ConfigError` naming
     ``option``: inside a session directory (its own files or anything else in it: a session directory
-    holds only what gonio measured), an existing file without ``force``, a directory, a file name
-    ending other than ``suffixes``, or a missing parent directory."""
+    holds only what gonio measured), one of the command's ``inputs`` (or a MERL input's sidecar; even
+    with ``force``), an existing file without ``force``, a directory, a file name ending other than
+    ``suffixes``, or a missing parent directory."""
     p = Path(path).expanduser()
     resolved = Path(os.path.realpath(p))  # follow links: a link into a session is still the session's file
     for candidate in (p.absolute(), resolved):
@@ -35,6 +66,11 @@ def check_output(path, *, option: str, force: bool = False, suffixes: tuple[str,
         if root is not None:
             raise ConfigError.field(None, option, str(path), f"is inside the session directory {root}: outputs "
                                     "never go into a session (write it elsewhere)")
+    for q in _input_files(inputs):
+        if _same_file(p, q):
+            what = "an input of this command" if p == q else f"{q}, an input of this command"
+            raise ConfigError.field(None, option, str(path), f"is {what}: an output never replaces what it is "
+                                    "made from (name another file)")
     if suffixes and p.suffix.lower() not in suffixes:
         raise ConfigError.field(None, option, str(path), f"must end in {' or '.join(suffixes)}")
     if p.is_dir():
@@ -44,3 +80,41 @@ def check_output(path, *, option: str, force: bool = False, suffixes: tuple[str,
     if not p.parent.exists():
         raise ConfigError.field(None, option, str(path), f"no such directory {p.parent}")
     return p
+
+
+def check_output_dir(path, *, option: str) -> Path:
+    """``path`` if a directory of outputs (one per source) may be created or used there, else a one-line
+    :class:`ConfigError` naming ``option``: a session directory or anything inside one, or a file."""
+    d = Path(path).expanduser()
+    resolved = Path(os.path.realpath(d))
+    for candidate in (d.absolute(), resolved):
+        root = candidate if (candidate / "manifest.json").is_file() else session_root(candidate)
+        if root is not None:
+            raise ConfigError.field(None, option, str(path), f"is inside the session directory {root}: outputs "
+                                    "never go into a session (write it elsewhere)")
+    if d.exists() and not d.is_dir():
+        raise ConfigError.field(None, option, str(path), "with several sources this must be a directory")
+    return d
+
+
+@contextmanager
+def written_atomically(path, mode: str = "w", **open_kw):
+    """Open a temporary file beside ``path`` for writing; when the block ends normally it is renamed onto
+    ``path`` (``os.replace``: atomic on one file system), else (an error, Ctrl-C) removed. A reader never
+    sees a half-written export (a CSV cut at a line boundary reads as a smaller valid one), and a failed
+    ``--force`` leaves the previous file as it was."""
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, mode, **open_kw) as fh:
+            yield fh
+        os.replace(tmp, p)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_text_atomically(path, text: str) -> None:
+    """``path``'s content replaced by ``text`` (UTF-8) through :func:`written_atomically`."""
+    with written_atomically(path, "w", encoding="utf-8") as fh:
+        fh.write(text)

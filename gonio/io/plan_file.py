@@ -25,13 +25,16 @@ MAX_BYTES = 64 * 2 ** 20
 
 
 def read_plan_file(path, rig):
-    """The :class:`gonio.plan.plan.Plan` in ``path``, validated and solved on ``rig``."""
+    """The :class:`gonio.plan.plan.Plan` in ``path``, validated and solved on ``rig``. ``path`` may also be a
+    session directory or its ``manifest.json``: the session's plan (its ``plan`` field) is measured again."""
     from dataclasses import replace
 
     from gonio.plan.generators import solve_plan_joints
     from gonio.plan.plan import Plan
 
     p = Path(path)
+    if p.is_dir() and (p / "manifest.json").is_file():
+        p = p / "manifest.json"
     try:
         size = p.stat().st_size
         if size > MAX_BYTES:
@@ -50,6 +53,8 @@ def read_plan_file(path, rig):
 
         raise DataError(f"{p}: not a plan file (not JSON: {exc.msg} at line {exc.lineno}); it looks like "
                         f"{describe(p)}") from None
+    if isinstance(data, dict) and "samples_file" in data and isinstance(data.get("plan"), dict):
+        data = data["plan"]  # a session's manifest: the plan it ran (formats.md §5: the same object)
     plan = Plan.from_dict(data, source=str(p))
     if len(plan) == 0:
         raise DataError(f"{p}: the plan has no pose")

@@ -115,6 +115,34 @@ Source = Measured
 _BY_SUFFIX = {".npz": "npz", ".csv": "csv", ".bsdf": "bsdf", ".binary": "merl", ".merl": "merl"}
 
 
+def _warn_if_unfinished(path: Path, manifest: dict, samples) -> None:
+    """A warning (one line through the CLI) when a session did not finish its plan: what is fitted,
+    exported or shown is then a part of the plan, and ``gonio resume`` measures the rest."""
+    import warnings
+
+    from gonio.session.store import missing_poses
+
+    done = len(set(samples.pose.tolist())) if samples is not None and getattr(samples, "pose", None) is not None else None
+    damaged = manifest.get("damaged_records") if isinstance(manifest.get("damaged_records"), list) else []
+    lost = missing_poses(manifest, (done or 0) + len(damaged))
+    if lost:
+        warnings.warn(f"{path}: {lost} pose(s) the manifest counted at its last stop are not in samples.jsonl (a "
+                      "truncated or replaced file?); restore it from a backup, or `gonio resume` measures them "
+                      "again", stacklevel=4)
+        return
+    status = manifest.get("exit_status")
+    if status == "completed":
+        return
+    plan = manifest.get("plan")
+    n_plan = plan.get("n_poses") if isinstance(plan, dict) else None
+    if isinstance(n_plan, int) and not isinstance(n_plan, bool) and done is not None and done >= n_plan:
+        return
+    how = {None: "no exit status: killed, or still running", "interrupted": "interrupted"}.get(status, str(status)[:80])
+    of = f"{done} of {n_plan} poses" if isinstance(n_plan, int) and done is not None else "part of its plan"
+    warnings.warn(f"{path}: the session is not complete ({how}): {of} measured; `gonio resume {path}` "
+                  "measures the rest", stacklevel=4)
+
+
 def load_source(path) -> Measured:
     """Load a session directory or a data file: MERL binary, gonio NPZ or CSV export, RGL ``.bsdf``.
 
@@ -129,6 +157,7 @@ def load_source(path) -> Measured:
         except ImportError:
             raise DataError(f"{p}: cannot read session directories: gonio.session.store is not installed") from None
         manifest, samples = load_session(p)
+        _warn_if_unfinished(p, manifest, samples)
         return Measured(p, "session", dict(manifest), samples, None)
     if not p.exists():
         raise DataError(f"{p}: no such session directory or data file")

@@ -465,11 +465,14 @@ class Rig:
 # -- loading -----------------------------------------------------------------------------------------
 def read_rig_text(path: str | Path | None = None) -> tuple[str, str]:
     """``(text, source)`` of a rig TOML file (a path, or a shipped rig name, as :func:`load_rig`)."""
-    if path is None or (isinstance(path, str) and "/" not in path and not path.endswith(".toml")):
+    if path is None or (isinstance(path, str) and "/" not in path and not path.endswith(".toml")
+                        and not Path(path).is_file()):  # a file of that name is read as the rig file
         name = path or "default"
-        res = resources.files("gonio.rig") / "rigs" / f"{name}.toml"
+        rigs = resources.files("gonio.rig") / "rigs"
+        res = rigs / f"{name}.toml"
         if not res.is_file():
-            raise ConfigError.field(None, "rig", name, "no such shipped rig (see gonio/rig/rigs/)")
+            shipped = sorted(r.name.removesuffix(".toml") for r in rigs.iterdir() if r.name.endswith(".toml"))
+            raise ConfigError.field(None, "rig", name, f"no such file, nor a shipped rig ({', '.join(shipped)})")
         text, src = res.read_text(encoding="utf-8"), f"rigs/{name}.toml"
     else:
         text, src = read_text(path, "--rig"), str(path)

@@ -200,6 +200,10 @@ def _killed_run(manifest: Mapping[str, Any], scan: ScanResult) -> dict | None:
 
 def _read_manifest(d: Path) -> dict:
     path = d / MANIFEST
+    if d.is_file():
+        raise DataError(f"{d}: is a file, not a session directory (the directory gonio measure --out made)")
+    if not d.exists():
+        raise DataError(f"{d}: no such session directory")
     if not path.exists() and not path.is_symlink():
         raise DataError(f"{path}: no session manifest (is {d} a session directory?)")
     data = read_file_nofollow(path, MAX_MANIFEST, "manifest")
@@ -213,6 +217,18 @@ def _read_manifest(d: Path) -> dict:
         got = manifest.get("format") if isinstance(manifest, dict) else type(manifest).__name__
         raise DataError(f"{path}: format = {got!r}: expected a gonio session manifest, format {STORE_FORMAT}")
     return manifest
+
+
+def missing_poses(manifest, present: int) -> int:
+    """Poses the manifest counted at its last stop (``pose_count``) that ``samples.jsonl`` no longer holds,
+    neither as good nor as damaged records nor moved to quarantine by a repair: records lost (a truncated
+    or replaced file). 0 when none are missing or the manifest does not say."""
+    count = manifest.get("pose_count")
+    if isinstance(count, bool) or not isinstance(count, int):
+        return 0
+    repairs = manifest.get("repairs") if isinstance(manifest.get("repairs"), list) else []
+    moved = sum(len(r["quarantined"]) for r in repairs if isinstance(r, dict) and isinstance(r.get("quarantined"), list))
+    return max(0, count - present - moved)
 
 
 def load_session(path) -> tuple[dict, SampleSet]:

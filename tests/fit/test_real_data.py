@@ -261,3 +261,15 @@ def test_free_cores_counts_allowed_cpus_minus_load(monkeypatch):
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0}, raising=False)  # taskset -c 0
     monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))
     assert free_cores() == 1
+
+
+def test_an_error_measure_that_could_not_be_computed_is_said_so_not_printed_as_none():
+    from gonio.fit.result import FitResult
+
+    r = FitResult("lambert", {"albedo": 0.5}, {"albedo": 0.01}, "chi2", 1.0, 0.1, 10, 1,
+                  metrics={"cbrt_rel": 0.2, "image_rel": None})
+    line = next(x for x in r.summary_lines() if x.startswith("  error:"))
+    assert "None" not in line and "image_rel n/a" in line and "too sparse" in line
+    r.metrics["image_rel"] = 0.05
+    line = next(x for x in r.summary_lines() if x.startswith("  error:"))
+    assert "image_rel 0.05" in line and "n/a" not in line

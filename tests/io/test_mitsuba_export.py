@@ -195,3 +195,13 @@ def test_models_without_a_plugin_export_as_the_fitted_closest_with_approx(tmp_pa
     wi, wo = direction_pairs()
     assert relative_error(mitsuba_eval(d, wi, wo), model.eval(wi, wo)) == pytest.approx(ex.error, rel=1e-6)
     assert 0 < ex.error < 0.15 and "gtr has no Mitsuba 3 counterpart" in ex.describe()
+
+
+def test_gonio_export_names_its_own_option_when_it_refuses(tmp_path, capsys):
+    fit = tmp_path / "fit.json"
+    fit.write_text(json.dumps({"model": "microfacet", "params": {"kd": 0.3, "ks": 0.8, "alpha": 0.25, "f0": 0.04,
+                                                                 "distribution": "ggx"}}))
+    assert main(["export", str(fit), "--format", "mitsuba", "-o", str(tmp_path / "m.xml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("gonio export: error: -o: microfacet.f0") and "--mitsuba" not in err[0]
+    assert not (tmp_path / "m.xml").exists()

@@ -32,6 +32,21 @@ def test_measure_runs_the_saved_plan_pose_for_pose(plan_file, tmp_path, capsys):
     assert manifest["exit_status"] == "completed"
     np.testing.assert_array_equal(np.array(manifest["plan"]["poses"]), np.array(saved["poses"]))
     assert set(samples.pose.tolist()) == set(range(saved["n_poses"]))
+    # a session (its directory or manifest) is a plan file too: the same poses measured on the next sample
+    from gonio.io.plan_file import read_plan_file
+    from gonio.rig.kinematics import load_rig
+
+    assert main(["measure", *SIM, "--plan-file", str(d), "--out", str(tmp_path / "again")]) == 0
+    assert f"plan {d}: in_plane, {saved['n_poses']} poses" in capsys.readouterr().out
+    np.testing.assert_array_equal(read_plan_file(d / "manifest.json", load_rig(None)).poses, np.array(saved["poses"]))
+
+
+def test_plan_out_that_exists_is_refused_before_the_plan_is_computed(plan_file, capsys):
+    before = plan_file.read_bytes()
+    assert main(["plan", *PLAN, "--out", str(plan_file)]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and "exists (use --force" in err
+    assert plan_file.read_bytes() == before
 
 
 def _bad(tmp_path, plan_file, edit) -> str:

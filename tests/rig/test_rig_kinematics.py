@@ -138,7 +138,7 @@ def test_trapezoid_profile_formulas_and_move_time():
     assert RIG.move_time(np.zeros((3, 4)), np.tile(b, (3, 1))).shape == (3,)
 
 
-def test_rig_file_errors_name_file_and_field(tmp_path):
+def test_rig_file_errors_name_file_and_field(tmp_path, monkeypatch):
     text = (__import__("importlib.resources").resources.files("gonio.rig") / "rigs" / "default.toml").read_text()
     bad = tmp_path / "bad.toml"
     bad.write_text(text.replace("min_deg = -85.0", "min_deg = 95.0", 1))
@@ -147,8 +147,12 @@ def test_rig_file_errors_name_file_and_field(tmp_path):
     bad.write_text(text.replace("servo_id = 2", "servo_id = 1"))
     with pytest.raises(ConfigError, match="servo_id = 1: used by another joint"):
         load_rig(bad)
-    with pytest.raises(ConfigError, match="no such shipped rig"):
+    with pytest.raises(ConfigError, match=r"no such file, nor a shipped rig \(default, turntable\)"):
         load_rig("nope")
+    named = tmp_path / "myrig"  # a rig file without .toml, given by its name in the working directory
+    named.write_text(text)
+    monkeypatch.chdir(tmp_path)
+    assert load_rig("myrig").name == load_rig(tmp_path / "myrig").name
 
 
 _BAD = [math.nan, math.inf, -math.inf]

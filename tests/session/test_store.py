@@ -205,7 +205,7 @@ def test_one_writer_at_a_time(tmp_path):
 
 
 def test_load_errors_name_the_file(tmp_path):
-    with pytest.raises(DataError, match=r"nothere.*manifest\.json"):
+    with pytest.raises(DataError, match=r"nothere: no such session directory"):
         load_session(tmp_path / "nothere")
     d = make(tmp_path)
     (d / MANIFEST).write_text("{not json")
