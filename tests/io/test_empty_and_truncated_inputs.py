@@ -5,7 +5,6 @@ data are still usable), and nothing written."""
 
 from __future__ import annotations
 
-import json
 import shutil
 import warnings
 
@@ -14,12 +13,6 @@ import pytest
 from gonio.cli.main import main
 
 
-@pytest.fixture(scope="module")
-def session(tmp_path_factory):
-    d = tmp_path_factory.mktemp("sessions") / "s"
-    assert main(["measure", "--sim", "--plan", "in_plane", "--theta-i", "30", "--theta-o-step", "20", "--quiet",
-                 "--out", str(d)]) == 0
-    return d
 
 
 @pytest.fixture

@@ -12,12 +12,6 @@ import pytest
 from gonio.cli.main import main
 
 
-@pytest.fixture(scope="module")
-def session(tmp_path_factory):
-    d = tmp_path_factory.mktemp("out") / "s"
-    assert main(["measure", "--sim", "--plan", "in_plane", "--theta-i", "30", "--theta-o-step", "20", "--quiet",
-                 "--out", str(d)]) == 0
-    return d
 
 
 def _digest(d):

@@ -7,7 +7,7 @@ import pytest
 
 from gonio.brdf import make
 from gonio.errors import DataError
-from gonio.geometry import dirs_from_half_diff, from_spherical, half_diff_from_dirs
+from gonio.geometry import dirs_from_half_diff, from_spherical
 from gonio.io.merl import cell_centres
 from gonio.samples import SATURATED, SampleSet
 from gonio.tabulate import check_isotropy, tabulate
