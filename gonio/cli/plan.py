@@ -274,19 +274,16 @@ def _print_adaptive(args, plan, rig) -> int:
 
 def _write(args, plan) -> None:
     import json
-    import os
 
     from gonio.errors import ConfigError
 
     if args.out:
-        from gonio.io.outputs import check_output
+        from gonio.io.outputs import check_output, write_text_atomically
 
         out = check_output(args.out, option="--out", force=getattr(args, "force", False), suffixes=(".json",))
         data = json.dumps(plan.to_dict()) + "\n"
         try:
-            tmp = out.with_name(f".{out.name}.tmp")
-            tmp.write_text(data, encoding="utf-8")
-            os.replace(tmp, out)
+            write_text_atomically(out, data)
         except OSError as exc:
             raise ConfigError.field("--out", "file", str(out), f"cannot write: {exc.strerror}") from None
         print(f"wrote {out}")

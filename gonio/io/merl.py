@@ -21,7 +21,6 @@ bit); φh is ignored, so a table holds an *isotropic* BRDF.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,6 +29,7 @@ import numpy as np
 from gonio.errors import DataError
 from gonio.geometry import dirs_from_half_diff
 from gonio.io.merl_index import directions_from_angles, half_diff_index, reference_half_diff, reference_index
+from gonio.io.outputs import written_atomically
 from gonio.samples import SampleSet
 
 __all__ = [
@@ -302,13 +302,10 @@ def write_merl(path, table: MerlTable) -> Path:
         raise DataError(f"{path}: cannot write MERL table: {int(np.isinf(values).sum())} values are infinite")
     stored = np.moveaxis(values / SCALE, -1, 0)
     stored = np.where(np.isnan(stored), -1.0, np.maximum(stored, 0.0)).astype("<f8")
-    tmp = path.with_name(path.name + ".tmp")
     try:
-        with open(tmp, "wb") as fh:
+        with written_atomically(path, "wb") as fh:
             fh.write(_HEADER.tobytes())
             fh.write(np.ascontiguousarray(stored).tobytes())
-        os.replace(tmp, path)
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
         raise DataError(f"{path}: cannot write MERL file ({exc.strerror or exc})") from None
     return path

@@ -17,13 +17,13 @@ fit as measurements (:meth:`gonio.io.source.Measured.to_samples`), so a refit is
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 
 from gonio.errors import DataError
 from gonio.io.merl import N_CELLS, SHAPE, MerlTable
+from gonio.io.outputs import write_text_atomically
 
 __all__ = ["FORMAT", "sidecar_path", "build_sidecar", "write_sidecar", "read_sidecar", "filled_mask"]
 
@@ -77,12 +77,9 @@ def build_sidecar(table: MerlTable, *, source: str, tabulation=None, manifest: d
 def write_sidecar(path, content: dict) -> Path:
     """Write ``content`` as JSON (to a temporary name, then renamed); returns the path."""
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
     try:
-        tmp.write_text(json.dumps(content, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
-        os.replace(tmp, path)
+        write_text_atomically(path, json.dumps(content, indent=1, ensure_ascii=False) + "\n")
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
         raise DataError(f"{path}: cannot write the MERL sidecar ({exc.strerror or exc})") from None
     return path
 

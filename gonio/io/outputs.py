@@ -24,6 +24,16 @@ def session_root(path: Path) -> Path | None:
     return None
 
 
+def _refuse_in_session(p: Path, given, option: str, root_of) -> None:
+    """A one-line :class:`ConfigError` naming ``option`` if ``root_of`` finds a session directory for
+    ``p`` as given or with links followed (a link into a session is still the session's file)."""
+    for candidate in (p.absolute(), Path(os.path.realpath(p))):
+        root = root_of(candidate)
+        if root is not None:
+            raise ConfigError.field(None, option, str(given), f"is inside the session directory {root}: outputs "
+                                    "never go into a session (write it elsewhere)")
+
+
 def _input_files(inputs) -> list[Path]:
     """The files a command reads from ``inputs`` (paths): each file, and a MERL table's sidecar when it
     has one (:mod:`gonio.io.merl_sidecar`: which cells were filled, not measured)."""
@@ -60,12 +70,7 @@ def check_output(path, *, option: str, force: bool = False, suffixes: tuple[str,
     with ``force``), an existing file without ``force``, a directory, a file name ending other than
     ``suffixes``, or a missing parent directory."""
     p = Path(path).expanduser()
-    resolved = Path(os.path.realpath(p))  # follow links: a link into a session is still the session's file
-    for candidate in (p.absolute(), resolved):
-        root = session_root(candidate)
-        if root is not None:
-            raise ConfigError.field(None, option, str(path), f"is inside the session directory {root}: outputs "
-                                    "never go into a session (write it elsewhere)")
+    _refuse_in_session(p, path, option, session_root)
     for q in _input_files(inputs):
         if _same_file(p, q):
             what = "an input of this command" if p == q else f"{q}, an input of this command"
@@ -86,12 +91,7 @@ def check_output_dir(path, *, option: str) -> Path:
     """``path`` if a directory of outputs (one per source) may be created or used there, else a one-line
     :class:`ConfigError` naming ``option``: a session directory or anything inside one, or a file."""
     d = Path(path).expanduser()
-    resolved = Path(os.path.realpath(d))
-    for candidate in (d.absolute(), resolved):
-        root = candidate if (candidate / "manifest.json").is_file() else session_root(candidate)
-        if root is not None:
-            raise ConfigError.field(None, option, str(path), f"is inside the session directory {root}: outputs "
-                                    "never go into a session (write it elsewhere)")
+    _refuse_in_session(d, path, option, lambda c: c if (c / "manifest.json").is_file() else session_root(c))
     if d.exists() and not d.is_dir():
         raise ConfigError.field(None, option, str(path), "with several sources this must be a directory")
     return d
