@@ -95,7 +95,7 @@ def run_calibration_session(store, plan, devices, calibration, layout, *, before
                             resume_cmd: str) -> int:
     """Run (or resume) the calibration session in ``store``; when every pose is done, estimate and write the
     calibrated rig file the manifest names (``geocal.out``). Called by ``gonio measure``'s session code."""
-    from gonio.session.geocal_session import CalibrationRunner, finish_calibration
+    from gonio.session.geocal_session import CalibrationRunner
     from gonio.session.runner import format_lab_time
 
     runner = CalibrationRunner(plan, store, devices, calibration, layout, before_pose=before_pose,
@@ -114,10 +114,17 @@ def run_calibration_session(store, plan, devices, calibration, layout, *, before
     g = store.manifest["geocal"]
     if "check" in g:
         return report_check(store.directory, devices.rig, store.manifest)
-    res, refused = finish_calibration(store.directory, devices.rig, store.manifest["rig"]["toml"], g["out"],
-                                      note=g.get("note", ""))
+    return _write_calibrated(store.directory, devices.rig, store.manifest, g["out"])
+
+
+def _write_calibrated(directory, rig, manifest, out) -> int:
+    """Estimate the geometry from the session's records, write the calibrated rig file ``out``, print both."""
+    from gonio.session.geocal_session import finish_calibration
+
+    res, refused = finish_calibration(directory, rig, manifest["rig"]["toml"], out,
+                                      note=manifest["geocal"].get("note", ""))
     print_result(res, refused)
-    print(f"wrote {g['out']} (use it with: gonio measure --rig {g['out']})")
+    print(f"wrote {out} (use it with: gonio measure --rig {out})")
     return 0
 
 
@@ -176,7 +183,6 @@ def finish_from_directory(d, manifest, *, rig_file=None) -> int:
     from pathlib import Path
 
     from gonio.cli.measure import _manifest_rig
-    from gonio.session.geocal_session import finish_calibration
     from gonio.session.store import MANIFEST
 
     if "check" in manifest["geocal"]:
@@ -185,11 +191,7 @@ def finish_from_directory(d, manifest, *, rig_file=None) -> int:
     if out.exists():
         print(f"{d}: the calibrated rig file {out} is written; nothing to do")
         return 0
-    rig = _manifest_rig(manifest, str(Path(d) / MANIFEST), rig_file)
-    res, refused = finish_calibration(d, rig, manifest["rig"]["toml"], out, note=manifest["geocal"].get("note", ""))
-    print_result(res, refused)
-    print(f"wrote {out} (use it with: gonio measure --rig {out})")
-    return 0
+    return _write_calibrated(d, _manifest_rig(manifest, str(Path(d) / MANIFEST), rig_file), manifest, out)
 
 
 def _new_session(args, rig, text, src, plan, check: dict | None = None) -> int:
@@ -265,6 +267,8 @@ def run(args) -> int:
                           "(or --sim for the simulated rig)")
     text, src = read_rig_text(args.rig or "default")
     rig = load_rig(text=text, source=src)
+    if rig.layout != "arms":
+        raise ConfigError(f"{src}: layout {rig.layout!r}: the calibration plan supports the 'arms' layout only")
     if args.calibrate_command == "rig":
         from gonio.session.geocal_session import calibration_lab_time, calibration_session_plan
         from gonio.session.runner import format_lab_time
@@ -273,8 +277,6 @@ def run(args) -> int:
             _hardware_needs(args, "rig")
         if rig.geometry_errors is not None:
             raise ConfigError(f"{src}: already calibrated ([calibration] table): calibrate from the declared rig file")
-        if rig.layout != "arms":
-            raise ConfigError(f"{src}: layout {rig.layout!r}: the calibration plan supports the 'arms' layout only")
         plan = calibration_session_plan(rig, quick=args.quick)
         kinds = plan.params["kinds"]
         lab = calibration_lab_time(plan, rig)
@@ -292,8 +294,6 @@ def run(args) -> int:
 
     threshold = _threshold(args.threshold, "--threshold")
     _hardware_needs(args, "check")
-    if rig.layout != "arms":
-        raise ConfigError(f"{src}: layout {rig.layout!r}: the calibration plan supports the 'arms' layout only")
     plan = check_session_plan(rig)
     kinds = plan.params["kinds"]
     print(f"check plan: {kinds.count('camera')} ChArUco poses + {kinds.count('highlight')} highlight poses (the "
