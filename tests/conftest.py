@@ -26,7 +26,9 @@ def pytest_addoption(parser):
 # -- scheduling on the cores (pytest-xdist, `-n 2 --dist loadgroup` in addopts) -------------------------
 #: Modules whose module-scoped fixture is most of their cost (a whole `gonio bench --quick`, a simulated
 #: session, a browser): all their tests run on one worker (an ``xdist_group``), so the fixture runs once
-#: instead of once per worker that happens to receive one of them.
+#: instead of once per worker that happens to receive one of them. Every other module whose tests use a
+#: module-scoped fixture (a simulated session, MERL tables, a compiled codec, ...) is grouped the same way
+#: (:func:`_uses_a_module_fixture`); this list names the ones that must stay grouped whatever their fixtures.
 SHARED_FIXTURE_MODULES = (
     "tests/test_bench_cli.py",
     "tests/rig/test_rig_kinematics_turntable_session.py",
@@ -34,6 +36,15 @@ SHARED_FIXTURE_MODULES = (
     "tests/test_end_to_end.py",
     "tests/rig/test_camera_cli.py",
 )
+
+
+def _uses_a_module_fixture(item) -> bool:
+    """Whether ``item`` uses a module-scoped fixture (its own module's or a conftest's, e.g. tests/io's
+    session): a module-scoped fixture runs once per worker that receives one of the module's tests."""
+    info = getattr(item, "_fixtureinfo", None)
+    if info is None:
+        return False
+    return any(defs and defs[-1].scope == "module" for defs in info.name2fixturedefs.values())
 #: The most expensive modules (tens of seconds each on a 2-core machine), most expensive first. They are
 #: handed out first (longest processing time first: Graham, "Bounds on multiprocessing timing anomalies",
 #: 1969): started last, one of them keeps a worker busy while the other has nothing left to do. Only the
@@ -68,7 +79,8 @@ def pytest_collection_modifyitems(config, items):
     def module(item) -> str:
         return item.nodeid.split("::", 1)[0]
 
+    grouped = {module(item) for item in items if module(item) in SHARED_FIXTURE_MODULES or _uses_a_module_fixture(item)}
     for item in items:
-        if module(item) in SHARED_FIXTURE_MODULES:
+        if module(item) in grouped:
             item.add_marker(pytest.mark.xdist_group(module(item)))
     items.sort(key=lambda item: rank.get(module(item), len(SLOW_FIRST)))  # stable: the rest keeps its order
