@@ -7,6 +7,7 @@ Tests that need real hardware are opt-in: ``pytest --port /dev/ttyUSB0`` (servo 
 from __future__ import annotations
 
 import os
+import shutil
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -16,6 +17,35 @@ settings.register_profile(
 )
 settings.register_profile("dev", max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("ci" if os.environ.get("CI") else os.environ.get("HYPOTHESIS_PROFILE", "dev"))
+
+
+#: `gonio measure --sim` arguments of the small in-plane session (θi = 30°, θo every 20°) that the I/O,
+#: report and untrusted-session tests start from.
+SMALL_SESSION = ["--plan", "in_plane", "--theta-i", "30", "--theta-o-step", "20", "--quiet"]
+
+
+@pytest.fixture(scope="session")
+def small_session_measured(tmp_path_factory):
+    """The small in-plane session, measured once per test run (per xdist worker). Read-only: a test that
+    damages or extends a session takes :func:`copy_small_session`'s copy."""
+    from gonio.cli.main import main
+
+    d = tmp_path_factory.mktemp("small-session") / "s"
+    assert main(["measure", "--sim", *SMALL_SESSION, "--out", str(d)]) == 0
+    return d
+
+
+@pytest.fixture(scope="session")
+def copy_small_session(small_session_measured):
+    """``copy_small_session(dest)``: a private copy of the small session at ``dest`` (returned): the samples
+    and manifest of measuring it again with the same arguments (the simulator is seeded), except that the
+    manifest's recorded command names the directory it was measured in."""
+
+    def copy(dest):
+        shutil.copytree(small_session_measured, dest)
+        return dest
+
+    return copy
 
 
 def pytest_addoption(parser):

@@ -4,14 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from gonio.cli.main import main
-
 
 @pytest.fixture(scope="module")
-def session(tmp_path_factory):
-    """A small simulated in-plane session (θi = 30°, θo every 20°), one per test module: the module's
-    tests may damage or extend it."""
-    d = tmp_path_factory.mktemp("sessions") / "s"
-    assert main(["measure", "--sim", "--plan", "in_plane", "--theta-i", "30", "--theta-o-step", "20", "--quiet",
-                 "--out", str(d)]) == 0
-    return d
+def session(tmp_path_factory, copy_small_session):
+    """A small simulated in-plane session (θi = 30°, θo every 20°), one copy per test module of the one
+    measured per run (tests/conftest.py): the module's tests may damage or extend it."""
+    return copy_small_session(tmp_path_factory.mktemp("sessions") / "s")

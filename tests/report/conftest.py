@@ -40,11 +40,9 @@ def cells():
 
 
 @pytest.fixture(scope="session")
-def inputs(tmp_path_factory, cells):
+def inputs(tmp_path_factory, cells, copy_small_session):
     d = tmp_path_factory.mktemp("report")
-    session = d / "session"
-    assert main(["measure", "--sim", "--plan", "in_plane", "--theta-i", "30", "--theta-o-step", "20", "--quiet",
-                 "--out", str(session)]) == 0
+    session = copy_small_session(d / "session")  # the small in-plane session (tests/conftest.py)
     wi, wo, _ = cells
     v = make("microfacet", kd=0.2, ks=0.6, alpha=0.2, f0=0.9).eval(wi, wo)
     v[(wi[..., 2] <= 0) | (wo[..., 2] <= 0)] = np.nan

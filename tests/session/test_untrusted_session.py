@@ -20,16 +20,16 @@ from gonio.cli.main import main
 from gonio.session.records import encode_record
 from gonio.session.store import load_session
 from gonio.samples import SampleSet
+from tests.conftest import SMALL_SESSION
 
 REPO = Path(__file__).resolve().parents[2]
-SMALL = ["--plan", "in_plane", "--theta-i", "30", "--theta-o-step", "20", "--quiet"]
+SMALL = SMALL_SESSION  # the small in-plane session
 
 
 @pytest.fixture(scope="module")
-def pristine(tmp_path_factory):
-    d = tmp_path_factory.mktemp("u") / "s"
-    assert main(["measure", "--sim", *SMALL, "--out", str(d)]) == 0
-    return d
+def pristine(tmp_path_factory, copy_small_session):
+    """The small in-plane session (tests/conftest.py: ``measure --sim`` with SMALL)."""
+    return copy_small_session(tmp_path_factory.mktemp("u") / "s")
 
 
 @pytest.fixture
