@@ -9,8 +9,16 @@ from __future__ import annotations
 import os
 import shutil
 
-import pytest
-from hypothesis import HealthCheck, settings
+# One BLAS/OpenMP thread per process, set before anything imports numpy (the xdist workers import this file
+# first): the suite runs one worker per core (`-n 2` in addopts), so a second BLAS thread in each worker
+# only contends for the other worker's core; OpenBLAS's threads spin while they wait, which cost about a
+# quarter of the CPU time of the fit- and session-heavy tests. The `gonio` processes the tests start inherit
+# it. A value set by the caller is kept.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import pytest  # noqa: E402
+from hypothesis import HealthCheck, settings  # noqa: E402
 
 settings.register_profile(
     "ci", max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True
