@@ -83,22 +83,31 @@ def _uses_a_module_fixture(item) -> bool:
     if info is None:
         return False
     return any(defs and defs[-1].scope == "module" for defs in info.name2fixturedefs.values())
-#: The most expensive modules (tens of seconds each on a 2-core machine), most expensive first. They are
-#: handed out first (longest processing time first: Graham, "Bounds on multiprocessing timing anomalies",
-#: 1969): started last, one of them keeps a worker busy while the other has nothing left to do. Only the
-#: order changes; every test still runs.
+#: The most expensive modules (seconds of wall time each on a 2-core machine: a grouped module's whole group,
+#: or single tests of several seconds), most expensive first. They are handed out first (longest processing
+#: time first: Graham, "Bounds on multiprocessing timing anomalies", 1969): started last, one of them keeps
+#: a worker busy while the other has nothing left to do. Measured with one BLAS thread per worker; only the
+#: order changes, every test still runs.
 SLOW_FIRST = (
     "tests/test_bench_cli.py",
     "tests/session/test_adaptive_session.py",
     "tests/session/test_reliability.py",
-    "tests/fit/test_select.py",
-    "tests/api/test_api.py",
     "tests/session/test_robust_session.py",
+    "tests/report/test_render_and_report.py",
+    "tests/rig/test_servo_hardening.py",
+    "tests/test_end_to_end.py",
+    "tests/rig/test_aravis.py",
+    "tests/session/test_lab_time_estimate.py",
+    "tests/io/test_exports_and_plots.py",
     "tests/api/test_batch.py",
     "tests/session/test_frame_faults.py",
-    "tests/session/test_lab_time_estimate.py",
-    "tests/report/test_render_and_report.py",
     "tests/fit/test_real_data.py",
+    "tests/api/test_api.py",
+    "tests/pipeline/test_tilted_sample.py",
+    "tests/rig/test_geocal.py",
+    "tests/io/test_read_back_and_sniff.py",
+    "tests/protocol/test_controller_pty.py",
+    "tests/fit/test_select.py",
     "tests/rig/test_rig_kinematics_turntable_session.py",
 )
 
