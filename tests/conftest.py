@@ -10,9 +10,9 @@ import os
 import shutil
 
 # One BLAS/OpenMP thread per process, set before anything imports numpy (the xdist workers import this file
-# first): the suite runs one worker per core (`-n 2` in addopts), so a second BLAS thread in each worker
-# only contends for the other worker's core; OpenBLAS's threads spin while they wait, which cost about a
-# quarter of the CPU time of the fit- and session-heavy tests. The `gonio` processes the tests start inherit
+# first): the suite runs at least one worker per core (`-n 3` in addopts on 2 cores), so a second BLAS thread
+# in each worker only contends for another worker's core; OpenBLAS's threads spin while they wait, which cost
+# about a quarter of the CPU time of the fit- and session-heavy tests. The `gonio` processes the tests start inherit
 # it. A value set by the caller is kept.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
@@ -61,7 +61,7 @@ def pytest_addoption(parser):
     parser.addoption("--controller-port", default=None, help="serial port of a real rig controller")
 
 
-# -- scheduling on the cores (pytest-xdist, `-n 2 --dist loadgroup` in addopts) -------------------------
+# -- scheduling on the cores (pytest-xdist, `-n 3 --dist loadgroup` in addopts) -------------------------
 #: Modules whose module-scoped fixture is most of their cost (a whole `gonio bench --quick`, a simulated
 #: session, a browser): all their tests run on one worker (an ``xdist_group``), so the fixture runs once
 #: instead of once per worker that happens to receive one of them. Every other module whose tests use a
