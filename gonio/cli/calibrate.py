@@ -87,6 +87,12 @@ def print_result(res, refused=()) -> None:
     print("  residual RMS: " + ", ".join(f"{k} {v:.3g}" for k, v in res.rms.items())
           + f"; {res.n_observations['camera']} board poses, {res.n_observations['highlight']} highlights; "
           f"least squares started from the {res.start} geometry")
+    n = res.noise
+    if n:
+        print(f"  noise (estimated from the residuals): joints {n['joint_sigma_deg']:.3g}° rms; stated σ × "
+              f"{n['scale_board_frontal']:.2f} (board, frontal), × {n['scale_board_oblique']:.2f} (board, oblique), "
+              f"× {n['scale_highlight']:.2f} (highlight); χ²/n " + ", ".join(
+                  f"{k[4:]} {v:.2f}" for k, v in n.items() if k.startswith("chi2_")))
     if refused:
         print(f"  {len(refused)} poses without a highlight or a board pose, e.g. pose {refused[0][0]}: {refused[0][1]}")
 
