@@ -92,7 +92,7 @@ def print_result(res, refused=()) -> None:
         print(f"  noise (estimated from the residuals): joints {n['joint_sigma_deg']:.3g}° rms; stated σ × "
               f"{n['scale_board_frontal']:.2f} (board, frontal), × {n['scale_board_oblique']:.2f} (board, oblique), "
               f"× {n['scale_highlight']:.2f} (highlight); χ²/n " + ", ".join(
-                  f"{k[4:]} {v:.2f}" for k, v in n.items() if k.startswith("chi2_")))
+                  f"{k[5:].replace('_', ' ')} {v:.2f}" for k, v in n.items() if k.startswith("chi2_")))
     if refused:
         print(f"  {len(refused)} poses without a highlight or a board pose, e.g. pose {refused[0][0]}: {refused[0][1]}")
 

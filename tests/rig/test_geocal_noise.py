@@ -75,3 +75,12 @@ def test_the_truth_is_within_the_stated_uncertainty(fit):
     z = np.array([abs(v - t) / s for (_, v, s, unit), t in zip(res.table(), ab.errors.folded().vector())
                   if not unit.startswith("not")])
     assert len(z) == 25 and np.max(z) < 4.0 and np.sqrt(np.mean(z ** 2)) < 1.5
+
+
+def test_the_estimated_noise_is_printed(fit, capsys):
+    from gonio.cli.calibrate import print_result
+
+    *_, res = fit
+    print_result(res)
+    line = [x for x in capsys.readouterr().out.splitlines() if "noise (estimated from the residuals)" in x]
+    assert len(line) == 1 and f"joints {res.noise['joint_sigma_deg']:.3g}° rms" in line[0] and "χ²/n board frontal " in line[0]
