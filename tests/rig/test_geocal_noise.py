@@ -71,7 +71,7 @@ def test_the_variance_components_and_chi2_come_back(fit):
 
 
 def test_the_truth_is_within_the_stated_uncertainty(fit):
-    rig, ab, cams, highs, res = fit
+    _, ab, _, _, res = fit
     z = np.array([abs(v - t) / s for (_, v, s, unit), t in zip(res.table(), ab.errors.folded().vector())
                   if not unit.startswith("not")])
     assert len(z) == 25 and np.max(z) < 4.0 and np.sqrt(np.mean(z ** 2)) < 1.5
