@@ -89,9 +89,12 @@ def print_result(res, refused=()) -> None:
           f"least squares started from the {res.start} geometry")
     n = res.noise
     if n:
-        print(f"  noise (estimated from the residuals): joints {n['joint_sigma_deg']:.3g}° rms; stated σ × "
-              f"{n['scale_board_frontal']:.2f} (board, frontal), × {n['scale_board_oblique']:.2f} (board, oblique), "
-              f"× {n['scale_highlight']:.2f} (highlight); χ²/n " + ", ".join(
+        def scale(k):  # a variance component at its bound (0) is said so
+            return f"× {n[k]:.2f}" if n[k] >= 0.01 else "× 0 (the joints' scatter accounts for all of it)"
+
+        print(f"  noise (estimated from the residuals): joints {n['joint_sigma_deg']:.3g}° rms; stated σ: board "
+              f"frontal {scale('scale_board_frontal')}, board oblique {scale('scale_board_oblique')}, highlight "
+              f"{scale('scale_highlight')}; χ²/n " + ", ".join(
                   f"{k[5:].replace('_', ' ')} {v:.2f}" for k, v in n.items() if k.startswith("chi2_")))
     if refused:
         print(f"  {len(refused)} poses without a highlight or a board pose, e.g. pose {refused[0][0]}: {refused[0][1]}")
