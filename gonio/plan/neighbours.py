@@ -190,18 +190,26 @@ def _boruvka(q: np.ndarray, model, idx: np.ndarray, dist: np.ndarray, tick) -> f
         roots = np.unique(lab)
         unresolved = roots[comp_best[roots] > bound[roots]]
         edges_u, edges_v, edges_w = [], [], []
-        # resolved components: the row that reached comp_best
-        at = has & (cd <= comp_best[lab]) & ~np.isin(lab, unresolved)
-        sel = np.flatnonzero(at)
+        # every component's cheapest listed edge: the row that reached comp_best
+        sel = np.flatnonzero(has & (cd <= comp_best[lab]))
         _, first_of = np.unique(lab[sel], return_index=True)
         sel = sel[first_of]
-        edges_u.append(sel)
-        edges_v.append(cv[sel])
-        edges_w.append(cd[sel])
+        open_ = np.zeros(n, bool)
+        open_[unresolved] = True
+        done = ~open_[lab[sel]]  # resolved: the listed edge is the cheapest
+        edges_u.append(sel[done])
+        edges_v.append(cv[sel[done]])
+        edges_w.append(cd[sel[done]])
         if unresolved.size:
             if shared is None:
                 shared = (_tree(q, model, q), _scaled_like(q, q, model))
-            eu, ev, ew = _outgoing(q, model, lab, unresolved, *shared, 2 * idx.shape[1] + 2)
+            # unresolved: only members none of whose listed neighbours leaves the component and whose
+            # unlisted ones (≥ rk) may beat the listed edge can hold a cheaper one (a member with an
+            # outside neighbour listed has its nearest outside pose listed: the lists are exact)
+            members = np.flatnonzero(open_[lab] & ~has & (rk < comp_best[lab]))
+            seed = sel[~done]
+            eu, ev, ew = _outgoing(q, model, lab, unresolved, *shared, 2 * idx.shape[1] + 2, members=members,
+                                   seed=(seed, cv[seed], cd[seed]))
             edges_u.append(eu)
             edges_v.append(ev)
             edges_w.append(ew)
@@ -232,11 +240,13 @@ def _radius(model, w: float) -> float:
 
 
 def _outgoing(q: np.ndarray, model, lab: np.ndarray, comps: np.ndarray, tree, sq: np.ndarray, k0: int,
-              kmax: int = 64, chunk: int = 4096):
+              kmax: int = 64, chunk: int = 4096, members: np.ndarray | None = None, seed=None):
     """The cheapest edge from each component in ``comps`` (labels ``lab``) to another component, exactly:
     ``(u, v, w)`` arrays, one edge per component.
 
-    Every member is queried in the k-d tree over all poses for its ``kk`` nearest (kk doubling): its
+    ``members``: the poses that may hold a cheaper edge than ``seed`` (``(u, v, w)`` arrays of known
+    edges out of some of the components; default: every member of ``comps``, no known edge). Every
+    member is queried in the k-d tree over all poses for its ``kk`` nearest (kk doubling): its
     nearest pose of another component is exact once found at a time ≤ the floor of the last returned
     distance (module docstring); a member stops early when that floor already reaches its component's
     cheapest edge so far (it cannot beat it). Members still open at ``kk > kmax`` (deep inside a large
@@ -253,7 +263,9 @@ def _outgoing(q: np.ndarray, model, lab: np.ndarray, comps: np.ndarray, tree, sq
         u, v, w = u[better], v[better], w[better]
         comp_w[lab[u]], comp_u[lab[u]], comp_v[lab[u]] = w, u, v
 
-    todo = np.flatnonzero(np.isin(lab, comps))
+    if seed is not None and seed[0].size:
+        offer(*(np.asarray(a) for a in seed))
+    todo = np.flatnonzero(np.isin(lab, comps)) if members is None else np.asarray(members, dtype=np.int64)
     kk = min(n, k0)
     while todo.size and kk <= kmax:
         keep = []
