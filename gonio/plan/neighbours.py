@@ -299,8 +299,16 @@ def _outgoing(q: np.ndarray, model, lab: np.ndarray, comps: np.ndarray, tree, sq
         # only within the radius where an edge could beat the component's best so far
         members = todo[lab[todo] == c]
         others = np.flatnonzero(lab != c)
-        sub = _tree(q[others], model, q)
         r = _radius(model, comp_w[c])
+        if np.isfinite(r) and not model.wrap.any():
+            # only poses within r of the members' bounding box can beat the best so far (a move to one
+            # farther away takes longer, see _radius): on dense grids a small part of the others
+            ms = sq[members]
+            so = sq[others]
+            others = others[np.all((so >= ms.min(axis=0) - r) & (so <= ms.max(axis=0) + r), axis=1)]
+            if not others.size:
+                continue
+        sub = _tree(q[others], model, q)
         kq = min(others.size, 8)
         cheb, j = sub.query(sq[members], k=kq, p=np.inf, distance_upper_bound=r)
         cheb, j = cheb.reshape(members.size, kq), j.reshape(members.size, kq)

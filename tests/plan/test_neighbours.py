@@ -102,6 +102,11 @@ def test_cheapest_outgoing_edges_by_both_paths(rig_model, kind):
     u, v, w = nb._outgoing(q, model, lab, comps, tree, sq, 26, members=np.flatnonzero(lab == comps[0]),
                            seed=(u0, v0, w0))
     np.testing.assert_allclose(w, [expect[0], *w0[1:]], rtol=1e-12)
+    # the radius search alone from a finite best (without wrap joints it searches only the poses near the
+    # members' bounding box): still the cheapest edges
+    u, v, w = nb._outgoing(q, model, lab, comps, tree, sq, 26, kmax=0, seed=(u0, v0, w0))
+    np.testing.assert_allclose(w, expect, rtol=1e-12)
+    np.testing.assert_allclose(model.move_time(q[u], q[v]), w, rtol=1e-12)
 
 
 @pytest.mark.parametrize("kind", sorted(MODELS))
