@@ -74,8 +74,9 @@ wall, cpu = time.perf_counter() - t0, time.process_time() - c0
 s = load_session(out)[1]
 digest = hashlib.sha256(b"".join(np.ascontiguousarray(getattr(s, k)).tobytes()
                                  for k in ("f", "sigma", "wi", "wo", "flags"))).hexdigest()
+frames = sum(t.get("frames", 0) for t in getattr(result, "timings", []) or [])
 print(json.dumps({"poses": len(plan), "lab": result.lab_time, "wall": wall, "cpu": cpu, "samples": len(s),
-                  "digest": digest, "retries": getattr(result, "retries", 0)}))
+                  "digest": digest, "retries": getattr(result, "retries", 0), "frames": frames}))
 """
 
 
@@ -107,6 +108,7 @@ def run(quick: bool = False) -> list[Table]:
     t = Table("simulator speed: simulated lab time / wall time of whole `gonio measure --sim` sessions, this tree vs "
               f"baseline {rev}",
               ["plan", "poses", "code", "lab s", "wall s", "CPU s", "lab/wall (× real time)", "wall ms/pose",
+               "camera frames/pose",
                "speed-up vs baseline (wall/pose)", "CPU vs baseline", "× real time vs baseline", "pose retries",
                "same samples as baseline"],
               baseline=0 if rev != "none" else None)
@@ -125,6 +127,7 @@ def run(quick: bool = False) -> list[Table]:
                     continue
                 speed = r["lab"] / r["wall"]
                 t.add(label, r["poses"], code, r["lab"], r["wall"], r["cpu"], speed, 1e3 * r["wall"] / r["poses"],
+                      r.get("frames", 0) / r["poses"] if r.get("frames") else float("nan"),
                       ref["wall"] / r["wall"] if ref else float("nan"),
                       r["cpu"] / ref["cpu"] if ref else float("nan"),
                       speed / (ref["lab"] / ref["wall"]) if ref else float("nan"), r["retries"],
@@ -142,7 +145,8 @@ def run(quick: bool = False) -> list[Table]:
                        + f"; issue 17's goal ≥ {GOAL_X_REAL_TIME:.0f}×: {'met' if speed >= GOAL_X_REAL_TIME else 'not met'}")
     t.notes.append("wall and CPU: from the emulators' start to the end of the session (opening the devices, darks, "
                    "warm-up, every pose, the store's writes), not the interpreter's start-up; CPU counts every "
-                   "thread of the process (host code and emulators). Same samples: SHA-256 of the samples' "
+                   "thread of the process (host code and emulators). Camera frames per pose: the poses' frames (metering, "
+                   "re-metering and bracket; not the dark sets), each one capture and one photodiode reading. Same samples: SHA-256 of the samples' "
                    "f, σ, wi, wo and flags. A pose retried after a transient real-time timeout (a loaded machine) "
                    "changes the lab time and the samples of both trees alike.")
     return [t]

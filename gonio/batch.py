@@ -129,8 +129,14 @@ def run_batch(fn: Callable[[str, dict], dict], sources: Sequence[Path | str], op
     rows: list[dict | None] = [None] * len(names)
     with _one_thread_workers(), ProcessPoolExecutor(max_workers=jobs, mp_context=_spawn()) as pool:
         futures = {pool.submit(_guarded, fn, s, options): k for k, s in enumerate(names)}
-        for fut in progress(as_completed(futures), total=len(futures), desc=desc, unit="source"):
-            rows[futures[fut]] = fut.result()
+        try:
+            for fut in progress(as_completed(futures), total=len(futures), desc=desc, unit="source"):
+                rows[futures[fut]] = fut.result()
+        except BaseException:
+            # Ctrl-C (or any error here): no source not yet started is started; the ones running finish
+            # (their outputs are written atomically) before this returns, so no worker writes afterwards.
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
     return rows  # type: ignore[return-value]
 
 

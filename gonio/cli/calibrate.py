@@ -87,6 +87,15 @@ def print_result(res, refused=()) -> None:
     print("  residual RMS: " + ", ".join(f"{k} {v:.3g}" for k, v in res.rms.items())
           + f"; {res.n_observations['camera']} board poses, {res.n_observations['highlight']} highlights; "
           f"least squares started from the {res.start} geometry")
+    n = res.noise
+    if n:
+        def scale(k):  # a variance component at its bound (0) is said so
+            return f"× {n[k]:.2f}" if n[k] >= 0.01 else "× 0 (the joints' scatter accounts for all of it)"
+
+        print(f"  noise (estimated from the residuals): joints {n['joint_sigma_deg']:.3g}° rms; stated σ: board "
+              f"frontal {scale('scale_board_frontal')}, board oblique {scale('scale_board_oblique')}, highlight "
+              f"{scale('scale_highlight')}; χ²/n " + ", ".join(
+                  f"{k[5:].replace('_', ' ')} {v:.2f}" for k, v in n.items() if k.startswith("chi2_")))
     if refused:
         print(f"  {len(refused)} poses without a highlight or a board pose, e.g. pose {refused[0][0]}: {refused[0][1]}")
 

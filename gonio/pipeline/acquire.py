@@ -26,6 +26,14 @@ from gonio.samples import SampleSet
 __all__ = ["PipelineSettings", "PoseResult", "BoardNotFound", "Pipeline"]
 
 
+#: A metering frame whose ChArUco search failed is taken again at another exposure only if that exposure
+#: differs from this one by at least this factor. The detector sees :func:`~gonio.pipeline.markers.to_gray8`'s
+#: image, stretched to the frame's 99th percentile, so a closer exposure shows the board with the same
+#: contrast and at most √1.5 ≈ 1.22× the shot-noise SNR: not a better view, a reshoot hoping for luckier noise
+#: (the frames and the lab time of up to ``meter_tries`` such reshoots at a pose whose board is out of sight).
+BOARD_REMETER_FACTOR = 1.5
+
+
 class BoardNotFound(HardwareError):
     """The ChArUco board is not visible and no kinematic camera pose was given."""
 
@@ -195,7 +203,7 @@ class Pipeline:
             if hi >= (1 - SATURATION_MARGIN) * rng:
                 factor = 1 / 8
             t_new = float(np.clip(t * factor, st.exposure.min_exposure, st.exposure.max_exposure))
-            if abs(t_new - t) <= 1e-3 * t:  # no other exposure to try: this frame's (failed) search stands
+            if max(t_new / t, t / t_new) < BOARD_REMETER_FACTOR:  # exposed as wanted: this (failed) search stands
                 break
             t = t_new
             frame, px, level, _ = self._grab(t, gain, meter=True)

@@ -17,6 +17,8 @@ frames, which the metering put in range, get every check.
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from gonio.pipeline.hdr import BadFrame
@@ -29,6 +31,8 @@ __all__ = ["FrameSignalError", "SignalCheck", "BLACK_SIGMAS", "SATURATED_FRACTIO
 BLACK_SIGMAS = 6.0
 #: A frame is all-saturated if at least this fraction of its pixels is at the linear limit.
 SATURATED_FRACTION = 0.98
+#: Dark frames whose black thresholds :class:`SignalCheck` keeps (more than an exposure ladder has rungs).
+DARK_THRESHOLDS_KEPT = 16
 
 
 class FrameSignalError(BadFrame):
@@ -45,8 +49,8 @@ class SignalCheck:
     def __init__(self, noise, limit):
         self.noise, self.limit = noise, limit
         self._last: np.ndarray | None = None  # a copy of the previous frame's pixels (bytes compared: exact)
-        self._dark_key: tuple | None = None  # (dark, gain) of the cached black thresholds below
-        self._dark_thr: tuple | None = None
+        #: black thresholds per (dark frame, gain): a bracket alternates between its exposures' dark frames
+        self._dark_thr: dict[tuple[int, float], tuple] = {}
 
     def _is_repeat(self, px: np.ndarray) -> bool:
         """Whether ``px`` is bit for bit the previous frame, and remember it. A copy is kept (a driver may hand
@@ -63,16 +67,20 @@ class SignalCheck:
 
     def _dark_thresholds(self, dark, gain: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For the quarter of the pixels checked: the dark frame's mean, its noise σ and a raw value above which
-        a pixel is certainly more than :data:`BLACK_SIGMAS` σ above it (cached per dark frame and gain)."""
-        k = self._dark_key
-        if k is None or k[0] is not dark or k[1] != float(gain):  # DarkFrame is frozen: the object is the key
-            mean = dark.mean[::2, ::2]
+        a pixel is certainly more than :data:`BLACK_SIGMAS` σ above it (cached per dark frame and gain: a
+        session's dark set, one frame per exposure of its ladder)."""
+        key = (id(dark), float(gain))
+        hit = self._dark_thr.get(key)
+        if hit is None or hit[0]() is not dark:  # DarkFrame is frozen: the object is the key (weakly held)
+            live = {k: v for k, v in self._dark_thr.items() if v[0]() is not None}  # forget dark frames gone
+            self._dark_thr = live if len(live) < DARK_THRESHOLDS_KEPT else {}
+            mean = np.ascontiguousarray(dark.mean[::2, ::2])  # a copy: the dark frame is not kept alive
             sd = np.sqrt(dark.var[::2, ::2] + self.noise.variance(0.0, gain))  # as the z-scores have always used it
             # z = (x − mean)/σ > BLACK_SIGMAS for every x above this (float64, margins far above rounding)
             m64 = mean.astype(np.float64)
             above = m64 + (BLACK_SIGMAS * (1 + 1e-9)) * sd.astype(np.float64) + 1e-9 * (np.abs(m64) + 1.0)
-            self._dark_key, self._dark_thr = (dark, float(gain)), (mean, sd, above)
-        return self._dark_thr  # type: ignore[return-value]
+            hit = self._dark_thr[key] = (weakref.ref(dark), (mean, sd, above))
+        return hit[1]
 
     def dark_frame(self, frame, px: np.ndarray) -> None:
         """A dark frame (light off) is black by design; it must still be a new frame and not overload."""

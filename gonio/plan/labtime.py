@@ -186,14 +186,24 @@ def session_lab_time(move_times, capture, timing: SessionTiming | None = None, *
     t0 = darks + warm if startup else 0.0
     t, t_dark, i, refreshes = t0, 0.0, 0, 0
     ends = np.empty(n, np.float64)
+    window = 256
     for _ in range(n + 1):  # each round measures at least one pose (bounded)
         if i >= n:
             break
-        c = cost[i:]
-        cum = np.cumsum(c)
-        starts = t + cum - c
-        due = np.flatnonzero(starts - t_dark > timing.dark_max_age)
+        # the poses up to the next refresh, in a window of the rest that doubles until it holds the
+        # refresh (O(N) in all, where the whole rest each round was O(N · refreshes)); a prefix of
+        # the cumulative sum is the same numbers as the whole one
+        w = min(n - i, window)
+        while True:
+            c = cost[i:i + w]
+            cum = np.cumsum(c)
+            starts = t + cum - c
+            due = np.flatnonzero(starts - t_dark > timing.dark_max_age)
+            if due.size or i + w >= n:
+                break
+            w = min(n - i, 2 * w)
         j = int(due[0]) if due.size else c.size
+        window = max(256, 2 * (j + 1))  # the next round is about as long
         ends[i:i + j] = t + cum[:j]
         if j == c.size:
             t = float(ends[-1]) if n else t

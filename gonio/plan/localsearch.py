@@ -53,7 +53,8 @@ class _Tour:
         self.p = array("q", bytes(8 * m))
         self.tn = np.frombuffer(self.t, dtype=np.int64)
         self.pn = np.frombuffer(self.p, dtype=np.int64)
-        self.pn[self.tn] = np.arange(m)
+        self.ar = np.arange(m)  # positions, for long reversals
+        self.pn[self.tn] = self.ar
 
     def succ(self, x: int) -> int:
         i = self.p[x] + 1
@@ -78,9 +79,9 @@ class _Tour:
                 hi -= 1
             return
         if i + n <= m:
-            seg = self.tn[i:i + n][::-1].copy()
-            self.tn[i:i + n] = seg
-            self.pn[seg] = np.arange(i, i + n)
+            seg = self.tn[i:i + n]
+            seg[:] = seg[::-1]  # NumPy copies an overlapping source first
+            self.pn[seg] = self.ar[i:i + n]
         else:
             idx = np.arange(i, i + n) % m
             seg = self.tn[idx][::-1]

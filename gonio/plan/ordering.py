@@ -370,24 +370,34 @@ def optimize_order(joints, model: MotionModel, *, start=None, seed: int = 0, tim
     t0, c0 = time.perf_counter(), time.process_time()
     deadline = np.inf if time_budget is None else t0 + float(time_budget)
     nbrs = _nb.knn(q, model, max(neighbours, 10)) if _nb.supported(model) and n > max(neighbours, 10) + 1 else None
+    if initial is not None:
+        initial = np.asarray(initial, dtype=np.int64)
+        if initial.shape != (n,) or not np.array_equal(np.sort(initial), np.arange(n)):
+            raise ValueError("optimize_order: initial must be a permutation of the pose indices")
     cands = [nearest_neighbour_order(q, model, start=start, seed=seed, nbrs=nbrs),
-             raster_order(q) if initial is None else np.asarray(initial, dtype=np.int64)]
+             raster_order(q) if initial is None else initial]
     costs = [path_move_time(q, c, model, start=start) for c in cands]
     best = cands[int(np.argmin(costs))]
     t1, c1 = time.perf_counter(), time.process_time()
     idx, dist = _neighbours(q, model, neighbours, nbrs)
-    nbr_idx, nbr_cost = idx.tolist(), dist.tolist()
+    # the local search runs on the poses renumbered in the order of the starting tour (pose best[k] is
+    # node k; the start and end nodes keep N and N+1, each list keeps its order): the same moves, since
+    # only costs, list order and tour position decide them, but the poses a move touches are near each
+    # other in memory (at 10⁵ poses the search ran ~1.4x slower in the poses' own numbering)
+    inv = np.empty(n, np.int64)
+    inv[best] = np.arange(n)
+    nbr_idx, nbr_cost = inv[idx[best]].tolist(), dist[best].tolist()
     s_idx, s_cost = ([], []) if start is None else _start_neighbours(q, model, start, neighbours)
-    nbr_idx += [s_idx, []]
+    nbr_idx += [inv[np.asarray(s_idx, dtype=np.int64)].tolist(), []]
     nbr_cost += [s_cost, []]
-    tour = np.concatenate([[n], best, [n + 1]]).astype(np.int64)
+    tour = np.concatenate([[n], np.arange(n), [n + 1]]).astype(np.int64)
     with progress_counter(desc="ordering (2-opt/Or-opt)", unit="visit", delay=2.0) as tick:
-        tour = improve(tour, _scalar_cost(_Graph(q, model, start)), nbr_idx, nbr_cost, n, start is not None,
+        tour = improve(tour, _scalar_cost(_Graph(q[best], model, start)), nbr_idx, nbr_cost, n, start is not None,
                        max_passes=max_passes, deadline=deadline, progress=tick)
     if timings is not None:
         timings.update({"tour": t1 - t0, "local search": time.perf_counter() - t1, "tour cpu": c1 - c0,
                         "local search cpu": time.process_time() - c1})
-    perm = tour[1:-1].copy()
+    perm = best[tour[1:-1]]
     if nbrs is not None:  # the ordered plan's estimate needs them again (its spanning tree): renumbered
         inv = np.empty(n, np.int64)
         inv[perm] = np.arange(n)

@@ -13,15 +13,19 @@ Observations (one per pose of a calibration plan, :func:`calibration_plan`):
   with each frame's own board pose, whose rotation error (~0.05° at 320 px) would enter the light's
   triangulation one frame at a time.
 
-The unknowns are :class:`ChainErrors`'s fields (degrees, millimetres). Each observation's residual is
-whitened by its own covariance when it has one (the board pose's PnP covariance, the highlight
-centroid's), each kind is then rescaled by its scatter (two reweighting passes), and the problem is
-solved with :func:`scipy.optimize.least_squares`. The standard uncertainty of a parameter is the larger
-of the Gauss–Newton one, ``s² (JᵀJ)⁻¹`` (Bates & Watts 1988, *Nonlinear Regression Analysis*, §2.3.1),
-and the cluster-robust sandwich one (one cluster per observation; White 1980, Liang & Zeger 1986), plus
-the effect of errors common to every observation that no scatter shows — the board's printed scale, the
-corner detector's bias, the principal point (:data:`BOARD_SCALE_SIGMA`, :data:`BOARD_ORIGIN_SIGMA_MM`,
-:data:`PRINCIPAL_POINT_SIGMA`). Parameters the poses cannot determine — the columns of ``J`` in the null
+The unknowns are :class:`ChainErrors`'s fields (degrees, millimetres). When every observation has a
+covariance (the board pose's PnP covariance, the highlight centroid's: what a session records), each
+frame's residuals are whitened together by the frame's covariance — the detectors' own plus the joints'
+scatter propagated through the chain, which couples a frame's board pose and highlight — whose sizes are
+variance components estimated from the residuals (:mod:`gonio.rig.geocal_noise`; re-estimated at each of
+three passes). Without covariances each kind is whitened by its own covariance where it has one and
+rescaled by its scatter. The problem is solved with :func:`scipy.optimize.least_squares`. The standard
+uncertainty of a parameter is the larger of the Gauss–Newton one, ``s² (JᵀJ)⁻¹`` (Bates & Watts 1988,
+*Nonlinear Regression Analysis*, §2.3.1), and the cluster-robust sandwich one (one cluster per frame;
+White 1980, Liang & Zeger 1986), plus the effect of errors common to every observation that no scatter
+shows — the board's printed scale, the board frame's origin and orientation as the detector sees them
+against the tile's surface, the principal point (:data:`BOARD_SCALE_SIGMA`, :data:`BOARD_ORIGIN_SIGMA_MM`,
+:data:`BOARD_ROTATION_SIGMA_DEG`, :data:`PRINCIPAL_POINT_SIGMA`). Parameters the poses cannot determine — the columns of ``J`` in the null
 space of its SVD (relative singular value below :data:`RANK_TOL`) or with an uncertainty above
 :data:`MAX_SIGMA` — are reported as *not identified*, kept at their declared value (0), and the fit is
 repeated without them; they are never guessed.
@@ -39,6 +43,7 @@ from scipy.optimize import least_squares
 
 from gonio.errors import ConfigError
 from gonio.rig.chain import ARM_FIELDS, CAMERA_FIELDS, TURNTABLE_FIELDS, ChainErrors, chain_forward
+from gonio.rig.geocal_noise import FrameNoise
 
 __all__ = ["CameraObservation", "HighlightObservation", "GeoCalResult", "DegeneratePoses", "calibrate_geometry",
            "calibration_plan", "calibrated_rig_text", "RANK_TOL", "MAX_SIGMA"]
@@ -53,9 +58,16 @@ BOARD_SCALE_SIGMA = 5e-4
 #: Standard uncertainty of the camera's principal point in normalized image units (0.1 px at a 400 px focal
 #: length: what a careful OpenCV intrinsic calibration states): a systematic turn of every board pose.
 PRINCIPAL_POINT_SIGMA = 2.5e-4
-#: Standard uncertainty (mm) of the board's origin as the corner detector sees it: a sub-pixel corner
-#: finder's bias common to all corners (~0.02 px at 0.4 m and a 400 px focal length).
+#: Standard uncertainty (mm) of the board's origin as the corner detector sees it, per sample axis: a sub-pixel
+#: corner finder's bias common to all corners (~0.02 px at 0.4 m and a 400 px focal length) in x and y; in z
+#: the height of the board's printed surface against the tile's (the mirror plane, the sample surface that
+#: wi and wo refer to), a step measured with calipers to ~0.02 mm.
 BOARD_ORIGIN_SIGMA_MM = 0.02
+#: Standard uncertainty (degrees, about each sample axis) of the board's orientation as the detector sees it,
+#: against the sample surface: the corner finder's bias varying across the board (the origin's 0.02 mm over
+#: the board's half width, 135 mm: 0.0085°) and the board's mounting against the tile's plane (0.05 mm over
+#: 270 mm: 0.01°). A systematic turn of every board pose about the sample centre.
+BOARD_ROTATION_SIGMA_DEG = 0.01
 #: Not identifiable from images of the sample plane: the sample height is the same as moving both arcs.
 ALWAYS_FIXED = {"sample_height_mm": "same effect as both arcs' arc_z_mm (only arc_z − height is observable)"}
 
@@ -97,6 +109,10 @@ class GeoCalResult:
     start: str = "declared"
     #: residual evaluations the least squares needed (all passes)
     nfev: int = 0
+    #: the observations' noise (:mod:`gonio.rig.geocal_noise`), when every observation has a covariance:
+    #: ``scale_*`` the factor on each group's stated standard deviations, ``joint_sigma_deg`` the joints'
+    #: scatter, ``chi2_*`` the mean whitened residual² of each group at the estimate (≈ 1)
+    noise: dict = field(default_factory=dict)
 
     def table(self) -> list[tuple[str, float, float, str]]:
         """(name, value, standard uncertainty, unit or 'not identified: why') per parameter."""
@@ -207,17 +223,18 @@ def check_pose_set(rig, cams, highs) -> None:
 def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera: str = "chain",
                        weighted: bool = True, start: str = "hand-eye", board_scale_sigma: float = BOARD_SCALE_SIGMA,
                        principal_point_sigma: float = PRINCIPAL_POINT_SIGMA,
-                       board_origin_sigma_mm: float = BOARD_ORIGIN_SIGMA_MM) -> GeoCalResult:
+                       board_origin_sigma_mm: float = BOARD_ORIGIN_SIGMA_MM,
+                       board_rotation_sigma_deg: float = BOARD_ROTATION_SIGMA_DEG) -> GeoCalResult:
     """Estimate the rig's :class:`ChainErrors` from camera and highlight observations (module docstring).
 
-    ``weighted``: residuals whitened by each observation's own covariance where every observation of a
-    kind has one (then rescaled by the kind's scatter); ``highlight_camera``: see :func:`_residual_blocks`.
+    ``weighted``: residuals whitened by each frame's covariance (detectors + joints, sized by variance
+    components: :mod:`gonio.rig.geocal_noise`) when every observation has one and ``highlight_camera`` is
+    ``"chain"``; else by each observation's own covariance where every observation of a kind has one (then
+    rescaled by the kind's scatter); ``highlight_camera``: see :func:`_residual_blocks`.
     ``start``: ``"hand-eye"`` starts the camera arm from the closed-form robot-world/hand-eye solution of the
     board poses (:func:`gonio.rig.handeye.camera_arm_start`; arms layout), ``"declared"`` from the declared
     geometry (all errors 0)."""
     cams, highs = list(cams), list(highs)
-    white = {"camera": _whiteners(cams, 6, 1.0), "highlight": _whiteners(highs, 2, 1e3)} if weighted else {}
-    kw = {"highlight_camera": highlight_camera, "white": white}
     if check:
         check_pose_set(rig, cams, highs)
     names = ChainErrors().names()
@@ -229,22 +246,51 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
     if rig.layout == "turntable":
         not_identified["light.d_az_deg"] = "same effect as the turntable's zero offset (the light arm has no azimuth joint)"
         free.remove(names.index("light.d_az_deg"))
-    scale = {k: 1.0 for k in _residual_blocks(rig, ChainErrors(), cams, highs, **kw)}
     x = np.zeros(len(names))
     started = "declared"
     if start == "hand-eye" and rig.layout == "arms" and cams:
         started = _hand_eye_start(rig, cams, x, names)
     nfev = 0
+    has_cov = all(o.cov is not None for o in cams + highs)
+    noise = FrameNoise(rig, cams, highs) if weighted and has_cov and highlight_camera == "chain" else None
+    if noise is not None:
+        # per-frame covariances: the detectors' own plus the joints' scatter, sized by variance components
+        # (gonio.rig.geocal_noise); refreshed at every pass
+        state = {"W": noise.whiteners(ChainErrors.from_vector(x))}
 
-    def fun(p, idx, scale, cams=cams, highs=highs):
-        v = x.copy()
-        v[idx] = p
-        blocks = _residual_blocks(rig, ChainErrors.from_vector(v), cams, highs, **kw)
-        return np.concatenate([blocks[k] / scale[k] for k in sorted(blocks)])
+        def fun(p, idx, cams=None, highs=None):
+            v = x.copy()
+            v[idx] = p
+            return noise.whitened(ChainErrors.from_vector(v), state["W"], cams, highs)
+
+        def refresh():
+            e = ChainErrors.from_vector(x)
+            noise.estimate_components(e)
+            state["W"] = noise.whiteners(e)
+
+        cid = noise.clusters()
+    else:
+        # each observation whitened by its own covariance (if every one of its kind has one), each kind then
+        # rescaled by its scatter
+        white = {"camera": _whiteners(cams, 6, 1.0), "highlight": _whiteners(highs, 2, 1e3)} if weighted else {}
+        kw = {"highlight_camera": highlight_camera, "white": white}
+        state = {"scale": {k: 1.0 for k in _residual_blocks(rig, ChainErrors(), cams, highs, **kw)}}
+
+        def fun(p, idx, cams=cams, highs=highs):
+            v = x.copy()
+            v[idx] = p
+            blocks = _residual_blocks(rig, ChainErrors.from_vector(v), cams, highs, **kw)
+            return np.concatenate([blocks[k] / state["scale"][k] for k in sorted(blocks)])
+
+        def refresh():
+            blocks = _residual_blocks(rig, ChainErrors.from_vector(x), cams, highs, **kw)
+            state["scale"] = {k: max(float(np.sqrt(np.mean(r ** 2))), 1e-12) for k, r in blocks.items()}
+
+        cid = _clusters(sorted(_residual_blocks(rig, ChainErrors(), cams, highs, **kw)), len(cams), len(highs))
 
     idx = list(free)
-    for _ in range(3):  # solve, drop what the data cannot determine, reweight by each kind's scatter
-        sol = least_squares(fun, x[idx], args=(idx, scale), method="lm", x_scale=1.0)
+    for _ in range(3):  # solve, drop what the data cannot determine, re-estimate the observations' noise
+        sol = least_squares(fun, x[idx], args=(idx,), method="lm", x_scale=1.0)
         x[idx] = sol.x
         nfev += sol.nfev
         J = sol.jac
@@ -253,14 +299,13 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
         _, s, vt = np.linalg.svd(J / col, full_matrices=False)
         null = vt[s < RANK_TOL * s[0]]
         bad = [idx[i] for i in range(len(idx)) if null.size and np.max(np.abs(null[:, i])) > 0.1]
-        blocks = _residual_blocks(rig, ChainErrors.from_vector(x), cams, highs, **kw)
-        scale = {k: max(float(np.sqrt(np.mean(r ** 2))), 1e-12) for k, r in blocks.items()}
         if bad:
             for i in bad:
                 not_identified[names[i]] = "not determined by these poses (rank-deficient Jacobian)"
                 x[i] = 0.0
             idx = [i for i in idx if i not in bad]
-    sol = least_squares(fun, x[idx], args=(idx, scale), method="lm")
+        refresh()
+    sol = least_squares(fun, x[idx], args=(idx,), method="lm")
     x[idx] = sol.x
     nfev += sol.nfev
     r = sol.fun
@@ -268,11 +313,11 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
     s2 = float(r @ r) / max(m - n, 1)
     A = np.linalg.pinv(sol.jac.T @ sol.jac)
     cov = s2 * A
-    # cluster-robust ("sandwich") covariance, one cluster per observation: honest when the observations'
-    # own covariances (the weights) are wrong in shape or size (White 1980, Econometrica 48(4);
-    # Liang & Zeger 1986, Biometrika 73(1)); the larger of the two variances is reported
-    cid = _clusters(sorted(_residual_blocks(rig, ChainErrors(), cams, highs, **kw)), len(cams), len(highs))
-    g = np.zeros((len(cams) + len(highs), n))
+    # cluster-robust ("sandwich") covariance, one cluster per frame (one per observation without the noise
+    # model): honest when the observations' covariances (the weights) are wrong in shape or size
+    # (White 1980, Econometrica 48(4); Liang & Zeger 1986, Biometrika 73(1)); the larger of the two variances
+    # is reported
+    g = np.zeros((int(cid.max()) + 1 if len(cid) else 0, n))
     np.add.at(g, cid, sol.jac * r[:, None])
     cov_s = A @ (g.T @ g) @ A * m / max(m - n, 1)
     var = np.maximum(np.diag(cov), np.diag(cov_s))
@@ -293,23 +338,32 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
     # the solution, dx/dε = −A Jᵀ ∂r/∂ε (implicit function theorem at the least-squares optimum), adding
     # (dx/dε · σ_ε)² to the variances (GUM, JCGM 100 §5.2, fully correlated inputs):
     # the board's printed scale (every ChArUco position scales with it), the corner detector's common bias
-    # (the board's origin as the detector sees it, x and y) and the principal point (x and y: every board
-    # pose turns about the camera's y / x axis, every highlight shifts the same way).
+    # (the board's origin as the detector sees it, x, y and its height against the tile: z), the board frame's
+    # orientation (every board pose turned about the sample's x, y, z axes) and the principal point (x and y:
+    # every board pose turns about the camera's y / x axis, every highlight shifts the same way).
     systematics = []
     if board_scale_sigma > 0 and cams:
         systematics.append(([_replace(c, position=c.position * (1.0 + 1e-4)) for c in cams], highs, 1e-4,
                             board_scale_sigma))
     if board_origin_sigma_mm > 0 and cams:
-        for axis in (0, 1):
+        for axis in (0, 1, 2):
             e = np.eye(3)[axis] * 1e-6
             systematics.append(([_replace(c, position=c.position + e) for c in cams], highs, 1e-3, board_origin_sigma_mm))
+    if board_rotation_sigma_deg > 0 and cams:
+        from gonio.rig.chain import _rx, _ry, _rz
+
+        for turn in (_rx, _ry, _rz):
+            e = 1e-5
+            D = turn(np.asarray(math.radians(e)))
+            systematics.append(([_replace(c, position=D @ c.position, R=c.R @ D.T) for c in cams], highs, e,
+                                board_rotation_sigma_deg))
     if principal_point_sigma > 0:
         for axis in (0, 1):
             e = 1e-5
             systematics.append(([rotated(c, axis, e) for c in cams], [shifted(h, axis, e) for h in highs], e,
                                 principal_point_sigma))
     for cams_e, highs_e, h, sigma_e in systematics:
-        dr = (fun(sol.x, idx, scale, cams=cams_e, highs=highs_e) - r) / h
+        dr = (fun(sol.x, idx, cams=cams_e, highs=highs_e) - r) / h
         dx = -A @ (sol.jac.T @ dr)
         var = var + (dx * sigma_e) ** 2
     sig = np.sqrt(np.clip(var, 0, None))
@@ -321,10 +375,16 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
         else:
             sigma[names[i]] = float(sig[k])
     blocks = _residual_blocks(rig, ChainErrors.from_vector(x), cams, highs, highlight_camera=highlight_camera)
+    info = {}
+    if noise is not None:
+        c = noise.components
+        info = {"scale_board_frontal": math.sqrt(c[0]), "scale_board_oblique": math.sqrt(c[1]),
+                "scale_highlight": math.sqrt(c[2]), "joint_sigma_deg": math.sqrt(c[3])}
+        info.update({f"chi2_{k}": v for k, (v, _) in noise.chi2_by_group(ChainErrors.from_vector(x), state["W"]).items()})
     return GeoCalResult(ChainErrors.from_vector(x), sigma, not_identified,
                         rms={k: float(np.sqrt(np.mean(v ** 2))) for k, v in blocks.items()},
                         n_observations={"camera": len(cams), "highlight": len(highs)}, residuals=r,
-                        start=started, nfev=nfev)
+                        start=started, nfev=nfev, noise=info)
 
 
 def _hand_eye_start(rig, cams, x, names) -> str:

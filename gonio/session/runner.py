@@ -364,7 +364,8 @@ class SessionRunner:
         for attempt in range(st.move_retries + 1):
             if attempt:
                 self.safety_check()
-            ctl.heartbeat()
+            # no HEARTBEAT here: safety_check's STATUS request just fed the watchdog (every accepted frame
+            # feeds it, firmware_protocol/SPEC.md "Watchdog"), which open_devices sets longer than a move
             axes.move_to(target, timeout=st.move_timeout)
             ctl.wait(self.plan.capture.settle)  # settle with the watchdog fed
             measured = axes.positions()

@@ -5,6 +5,10 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import signal
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -95,3 +99,33 @@ def test_export_and_plot_many(tables, tmp_path, capsys):
     (tmp_path / "file.txt").write_text("x")
     assert main(["export", *srcs, "--format", "npz", "-o", str(tmp_path / "file.txt"), "--quiet"]) != 0
     assert "must be a directory" in capsys.readouterr().err
+
+
+def test_interrupted_batch_starts_nothing_more_and_leaves_no_worker(tmp_path):
+    """Ctrl-C during a batch on worker processes: the sources not yet started never start, and when
+    run_batch returns (raising KeyboardInterrupt) no worker is left running to write after it."""
+    from _batch_slow import slow_job
+
+    from gonio.batch import run_batch
+
+    sources = [f"s{k}" for k in range(12)]
+    first = threading.Event()
+
+    def interrupt_when_one_started():
+        while not any(tmp_path.glob("*.started")):
+            if first.wait(0.02):
+                return
+        os.kill(os.getpid(), signal.SIGINT)  # what Ctrl-C sends to the parent
+
+    watcher = threading.Thread(target=interrupt_when_one_started, daemon=True)
+    watcher.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_batch(slow_job, sources, {"dir": str(tmp_path), "seconds": 0.3}, jobs=2)
+    finally:
+        first.set()
+        watcher.join()
+    started = sorted(tmp_path.glob("*.started"))
+    assert 1 <= len(started) < len(sources)  # running ones finished; queued ones were cancelled
+    time.sleep(0.5)  # a worker still running would start another source within this
+    assert sorted(tmp_path.glob("*.started")) == started

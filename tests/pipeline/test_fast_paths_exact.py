@@ -95,3 +95,53 @@ def test_repeat_check_compares_the_frames_bytes():
     with pytest.raises(FrameSignalError, match="identical to the previous frame"):
         check(_Frame(), px2.copy(), levels=False)  # the same bytes again, in another buffer
     check(_Frame(), px2[:, :, :2].copy(), levels=False)  # another shape is not a repeat
+
+
+def test_black_check_alternating_dark_frames_decides_as_a_fresh_check():
+    """A bracket alternates between its exposures' dark frames: the thresholds kept per dark frame decide every
+    frame exactly as a check that never saw another frame does (same verdict, same message); a dark frame the
+    session dropped is not kept alive by the check."""
+    import gc
+    import weakref
+
+    noise = SensorModel().noise_model()
+    darks = [_dark(), DarkFrame(mean=_dark().mean + 2, var=_dark().var * 2, n=8, time=0.0, measured=True)]
+    rng = np.random.default_rng(5)
+    check = SignalCheck(noise, lambda f: 4095.0)
+    for i in range(8):
+        dark = darks[i % 2]
+        px = np.floor(dark.mean).astype(np.uint16)
+        if i % 3:  # every other frame gets one pixel above the dark level somewhere
+            px[rng.integers(0, 40), rng.integers(0, 60), rng.integers(0, 3)] += int(rng.integers(0, 40))
+        verdicts = []
+        for c in (check, SignalCheck(noise, lambda f: 4095.0)):
+            c._last = None  # the repeat check is not what is compared here
+            try:
+                c(_Frame(), px, dark=dark)
+                verdicts.append("ok")
+            except FrameSignalError as exc:
+                verdicts.append(str(exc))
+        assert verdicts[0] == verdicts[1]
+    ref = weakref.ref(darks[0])
+    del darks[0], dark
+    gc.collect()
+    assert ref() is None
+
+
+def test_normal_draws_from_raw_outputs_are_generator_integers_bit_for_bit(bench_factory, lambert):
+    """The camera's noise indices drawn as raw 64-bit outputs' 16-bit fields are exactly what
+    ``Generator.integers(0, 2**16, dtype=uint16)`` draws, and leave the generator where it leaves it: frame
+    sizes that are a multiple of four and ones that are not (which leave a 32-bit half pending), in any order,
+    followed by other draws (the Poisson part of the noise)."""
+    from sim.camera import normal_table
+
+    cam = bench_factory(lambert, seed=9).camera
+    ref = np.random.default_rng(9)
+    for shape in [(240, 320, 3), (5, 7, 3), (4, 4, 3), (2, 3), (3, 1), (240, 320, 3), (8,)]:
+        got = cam._standard_normal(shape)
+        want = np.take(normal_table(), ref.integers(0, 1 << 16, size=shape, dtype=np.uint16))
+        assert got.shape == want.shape and np.array_equal(got, want)
+        a, b = cam._rng.bit_generator.state, ref.bit_generator.state
+        assert a["state"] == b["state"] and a["has_uint32"] == b["has_uint32"]
+        assert not a["has_uint32"] or a["uinteger"] == b["uinteger"]  # (the pending half, when there is one)
+        assert np.array_equal(cam._rng.poisson(3.0, 5), ref.poisson(3.0, 5))

@@ -63,6 +63,18 @@ def test_clusters_far_apart_are_joined(rig_model):
 
 
 @pytest.mark.parametrize("kind", sorted(MODELS))
+def test_short_lists_leave_components_unresolved(rig_model, kind):
+    """With 1-5 neighbours per pose most of Borůvka's components cannot read their cheapest edge from
+    the lists: only the members whose unlisted neighbours may beat the component's listed edge are
+    searched (seeded with that edge); the weight is still Prim's."""
+    model = MODELS[kind](rig_model)
+    q = np.random.default_rng(3).uniform(-3.0, 3.0, (400, 4))
+    prim = o._mst_move_time_dense(q, model)
+    for k in (1, 2, 3, 5):
+        assert nb.mst_weight(q, model, k=k) == pytest.approx(prim, rel=1e-12)
+
+
+@pytest.mark.parametrize("kind", sorted(MODELS))
 def test_cheapest_outgoing_edges_by_both_paths(rig_model, kind):
     """Borůvka's cheapest edge out of each component, found by the batched k-nearest queries or (kmax=0)
     only by the radius-bounded search over the other components, equals a dense scan."""
@@ -80,6 +92,21 @@ def test_cheapest_outgoing_edges_by_both_paths(rig_model, kind):
         np.testing.assert_allclose(w, expect, rtol=1e-12)
         np.testing.assert_allclose(model.move_time(q[u], q[v]), w, rtol=1e-12)
         assert np.all(lab[u] == comps) and np.all(lab[v] != comps)
+    # seeded with a known (not the cheapest) edge per component, only a few members searched: the
+    # seed stands where no searched member beats it, and a cheaper edge replaces it
+    u0 = np.array([np.flatnonzero(lab == c)[0] for c in comps])
+    v0 = np.array([np.flatnonzero(lab != c)[0] for c in comps])
+    w0 = model.move_time(q[u0], q[v0])
+    u, v, w = nb._outgoing(q, model, lab, comps, tree, sq, 26, members=np.zeros(0, np.int64), seed=(u0, v0, w0))
+    np.testing.assert_array_equal(w, w0)
+    u, v, w = nb._outgoing(q, model, lab, comps, tree, sq, 26, members=np.flatnonzero(lab == comps[0]),
+                           seed=(u0, v0, w0))
+    np.testing.assert_allclose(w, [expect[0], *w0[1:]], rtol=1e-12)
+    # the radius search alone from a finite best (without wrap joints it searches only the poses near the
+    # members' bounding box): still the cheapest edges
+    u, v, w = nb._outgoing(q, model, lab, comps, tree, sq, 26, kmax=0, seed=(u0, v0, w0))
+    np.testing.assert_allclose(w, expect, rtol=1e-12)
+    np.testing.assert_allclose(model.move_time(q[u], q[v]), w, rtol=1e-12)
 
 
 @pytest.mark.parametrize("kind", sorted(MODELS))

@@ -98,3 +98,31 @@ def test_nearest_neighbour_is_a_permutation_and_seeded():
 def test_raster_order_is_lexicographic():
     p = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 2, 0], [0, 0, 1, 5.0]])
     assert raster_order(p).tolist() == [3, 2, 1, 0]
+
+
+@pytest.mark.parametrize("fixed", [False, True])
+def test_renumbered_search_makes_the_same_moves(fixed):
+    """optimize_order runs the local search on the poses renumbered in the starting tour's order: the
+    same order as the search on the poses' own numbering (ties included: poses on a coarse lattice)."""
+    from gonio.plan import neighbours as nb
+    from gonio.plan.localsearch import improve
+    from gonio.plan.ordering import _Graph, _scalar_cost, _start_neighbours
+
+    q = np.round(np.random.default_rng(8).uniform(-1.5, 1.5, (700, 4)) * 3) / 3
+    start = np.array([0.2, -0.1, 0.3, 0.0]) if fixed else None
+    got = optimize_order(q, MODEL, start=start, seed=3)
+    n = len(q)
+    cands = [nearest_neighbour_order(q, MODEL, start=start, seed=3), raster_order(q)]
+    best = cands[int(np.argmin([path_move_time(q, c, MODEL, start=start) for c in cands]))]
+    idx, dist = nb.knn(q, MODEL, 10)
+    s_idx, s_cost = ([], []) if start is None else _start_neighbours(q, MODEL, start, 10)
+    tour = improve(np.concatenate([[n], best, [n + 1]]), _scalar_cost(_Graph(q, MODEL, start)),
+                   idx.tolist() + [s_idx, []], dist.tolist() + [s_cost, []], n, fixed)
+    np.testing.assert_array_equal(got, tour[1:-1])
+
+
+def test_initial_must_be_a_permutation():
+    q = np.random.default_rng(1).uniform(-1, 1, (20, 4))
+    for bad in ([0] * 20, list(range(19)), list(range(1, 21))):
+        with pytest.raises(ValueError, match="permutation"):
+            optimize_order(q, MODEL, initial=bad)

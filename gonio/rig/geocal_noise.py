@@ -1,0 +1,213 @@
+"""Observation covariances of a geometric calibration (:mod:`gonio.rig.geocal`): what the detectors state, plus
+the scatter of the joints themselves, with their sizes estimated from the residuals (variance components).
+
+A calibration frame is taken at joints ``q`` that the servos report; the arms really stand at ``q + δq``
+(encoder resolution and noise, the half backlash that the balanced approach turns into scatter). The board
+pose and the highlight seen in that frame are *exact* observations of the arms at ``q + δq``, so each
+frame's residual ``r(q)`` has, to first order, the covariance
+
+    C = s_board · C_board  ⊕  s_highlight · C_highlight  +  σ_q² · J_q J_qᵀ,        J_q = ∂r/∂q
+
+(the "effective variance" of a regression whose inputs are uncertain: Orear 1982, "Least squares when both
+variables have uncertainties", Am. J. Phys. 50(10); Clutton-Brock 1967). ``C_board`` is the board pose's
+PnP covariance, ``C_highlight`` the highlight centroid's (:mod:`gonio.pipeline.markers`,
+:mod:`gonio.pipeline.highlight`). The joint term couples the board pose and the highlight of the same
+frame (the camera really turned, for both of them), so a frame's residuals are whitened together, and
+the sandwich covariance of :func:`gonio.rig.geocal.calibrate_geometry` takes one cluster per frame.
+
+The detectors' covariances are right in shape but not in size — the board pose's misses what the corner
+residuals cannot show (shared blur, perspective of the squares, worse the more oblique the view), the
+highlight's is photon noise only — and the joint scatter is not known beforehand. Their sizes are
+*variance components*: ``s_board`` separately for frontal and oblique views of the board
+(:data:`OBLIQUE_DEG`), ``s_highlight`` and ``σ_q²``, estimated by maximum likelihood from the residuals at the
+current estimate (Koch 1999, *Parameter Estimation and Hypothesis Testing in Linear Models*, 2nd ed., §3.6:
+variance components of groups of observations; Förstner 1979; Harville 1977, JASA 72(358)), then the
+parameters are solved again with the covariances they give.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize
+
+__all__ = ["FrameNoise", "COMPONENTS", "OBLIQUE_DEG"]
+
+#: Angle (degrees) between the camera's optical axis and the board's normal beyond which a board pose belongs
+#: to the "oblique" group of board covariances (its corners foreshortened by cos θ < 0.5).
+OBLIQUE_DEG = 60.0
+#: The variance components, in the order of :attr:`FrameNoise.components`.
+COMPONENTS = ("board_frontal", "board_oblique", "highlight", "joint_deg2")
+#: Start of the joint scatter's variance component (deg²): a Dynamixel's 4096-count encoder quantises at
+#: 0.088°, i.e. 0.025° standard deviation.
+JOINT_SIGMA_START_DEG = 0.025
+
+
+def pair_frames(cams, highs) -> np.ndarray:
+    """Index of the camera observation taken in the same frame as each highlight (``-1``: none): same joints,
+    same camera pose (a highlight observation carries its frame's board pose)."""
+    key = {}
+    for i, c in enumerate(cams):
+        key.setdefault(tuple(np.asarray(c.joints, np.float64).tolist()), []).append(i)
+    out = np.full(len(highs), -1, dtype=np.int64)
+    used = set()
+    for k, h in enumerate(highs):
+        for i in key.get(tuple(np.asarray(h.joints, np.float64).tolist()), []):
+            if i not in used and np.array_equal(cams[i].position, h.position) and np.array_equal(cams[i].R, h.R):
+                out[k] = i
+                used.add(i)
+                break
+    return out
+
+
+@dataclass
+class FrameNoise:
+    """Per-frame covariances of the calibration residuals (module docstring) and their whitening.
+
+    Frames are in three groups, each whitened as one stack: board only (6 residuals: camera centre in mm,
+    rotation vector in degrees), board + highlight of the same frame (8: + the highlight in mrad),
+    highlight only (2)."""
+
+    rig: object
+    cams: list
+    highs: list
+
+    def __post_init__(self):
+        pair = pair_frames(self.cams, self.highs)
+        paired = set(pair[pair >= 0].tolist())
+        self.cam_only = np.array([i for i in range(len(self.cams)) if i not in paired], dtype=np.int64)
+        self.pair_h = np.flatnonzero(pair >= 0)
+        self.pair_c = pair[self.pair_h]
+        self.high_only = np.flatnonzero(pair < 0)
+        self.C_cam = np.stack([np.asarray(c.cov, np.float64) for c in self.cams]) if self.cams else np.zeros((0, 6, 6))
+        self.C_high = (np.stack([np.asarray(h.cov, np.float64) * 1e6 for h in self.highs]) if self.highs
+                       else np.zeros((0, 2, 2)))
+        # viewing angle of the board: optical axis (R's third row) against the sample normal
+        view = np.degrees(np.arccos(np.clip(np.abs([c.R[2, 2] for c in self.cams]), 0, 1))) if self.cams else np.zeros(0)
+        self.oblique = view > OBLIQUE_DEG
+        self.components = np.array([1.0, 1.0, 1.0, JOINT_SIGMA_START_DEG ** 2])
+        self.n_frames = len(self.cam_only) + len(self.pair_h) + len(self.high_only)
+
+    # -- residuals -------------------------------------------------------------------------------------
+    def raw(self, errors, joints_delta=None):
+        """Raw residuals ``(cams (Nc, 6), highs (Nh, 2))`` at ``errors`` (joints shifted by ``joints_delta``,
+        rad, applied to every observation: for :meth:`jacobians`)."""
+        from gonio.rig.geocal import _residual_blocks
+
+        def shift(obs):
+            if joints_delta is None:
+                return obs
+            from dataclasses import replace
+
+            return [replace(o, joints=np.asarray(o.joints) + joints_delta) for o in obs]
+
+        b = _residual_blocks(self.rig, errors, shift(self.cams), shift(self.highs))
+        rc = (np.concatenate([b["camera_mm"].reshape(-1, 3), b["camera_deg"].reshape(-1, 3)], axis=1)
+              if self.cams else np.zeros((0, 6)))
+        rh = b["highlight_mrad"].reshape(-1, 2) if self.highs else np.zeros((0, 2))
+        return rc, rh
+
+    def jacobians(self, errors, h: float = 1e-6):
+        """∂r/∂q (per degree of joint) of every observation: ``((Nc, 6, 4), (Nh, 2, 4))`` (central differences)."""
+        jc, jh = [], []
+        for k in range(4):
+            e = np.zeros(4)
+            e[k] = h
+            (cp, hp), (cm, hm) = self.raw(errors, e), self.raw(errors, -e)
+            jc.append((cp - cm) / (2 * h))
+            jh.append((hp - hm) / (2 * h))
+        per_deg = math.pi / 180.0
+        return np.stack(jc, -1) * per_deg, np.stack(jh, -1) * per_deg
+
+    def group_vectors(self, rc, rh):
+        """The residual vectors of the three frame groups (board only, board + highlight, highlight only)."""
+        return [rc[self.cam_only], np.concatenate([rc[self.pair_c], rh[self.pair_h]], axis=1), rh[self.high_only]]
+
+    def group_covariances(self, Jc, Jh, components=None):
+        """Covariances of the three frame groups' residual vectors for the variance ``components``."""
+        sf, so, sh, sq = self.components if components is None else components
+        Cc = self.C_cam * np.where(self.oblique, so, sf)[:, None, None] + sq * Jc @ np.swapaxes(Jc, 1, 2)
+        Ch = self.C_high * sh + sq * Jh @ np.swapaxes(Jh, 1, 2)
+        Jp = np.concatenate([Jc[self.pair_c], Jh[self.pair_h]], axis=1)
+        Cp = np.zeros((len(self.pair_h), 8, 8))
+        Cp[:, :6, :6] = self.C_cam[self.pair_c] * np.where(self.oblique[self.pair_c], so, sf)[:, None, None]
+        Cp[:, 6:, 6:] = self.C_high[self.pair_h] * sh
+        Cp += sq * Jp @ np.swapaxes(Jp, 1, 2)
+        return [Cc[self.cam_only], Cp, Ch[self.high_only]]
+
+    # -- variance components --------------------------------------------------------------------------
+    def estimate_components(self, errors) -> np.ndarray:
+        """Maximum-likelihood variance components (module docstring) from the residuals at ``errors``:
+        minimises Σ_frames rᵀ C⁻¹ r + log det C over the components' logarithms. A component no frame
+        depends on keeps its value. Sets and returns :attr:`components`."""
+        rc, rh = self.raw(errors)
+        Jc, Jh = self.jacobians(errors)
+        vecs = self.group_vectors(rc, rh)
+        free = np.array([np.any(~self.oblique), np.any(self.oblique), len(self.highs) > 0, True])
+
+        def nll(logc):
+            comp = self.components.copy()
+            comp[free] = np.exp(logc)
+            total = 0.0
+            for r, C in zip(vecs, self.group_covariances(Jc, Jh, comp)):
+                if not len(r):
+                    continue
+                L = np.linalg.cholesky(C + np.eye(C.shape[-1]) * 1e-12 * np.trace(C, axis1=1, axis2=2)[:, None, None])
+                z = np.linalg.solve(L, r[..., None])[..., 0]
+                total += float(np.sum(z ** 2)) + 2.0 * float(np.sum(np.log(np.diagonal(L, axis1=1, axis2=2))))
+            return total
+
+        x0 = np.log(self.components[free])
+        sol = minimize(nll, x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3, "maxiter": 2000})
+        comp = self.components.copy()
+        comp[free] = np.exp(np.clip(sol.x, -30.0, 30.0))
+        self.components = comp
+        return comp
+
+    def whiteners(self, errors):
+        """Per-group matrices ``W`` with ``Wᵀ W = C⁻¹`` at ``errors`` and the current components."""
+        Jc, Jh = self.jacobians(errors)
+        out = []
+        for C in self.group_covariances(Jc, Jh):
+            d = C.shape[-1]
+            C = C + np.eye(d) * 1e-12 * np.trace(C, axis1=1, axis2=2)[:, None, None]
+            out.append(np.linalg.inv(np.linalg.cholesky(C)) if len(C) else np.zeros((0, d, d)))
+        return out
+
+    def whitened(self, errors, W, cams=None, highs=None):
+        """The whitened residual vector (all frames) at ``errors``; ``cams``/``highs``: perturbed copies of the
+        observations (same frames), for the systematic errors' propagation."""
+        if cams is not None or highs is not None:
+            other = FrameNoise.__new__(FrameNoise)
+            other.__dict__.update(self.__dict__)
+            other.cams = self.cams if cams is None else cams
+            other.highs = self.highs if highs is None else highs
+            rc, rh = other.raw(errors)
+        else:
+            rc, rh = self.raw(errors)
+        return np.concatenate([(w @ r[..., None])[..., 0].ravel() for w, r in zip(W, self.group_vectors(rc, rh))])
+
+    def clusters(self) -> np.ndarray:
+        """Frame index of every row of :meth:`whitened`."""
+        n0, n1 = len(self.cam_only), len(self.pair_h)
+        return np.concatenate([np.repeat(np.arange(n0), 6), n0 + np.repeat(np.arange(n1), 8),
+                               n0 + n1 + np.repeat(np.arange(len(self.high_only)), 2)])
+
+    def chi2_by_group(self, errors, W) -> dict[str, tuple[float, int]]:
+        """Mean whitened residual² (χ² per residual; ≈ 1 when the covariances are right) and the count of
+        residuals for the board poses' frontal and oblique groups and the highlights (their own rows of the
+        whitened frame vectors)."""
+        rc, rh = self.raw(errors)
+        vecs = self.group_vectors(rc, rh)
+        z = [(w @ r[..., None])[..., 0] for w, r in zip(W, vecs)]
+        ob = [self.oblique[self.cam_only], self.oblique[self.pair_c]]
+        out = {}
+        for name, rows in (("board_frontal", [z[0][~ob[0]], z[1][~ob[1], :6]]),
+                           ("board_oblique", [z[0][ob[0]], z[1][ob[1], :6]]),
+                           ("highlight", [z[1][:, 6:], z[2]])):
+            v = np.concatenate([r.ravel() for r in rows])
+            if v.size:
+                out[name] = (float(np.mean(v ** 2)), int(v.size))
+        return out
