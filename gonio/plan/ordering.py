@@ -384,9 +384,8 @@ def optimize_order(joints, model: MotionModel, *, start=None, seed: int = 0, tim
     # node k; the start and end nodes keep N and N+1, each list keeps its order): the same moves, since
     # only costs, list order and tour position decide them, but the poses a move touches are near each
     # other in memory (at 10⁵ poses the search ran ~1.4x slower in the poses' own numbering)
-    inv = np.empty(n, np.int64)
-    inv[best] = np.arange(n)
-    nbr_idx, nbr_cost = inv[idx[best]].tolist(), dist[best].tolist()
+    inv, idx, dist = _renumbered(best, idx, dist)
+    nbr_idx, nbr_cost = idx.tolist(), dist.tolist()
     s_idx, s_cost = ([], []) if start is None else _start_neighbours(q, model, start, neighbours)
     nbr_idx += [inv[np.asarray(s_idx, dtype=np.int64)].tolist(), []]
     nbr_cost += [s_cost, []]
@@ -399,10 +398,17 @@ def optimize_order(joints, model: MotionModel, *, start=None, seed: int = 0, tim
                         "local search cpu": time.process_time() - c1})
     perm = best[tour[1:-1]]
     if nbrs is not None:  # the ordered plan's estimate needs them again (its spanning tree): renumbered
-        inv = np.empty(n, np.int64)
-        inv[perm] = np.arange(n)
-        _nb.remember(q[perm], model, (inv[nbrs[0][perm]], nbrs[1][perm]))
+        _nb.remember(q[perm], model, _renumbered(perm, *nbrs)[1:])
     return perm
+
+
+def _renumbered(order: np.ndarray, idx: np.ndarray, dist: np.ndarray):
+    """Neighbour lists ``(idx, dist)`` (one row per pose) of the poses taken in ``order``: row ``k`` is pose
+    ``order[k]``'s, its entries renumbered to positions in ``order``. Returns ``(inv, idx, dist)``, ``inv``
+    the inverse permutation (pose → position)."""
+    inv = np.empty(order.size, np.int64)
+    inv[order] = np.arange(order.size)
+    return inv, inv[idx[order]], dist[order]
 
 
 def _optimize_order_reference(joints, model: MotionModel, *, start=None, seed: int = 0, max_passes: int = 30,
