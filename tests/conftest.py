@@ -83,6 +83,8 @@ def _uses_a_module_fixture(item) -> bool:
     if info is None:
         return False
     return any(defs and defs[-1].scope == "module" for defs in info.name2fixturedefs.values())
+
+
 #: The most expensive modules (seconds of wall time each on a 2-core machine: a grouped module's whole group,
 #: or single tests of several seconds), most expensive first. They are handed out first (longest processing
 #: time first: Graham, "Bounds on multiprocessing timing anomalies", 1969): started last, one of them keeps

@@ -23,12 +23,11 @@ from gonio.samples import SampleSet
 from tests.conftest import SMALL_SESSION
 
 REPO = Path(__file__).resolve().parents[2]
-SMALL = SMALL_SESSION  # the small in-plane session
 
 
 @pytest.fixture(scope="module")
 def pristine(tmp_path_factory, copy_small_session):
-    """The small in-plane session (tests/conftest.py: ``measure --sim`` with SMALL)."""
+    """The small in-plane session (tests/conftest.py: ``measure --sim`` with SMALL_SESSION)."""
     return copy_small_session(tmp_path_factory.mktemp("u") / "s")
 
 
@@ -229,7 +228,7 @@ def test_the_lab_time_of_a_killed_run_survives_the_resume(tmp_path, capsys):
 
     d = tmp_path / "s"
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen([sys.executable, "-m", "gonio.cli.main", "measure", "--sim", *SMALL, "--out", str(d)],
+    proc = subprocess.Popen([sys.executable, "-m", "gonio.cli.main", "measure", "--sim", *SMALL_SESSION, "--out", str(d)],
                             cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
