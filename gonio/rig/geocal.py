@@ -43,7 +43,7 @@ from scipy.optimize import least_squares
 
 from gonio.errors import ConfigError
 from gonio.rig.chain import ARM_FIELDS, CAMERA_FIELDS, TURNTABLE_FIELDS, ChainErrors, chain_forward
-from gonio.rig.geocal_noise import FrameNoise
+from gonio.rig.geocal_noise import FrameNoise, cholesky
 
 __all__ = ["CameraObservation", "HighlightObservation", "GeoCalResult", "DegeneratePoses", "calibrate_geometry",
            "calibration_plan", "calibrated_rig_text", "RANK_TOL", "MAX_SIGMA"]
@@ -134,15 +134,13 @@ def rotvec(R):
 _rotvec = rotvec
 
 
-def _whiteners(obs, n: int, unit: float):
+def _whiteners(obs, unit: float):
     """(N, n, n) matrices W with Wᵀ W = cov⁻¹ (so W r has unit covariance), or None if any observation has
     no covariance (then the block is weighted by its scatter alone). ``unit`` scales cov to the residual's unit."""
     if not obs or any(o.cov is None for o in obs):
         return None
     covs = np.stack([np.asarray(o.cov, dtype=np.float64) * unit ** 2 for o in obs])
-    covs = covs + np.eye(n) * 1e-12 * np.trace(covs, axis1=1, axis2=2)[:, None, None]
-    L = np.linalg.cholesky(covs)
-    return np.linalg.inv(L)
+    return np.linalg.inv(cholesky(covs))
 
 
 def _residual_blocks(rig, errors: ChainErrors, cams, highs, *, highlight_camera: str = "chain", white=None):
@@ -272,7 +270,7 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
     else:
         # each observation whitened by its own covariance (if every one of its kind has one), each kind then
         # rescaled by its scatter
-        white = {"camera": _whiteners(cams, 6, 1.0), "highlight": _whiteners(highs, 2, 1e3)} if weighted else {}
+        white = {"camera": _whiteners(cams, 1.0), "highlight": _whiteners(highs, 1e3)} if weighted else {}
         kw = {"highlight_camera": highlight_camera, "white": white}
         state = {"scale": {k: 1.0 for k in _residual_blocks(rig, ChainErrors(), cams, highs, **kw)}}
 

@@ -45,6 +45,13 @@ COMPONENTS = ("board_frontal", "board_oblique", "highlight", "joint_deg2")
 JOINT_SIGMA_START_DEG = 0.025
 
 
+def cholesky(C: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factors of a stack of covariances ``C`` (..., d, d), each with a jitter of 1e-12 of its
+    trace on the diagonal (a covariance that is singular to rounding, e.g. a board pose's, still factors)."""
+    d = C.shape[-1]
+    return np.linalg.cholesky(C + np.eye(d) * 1e-12 * np.trace(C, axis1=-2, axis2=-1)[..., None, None])
+
+
 def pair_frames(cams, highs) -> np.ndarray:
     """Index of the camera observation taken in the same frame as each highlight (``-1``: none): same joints,
     same camera pose (a highlight observation carries its frame's board pose)."""
@@ -91,10 +98,14 @@ class FrameNoise:
         self.n_frames = len(self.cam_only) + len(self.pair_h) + len(self.high_only)
 
     # -- residuals -------------------------------------------------------------------------------------
-    def raw(self, errors, joints_delta=None):
+    def raw(self, errors, joints_delta=None, cams=None, highs=None):
         """Raw residuals ``(cams (Nc, 6), highs (Nh, 2))`` at ``errors`` (joints shifted by ``joints_delta``,
-        rad, applied to every observation: for :meth:`jacobians`)."""
+        rad, applied to every observation: for :meth:`jacobians`); ``cams``/``highs``: perturbed copies of
+        the observations (same frames) in place of the session's."""
         from gonio.rig.geocal import _residual_blocks
+
+        cams = self.cams if cams is None else cams
+        highs = self.highs if highs is None else highs
 
         def shift(obs):
             if joints_delta is None:
@@ -103,10 +114,10 @@ class FrameNoise:
 
             return [replace(o, joints=np.asarray(o.joints) + joints_delta) for o in obs]
 
-        b = _residual_blocks(self.rig, errors, shift(self.cams), shift(self.highs))
+        b = _residual_blocks(self.rig, errors, shift(cams), shift(highs))
         rc = (np.concatenate([b["camera_mm"].reshape(-1, 3), b["camera_deg"].reshape(-1, 3)], axis=1)
-              if self.cams else np.zeros((0, 6)))
-        rh = b["highlight_mrad"].reshape(-1, 2) if self.highs else np.zeros((0, 2))
+              if cams else np.zeros((0, 6)))
+        rh = b["highlight_mrad"].reshape(-1, 2) if highs else np.zeros((0, 2))
         return rc, rh
 
     def jacobians(self, errors, h: float = 1e-6):
@@ -154,7 +165,7 @@ class FrameNoise:
             for r, C in zip(vecs, self.group_covariances(Jc, Jh, comp)):
                 if not len(r):
                     continue
-                L = np.linalg.cholesky(C + np.eye(C.shape[-1]) * 1e-12 * np.trace(C, axis1=1, axis2=2)[:, None, None])
+                L = cholesky(C)
                 z = np.linalg.solve(L, r[..., None])[..., 0]
                 total += float(np.sum(z ** 2)) + 2.0 * float(np.sum(np.log(np.diagonal(L, axis1=1, axis2=2))))
             return total
@@ -171,22 +182,13 @@ class FrameNoise:
         Jc, Jh = self.jacobians(errors)
         out = []
         for C in self.group_covariances(Jc, Jh):
-            d = C.shape[-1]
-            C = C + np.eye(d) * 1e-12 * np.trace(C, axis1=1, axis2=2)[:, None, None]
-            out.append(np.linalg.inv(np.linalg.cholesky(C)) if len(C) else np.zeros((0, d, d)))
+            out.append(np.linalg.inv(cholesky(C)) if len(C) else np.zeros(C.shape))
         return out
 
     def whitened(self, errors, W, cams=None, highs=None):
         """The whitened residual vector (all frames) at ``errors``; ``cams``/``highs``: perturbed copies of the
         observations (same frames), for the systematic errors' propagation."""
-        if cams is not None or highs is not None:
-            other = FrameNoise.__new__(FrameNoise)
-            other.__dict__.update(self.__dict__)
-            other.cams = self.cams if cams is None else cams
-            other.highs = self.highs if highs is None else highs
-            rc, rh = other.raw(errors)
-        else:
-            rc, rh = self.raw(errors)
+        rc, rh = self.raw(errors, cams=cams, highs=highs)
         return np.concatenate([(w @ r[..., None])[..., 0].ravel() for w, r in zip(W, self.group_vectors(rc, rh))])
 
     def clusters(self) -> np.ndarray:
