@@ -20,6 +20,10 @@ def register(sub) -> None:
     p.add_argument("--candidates", default=None, help="comma-separated candidates for --select "
                                                       "(default lambert,blinn-phong,microfacet,lambert+2ggx)")
     p.add_argument("--criterion", default="auto", help="selection criterion: auto, bic, aic, cv")
+    p.add_argument("--equivalence", type=float, default=None, metavar="REL",
+                   help="--select keeps the simplest candidate whose predictions are within REL (relative) of the "
+                        "criterion's choice at every sample (default 0.01: 1 %%, about a gonioreflectometer's accuracy; "
+                        "0: the criterion alone)")
     p.add_argument("--loss", default="auto", help="auto, cosine, chi2, log, cbrt (auto: chi2 with uncertainties)")
     p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                    help="hold a parameter fixed (repeatable), e.g. distribution=beckmann or f0=0.9,0.6,0.5")
@@ -67,7 +71,10 @@ def _options(args) -> dict:
 
         resolve_fixed(model_class(args.model), fixed)
     cands = tuple(c.strip() for c in args.candidates.split(",")) if args.candidates else None
+    if args.equivalence is not None and not args.select:
+        raise ConfigError.field("--equivalence", "equivalence", args.equivalence, "applies to --select only")
     return {"select": args.select, "model": args.model, "candidates": cands, "criterion": args.criterion,
+            **({} if args.equivalence is None else {"equivalence": args.equivalence}),
             "loss": args.loss, "fixed": fixed, "seed": args.seed,
             "max_theta_deg": None if args.all_angles else args.max_theta, "force": args.force}
 
@@ -80,6 +87,8 @@ def fit_one(source: str, opts: dict):
     if opts["select"]:
         import sys
 
+        if "equivalence" in opts:
+            kw["equivalence"] = opts["equivalence"]
         sel = api.select(source, opts["candidates"], criterion=opts["criterion"],
                          progress=opts.get("progress", False) and sys.stderr.isatty(), **kw)
         return sel.winner, sel

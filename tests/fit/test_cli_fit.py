@@ -42,3 +42,5 @@ def test_fit_errors_are_one_line(tmp_path, capsys):
     assert main(["fit", str(bad), "--loss", "huber"]) == 4  # the file is read first
     assert main(["fit", str(bad), "--max-theta", "200"]) == 2  # options are checked before the file is read
     assert "--max-theta: max_theta = 200.0: must be in (0, 90] degrees" in capsys.readouterr().err
+    assert main(["fit", str(bad), "--equivalence", "0.05"]) == 2  # a --select option without --select
+    assert "--equivalence: equivalence = 0.05: applies to --select only" in capsys.readouterr().err
