@@ -64,6 +64,10 @@ class SimServo:
         self.noise_ticks = float(noise_ticks)
         self.backlash_ticks = float(backlash_ticks)
         self.mem = bytearray(self.table.size)
+        #: name -> (start, end, size, signed, mask) of every field: peek and poke run on every read of the bus
+        self._slots = {f.name: (f.address, f.address + f.size, f.size, f.signed, (1 << (8 * f.size)) - 1)
+                       for f in self.table.fields.values()}
+        self._move_time = 0.0  #: duration of the move in ``_move`` (trapezoid_time, computed once per move)
         self.online = True
         self.horn = float(position)  #: true horn angle, ticks (physical: survives reboot and power cycle)
         self.joint_ticks = float(position)  #: load side after backlash, ticks
@@ -90,12 +94,20 @@ class SimServo:
         return self.peek("id")
 
     def peek(self, name: str) -> int:
-        f = self.table[name]
-        return f.from_unsigned(int.from_bytes(self.mem[f.address:f.address + f.size], "little"))
+        """The field's value (two's complement for a signed field, as Field.from_unsigned decodes it)."""
+        slot = self._slots.get(name)
+        if slot is None:
+            self.table[name]  # ConfigError naming the unknown field
+        a, b, _, signed, _ = slot
+        return int.from_bytes(self.mem[a:b], "little", signed=signed)
 
     def poke(self, name: str, value: int) -> None:
-        f = self.table[name]
-        self.mem[f.address:f.address + f.size] = f.to_unsigned(int(value)).to_bytes(f.size, "little")
+        """Store ``value`` in the field (its low bytes, as Field.to_unsigned encodes it)."""
+        slot = self._slots.get(name)
+        if slot is None:
+            self.table[name]  # ConfigError naming the unknown field
+        a, b, size, _, mask = slot
+        self.mem[a:b] = (int(value) & mask).to_bytes(size, "little")
 
     # -- faults ---------------------------------------------------------------------------------
     def trip(self, bits: int = HW_OVERLOAD) -> None:
@@ -128,10 +140,10 @@ class SimServo:
         now = self.clock.now()
         if self._move is not None:
             t0, start, dist, v, a = self._move
-            s, vel = trapezoid_progress(now - t0, dist, v, a)
-            self.horn = start + float(s)
-            done = now - t0 >= float(trapezoid_time(dist, v, a))
-            if done:
+            if now - t0 < self._move_time:  # on the way: the profile's position and velocity now
+                s, vel = trapezoid_progress(now - t0, dist, v, a)
+                self.horn = start + float(s)
+            else:  # arrived
                 self.horn, self._move = start + dist, None
                 vel = 0.0
                 if self.seed is not None:  # at rest: one reading noise until the next move, from (seed, ID, goal)
@@ -171,6 +183,7 @@ class SimServo:
         self._update()
         v, a = self._profile()
         self._move = (self.clock.now(), self.horn, float(goal_ticks) - self.horn, v, a)
+        self._move_time = float(trapezoid_time(self._move[2], v, a))
         self._update()
 
     # -- instructions ---------------------------------------------------------------------------
