@@ -585,8 +585,8 @@ class DynamixelAxes:
 
     def positions(self) -> dict[str, float]:
         """Measured joint angles (radians) now: the last read's if it was taken at this same Clock time
-        and nothing was written to a servo since (the same instant of the same state: with a real clock
-        time always moves on, so this reads), else one sync read of Present Position."""
+        and this object has written nothing to a servo since (the same instant of the same state: with a
+        real clock time always moves on, so this reads), else one sync read of Present Position."""
         seen = self._seen
         if seen is not None and seen[0] == self.clock.now():
             return dict(seen[1])
