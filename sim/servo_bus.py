@@ -38,7 +38,7 @@ import numpy as np
 
 from gonio.rig.clock import RealClock
 from gonio.rig.control_table import ControlTable, load_control_table
-from gonio.rig.kinematics import trapezoid_progress, trapezoid_time
+from gonio.rig.kinematics import trapezoid_time
 from sim import dxl_packet as P
 from sim.faults import LinkFaults
 from sim.pty import PtyServer
@@ -46,6 +46,29 @@ from sim.seeding import SETUP, pose_rng, position_key
 
 #: Hardware Error Status bits (e-manual, "Shutdown(63)").
 HW_INPUT_VOLTAGE, HW_OVERHEATING, HW_ENCODER, HW_ELECTRICAL_SHOCK, HW_OVERLOAD = 0x01, 0x04, 0x08, 0x10, 0x20
+
+
+def _progress(t: float, distance: float, v: float, a: float, total: float) -> tuple[float, float]:
+    """Position and velocity ``(s, ds/dt)`` at ``t`` of a move still on its way (``0 <= t < total``,
+    ``distance != 0``, ``v`` finite): :func:`gonio.rig.kinematics.trapezoid_progress` on Python floats, the
+    same operations in the same order (so the same values; a test checks it), without NumPy's cost on
+    scalars; ``total`` is the move's :func:`~gonio.rig.kinematics.trapezoid_time`. The profile: ROBOTIS
+    e-manual, X series, "Profile Velocity(112)" (trapezoidal, triangular or rectangular)."""
+    sign, dist = (1.0 if distance > 0 else -1.0), abs(distance)
+    inf_a = math.isinf(a)
+    peak = min(v, math.sqrt(a * dist))
+    t_acc = 0.0 if inf_a else peak / a
+    af = 0.0 if inf_a else a  # infinite acceleration: velocity jumps, no ramp
+    tc = min(max(t, 0.0), total)
+    t_dec0 = total - t_acc  # deceleration starts
+    s_acc = 0.5 * af * min(tc, t_acc) ** 2  # ** 2 is pow() as for NumPy's scalars, not x * x (1 ulp apart)
+    s_cruise = peak * max(min(tc, t_dec0) - t_acc, 0.0)
+    td = max(tc - t_dec0, 0.0)
+    s_dec = peak * td - 0.5 * af * td ** 2
+    if tc >= total:
+        return sign * dist, sign * 0.0
+    vel = (peak if inf_a else af * tc) if tc < t_acc else (peak if tc < t_dec0 else peak - af * td)
+    return sign * (s_acc + s_cruise + s_dec), sign * vel
 
 
 class SimServo:
@@ -64,6 +87,10 @@ class SimServo:
         self.noise_ticks = float(noise_ticks)
         self.backlash_ticks = float(backlash_ticks)
         self.mem = bytearray(self.table.size)
+        #: name -> (start, end, size, signed, mask) of every field: peek and poke run on every read of the bus
+        self._slots = {f.name: (f.address, f.address + f.size, f.size, f.signed, (1 << (8 * f.size)) - 1)
+                       for f in self.table.fields.values()}
+        self._move_time = 0.0  #: duration of the move in ``_move`` (trapezoid_time, computed once per move)
         self.online = True
         self.horn = float(position)  #: true horn angle, ticks (physical: survives reboot and power cycle)
         self.joint_ticks = float(position)  #: load side after backlash, ticks
@@ -90,12 +117,20 @@ class SimServo:
         return self.peek("id")
 
     def peek(self, name: str) -> int:
-        f = self.table[name]
-        return f.from_unsigned(int.from_bytes(self.mem[f.address:f.address + f.size], "little"))
+        """The field's value (two's complement for a signed field, as Field.from_unsigned decodes it)."""
+        slot = self._slots.get(name)
+        if slot is None:
+            self.table[name]  # ConfigError naming the unknown field
+        a, b, _, signed, _ = slot
+        return int.from_bytes(self.mem[a:b], "little", signed=signed)
 
     def poke(self, name: str, value: int) -> None:
-        f = self.table[name]
-        self.mem[f.address:f.address + f.size] = f.to_unsigned(int(value)).to_bytes(f.size, "little")
+        """Store ``value`` in the field (its low bytes, as Field.to_unsigned encodes it)."""
+        slot = self._slots.get(name)
+        if slot is None:
+            self.table[name]  # ConfigError naming the unknown field
+        a, b, size, _, mask = slot
+        self.mem[a:b] = (int(value) & mask).to_bytes(size, "little")
 
     # -- faults ---------------------------------------------------------------------------------
     def trip(self, bits: int = HW_OVERLOAD) -> None:
@@ -128,10 +163,10 @@ class SimServo:
         now = self.clock.now()
         if self._move is not None:
             t0, start, dist, v, a = self._move
-            s, vel = trapezoid_progress(now - t0, dist, v, a)
-            self.horn = start + float(s)
-            done = now - t0 >= float(trapezoid_time(dist, v, a))
-            if done:
+            if now - t0 < self._move_time:  # on the way: the profile's position and velocity now
+                s, vel = _progress(now - t0, dist, v, a, self._move_time)
+                self.horn = start + float(s)
+            else:  # arrived
                 self.horn, self._move = start + dist, None
                 vel = 0.0
                 if self.seed is not None:  # at rest: one reading noise until the next move, from (seed, ID, goal)
@@ -171,6 +206,7 @@ class SimServo:
         self._update()
         v, a = self._profile()
         self._move = (self.clock.now(), self.horn, float(goal_ticks) - self.horn, v, a)
+        self._move_time = float(trapezoid_time(self._move[2], v, a))
         self._update()
 
     # -- instructions ---------------------------------------------------------------------------

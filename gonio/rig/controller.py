@@ -23,7 +23,9 @@ Versions (SPEC.md §3): the session speaks the lower of the host's and the contr
 
 Watchdog: every request feeds the controller's watchdog. During long waits call :meth:`wait`, which
 sleeps on the :class:`Clock` in steps of at most half the watchdog period and sends a heartbeat between
-steps; with a simulated clock the controller measures silence on that same clock.
+steps, and after the last one if the controller has not heard from this client for more than half the
+period: it returns with the watchdog fed within the last half period, as it is after any request; with a
+simulated clock the controller measures silence on that same clock.
 Serial deadlines are real time (``time.monotonic``), as a serial timeout is; protocol time is the Clock.
 """
 
@@ -102,6 +104,7 @@ class RigController:
         #: minor version of this session: min(host's, controller's); None before the handshake
         self.session_minor: int | None = None
         self._exchange_times = (0.0, 0.0, 0.0, 1)  # Clock at first send, last send, reply; attempts
+        self._fed = -math.inf  # Clock time of the last request answered (it fed the controller's watchdog)
         if hasattr(port, "timeout"):
             port.timeout = 0.02
 
@@ -216,7 +219,10 @@ class RigController:
         self._transact("HEARTBEAT")
 
     def wait(self, seconds: float) -> None:
-        """Sleep ``seconds`` on the Clock while keeping the watchdog fed (heartbeat every period/2)."""
+        """Sleep ``seconds`` on the Clock while keeping the watchdog fed: a heartbeat between steps of at most
+        period/2, and after the last step only if the last request this client sent is more than period/2
+        ago (a settle of a fraction of a second right after a request needs none: the controller's silence
+        when this returns is at most period/2 either way, as after any request)."""
         step = self.watchdog / 2.0
         end = self.clock.now() + max(0.0, float(seconds))
         for _ in range(int(math.ceil(max(0.0, seconds) / step)) + 1):  # bounded
@@ -224,7 +230,8 @@ class RigController:
             if left <= 0:
                 break
             self.clock.sleep(min(step, left))
-            self.heartbeat()
+            if left > step or self.clock.now() - self._fed > step:
+                self.heartbeat()
 
     def set_watchdog(self, seconds: float) -> None:
         """Change the controller's watchdog period (0.1 .. 3600 s)."""
@@ -300,6 +307,7 @@ class RigController:
             self._needs_flush = reply is None
             if reply is not None:
                 self._exchange_times = (first, sent, self.clock.now(), attempt + 1)
+                self._fed = sent
                 return reply
         tries = self.retries + 1
         if corrupt:

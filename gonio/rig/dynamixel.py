@@ -74,6 +74,21 @@ def _status_ok(rxpacket, dxl_id: int, n_params: int) -> bool:
     return rxpacket[sdk.PKT_ID] == dxl_id and rxpacket[sdk.PKT_INSTRUCTION] == _INST_STATUS and length == n_params + 4
 
 
+def _crc_table() -> tuple[int, ...]:
+    """Table of the Protocol 2.0 CRC-16 (poly 0x8005, init 0, not reflected; e-manual, "Protocol 2.0 CRC"):
+    the same 256 values as the table the SDK's ``updateCRC`` spells out (and rebuilds on every call)."""
+    table = []
+    for i in range(256):
+        crc = i << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x8005) if crc & 0x8000 else (crc << 1)
+        table.append(crc & 0xFFFF)
+    return tuple(table)
+
+
+_CRC_TABLE = _crc_table()
+
+
 class _CheckedPacketHandler(sdk.Protocol2PacketHandler):
     """The SDK's Protocol 2.0 handler, with every status packet checked before a value is taken from it.
 
@@ -82,6 +97,27 @@ class _CheckedPacketHandler(sdk.Protocol2PacketHandler):
     bytes, or an ``IndexError`` in the SDK. Here such a packet is ``COMM_RX_CORRUPT`` (retried by
     :meth:`DynamixelBus.transact`), so no value is ever built from a malformed reply.
     """
+
+    def updateCRC(self, crc_accum, data_blk_ptr, data_blk_size):  # noqa: N802 - SDK name
+        """The SDK's CRC-16 (same algorithm, same result) from a table built once instead of on every call
+        (the SDK builds its 256-entry list each time: a third of the CPU of a short transaction)."""
+        table = _CRC_TABLE
+        for j in range(data_blk_size):
+            crc_accum = ((crc_accum << 8) ^ table[((crc_accum >> 8) ^ data_blk_ptr[j]) & 0xFF]) & 0xFFFF
+        return crc_accum
+
+    def removeStuffing(self, packet):  # noqa: N802 - SDK name
+        """The SDK's unstuffing, skipped when nothing is stuffed (the SDK's byte loop looks for ``FF FF FD FD``
+        in the bytes from the length field to the first CRC byte, and without one it leaves the packet as it
+        is); after it, the packet is cut to its unstuffed length: the SDK moves the bytes forward and updates
+        the length field but leaves the list as long as it was, and the leftover bytes would fail the size
+        check of :func:`_status_ok` (a reply whose parameters contain ``FF FF FD`` taken as corrupted)."""
+        n = packet[sdk.PKT_LENGTH_L] | (packet[sdk.PKT_LENGTH_H] << 8)
+        if b"\xff\xff\xfd\xfd" not in bytes(packet[sdk.PKT_INSTRUCTION - 2:sdk.PKT_INSTRUCTION + n - 1]):
+            return packet
+        packet = super().removeStuffing(packet)
+        del packet[sdk.PKT_LENGTH_H + 1 + (packet[sdk.PKT_LENGTH_L] | (packet[sdk.PKT_LENGTH_H] << 8)):]
+        return packet
 
     def readRx(self, port, dxl_id, length):  # noqa: N802 - SDK name; used by GroupSyncRead
         while True:
@@ -170,6 +206,7 @@ class DynamixelBus:
         self._ph = _CheckedPacketHandler()
         self._lock = threading.RLock()
         self._sync_reads: dict[tuple, sdk.GroupSyncRead] = {}
+        self._block_fields: dict[tuple, list] = {}  # (model, address, length) -> [(name, start, end, signed)]
         self.stats = {"transactions": 0, "retries": 0, "recoveries": 0}
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -353,8 +390,16 @@ class DynamixelBus:
                 group.addParam(i)
             self._sync_reads[key] = group
         self.transact(f"sync read {first}..{last}", None, lambda: group.txRxPacket())
-        fields = [f for f in table.fields.values() if address <= f.address and f.address + f.size <= address + length]
-        return {i: {f.name: f.from_unsigned(group.getData(i, f.address, f.size)) for f in fields} for i in ids}
+        fields = self._block_fields.get((table.model, address, length))
+        if fields is None:
+            fields = [(f.name, f.address - address, f.address - address + f.size, f.signed)
+                      for f in table.fields.values() if address <= f.address and f.address + f.size <= address + length]
+            self._block_fields[(table.model, address, length)] = fields
+        out = {}
+        for i in ids:  # the block's bytes as received (readRx checked the length), decoded field by field
+            data = bytes(group.data_dict[i])
+            out[i] = {name: int.from_bytes(data[a:b], "little", signed=signed) for name, a, b, signed in fields}
+        return out
 
     def bulk_read(self, requests: Mapping[int, tuple[ControlTable, str]]) -> dict[int, int]:
         """One ``GroupBulkRead`` of one field per servo: ``{id: (table, field)}`` → ``{id: value}``."""
@@ -410,7 +455,11 @@ class DynamixelAxes:
     clock : Clock for settling and timeouts (``SimClock`` shared with the emulator in tests)
     tolerance_ticks : settled when every servo is within this many ticks of its goal and not moving
     poll_s : polling period while settling
-    max_blind_s : longest wait between polls during a long move (alarms are seen this late at worst)
+    max_blind_s : longest wait between polls during a long move (alarms are seen this late at worst). A
+        poll that sees an alarm mid-move only ends the wait early (a servo's own shutdown stops it, and
+        nothing is sent to the others), so the default lets a move of up to 2 s end with one poll at its
+        predicted end besides the one at once (issue 17: 0.5 s made ~1.4 more round trips per pose of a dense
+        plan, for an alarm reported up to 1.5 s sooner)
     auto_recover : reboots allowed per move to clear an alarm (0 = raise :class:`ServoAlarm`)
     clear_alarms : reboot servos that report a hardware error when configuring (else ServoAlarm)
     configure : write the configuration and enable torque now
@@ -418,7 +467,7 @@ class DynamixelAxes:
     """
 
     def __init__(self, bus: DynamixelBus, axes: Sequence[AxisConfig], clock, *, tolerance_ticks: int = 3,
-                 poll_s: float = 0.02, max_blind_s: float = 0.5, auto_recover: int = 0, configure: bool = True,
+                 poll_s: float = 0.02, max_blind_s: float = 2.0, auto_recover: int = 0, configure: bool = True,
                  torque_off_on_close: bool = False, clear_alarms: bool = False):
         if len({a.name for a in axes}) != len(axes) or len({a.servo_id for a in axes}) != len(axes):
             raise ConfigError.field(None, "axes", [a.name for a in axes], "joint names and servo IDs must be unique")
@@ -444,6 +493,8 @@ class DynamixelAxes:
                                     "all servos on one bus must share a control-table layout")
         self._goals: dict[str, int] = {}
         self.last_move: dict[str, object] = {}
+        #: the last state read: (Clock time, {joint: angle}); dropped whenever this object writes to a servo
+        self._seen: tuple[float, dict[str, float]] | None = None
         if configure:
             self.configure()
 
@@ -492,6 +543,7 @@ class DynamixelAxes:
             self._configure_ram(name)
 
     def _configure_ram(self, name: str) -> None:
+        self._seen = None
         a, t = self.axes[name], self._tables[name]
         self.bus.write(a.servo_id, t, "profile_velocity", t.rad_s_to_velocity(a.max_speed * a.gear_ratio))
         self.bus.write(a.servo_id, t, "profile_acceleration", t.rad_s2_to_acceleration(a.max_accel * a.gear_ratio))
@@ -503,6 +555,7 @@ class DynamixelAxes:
         Returns ``{joint: cleared Hardware Error Status bits}``. Call it only when the cause is gone
         (an overload means something blocked the arm)."""
         cleared = {}
+        self._seen = None
         for name, a in self.axes.items():
             bits = self.bus.read(a.servo_id, self._tables[name], "hardware_error_status", alarm_ok=True)
             if bits:
@@ -515,19 +568,32 @@ class DynamixelAxes:
     # -- state ----------------------------------------------------------------------------------
     def _state(self) -> dict[int, dict[str, int]]:
         """Torque, hardware error, moving and present position of every servo: one sync read of the
-        block Torque Enable … Present Position (one round trip on the bus, not one per field group)."""
-        return self.bus.sync_read(self._table, "torque_enable", "present_position", self._ids)
+        block Torque Enable … Present Position (one round trip on the bus, not one per field group).
+        The positions are remembered with the Clock time of the read (:meth:`positions`)."""
+        state = self.bus.sync_read(self._table, "torque_enable", "present_position", self._ids)
+        self._seen = (self.clock.now(), {n: self.to_angle(n, state[a.servo_id]["present_position"])
+                                         for n, a in self.axes.items()})
+        return state
 
     def alarms(self) -> dict[str, int]:
-        """``{joint: Hardware Error Status bits}`` of every servo reporting one (one sync read)."""
-        state = self.bus.sync_read(self._table, "hardware_error_status", "hardware_error_status", self._ids)
+        """``{joint: Hardware Error Status bits}`` of every servo reporting one. One sync read of the
+        state block (:meth:`_state`): the positions come with it, so a :meth:`positions` at the same
+        Clock time (the runner's safety check, then the pose's solution) costs no second round trip."""
+        state = self._state()
         return {n: state[a.servo_id]["hardware_error_status"] for n, a in self.axes.items()
                 if state[a.servo_id]["hardware_error_status"]}
 
     def positions(self) -> dict[str, float]:
-        """Measured joint angles (radians) now."""
+        """Measured joint angles (radians) now: the last read's if it was taken at this same Clock time
+        and this object has written nothing to a servo since (the same instant of the same state: with a
+        real clock time always moves on, so this reads), else one sync read of Present Position."""
+        seen = self._seen
+        if seen is not None and seen[0] == self.clock.now():
+            return dict(seen[1])
         data = self.bus.sync_read(self._table, "present_position", "present_position", self._ids)
-        return {n: self.to_angle(n, data[a.servo_id]["present_position"]) for n, a in self.axes.items()}
+        angles = {n: self.to_angle(n, data[a.servo_id]["present_position"]) for n, a in self.axes.items()}
+        self._seen = (self.clock.now(), angles)
+        return dict(angles)
 
     # -- motion ---------------------------------------------------------------------------------
     def _check_targets(self, targets: Mapping[str, float]) -> None:
@@ -543,7 +609,9 @@ class DynamixelAxes:
         """Move the named joints together (others hold), wait until settled, return measured angles."""
         self._check_targets(targets)
         start = self.clock.now()
-        current = self.positions()
+        # the positions only matter for a goal not yet known (the move's predicted time) and for the approach
+        need = any(n not in self._goals for n in self.names) or any(self.axes[n].approach for n in targets)
+        current = self.positions() if need else {}
         for name, angle in current.items():
             self._goals.setdefault(name, self.to_ticks(name, angle))
         stages = []
@@ -568,8 +636,12 @@ class DynamixelAxes:
         goals = {self.axes[n].servo_id: self.to_ticks(n, v) for n, v in targets.items()}
         recoveries = 0
         reissued = False
+        self._seen = None
         self.bus.sync_write(self._table, "goal_position", goals)
         predicted_end = self.clock.now() + self._predict(goals)
+        # the first poll comes at once, before the Clock moves on: a sync write has no reply, and only a round
+        # trip after it shows that the servos have taken the goal (with a simulated clock: the emulator starts
+        # the profile at the Clock time it handles the packet)
         while True:
             state = self._state()
             alarms = {i: s["hardware_error_status"] for i, s in state.items() if s["hardware_error_status"]}

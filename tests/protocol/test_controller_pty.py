@@ -99,6 +99,24 @@ def test_wait_keeps_the_watchdog_fed_and_period_is_configurable(rig):
     assert not emu.light_on
 
 
+def test_wait_sends_heartbeats_only_where_silence_would_pass_half_the_period(rig):
+    """Between steps always; after the last one only when the last request is more than period/2 ago: a short
+    settle right after a request costs no round trip, and the watchdog is fed within period/2 either way."""
+    emu, ctl, clock = rig  # watchdog 10 s
+    ctl.set_light(True, 1.0)
+    beats = lambda: emu.executed["HEARTBEAT"]  # noqa: E731
+    n = beats()
+    ctl.wait(0.3)  # a settle: 0.3 s after SET_LIGHT
+    assert beats() == n and emu.light_on
+    clock.sleep(4.9)
+    ctl.wait(0.3)  # 5.2 s of silence > 5 s: fed
+    assert beats() == n + 1
+    ctl.wait(12.0)  # steps of 5 s: 5 (beat) 5 (beat) 2 (2 s since the last beat: none)
+    assert beats() == n + 3 and emu.light_on
+    clock.sleep(9.9)  # 11.9 s since the last request: the watchdog trips
+    assert not emu.light_on
+
+
 def test_trigger_pulses_back_to_back_wait_on_the_clock(rig):
     emu, ctl, clock = rig
     t0 = clock.now()
