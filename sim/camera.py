@@ -499,16 +499,18 @@ class SimCamera:
         rate = self.electron_rate()
         temp = self.sensor_temperature()
         dark_e = np.float32(sn.dark_rate(temp) * exposure)
-        mean_e = rate * np.float32(level * exposure)
+        mean_e = np.multiply(rate, np.float32(level * exposure))
         pattern = self._dark_pattern(mean_e.shape)
         if pattern is None:
             mean_e += dark_e
         else:
-            mean_e += pattern * dark_e
+            mean_e += np.multiply(pattern, dark_e, out=self._scratch(mean_e.shape))
         e = self._shot_and_read(mean_e)
         np.minimum(e, np.float32(sn.full_well), out=e)
         if sn.linear:
-            dn = e * np.float32(sn.dn_per_electron * gain) + np.float32(sn.black_level)
+            dn = e
+            dn *= np.float32(sn.dn_per_electron * gain)
+            dn += np.float32(sn.black_level)
         else:
             x = np.clip(e * np.float32(gain / sn.full_well), 0.0, 1.0)
             dn = 255.0 * x ** np.float32(1.0 / sn.gamma)
@@ -524,17 +526,31 @@ class SimCamera:
 
     def _shot_and_read(self, mean_e: np.ndarray) -> np.ndarray:
         """Electrons after shot noise (Poisson; its normal approximation above
-        :data:`POISSON_EXACT_BELOW`) plus Gaussian read noise, in one normal draw where possible."""
+        :data:`POISSON_EXACT_BELOW`) plus Gaussian read noise, in one normal draw where possible.
+        The result is the camera's work array (:meth:`_scratch`): the next frame overwrites it."""
         z = self._standard_normal(mean_e.shape)
-        e = mean_e + np.float32(self.sensor.read_noise_e ** 2)
+        low = mean_e < POISSON_EXACT_BELOW
+        any_low = bool(low.any())
+        if any_low:
+            m = mean_e[low]
+            np.maximum(m, 0.0, out=m)
+            shot = self._rng.poisson(m)
+        e = np.add(mean_e, np.float32(self.sensor.read_noise_e ** 2), out=self._scratch(mean_e.shape))
         np.sqrt(e, out=e)
         e *= z
         e += mean_e
-        low = mean_e < POISSON_EXACT_BELOW
-        if low.any():
-            m = mean_e[low]
-            e[low] = self._rng.poisson(np.maximum(m, 0.0)) + self.sensor.read_noise_e * z[low]
+        if any_low:
+            z_low = z[low]
+            z_low *= np.float32(self.sensor.read_noise_e)
+            e[low] = shot + z_low
         return e
+
+    def _scratch(self, shape) -> np.ndarray:
+        """A float32 work array of ``shape``, reused from frame to frame (its contents are overwritten)."""
+        buf = self.__dict__.get("_work")
+        if buf is None or buf.shape != tuple(shape):
+            buf = self._work = np.empty(shape, np.float32)
+        return buf
 
     def _standard_normal(self, shape) -> np.ndarray:
         """Standard normal float32 deviates by inverse-CDF lookup of 16-bit uniform integers
