@@ -26,12 +26,13 @@ from gonio.errors import ConfigError, HardwareError
 from gonio.geometry import dot, normalize, to_local
 from gonio.pipeline.target import CameraCalibration, CameraPose, NoiseModel, TargetLayout, surface_frame
 from gonio.rig.interfaces import Clock, Frame, PhotodiodeReading
+from sim import sensor_noise
 
 __all__ = ["SensorModel", "SimScene", "SimCamera", "SceneLight", "normal_table"]
 
-#: Below this mean count (electrons) shot noise is drawn from the exact Poisson law; above it from
-#: its normal approximation N(μ, μ), whose CDF error is below 1 % of σ there (Berry–Esseen bound
-#: ~0.4/√μ on the CDF; the mean and variance are exact in both cases).
+#: Below this mean count (electrons) shot noise is drawn from the exact Poisson law (by inversion,
+#: :mod:`sim.sensor_noise`); above it from its normal approximation N(μ, μ), whose CDF error is below 1 % of
+#: σ there (Berry–Esseen bound ~0.4/√μ on the CDF; the mean and variance are exact in both cases).
 POISSON_EXACT_BELOW = 30.0
 
 
@@ -505,45 +506,26 @@ class SimCamera:
             mean_e += dark_e
         else:
             mean_e += np.multiply(pattern, dark_e, out=self._scratch(mean_e.shape))
-        e = self._shot_and_read(mean_e)
-        np.minimum(e, np.float32(sn.full_well), out=e)
+        draws = sensor_noise.draw(self._rng, self._normal_indices, mean_e, POISSON_EXACT_BELOW)
         if sn.linear:
-            dn = e
-            dn *= np.float32(sn.dn_per_electron * gain)
-            dn += np.float32(sn.black_level)
+            pixels = (sensor_noise.frame_compiled if sensor_noise.compiled_available() else sensor_noise.frame_numpy)(
+                mean_e, normal_table(), *draws, read_noise=sn.read_noise_e, full_well=sn.full_well,
+                gain_k=sn.dn_per_electron * gain, black=sn.black_level, saturation=sn.saturation,
+                dtype=np.uint8 if sn.bit_depth == 8 else np.uint16)
         else:
+            e = sensor_noise.electrons_numpy(mean_e, normal_table(), *draws, read_noise=sn.read_noise_e)
+            np.minimum(e, np.float32(sn.full_well), out=e)
             x = np.clip(e * np.float32(gain / sn.full_well), 0.0, 1.0)
             dn = 255.0 * x ** np.float32(1.0 / sn.gamma)
-        np.rint(dn, out=dn)
-        np.clip(dn, 0, sn.saturation, out=dn)
-        pixels = dn.astype(np.uint8 if sn.bit_depth == 8 else np.uint16)
+            np.rint(dn, out=dn)
+            np.clip(dn, 0, sn.saturation, out=dn)
+            pixels = dn.astype(np.uint8)
         if self.clock is not None:
             self.clock.sleep(exposure + sn.readout)
         return Frame(pixels=pixels, exposure=float(exposure), gain=float(gain), bit_depth=sn.bit_depth,
                      black_level=float(sn.black_level), timestamp=t0, linear=sn.linear,
                      meta={"device": "sim", "light_output": level,
                            **({"sensor_temp_c": round(temp, 1)} if sn.reports_temperature else {})})
-
-    def _shot_and_read(self, mean_e: np.ndarray) -> np.ndarray:
-        """Electrons after shot noise (Poisson; its normal approximation above
-        :data:`POISSON_EXACT_BELOW`) plus Gaussian read noise, in one normal draw where possible.
-        The result is the camera's work array (:meth:`_scratch`): the next frame overwrites it."""
-        z = self._standard_normal(mean_e.shape)
-        low = mean_e < POISSON_EXACT_BELOW
-        any_low = bool(low.any())
-        if any_low:
-            m = mean_e[low]
-            np.maximum(m, 0.0, out=m)
-            shot = self._rng.poisson(m)
-        e = np.add(mean_e, np.float32(self.sensor.read_noise_e ** 2), out=self._scratch(mean_e.shape))
-        np.sqrt(e, out=e)
-        e *= z
-        e += mean_e
-        if any_low:
-            z_low = z[low]
-            z_low *= np.float32(self.sensor.read_noise_e)
-            e[low] = shot + z_low
-        return e
 
     def _scratch(self, shape) -> np.ndarray:
         """A float32 work array of ``shape``, reused from frame to frame (its contents are overwritten)."""
@@ -554,22 +536,25 @@ class SimCamera:
 
     def _standard_normal(self, shape) -> np.ndarray:
         """Standard normal float32 deviates by inverse-CDF lookup of 16-bit uniform integers
-        (:func:`normal_table`): ~3× faster than NumPy's float32 ziggurat for a full frame, with the
-        same mean and variance; the tails are cut at ±4.3σ (probability ~2·10⁻⁵ per value).
+        (:func:`normal_table` indexed by :meth:`_normal_indices`): ~3× faster than NumPy's float32 ziggurat
+        for a full frame, with the same mean and variance; the tails are cut at ±4.3σ (probability ~2·10⁻⁵
+        per value)."""
+        return np.take(normal_table(), self._normal_indices(shape))
 
-        The integers are ``Generator.integers(0, 2¹⁶, dtype=uint16)``'s: that call splits each 64-bit output
-        of the bit generator into 32-bit halves and those into 16-bit halves, low first, one value at a
-        time. When the count is a multiple of four and no 32-bit half is pending in the bit generator, the
-        same numbers are the raw outputs' four 16-bit fields (``random_raw`` viewed little-endian), ~10×
-        cheaper; otherwise that call itself. Either way the same numbers and the same generator state after."""
+    def _normal_indices(self, shape) -> np.ndarray:
+        """Uniform 16-bit integers of ``shape``: ``Generator.integers(0, 2¹⁶, dtype=uint16)``'s.
+
+        That call splits each 64-bit output of the bit generator into 32-bit halves and those into 16-bit
+        halves, low first, one value at a time. When the count is a multiple of four and no 32-bit half is
+        pending in the bit generator, the same numbers are the raw outputs' four 16-bit fields (``random_raw``
+        viewed little-endian), ~10× cheaper; otherwise that call itself. Either way the same numbers and the
+        same generator state after."""
         n = int(np.prod(shape))
         bg = self._rng.bit_generator
         if isinstance(bg, np.random.PCG64) and n % 4 == 0 and not bg.state["has_uint32"]:
             raw = bg.random_raw(n // 4).astype("<u8", copy=False)  # the same fields on any byte order
-            idx = raw.view("<u2").reshape(shape)
-        else:
-            idx = self._rng.integers(0, 1 << 16, size=shape, dtype=np.uint16)
-        return np.take(normal_table(), idx)
+            return raw.view("<u2").reshape(shape)
+        return self._rng.integers(0, 1 << 16, size=shape, dtype=np.uint16)
 
     def close(self) -> None:
         self._closed = True

@@ -145,3 +145,74 @@ def test_normal_draws_from_raw_outputs_are_generator_integers_bit_for_bit(bench_
         assert a["state"] == b["state"] and a["has_uint32"] == b["has_uint32"]
         assert not a["has_uint32"] or a["uinteger"] == b["uinteger"]  # (the pending half, when there is one)
         assert np.array_equal(cam._rng.poisson(3.0, 5), ref.poisson(3.0, 5))
+
+
+def _sensor_inputs(shape, seed):
+    """Means spanning every branch of the sensor chain: 0, below 1, either side of the Poisson threshold, bright,
+    past the full well."""
+    from sim.camera import POISSON_EXACT_BELOW
+
+    rng = np.random.default_rng(seed)
+    levels = np.array([0.0, 0.05, 0.7, 3.0, 11.0, np.nextafter(np.float32(POISSON_EXACT_BELOW), 0), POISSON_EXACT_BELOW,
+                       500.0, 19990.0, 40000.0], dtype=np.float32)
+    return (levels[rng.integers(0, levels.size, shape)] * rng.uniform(0.5, 1.5, shape).astype(np.float32)).astype(
+        np.float32)
+
+
+@pytest.mark.parametrize("shape, bits", [((48, 64, 3), 12), ((7, 9, 3), 12), ((48, 64, 3), 8), ((33, 5), 16)])
+def test_sensor_chain_compiled_is_the_numpy_reference_bit_for_bit(shape, bits):
+    """sim.sensor_noise: the numba loop and the NumPy reference turn the same means and random numbers into the
+    same frame (every branch: Poisson by inversion, the normal approximation, the full well, the DN range)."""
+    from sim import sensor_noise
+    from sim.camera import POISSON_EXACT_BELOW, normal_table
+
+    sn = SensorModel(bit_depth=bits)
+    kw = dict(read_noise=sn.read_noise_e, full_well=sn.full_well, gain_k=sn.dn_per_electron * 1.7,
+              black=sn.black_level, saturation=sn.saturation, dtype=np.uint8 if bits == 8 else np.uint16)
+    for seed in range(5):
+        mean = _sensor_inputs(shape, seed)
+        rng = np.random.default_rng(seed)
+        draws = sensor_noise.draw(rng, lambda s: rng.integers(0, 1 << 16, size=s, dtype=np.uint16), mean,
+                                  POISSON_EXACT_BELOW)
+        want = sensor_noise.frame_numpy(mean, normal_table(), *draws, **kw)
+        got = sensor_noise.frame_compiled(mean, normal_table(), *draws, **kw)
+        assert got.dtype == want.dtype and got.tobytes() == want.tobytes()
+
+
+def test_camera_frames_are_the_same_with_and_without_numba(bench_factory, lambert, monkeypatch):
+    """A seed gives the same frames whichever implementation of the sensor chain runs (sim.sensor_noise)."""
+    from sim import sensor_noise
+
+    frames = {}
+    for compiled in (True, False):
+        monkeypatch.setattr(sensor_noise, "compiled_available", lambda: compiled)
+        bench = bench_factory(lambert, seed=4)
+        bench.place(30, 20, 40, 200)
+        frames[compiled] = [bench.camera.capture(t).pixels for t in (1e-4, 0.01, 0.2)]
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(frames[True], frames[False]))
+
+
+@pytest.mark.parametrize("lam", [0.02, 0.6, 3.7, 12.0, 29.9])
+def test_poisson_by_inversion_follows_the_poisson_law(lam):
+    """sim.sensor_noise.poisson_inversion draws Poisson(λ): χ² goodness of fit over the cells with ≥ 5 expected
+    counts (200 000 draws; the 0.999 quantile of χ² bounds it, a fixed seed), mean and variance within 4 standard
+    errors."""
+    from scipy import stats
+
+    from sim import sensor_noise
+
+    n = 200_000
+    lam_a = np.full(n, lam)
+    k = sensor_noise.poisson_inversion(lam_a, np.exp(-lam_a), np.random.default_rng(int(lam * 100)).random(n))
+    counts = np.bincount(k, minlength=int(lam + 10 * np.sqrt(lam) + 10))
+    expected = stats.poisson.pmf(np.arange(counts.size), lam) * n
+    cells = expected >= 5
+    rest_obs, rest_exp = n - counts[cells].sum(), n - expected[cells].sum()
+    chi2 = np.sum((counts[cells] - expected[cells]) ** 2 / expected[cells])
+    dof = int(cells.sum()) - 1
+    if rest_exp >= 5:
+        chi2 += (rest_obs - rest_exp) ** 2 / rest_exp
+        dof += 1
+    assert chi2 < stats.chi2.ppf(0.999, max(dof, 1))
+    assert abs(k.mean() - lam) < 4 * np.sqrt(lam / n)
+    assert abs(k.var() - lam) < 4 * lam * np.sqrt(2 / n) + 4 * np.sqrt(lam / n)

@@ -1,0 +1,154 @@
+"""The simulated sensor's per-pixel chain: mean electrons → shot and read noise → full well → digital numbers.
+
+:class:`sim.camera.SimCamera` draws a frame's random numbers first (:func:`draw`, always with NumPy, in one
+fixed order) and then turns them into the frame's values with plain arithmetic, which is done either by
+:func:`frame_numpy` (whole-array NumPy operations: the reference) or by a numba loop over the pixels
+(:func:`frame_compiled`, one pass over memory instead of ~15; used when numba, the ``fast`` extra, is
+installed). Both do the same IEEE operations in the same order and precision on the same numbers, so they give
+the same frame bit for bit (tests/pipeline/test_fast_paths_exact.py), and a seed gives the same samples with
+or without numba.
+
+Noise model (EMVA Standard 1288 R4.0, 2021, §2: shot noise Poisson in the electrons, read noise Gaussian):
+
+* a pixel whose mean μ is at least ``below`` electrons: ``μ + √(μ + σ_r²) z`` with one standard normal
+  ``z`` (the normal approximation N(μ, μ) of the Poisson law plus the read noise in one draw);
+* below it: ``k + σ_r z`` with ``k`` Poisson(μ) drawn exactly by inversion, the sequential search of
+  Devroye, *Non-Uniform Random Variate Generation*, 1986, §X.3.3: with one uniform ``u``, the smallest
+  ``k`` with ``u ≤ Σ_{j≤k} e^{−μ} μʲ/j!``, the terms by the recurrence ``p_j = p_{j−1} · (μ · (1/j))`` (one
+  multiplication on the chain of dependent operations instead of a division: a step is ~4 cycles). The search
+  stops when a term no longer changes the float64 partial sum (the tail beyond it is below 2⁻⁵³ of the sum),
+  so the law is exact up to the rounding of the partial sums; it costs ~μ + 1 steps, cheap where it is used
+  (μ < 30, most pixels μ < 5).
+
+``z`` comes from :func:`sim.camera.normal_table` indexed by 16-bit uniform integers (inverse transform
+sampling, Devroye §II.2). Then the full well clips the electrons, the system gain and the black level turn
+them into DN, rounded half to even and clipped to the sensor's range.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib.util
+
+import numpy as np
+
+__all__ = ["draw", "frame_numpy", "frame_compiled", "compiled_available"]
+
+
+def draw(rng: np.random.Generator, normal_indices, mean_e: np.ndarray, below: float):
+    """The random numbers of one frame, in a fixed order: the normal table's indices (``normal_indices(shape)``,
+    one per value) first, then one uniform on [0, 1) per value whose mean is below ``below`` electrons (C order).
+
+    Returns ``(idx, low, lam, p0, u)``: ``low`` the boolean mask of those values, ``lam`` their means
+    (float64, floored at 0), ``p0 = exp(−lam)`` (the Poisson law's P(0), computed here by NumPy for both
+    implementations) and ``u`` their uniforms."""
+    idx = normal_indices(mean_e.shape)
+    low = mean_e < below
+    lam = mean_e[low].astype(np.float64)
+    np.maximum(lam, 0.0, out=lam)
+    p0 = np.exp(-lam)
+    u = rng.random(lam.size)
+    return idx, low, lam, p0, u
+
+
+def poisson_inversion(lam: np.ndarray, p0: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Poisson(``lam``) by sequential-search inversion of the uniforms ``u`` (see the module docstring;
+    Devroye 1986 §X.3.3), vectorized: each step advances the values whose search has not ended."""
+    k = np.zeros(lam.size, dtype=np.int64)
+    p, cdf = p0.copy(), p0.copy()
+    act = np.flatnonzero(u > cdf)
+    j = 0
+    while act.size:
+        j += 1
+        k[act] = j
+        pa = p[act] * (lam[act] * (1.0 / j))
+        ca = cdf[act]
+        cn = ca + pa
+        p[act], cdf[act] = pa, cn
+        act = act[(cn != ca) & (u[act] > cn)]
+    return k
+
+
+def electrons_numpy(mean_e, table, idx, low, lam, p0, u, *, read_noise) -> np.ndarray:
+    """Electrons after shot and read noise (float32; module docstring), from the frame's means and random numbers."""
+    z = np.take(table, idx)
+    e = mean_e + np.float32(read_noise ** 2)
+    np.sqrt(e, out=e)
+    e *= z
+    e += mean_e
+    if lam.size:
+        z_low = z[low]
+        z_low *= np.float32(read_noise)
+        e[low] = poisson_inversion(lam, p0, u) + z_low  # int64 + float32: float64, then stored as float32
+    return e
+
+
+def frame_numpy(mean_e, table, idx, low, lam, p0, u, *, read_noise, full_well, gain_k, black, saturation,
+                dtype=np.uint16) -> np.ndarray:
+    """The frame's values with whole-array NumPy operations (the reference): :func:`electrons_numpy`, clipped
+    at ``full_well``, times ``gain_k`` (DN per electron) plus ``black``, rounded half to even and clipped to
+    [0, ``saturation``]."""
+    e = electrons_numpy(mean_e, table, idx, low, lam, p0, u, read_noise=read_noise)
+    np.minimum(e, np.float32(full_well), out=e)
+    e *= np.float32(gain_k)
+    e += np.float32(black)
+    np.rint(e, out=e)
+    np.clip(e, 0, saturation, out=e)
+    return e.astype(dtype)
+
+
+@functools.lru_cache(maxsize=1)
+def compiled_available() -> bool:
+    """numba is installed (the ``fast`` extra)."""
+    return importlib.util.find_spec("numba") is not None
+
+
+def _loop(mean, idx, table, low, lam, p0, u, rn2, rn, full_well, gain_k, black, saturation, out):
+    """:func:`frame_numpy`'s arithmetic per value (compiled by numba; the same operations, types and order)."""
+    j = 0
+    for i in range(mean.size):
+        m = mean[i]
+        z = table[idx[i]]
+        if low[i]:
+            lm = lam[j]
+            p = p0[j]
+            cdf = p
+            uj = u[j]
+            k = 0
+            while uj > cdf:
+                k += 1
+                p = p * (lm * (1.0 / k))
+                cn = cdf + p
+                if cn == cdf:
+                    break
+                cdf = cn
+            e = np.float32(np.float64(k) + np.float64(rn * z))
+            j += 1
+        else:
+            e = np.sqrt(m + rn2) * z + m
+        if e > full_well:
+            e = full_well
+        d = np.rint(e * gain_k + black)
+        if d < 0:
+            d = np.float32(0.0)
+        elif d > saturation:
+            d = saturation
+        out[i] = d
+
+
+@functools.lru_cache(maxsize=1)
+def _compiled():
+    import numba
+
+    return numba.njit(cache=True, nogil=True)(_loop)
+
+
+def frame_compiled(mean_e, table, idx, low, lam, p0, u, *, read_noise, full_well, gain_k, black, saturation,
+                   dtype=np.uint16) -> np.ndarray:
+    """:func:`frame_numpy` by a numba loop over the values (one pass; the same result bit for bit)."""
+    f32 = np.float32
+    out = np.empty(mean_e.shape, dtype=dtype)
+    _compiled()(np.ascontiguousarray(mean_e, dtype=f32).reshape(-1), np.ascontiguousarray(idx).reshape(-1), table,
+                np.ascontiguousarray(low).reshape(-1), lam, p0, u, f32(read_noise ** 2), f32(read_noise),
+                f32(full_well), f32(gain_k), f32(black), f32(saturation), out.reshape(-1))
+    return out
