@@ -34,6 +34,11 @@ import numpy as np
 
 __all__ = ["draw", "frame_numpy", "frame_compiled", "compiled_available"]
 
+#: 2²³ in float32: float32 numbers at or above it are integers, and ``(x + 2²³) − 2²³`` rounds 0 ≤ x < 2²³ to an
+#: integer, half to even (IEEE 754 round-to-nearest on the sum; Goldberg, "What every computer scientist should
+#: know about floating-point arithmetic", 1991, §"Exactly rounded operations")
+TWO23 = np.float32(1 << 23)
+
 
 def draw(rng: np.random.Generator, normal_indices, mean_e: np.ndarray, below: float):
     """The random numbers of one frame, in a fixed order: the normal table's indices (``normal_indices(shape)``,
@@ -128,10 +133,17 @@ def _loop(mean, idx, table, low, lam, p0, u, rn2, rn, full_well, gain_k, black, 
             e = np.sqrt(m + rn2) * z + m
         if e > full_well:
             e = full_well
-        d = np.rint(e * gain_k + black)
-        if d < 0:
+        x = e * gain_k + black
+        # np.rint(x) then clipped to [0, saturation]: x ≤ 0 rounds to a value ≤ 0, clipped to 0; 0 < x < 2²³ rounds
+        # half to even as (x + 2²³) − 2²³ does in float32 (the sum's rounding is the rounding to an integer; exact
+        # for these x, and vectorizable where the rint call is not); saturation < 2²³ clips everything larger
+        if x <= 0:
             d = np.float32(0.0)
-        elif d > saturation:
+        elif x < TWO23:
+            d = (x + TWO23) - TWO23
+            if d > saturation:
+                d = saturation
+        else:
             d = saturation
         out[i] = d
 

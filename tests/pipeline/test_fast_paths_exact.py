@@ -216,3 +216,22 @@ def test_poisson_by_inversion_follows_the_poisson_law(lam):
     assert chi2 < stats.chi2.ppf(0.999, max(dof, 1))
     assert abs(k.mean() - lam) < 4 * np.sqrt(lam / n)
     assert abs(k.var() - lam) < 4 * lam * np.sqrt(2 / n) + 4 * np.sqrt(lam / n)
+
+
+def test_sensor_chain_rounds_half_to_even_and_clips_as_numpy_does():
+    """The compiled loop's rounding ((x + 2²³) − 2²³ in float32) is np.rint's, ties to even included, and its
+    clipping is np.clip's, from below zero to past the range (a zero noise table: the values are the means; the
+    read noise keeps the square roots of the negative means real)."""
+    from sim import sensor_noise
+
+    mean = np.concatenate([np.arange(-4.0, 70000.0, 0.5), np.arange(0.0, 3.0, 0.125), [1e9, 3.4e38]]).astype(np.float32)
+    table = np.zeros(1 << 16, dtype=np.float32)
+    idx = np.zeros(mean.shape, dtype=np.uint16)
+    none = np.zeros(mean.shape, dtype=bool)
+    empty = np.zeros(0)
+    for bits, dtype in ((12, np.uint16), (16, np.uint16), (8, np.uint8)):
+        kw = dict(read_noise=3.0, full_well=1e30, gain_k=1.0, black=0.0, saturation=(1 << bits) - 1, dtype=dtype)
+        want = sensor_noise.frame_numpy(mean, table, idx, none, empty, empty, empty, **kw)
+        got = sensor_noise.frame_compiled(mean, table, idx, none, empty, empty, empty, **kw)
+        assert got.tobytes() == want.tobytes()
+        assert want[np.flatnonzero(mean == 2.5)[0]] == 2 and want[np.flatnonzero(mean == 3.5)[0]] == 4
