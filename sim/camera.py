@@ -500,19 +500,16 @@ class SimCamera:
         rate = self.electron_rate()
         temp = self.sensor_temperature()
         dark_e = np.float32(sn.dark_rate(temp) * exposure)
-        mean_e = np.multiply(rate, np.float32(level * exposure))
-        pattern = self._dark_pattern(mean_e.shape)
-        if pattern is None:
-            mean_e += dark_e
-        else:
-            mean_e += np.multiply(pattern, dark_e, out=self._scratch(mean_e.shape))
-        draws = sensor_noise.draw(self._rng, self._normal_indices, mean_e, POISSON_EXACT_BELOW)
+        scale = np.float32(level * exposure)
+        pattern = self._dark_pattern(rate.shape)
         if sn.linear:
-            pixels = (sensor_noise.frame_compiled if sensor_noise.compiled_available() else sensor_noise.frame_numpy)(
-                mean_e, normal_table(), *draws, read_noise=sn.read_noise_e, full_well=sn.full_well,
-                gain_k=sn.dn_per_electron * gain, black=sn.black_level, saturation=sn.saturation,
-                dtype=np.uint8 if sn.bit_depth == 8 else np.uint16)
+            pixels = (sensor_noise.expose_compiled if sensor_noise.compiled_available() else sensor_noise.expose_numpy)(
+                rate, scale, pattern, dark_e, self._rng, self._normal_indices, normal_table(), POISSON_EXACT_BELOW,
+                read_noise=sn.read_noise_e, full_well=sn.full_well, gain_k=sn.dn_per_electron * gain,
+                black=sn.black_level, saturation=sn.saturation, dtype=np.uint8 if sn.bit_depth == 8 else np.uint16)
         else:
+            mean_e = sensor_noise.means_numpy(rate, scale, pattern, dark_e)
+            draws = sensor_noise.draw(self._rng, self._normal_indices, mean_e, POISSON_EXACT_BELOW)
             e = sensor_noise.electrons_numpy(mean_e, normal_table(), *draws, read_noise=sn.read_noise_e)
             np.minimum(e, np.float32(sn.full_well), out=e)
             x = np.clip(e * np.float32(gain / sn.full_well), 0.0, 1.0)
@@ -526,13 +523,6 @@ class SimCamera:
                      black_level=float(sn.black_level), timestamp=t0, linear=sn.linear,
                      meta={"device": "sim", "light_output": level,
                            **({"sensor_temp_c": round(temp, 1)} if sn.reports_temperature else {})})
-
-    def _scratch(self, shape) -> np.ndarray:
-        """A float32 work array of ``shape``, reused from frame to frame (its contents are overwritten)."""
-        buf = self.__dict__.get("_work")
-        if buf is None or buf.shape != tuple(shape):
-            buf = self._work = np.empty(shape, np.float32)
-        return buf
 
     def _standard_normal(self, shape) -> np.ndarray:
         """Standard normal float32 deviates by inverse-CDF lookup of 16-bit uniform integers

@@ -1,12 +1,12 @@
-"""The simulated sensor's per-pixel chain: mean electrons → shot and read noise → full well → digital numbers.
+"""The simulated sensor's per-pixel chain: electron rates → mean electrons → shot and read noise → full well →
+digital numbers.
 
-:class:`sim.camera.SimCamera` draws a frame's random numbers first (:func:`draw`, always with NumPy, in one
-fixed order) and then turns them into the frame's values with plain arithmetic, which is done either by
-:func:`frame_numpy` (whole-array NumPy operations: the reference) or by a numba loop over the pixels
-(:func:`frame_compiled`, one pass over memory instead of ~15; used when numba, the ``fast`` extra, is
-installed). Both do the same IEEE operations in the same order and precision on the same numbers, so they give
-the same frame bit for bit (tests/pipeline/test_fast_paths_exact.py), and a seed gives the same samples with
-or without numba.
+:class:`sim.camera.SimCamera` hands a frame's electron rates to :func:`expose_compiled` (numba: two passes over
+memory instead of ~20 whole-array operations; used when numba, the ``fast`` extra, is installed) or to its
+reference :func:`expose_numpy` (whole-array NumPy operations). Both draw the frame's random numbers with NumPy in
+one fixed order (:func:`draw`: the normal table's indices, then one uniform per Poisson value) and then do the same
+IEEE operations in the same order and precision on them, so they give the same frame bit for bit
+(tests/pipeline/test_fast_paths_exact.py), and a seed gives the same samples with or without numba.
 
 Noise model (EMVA Standard 1288 R4.0, 2021, §2: shot noise Poisson in the electrons, read noise Gaussian):
 
@@ -32,7 +32,7 @@ import importlib.util
 
 import numpy as np
 
-__all__ = ["draw", "frame_numpy", "frame_compiled", "compiled_available"]
+__all__ = ["draw", "frame_numpy", "means_numpy", "expose_numpy", "expose_compiled", "compiled_available"]
 
 #: 2²³ in float32: float32 numbers at or above it are integers, and ``(x + 2²³) − 2²³`` rounds 0 ≤ x < 2²³ to an
 #: integer, half to even (IEEE 754 round-to-nearest on the sum; Goldberg, "What every computer scientist should
@@ -108,13 +108,48 @@ def compiled_available() -> bool:
     return importlib.util.find_spec("numba") is not None
 
 
-def _loop(mean, idx, table, low, lam, p0, u, rn2, rn, full_well, gain_k, black, saturation, out):
+def means_numpy(rate, scale, pattern, dark_e) -> np.ndarray:
+    """Mean electrons of a frame: ``rate · scale + pattern · dark_e`` (``+ dark_e`` without a dark pattern),
+    float32 (the reference; :func:`expose_compiled` computes the same in its first pass)."""
+    mean_e = np.multiply(rate, np.float32(scale))
+    if pattern is None:
+        mean_e += np.float32(dark_e)
+    else:
+        mean_e += np.multiply(pattern, np.float32(dark_e))
+    return mean_e
+
+
+def expose_numpy(rate, scale, pattern, dark_e, rng, normal_indices, table, below, **kw) -> np.ndarray:
+    """A frame from its electron rates (:func:`means_numpy`, :func:`draw`, :func:`frame_numpy`): the reference
+    of :func:`expose_compiled`."""
+    mean_e = means_numpy(rate, scale, pattern, dark_e)
+    return frame_numpy(mean_e, table, *draw(rng, normal_indices, mean_e, below), **kw)
+
+
+def _means(rate, scale, pattern, dark_e, has_pattern, below, mean, lam):
+    """:func:`means_numpy` per value (compiled), and the means below ``below`` floored at 0 as float64, in C order
+    (what :func:`draw` gathers), into ``lam``; returns their count."""
+    j = 0
+    for i in range(rate.size):
+        if has_pattern:
+            m = rate[i] * scale + pattern[i] * dark_e
+        else:
+            m = rate[i] * scale + dark_e
+        mean[i] = m
+        if m < below:
+            lm = np.float64(m)
+            lam[j] = lm if lm > 0.0 else 0.0
+            j += 1
+    return j
+
+
+def _loop(mean, idx, table, below, lam, p0, u, rn2, rn, full_well, gain_k, black, saturation, out):
     """:func:`frame_numpy`'s arithmetic per value (compiled by numba; the same operations, types and order)."""
     j = 0
     for i in range(mean.size):
         m = mean[i]
         z = table[idx[i]]
-        if low[i]:
+        if m < below:
             lm = lam[j]
             p = p0[j]
             cdf = p
@@ -152,15 +187,27 @@ def _loop(mean, idx, table, low, lam, p0, u, rn2, rn, full_well, gain_k, black, 
 def _compiled():
     import numba
 
-    return numba.njit(cache=True, nogil=True)(_loop)
+    jit = numba.njit(cache=True, nogil=True)
+    return jit(_means), jit(_loop)
 
 
-def frame_compiled(mean_e, table, idx, low, lam, p0, u, *, read_noise, full_well, gain_k, black, saturation,
-                   dtype=np.uint16) -> np.ndarray:
-    """:func:`frame_numpy` by a numba loop over the values (one pass; the same result bit for bit)."""
+def expose_compiled(rate, scale, pattern, dark_e, rng, normal_indices, table, below, *, read_noise, full_well, gain_k,
+                    black, saturation, dtype=np.uint16) -> np.ndarray:
+    """:func:`expose_numpy` in two numba passes over the values (the means and the Poisson means' gathering, then
+    the noise and the conversion to DN), with the same random numbers drawn in the same order: the same frame bit
+    for bit."""
     f32 = np.float32
-    out = np.empty(mean_e.shape, dtype=dtype)
-    _compiled()(np.ascontiguousarray(mean_e, dtype=f32).reshape(-1), np.ascontiguousarray(idx).reshape(-1), table,
-                np.ascontiguousarray(low).reshape(-1), lam, p0, u, f32(read_noise ** 2), f32(read_noise),
-                f32(full_well), f32(gain_k), f32(black), f32(saturation), out.reshape(-1))
+    means, loop = _compiled()
+    idx = normal_indices(rate.shape)
+    rate1 = np.ascontiguousarray(rate, dtype=f32).reshape(-1)
+    pat1 = rate1 if pattern is None else np.ascontiguousarray(pattern, dtype=f32).reshape(-1)
+    mean = np.empty(rate1.size, dtype=f32)
+    lam = np.empty(rate1.size, dtype=np.float64)
+    n = means(rate1, f32(scale), pat1, f32(dark_e), pattern is not None, f32(below), mean, lam)
+    lam = lam[:n]
+    p0 = np.exp(-lam)
+    u = rng.random(n)
+    out = np.empty(rate.shape, dtype=dtype)
+    loop(mean, np.ascontiguousarray(idx).reshape(-1), table, f32(below), lam, p0, u, f32(read_noise ** 2),
+         f32(read_noise), f32(full_well), f32(gain_k), f32(black), f32(saturation), out.reshape(-1))
     return out

@@ -159,10 +159,12 @@ def _sensor_inputs(shape, seed):
         np.float32)
 
 
-@pytest.mark.parametrize("shape, bits", [((48, 64, 3), 12), ((7, 9, 3), 12), ((48, 64, 3), 8), ((33, 5), 16)])
-def test_sensor_chain_compiled_is_the_numpy_reference_bit_for_bit(shape, bits):
-    """sim.sensor_noise: the numba loop and the NumPy reference turn the same means and random numbers into the
-    same frame (every branch: Poisson by inversion, the normal approximation, the full well, the DN range)."""
+@pytest.mark.parametrize("shape, bits, dsnu", [((48, 64, 3), 12, True), ((7, 9, 3), 12, False), ((48, 64, 3), 8, True),
+                                                ((33, 5), 16, False)])
+def test_sensor_chain_compiled_is_the_numpy_reference_bit_for_bit(shape, bits, dsnu):
+    """sim.sensor_noise: the numba passes and the NumPy reference turn the same electron rates and seed into the
+    same frame (every branch: Poisson by inversion, the normal approximation, the full well, the DN range; with and
+    without a dark pattern)."""
     from sim import sensor_noise
     from sim.camera import POISSON_EXACT_BELOW, normal_table
 
@@ -170,13 +172,17 @@ def test_sensor_chain_compiled_is_the_numpy_reference_bit_for_bit(shape, bits):
     kw = dict(read_noise=sn.read_noise_e, full_well=sn.full_well, gain_k=sn.dn_per_electron * 1.7,
               black=sn.black_level, saturation=sn.saturation, dtype=np.uint8 if bits == 8 else np.uint16)
     for seed in range(5):
-        mean = _sensor_inputs(shape, seed)
-        rng = np.random.default_rng(seed)
-        draws = sensor_noise.draw(rng, lambda s: rng.integers(0, 1 << 16, size=s, dtype=np.uint16), mean,
-                                  POISSON_EXACT_BELOW)
-        want = sensor_noise.frame_numpy(mean, normal_table(), *draws, **kw)
-        got = sensor_noise.frame_compiled(mean, normal_table(), *draws, **kw)
-        assert got.dtype == want.dtype and got.tobytes() == want.tobytes()
+        rate = _sensor_inputs(shape, seed) / np.float32(0.01)
+        pattern = np.random.default_rng(seed + 100).uniform(0.5, 1.5, shape).astype(np.float32) if dsnu else None
+        frames = []
+        for expose in (sensor_noise.expose_numpy, sensor_noise.expose_compiled):
+            rng = np.random.default_rng(seed)
+            frames.append(expose(rate, np.float32(0.01), pattern, np.float32(0.37), rng,
+                                 lambda s: rng.integers(0, 1 << 16, size=s, dtype=np.uint16), normal_table(),
+                                 POISSON_EXACT_BELOW, **kw))
+            frames.append(rng.random())  # and the generator is left in the same state
+        want, after_want, got, after_got = frames
+        assert got.dtype == want.dtype and got.tobytes() == want.tobytes() and after_got == after_want
 
 
 def test_camera_frames_are_the_same_with_and_without_numba(bench_factory, lambert, monkeypatch):
@@ -226,12 +232,11 @@ def test_sensor_chain_rounds_half_to_even_and_clips_as_numpy_does():
 
     mean = np.concatenate([np.arange(-4.0, 70000.0, 0.5), np.arange(0.0, 3.0, 0.125), [1e9, 3.4e38]]).astype(np.float32)
     table = np.zeros(1 << 16, dtype=np.float32)
-    idx = np.zeros(mean.shape, dtype=np.uint16)
-    none = np.zeros(mean.shape, dtype=bool)
-    empty = np.zeros(0)
     for bits, dtype in ((12, np.uint16), (16, np.uint16), (8, np.uint8)):
         kw = dict(read_noise=3.0, full_well=1e30, gain_k=1.0, black=0.0, saturation=(1 << bits) - 1, dtype=dtype)
-        want = sensor_noise.frame_numpy(mean, table, idx, none, empty, empty, empty, **kw)
-        got = sensor_noise.frame_compiled(mean, table, idx, none, empty, empty, empty, **kw)
-        assert got.tobytes() == want.tobytes()
+        frames = [expose(mean, np.float32(1.0), None, np.float32(0.0), np.random.default_rng(0),
+                         lambda s: np.zeros(s, dtype=np.uint16), table, -np.inf, **kw)
+                  for expose in (sensor_noise.expose_numpy, sensor_noise.expose_compiled)]
+        assert frames[1].tobytes() == frames[0].tobytes()
+        want = frames[0]
         assert want[np.flatnonzero(mean == 2.5)[0]] == 2 and want[np.flatnonzero(mean == 3.5)[0]] == 4
