@@ -51,6 +51,58 @@ def normal_table() -> np.ndarray:
     return table
 
 
+def shade_board_numpy(px, py, hit, albedo, sx, sy, sz2, intensity_z, k):
+    """The board's irradiance ``I z_S / r³`` (= I cos θ / r², a point source over the plane z = 0) at its points
+    ``(px, py)`` seen by the pixels, and the electron rates ``albedo · irradiance · k`` (per channel, 0 where a
+    pixel's ray misses the board), all float32: ``(irr (H, W), rate (H, W, 3))``. ``sz2`` is z_S², ``intensity_z``
+    I · z_S, ``k`` the responsivity over π (3,). The reference of :func:`shade_board_compiled`."""
+    irr = np.subtract(sx, px)
+    irr *= irr
+    ly = np.subtract(sy, py)
+    ly *= ly
+    irr += ly
+    irr += sz2  # r²
+    r = np.sqrt(irr, out=ly)
+    irr *= r  # r³
+    np.divide(intensity_z, irr, out=irr)
+    shade = albedo * irr
+    shade *= hit
+    return irr, np.multiply(shade[..., None], k)
+
+
+def _shade_board_loop(px, py, hit, albedo, sx, sy, sz2, intensity_z, k, irr, rate):
+    """:func:`shade_board_numpy` per pixel (compiled by numba: the same float32 operations in the same order)."""
+    for i in range(px.size):
+        dx = sx - px[i]
+        dy = sy - py[i]
+        r2 = dx * dx + dy * dy + sz2
+        e = intensity_z / (r2 * np.sqrt(r2))
+        irr[i] = e
+        sh = albedo[i] * e
+        sh = sh * (np.float32(1.0) if hit[i] else np.float32(0.0))
+        for c in range(3):
+            rate[i, c] = sh * k[c]
+
+
+@functools.lru_cache(maxsize=1)
+def _shade_board_kernel():
+    import numba
+
+    return numba.njit(cache=True, nogil=True)(_shade_board_loop)
+
+
+def shade_board_compiled(px, py, hit, albedo, sx, sy, sz2, intensity_z, k):
+    """:func:`shade_board_numpy` in one numba pass over the pixels: the same numbers bit for bit."""
+    shape = px.shape
+    irr = np.empty(shape, dtype=np.float32)
+    rate = np.empty(shape + (3,), dtype=np.float32)
+    _shade_board_kernel()(np.ascontiguousarray(px).reshape(-1), np.ascontiguousarray(py).reshape(-1),
+                          np.ascontiguousarray(hit).reshape(-1), np.ascontiguousarray(albedo).reshape(-1),
+                          sx, sy, sz2, intensity_z, np.ascontiguousarray(k, dtype=np.float32),
+                          irr.reshape(-1), rate.reshape(-1, 3))
+    return irr, rate
+
+
 @dataclass(frozen=True)
 class SensorModel:
     """Linear sensor (EMVA 1288 model) with an optional 8-bit gamma response.
@@ -398,18 +450,10 @@ class SimCamera:
         f32 = np.float32
         px, py, hit, albedo = self._board_view()
         S_ = self._light_pos
-        irr = np.subtract(f32(S_[0]), px)
-        irr *= irr
-        ly = np.subtract(f32(S_[1]), py)
-        ly *= ly
-        irr += ly
-        irr += f32(S_[2] ** 2)  # r²
-        r = np.sqrt(irr, out=ly)
-        irr *= r  # r³
-        np.divide(f32(s.light_intensity * max(S_[2], 0.0)), irr, out=irr)  # I cos θ / r² = I z_S / r³
-        shade = albedo * irr
-        shade *= hit
-        rate = np.multiply(shade[..., None], np.asarray(self.sensor.responsivity, dtype=np.float32) / f32(np.pi))
+        shade = shade_board_compiled if sensor_noise.compiled_available() else shade_board_numpy
+        irr, rate = shade(px, py, hit, albedo, f32(S_[0]), f32(S_[1]), f32(S_[2] ** 2),
+                          f32(s.light_intensity * max(S_[2], 0.0)),
+                          np.asarray(self.sensor.responsivity, dtype=np.float32) / f32(np.pi))
         lay = s.layout
         box = self._bbox(lay.white.corners())
         if box is not None:
