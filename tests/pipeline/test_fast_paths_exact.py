@@ -257,3 +257,38 @@ def test_board_shading_compiled_is_the_numpy_reference_bit_for_bit(bench_factory
         args = (px, py, hit, albedo, f32(S[0]), f32(S[1]), f32(S[2] ** 2), f32(max(S[2], 0.0)), k)
         for a, b in zip(shade_board_numpy(*args), shade_board_compiled(*args)):
             assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def test_geometry_variance_all_cases_at_once_is_one_case_at_a_time_bit_for_bit():
+    """gonio.pipeline.uncertainty: the perturbation cases evaluated as one stack give, bit for bit, the sum of the
+    cases evaluated one at a time with plane_transfer (the formulation it replaced)."""
+    from gonio.pipeline.target import CameraPose
+    from gonio.pipeline.uncertainty import (_half, _log_irradiance, geometry_variance, local_h_gradient,
+                                            plane_transfer, plane_transfer_many)
+    from gonio.geometry import normalize
+
+    rng = np.random.default_rng(5)
+    n = 4
+    p_tile = np.column_stack([rng.uniform(-0.01, 0.01, (n * n, 2)), np.zeros(n * n)])
+    p_white = np.array([0.03, -0.01, 0.0])
+    f = rng.uniform(0.1, 0.5, (n * n, 3))
+    pose = CameraPose.look_at([0.2, -0.3, 0.5])
+    perturbed = [CameraPose.look_at([0.2 + d, -0.3, 0.5 - d]) for d in (1e-3, -2e-3, 5e-4)]
+    S = np.array([-0.3, 0.2, 0.6])
+    many = plane_transfer_many(p_tile, pose, perturbed)
+    for k, q in enumerate(perturbed):
+        assert many[k].tobytes() == plane_transfer(p_tile, pose, q).tobytes()
+    for white in (p_white, None):
+        got = geometry_variance(f, p_tile, white, pose, S, n, pose_perturbations=perturbed, light_sigma=4e-4)
+        h0 = _half(normalize(S - p_tile), normalize(pose.centre - p_tile))
+        G = local_h_gradient(f, h0, n)
+        want = np.zeros_like(f)
+        for q, S_q in [(q, S) for q in perturbed] + [(pose, S + 4e-4 * e) for e in np.eye(3)]:
+            pt = plane_transfer(p_tile, pose, q) if q is not pose else p_tile
+            h = _half(normalize(S_q - pt), normalize(q.centre - pt))
+            dlnE = _log_irradiance(pt, S_q) - _log_irradiance(p_tile, S)
+            if white is not None:
+                pw = plane_transfer(white, pose, q) if q is not pose else white
+                dlnE = dlnE - (_log_irradiance(pw, S_q) - _log_irradiance(white, S))
+            want += (np.einsum("tci,ti->tc", G, (h - h0)[:, :2]) + f * dlnE[:, None]) ** 2
+        assert got.tobytes() == np.where(np.isfinite(want), want, 0.0).tobytes()
