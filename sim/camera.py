@@ -26,12 +26,13 @@ from gonio.errors import ConfigError, HardwareError
 from gonio.geometry import dot, normalize, to_local
 from gonio.pipeline.target import CameraCalibration, CameraPose, NoiseModel, TargetLayout, surface_frame
 from gonio.rig.interfaces import Clock, Frame, PhotodiodeReading
+from sim import sensor_noise
 
 __all__ = ["SensorModel", "SimScene", "SimCamera", "SceneLight", "normal_table"]
 
-#: Below this mean count (electrons) shot noise is drawn from the exact Poisson law; above it from
-#: its normal approximation N(μ, μ), whose CDF error is below 1 % of σ there (Berry–Esseen bound
-#: ~0.4/√μ on the CDF; the mean and variance are exact in both cases).
+#: Below this mean count (electrons) shot noise is drawn from the exact Poisson law (by inversion,
+#: :mod:`sim.sensor_noise`); above it from its normal approximation N(μ, μ), whose CDF error is below 1 % of
+#: σ there (Berry–Esseen bound ~0.4/√μ on the CDF; the mean and variance are exact in both cases).
 POISSON_EXACT_BELOW = 30.0
 
 
@@ -48,6 +49,58 @@ def normal_table() -> np.ndarray:
     table = q.astype(np.float32)
     table.flags.writeable = False
     return table
+
+
+def shade_board_numpy(px, py, hit, albedo, sx, sy, sz2, intensity_z, k):
+    """The board's irradiance ``I z_S / r³`` (= I cos θ / r², a point source over the plane z = 0) at its points
+    ``(px, py)`` seen by the pixels, and the electron rates ``albedo · irradiance · k`` (per channel, 0 where a
+    pixel's ray misses the board), all float32: ``(irr (H, W), rate (H, W, 3))``. ``sz2`` is z_S², ``intensity_z``
+    I · z_S, ``k`` the responsivity over π (3,). The reference of :func:`shade_board_compiled`."""
+    irr = np.subtract(sx, px)
+    irr *= irr
+    ly = np.subtract(sy, py)
+    ly *= ly
+    irr += ly
+    irr += sz2  # r²
+    r = np.sqrt(irr, out=ly)
+    irr *= r  # r³
+    np.divide(intensity_z, irr, out=irr)
+    shade = albedo * irr
+    shade *= hit
+    return irr, np.multiply(shade[..., None], k)
+
+
+def _shade_board_loop(px, py, hit, albedo, sx, sy, sz2, intensity_z, k, irr, rate):
+    """:func:`shade_board_numpy` per pixel (compiled by numba: the same float32 operations in the same order)."""
+    for i in range(px.size):
+        dx = sx - px[i]
+        dy = sy - py[i]
+        r2 = dx * dx + dy * dy + sz2
+        e = intensity_z / (r2 * np.sqrt(r2))
+        irr[i] = e
+        sh = albedo[i] * e
+        sh = sh * (np.float32(1.0) if hit[i] else np.float32(0.0))
+        for c in range(3):
+            rate[i, c] = sh * k[c]
+
+
+@functools.lru_cache(maxsize=1)
+def _shade_board_kernel():
+    import numba
+
+    return numba.njit(cache=True, nogil=True)(_shade_board_loop)
+
+
+def shade_board_compiled(px, py, hit, albedo, sx, sy, sz2, intensity_z, k):
+    """:func:`shade_board_numpy` in one numba pass over the pixels: the same numbers bit for bit."""
+    shape = px.shape
+    irr = np.empty(shape, dtype=np.float32)
+    rate = np.empty(shape + (3,), dtype=np.float32)
+    _shade_board_kernel()(np.ascontiguousarray(px).reshape(-1), np.ascontiguousarray(py).reshape(-1),
+                          np.ascontiguousarray(hit).reshape(-1), np.ascontiguousarray(albedo).reshape(-1),
+                          sx, sy, sz2, intensity_z, np.ascontiguousarray(k, dtype=np.float32),
+                          irr.reshape(-1), rate.reshape(-1, 3))
+    return irr, rate
 
 
 @dataclass(frozen=True)
@@ -397,18 +450,10 @@ class SimCamera:
         f32 = np.float32
         px, py, hit, albedo = self._board_view()
         S_ = self._light_pos
-        irr = np.subtract(f32(S_[0]), px)
-        irr *= irr
-        ly = np.subtract(f32(S_[1]), py)
-        ly *= ly
-        irr += ly
-        irr += f32(S_[2] ** 2)  # r²
-        r = np.sqrt(irr, out=ly)
-        irr *= r  # r³
-        np.divide(f32(s.light_intensity * max(S_[2], 0.0)), irr, out=irr)  # I cos θ / r² = I z_S / r³
-        shade = albedo * irr
-        shade *= hit
-        rate = np.multiply(shade[..., None], np.asarray(self.sensor.responsivity, dtype=np.float32) / f32(np.pi))
+        shade = shade_board_compiled if sensor_noise.compiled_available() else shade_board_numpy
+        irr, rate = shade(px, py, hit, albedo, f32(S_[0]), f32(S_[1]), f32(S_[2] ** 2),
+                          f32(s.light_intensity * max(S_[2], 0.0)),
+                          np.asarray(self.sensor.responsivity, dtype=np.float32) / f32(np.pi))
         lay = s.layout
         box = self._bbox(lay.white.corners())
         if box is not None:
@@ -499,22 +544,23 @@ class SimCamera:
         rate = self.electron_rate()
         temp = self.sensor_temperature()
         dark_e = np.float32(sn.dark_rate(temp) * exposure)
-        mean_e = rate * np.float32(level * exposure)
-        pattern = self._dark_pattern(mean_e.shape)
-        if pattern is None:
-            mean_e += dark_e
-        else:
-            mean_e += pattern * dark_e
-        e = self._shot_and_read(mean_e)
-        np.minimum(e, np.float32(sn.full_well), out=e)
+        scale = np.float32(level * exposure)
+        pattern = self._dark_pattern(rate.shape)
         if sn.linear:
-            dn = e * np.float32(sn.dn_per_electron * gain) + np.float32(sn.black_level)
+            pixels = (sensor_noise.expose_compiled if sensor_noise.compiled_available() else sensor_noise.expose_numpy)(
+                rate, scale, pattern, dark_e, self._rng, self._normal_indices, normal_table(), POISSON_EXACT_BELOW,
+                read_noise=sn.read_noise_e, full_well=sn.full_well, gain_k=sn.dn_per_electron * gain,
+                black=sn.black_level, saturation=sn.saturation, dtype=np.uint8 if sn.bit_depth == 8 else np.uint16)
         else:
+            mean_e = sensor_noise.means_numpy(rate, scale, pattern, dark_e)
+            draws = sensor_noise.draw(self._rng, self._normal_indices, mean_e, POISSON_EXACT_BELOW)
+            e = sensor_noise.electrons_numpy(mean_e, normal_table(), *draws, read_noise=sn.read_noise_e)
+            np.minimum(e, np.float32(sn.full_well), out=e)
             x = np.clip(e * np.float32(gain / sn.full_well), 0.0, 1.0)
             dn = 255.0 * x ** np.float32(1.0 / sn.gamma)
-        np.rint(dn, out=dn)
-        np.clip(dn, 0, sn.saturation, out=dn)
-        pixels = dn.astype(np.uint8 if sn.bit_depth == 8 else np.uint16)
+            np.rint(dn, out=dn)
+            np.clip(dn, 0, sn.saturation, out=dn)
+            pixels = dn.astype(np.uint8)
         if self.clock is not None:
             self.clock.sleep(exposure + sn.readout)
         return Frame(pixels=pixels, exposure=float(exposure), gain=float(gain), bit_depth=sn.bit_depth,
@@ -522,38 +568,27 @@ class SimCamera:
                      meta={"device": "sim", "light_output": level,
                            **({"sensor_temp_c": round(temp, 1)} if sn.reports_temperature else {})})
 
-    def _shot_and_read(self, mean_e: np.ndarray) -> np.ndarray:
-        """Electrons after shot noise (Poisson; its normal approximation above
-        :data:`POISSON_EXACT_BELOW`) plus Gaussian read noise, in one normal draw where possible."""
-        z = self._standard_normal(mean_e.shape)
-        e = mean_e + np.float32(self.sensor.read_noise_e ** 2)
-        np.sqrt(e, out=e)
-        e *= z
-        e += mean_e
-        low = mean_e < POISSON_EXACT_BELOW
-        if low.any():
-            m = mean_e[low]
-            e[low] = self._rng.poisson(np.maximum(m, 0.0)) + self.sensor.read_noise_e * z[low]
-        return e
-
     def _standard_normal(self, shape) -> np.ndarray:
         """Standard normal float32 deviates by inverse-CDF lookup of 16-bit uniform integers
-        (:func:`normal_table`): ~3× faster than NumPy's float32 ziggurat for a full frame, with the
-        same mean and variance; the tails are cut at ±4.3σ (probability ~2·10⁻⁵ per value).
+        (:func:`normal_table` indexed by :meth:`_normal_indices`): ~3× faster than NumPy's float32 ziggurat
+        for a full frame, with the same mean and variance; the tails are cut at ±4.3σ (probability ~2·10⁻⁵
+        per value)."""
+        return np.take(normal_table(), self._normal_indices(shape))
 
-        The integers are ``Generator.integers(0, 2¹⁶, dtype=uint16)``'s: that call splits each 64-bit output
-        of the bit generator into 32-bit halves and those into 16-bit halves, low first, one value at a
-        time. When the count is a multiple of four and no 32-bit half is pending in the bit generator, the
-        same numbers are the raw outputs' four 16-bit fields (``random_raw`` viewed little-endian), ~10×
-        cheaper; otherwise that call itself. Either way the same numbers and the same generator state after."""
+    def _normal_indices(self, shape) -> np.ndarray:
+        """Uniform 16-bit integers of ``shape``: ``Generator.integers(0, 2¹⁶, dtype=uint16)``'s.
+
+        That call splits each 64-bit output of the bit generator into 32-bit halves and those into 16-bit
+        halves, low first, one value at a time. When the count is a multiple of four and no 32-bit half is
+        pending in the bit generator, the same numbers are the raw outputs' four 16-bit fields (``random_raw``
+        viewed little-endian), ~10× cheaper; otherwise that call itself. Either way the same numbers and the
+        same generator state after."""
         n = int(np.prod(shape))
         bg = self._rng.bit_generator
         if isinstance(bg, np.random.PCG64) and n % 4 == 0 and not bg.state["has_uint32"]:
             raw = bg.random_raw(n // 4).astype("<u8", copy=False)  # the same fields on any byte order
-            idx = raw.view("<u2").reshape(shape)
-        else:
-            idx = self._rng.integers(0, 1 << 16, size=shape, dtype=np.uint16)
-        return np.take(normal_table(), idx)
+            return raw.view("<u2").reshape(shape)
+        return self._rng.integers(0, 1 << 16, size=shape, dtype=np.uint16)
 
     def close(self) -> None:
         self._closed = True

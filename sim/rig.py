@@ -203,6 +203,7 @@ class RigCamera:
     def __init__(self, simrig: "SimRig"):
         self._rig = simrig
         self._dark = False
+        self._placed = None  # (joints, geometry, camera pose, light position) of the last frame
 
     def capture(self, exposure: float, gain: float = 1.0, *, timeout: float = 10.0) -> Frame:
         r = self._rig
@@ -211,9 +212,14 @@ class RigCamera:
             r.sim_camera.reseed(pose_rng(r.config.seed, SETUP, "dark"))
         self._dark = dark
         joints = r.actual_joints()
-        position, R = r.geometry.camera_pose(joints)  # the true (as-built) geometry, not the declared one
-        r.sim_camera.set_pose(CameraPose(R, -R @ position))
-        r.sim_camera.set_light(r.geometry.light_position(joints))
+        placed = self._placed
+        if placed is None or placed[1] is not r.geometry or not np.array_equal(placed[0], joints):
+            # the forward kinematics of the joints (a pure function of them: the frames of a pose, where the arms
+            # stand still, reuse it)
+            position, R = r.geometry.camera_pose(joints)  # the true (as-built) geometry, not the declared one
+            placed = self._placed = (joints, r.geometry, CameraPose(R, -R @ position), r.geometry.light_position(joints))
+        r.sim_camera.set_pose(placed[2])
+        r.sim_camera.set_light(placed[3])
         return r.frame_faults.apply(lambda: r.sim_camera.capture(exposure, gain, timeout=timeout))
 
     def close(self) -> None:

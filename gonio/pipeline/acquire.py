@@ -15,7 +15,7 @@ from gonio import samples as S
 from gonio.errors import ConfigError, HardwareError
 from gonio.pipeline.dark import DarkCache
 from gonio.pipeline.exposure import CapturePlan, ExposureSettings, plan_bracket
-from gonio.pipeline.hdr import BadFrame, SATURATION_MARGIN, average_frames, check_frame, merge_linear
+from gonio.pipeline.hdr import BadFrame, SATURATION_MARGIN, HdrImage, average_frames, check_frame, merge_linear
 from gonio.pipeline.markers import BoardPose, detect_board_pose, to_gray8
 from gonio.pipeline.signal import SignalCheck
 from gonio.pipeline.reflectance import build_roi, reflectance_samples
@@ -32,6 +32,21 @@ __all__ = ["PipelineSettings", "PoseResult", "BoardNotFound", "Pipeline"]
 #: contrast and at most √1.5 ≈ 1.22× the shot-noise SNR: not a better view, a reshoot hoping for luckier noise
 #: (the frames and the lab time of up to ``meter_tries`` such reshoots at a pose whose board is out of sight).
 BOARD_REMETER_FACTOR = 1.5
+
+
+def _scattered(hdr: HdrImage, used: np.ndarray) -> HdrImage:
+    """A merge of the pixels ``used`` (an (h, w) mask; ``hdr``'s arrays hold them in C order as an (n, 1, C)
+    image) placed back on the (h, w) box: NaN rate and variance, not saturated, no exposure used where a pixel was
+    not merged."""
+    def put(values, fill, lead=()):
+        k = len(lead)
+        out = np.full(lead + used.shape + values.shape[k + 2:], fill, dtype=values.dtype)
+        out[(slice(None),) * k + (used,)] = values.reshape(values.shape[:k + 1] + values.shape[k + 2:])
+        return out
+
+    lw = None if hdr.light_weight is None else put(hdr.light_weight, np.nan, hdr.light_weight.shape[:1])
+    return HdrImage(rate=put(hdr.rate, np.nan), var=put(hdr.var, np.nan), saturated=put(hdr.saturated, False),
+                    used=put(hdr.used, 0), light_weight=lw, light_rel_var=hdr.light_rel_var)
 
 
 class BoardNotFound(HardwareError):
@@ -221,6 +236,9 @@ class Pipeline:
             plan = self._meter(frame, px, level, roi, gain)
         # 2. capture the bracket, darks, merge
         stacks, darks, lights, times = [], [], [], []
+        # only the ROI's sample and white pixels are merged (a quarter of its box, typically): the merge is per pixel,
+        # so they get the values a merge of the whole box gives them, and the rest of the box stays unmerged (NaN)
+        used = (roi.label >= 0) | roi.white
         for t_k, n_k in zip(plan.exposures, plan.frames):
             cached = self.darks.cached(t_k, plan.gain)  # the runner measures the dark set before the poses
             grabs = []
@@ -231,10 +249,12 @@ class Pipeline:
             d = self.darks.get(t_k, plan.gain)
             lv = [g[2] for g in grabs]
             lights.extend(lv)
-            stacks.append(average_frames([g[1] for g in grabs], [g[0] for g in grabs], lv, self._limit(grabs[0][0]),
-                                         roi.region, light_u=[g[3] for g in grabs]))
-            darks.append((d.mean[roi.region].astype(np.float64), d.var[roi.region].astype(np.float64)))
-        hdr = merge_linear(stacks, darks, self.calib.noise)
+            # the used pixels as an (n, 1, C) image: what merge_linear takes
+            stacks.append(average_frames([g[1][roi.region][used][:, None] for g in grabs], [g[0] for g in grabs], lv,
+                                         self._limit(grabs[0][0]), light_u=[g[3] for g in grabs]))
+            darks.append((d.mean[roi.region][used][:, None].astype(np.float64),
+                          d.var[roi.region][used][:, None].astype(np.float64)))
+        hdr = _scattered(merge_linear(stacks, darks, self.calib.noise), used)
         lv = np.asarray(lights)
         if lv.size and (lv.max() - lv.min()) > st.drift_tolerance * max(lv.mean(), 1e-12):
             flags |= S.DRIFT

@@ -79,15 +79,19 @@ def average_frames(pixels: Sequence[np.ndarray], frames: Sequence[Frame], light:
     reading's relative variance is ``Σu² / n² / P̄²`` (independent readings).
     """
     crop = [p[region] for p in pixels]
-    stack = np.stack(crop).astype(np.float64)
+    if len(crop) == 1:  # one frame is its own mean and maximum (x / 1 is x): no stack, no reductions
+        mean = mx = crop[0].astype(np.float64)
+    else:
+        stack = np.stack(crop).astype(np.float64)
+        mean, mx = stack.mean(axis=0), stack.max(axis=0)
     f0 = frames[0]
     p = float(np.mean(light))
     rel = 0.0
     if light_u is not None and p > 0:
         u = np.asarray(light_u, dtype=np.float64)
         rel = float(np.sum(u**2)) / len(u) ** 2 / p**2
-    return ExposureStack(exposure=f0.exposure, gain=f0.gain, n=len(crop), mean=stack.mean(axis=0),
-                         max=stack.max(axis=0), light=p, black_level=f0.black_level, linear_limit=limit,
+    return ExposureStack(exposure=f0.exposure, gain=f0.gain, n=len(crop), mean=mean,
+                         max=mx, light=p, black_level=f0.black_level, linear_limit=limit,
                          light_rel_var=rel)
 
 
@@ -136,13 +140,13 @@ def merge_linear(stacks: Sequence[ExposureStack], darks: Sequence[tuple[np.ndarr
         dark_sig.append(dmean - st.black_level)
         dark_var.append(dvar)
     ok_arr = np.stack(ok)
-    x = np.stack(xs)
+    x_ok = np.where(ok_arr, np.stack(xs), 0.0)  # the values that count (0 elsewhere), used by both passes
     sc = np.asarray(scales)[:, None, None, None]
     # pass 1: weights ∝ exposure (shot-noise-limited SNR), pooled rate estimate
     w1 = np.where(ok_arr, sc, 0.0)
     sw1 = w1.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        rate1 = np.where(sw1 > 0, (w1 * np.where(ok_arr, x, 0.0)).sum(axis=0) / np.where(sw1 > 0, sw1, 1.0), np.nan)
+        rate1 = np.where(sw1 > 0, (w1 * x_ok).sum(axis=0) / np.where(sw1 > 0, sw1, 1.0), np.nan)
     # pass 2: inverse variance from the noise model at the predicted signal
     gains = np.asarray([s.gain for s in stacks])[:, None, None, None]
     ns = np.asarray([s.n for s in stacks])[:, None, None, None]
@@ -151,12 +155,16 @@ def merge_linear(stacks: Sequence[ExposureStack], darks: Sequence[tuple[np.ndarr
     w2 = np.where(ok_arr, 1.0 / var_k, 0.0)
     sw2 = w2.sum(axis=0)
     sat = sw2 <= 0
-    wx = w2 * np.where(ok_arr, x, 0.0)
+    wx = w2 * x_ok
     with np.errstate(invalid="ignore", divide="ignore"):
         num = wx.sum(axis=0)
-        rate = np.where(sat, np.nan, num / np.where(sat, 1.0, sw2))
-        var = np.where(sat, np.nan, 1.0 / np.where(sat, 1.0, sw2))
-        share = np.where(num != 0, wx / np.where(num != 0, num, 1.0), w2 / np.where(sat, 1.0, sw2))
+        sw2_ = np.where(sat, 1.0, sw2)
+        rate = np.where(sat, np.nan, num / sw2_)
+        var = np.where(sat, np.nan, 1.0 / sw2_)
+        nz = num != 0
+        share = wx / np.where(nz, num, 1.0)
+        if not nz.all():  # where the merged value is 0 the shares are the weights'
+            share = np.where(nz, share, w2 / sw2_)
     return HdrImage(rate=rate, var=var, saturated=sat, used=ok_arr.sum(axis=0), light_weight=share,
                     light_rel_var=np.asarray([s.light_rel_var for s in stacks], dtype=np.float64))
 

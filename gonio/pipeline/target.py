@@ -207,11 +207,20 @@ class SampleMount:
     @property
     def is_flat(self) -> bool:
         """True when the sample lies in the board plane with the board's axes (M = I)."""
-        return bool(np.array_equal(self.transform, np.eye(4)))
+        flat = self.__dict__.get("_flat")
+        if flat is None:  # the mount is immutable (frozen, numbers and tuples): computed once
+            flat = bool(np.array_equal(self.transform, np.eye(4)))
+            object.__setattr__(self, "_flat", flat)
+        return flat
 
     def frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(origin, normal, frame)`` of the sample surface, :func:`surface_frame`."""
-        return surface_frame(self.transform)
+        """``(origin, normal, frame)`` of the sample surface, :func:`surface_frame` (computed once per mount, the
+        mount being immutable; copies are returned, which the caller may change)."""
+        cached = self.__dict__.get("_frame")
+        if cached is None:
+            cached = surface_frame(self.transform)
+            object.__setattr__(self, "_frame", cached)
+        return tuple(a.copy() for a in cached)
 
     def to_patch(self, p) -> np.ndarray:
         """World points (..., 3) → patch coordinates (``M⁻¹ X``; z = 0 on the sample surface)."""

@@ -23,7 +23,7 @@ import numpy as np
 from gonio.geometry import normalize
 from gonio.pipeline.target import CameraPose
 
-__all__ = ["local_h_gradient", "plane_transfer", "geometry_variance"]
+__all__ = ["local_h_gradient", "plane_transfer", "plane_transfer_many", "geometry_variance"]
 
 
 def _half(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
@@ -75,6 +75,21 @@ def plane_transfer(points: np.ndarray, src: CameraPose, dst: CameraPose) -> np.n
     return out
 
 
+def plane_transfer_many(points: np.ndarray, src: CameraPose, dsts) -> np.ndarray:
+    """:func:`plane_transfer` of ``points`` to each pose of ``dsts`` (a stack (len(dsts), ..., 3)): the same
+    homographies, solved as one stack."""
+    Hs = np.column_stack([src.R[:, 0], src.R[:, 1], src.t])
+    Hd = np.stack([np.column_stack([d.R[:, 0], d.R[:, 1], d.t]) for d in dsts])
+    p = np.asarray(points, dtype=np.float64)
+    H = np.linalg.solve(Hd, np.broadcast_to(Hs, Hd.shape))
+    ph = np.concatenate([p[..., :2], np.ones(p.shape[:-1] + (1,))], axis=-1)
+    out = np.zeros((len(Hd),) + p.shape)
+    for k in range(len(Hd)):  # one 2-D product per pose, as plane_transfer computes it
+        q = ph @ H[k].T
+        out[k, ..., :2] = q[..., :2] / q[..., 2:3]
+    return out
+
+
 def _log_irradiance(p: np.ndarray, S: np.ndarray) -> np.ndarray:
     """ln(cos θ / r²) at plane points ``p`` for a point light at ``S`` (z = 0 plane: cos θ = S_z / r)."""
     d = S - p
@@ -102,17 +117,31 @@ def geometry_variance(f: np.ndarray, p_tile: np.ndarray, p_white: np.ndarray | N
     G = local_h_gradient(f, h0, n_grid)
     lE_t = _log_irradiance(p_tile, S)
     lE_w = _log_irradiance(p_white, S) if p_white is not None else 0.0
-    cases = [(q, S) for q in pose_perturbations]
+    # every case at once (the same operations per case and tile as one case at a time; the homographies solved as
+    # one stack): camera poses one σ away first, then the light moved one σ along each axis
+    qs = list(pose_perturbations)
+    Sq = [S] * len(qs)
     if light_sigma > 0:
-        cases += [(pose, S + light_sigma * e) for e in np.eye(3)]
+        Sq += [S + light_sigma * e for e in np.eye(3)]
+    nq = len(qs)
+    nc = len(Sq)
     var = np.zeros_like(f)
-    for q, S_q in cases:
-        pt = plane_transfer(p_tile, pose, q) if q is not pose else p_tile
-        h = _half(normalize(S_q - pt), normalize(q.centre - pt))
-        dlnE = _log_irradiance(pt, S_q) - lE_t
-        if p_white is not None:
-            pw = plane_transfer(p_white, pose, q) if q is not pose else p_white
-            dlnE = dlnE - (_log_irradiance(pw, S_q) - lE_w)
-        dr = np.einsum("tci,ti->tc", G, (h - h0)[:, :2]) + f * dlnE[:, None]
+    if nc == 0:
+        return var
+    Sq = np.asarray(Sq)[:, None, :]  # (cases, 1, 3)
+    Cq = np.asarray([q.centre for q in qs] + [C] * (nc - nq))[:, None, :]
+    pt = np.broadcast_to(p_tile, (nc,) + p_tile.shape).copy()
+    pw = None if p_white is None else np.broadcast_to(p_white, (nc,) + np.shape(p_white)).copy()
+    if nq:
+        pt[:nq] = plane_transfer_many(p_tile, pose, qs)
+        if pw is not None:
+            pw[:nq] = plane_transfer_many(p_white, pose, qs)
+    h = _half(normalize(Sq - pt), normalize(Cq - pt))
+    dlnE = _log_irradiance(pt, Sq) - lE_t
+    if pw is not None:
+        dlnE = dlnE - (_log_irradiance(pw, Sq[:, 0]) - lE_w)[:, None]
+    dh = (h - h0)[..., :2]
+    for k in range(nc):
+        dr = np.einsum("tci,ti->tc", G, dh[k]) + f * dlnE[k][:, None]
         var += dr**2
     return np.where(np.isfinite(var), var, 0.0)

@@ -145,3 +145,150 @@ def test_normal_draws_from_raw_outputs_are_generator_integers_bit_for_bit(bench_
         assert a["state"] == b["state"] and a["has_uint32"] == b["has_uint32"]
         assert not a["has_uint32"] or a["uinteger"] == b["uinteger"]  # (the pending half, when there is one)
         assert np.array_equal(cam._rng.poisson(3.0, 5), ref.poisson(3.0, 5))
+
+
+def _sensor_inputs(shape, seed):
+    """Means spanning every branch of the sensor chain: 0, below 1, either side of the Poisson threshold, bright,
+    past the full well."""
+    from sim.camera import POISSON_EXACT_BELOW
+
+    rng = np.random.default_rng(seed)
+    levels = np.array([0.0, 0.05, 0.7, 3.0, 11.0, np.nextafter(np.float32(POISSON_EXACT_BELOW), 0), POISSON_EXACT_BELOW,
+                       500.0, 19990.0, 40000.0], dtype=np.float32)
+    return (levels[rng.integers(0, levels.size, shape)] * rng.uniform(0.5, 1.5, shape).astype(np.float32)).astype(
+        np.float32)
+
+
+@pytest.mark.parametrize("shape, bits, dsnu", [((48, 64, 3), 12, True), ((7, 9, 3), 12, False), ((48, 64, 3), 8, True),
+                                                ((33, 5), 16, False)])
+def test_sensor_chain_compiled_is_the_numpy_reference_bit_for_bit(shape, bits, dsnu):
+    """sim.sensor_noise: the numba passes and the NumPy reference turn the same electron rates and seed into the
+    same frame (every branch: Poisson by inversion, the normal approximation, the full well, the DN range; with and
+    without a dark pattern)."""
+    from sim import sensor_noise
+    from sim.camera import POISSON_EXACT_BELOW, normal_table
+
+    sn = SensorModel(bit_depth=bits)
+    kw = dict(read_noise=sn.read_noise_e, full_well=sn.full_well, gain_k=sn.dn_per_electron * 1.7,
+              black=sn.black_level, saturation=sn.saturation, dtype=np.uint8 if bits == 8 else np.uint16)
+    for seed in range(5):
+        rate = _sensor_inputs(shape, seed) / np.float32(0.01)
+        pattern = np.random.default_rng(seed + 100).uniform(0.5, 1.5, shape).astype(np.float32) if dsnu else None
+        frames = []
+        for expose in (sensor_noise.expose_numpy, sensor_noise.expose_compiled):
+            rng = np.random.default_rng(seed)
+            frames.append(expose(rate, np.float32(0.01), pattern, np.float32(0.37), rng,
+                                 lambda s: rng.integers(0, 1 << 16, size=s, dtype=np.uint16), normal_table(),
+                                 POISSON_EXACT_BELOW, **kw))
+            frames.append(rng.random())  # and the generator is left in the same state
+        want, after_want, got, after_got = frames
+        assert got.dtype == want.dtype and got.tobytes() == want.tobytes() and after_got == after_want
+
+
+def test_camera_frames_are_the_same_with_and_without_numba(bench_factory, lambert, monkeypatch):
+    """A seed gives the same frames whichever implementation of the sensor chain runs (sim.sensor_noise)."""
+    from sim import sensor_noise
+
+    frames = {}
+    for compiled in (True, False):
+        monkeypatch.setattr(sensor_noise, "compiled_available", lambda: compiled)
+        bench = bench_factory(lambert, seed=4)
+        bench.place(30, 20, 40, 200)
+        frames[compiled] = [bench.camera.capture(t).pixels for t in (1e-4, 0.01, 0.2)]
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(frames[True], frames[False]))
+
+
+@pytest.mark.parametrize("lam", [0.02, 0.6, 3.7, 12.0, 29.9])
+def test_poisson_by_inversion_follows_the_poisson_law(lam):
+    """sim.sensor_noise.poisson_inversion draws Poisson(λ): χ² goodness of fit over the cells with ≥ 5 expected
+    counts (200 000 draws; the 0.999 quantile of χ² bounds it, a fixed seed), mean and variance within 4 standard
+    errors."""
+    from scipy import stats
+
+    from sim import sensor_noise
+
+    n = 200_000
+    lam_a = np.full(n, lam)
+    k = sensor_noise.poisson_inversion(lam_a, np.exp(-lam_a), np.random.default_rng(int(lam * 100)).random(n))
+    counts = np.bincount(k, minlength=int(lam + 10 * np.sqrt(lam) + 10))
+    expected = stats.poisson.pmf(np.arange(counts.size), lam) * n
+    cells = expected >= 5
+    rest_obs, rest_exp = n - counts[cells].sum(), n - expected[cells].sum()
+    chi2 = np.sum((counts[cells] - expected[cells]) ** 2 / expected[cells])
+    dof = int(cells.sum()) - 1
+    if rest_exp >= 5:
+        chi2 += (rest_obs - rest_exp) ** 2 / rest_exp
+        dof += 1
+    assert chi2 < stats.chi2.ppf(0.999, max(dof, 1))
+    assert abs(k.mean() - lam) < 4 * np.sqrt(lam / n)
+    assert abs(k.var() - lam) < 4 * lam * np.sqrt(2 / n) + 4 * np.sqrt(lam / n)
+
+
+def test_sensor_chain_rounds_half_to_even_and_clips_as_numpy_does():
+    """The compiled loop's rounding ((x + 2²³) − 2²³ in float32) is np.rint's, ties to even included, and its
+    clipping is np.clip's, from below zero to past the range (a zero noise table: the values are the means; the
+    read noise keeps the square roots of the negative means real)."""
+    from sim import sensor_noise
+
+    mean = np.concatenate([np.arange(-4.0, 70000.0, 0.5), np.arange(0.0, 3.0, 0.125), [1e9, 3.4e38]]).astype(np.float32)
+    table = np.zeros(1 << 16, dtype=np.float32)
+    for bits, dtype in ((12, np.uint16), (16, np.uint16), (8, np.uint8)):
+        kw = dict(read_noise=3.0, full_well=1e30, gain_k=1.0, black=0.0, saturation=(1 << bits) - 1, dtype=dtype)
+        frames = [expose(mean, np.float32(1.0), None, np.float32(0.0), np.random.default_rng(0),
+                         lambda s: np.zeros(s, dtype=np.uint16), table, -np.inf, **kw)
+                  for expose in (sensor_noise.expose_numpy, sensor_noise.expose_compiled)]
+        assert frames[1].tobytes() == frames[0].tobytes()
+        want = frames[0]
+        assert want[np.flatnonzero(mean == 2.5)[0]] == 2 and want[np.flatnonzero(mean == 3.5)[0]] == 4
+
+
+def test_board_shading_compiled_is_the_numpy_reference_bit_for_bit(bench_factory, lambert):
+    """sim.camera: the board's irradiance and electron rates from the numba pass equal the NumPy reference's, for
+    camera and light positions around the sample (grazing ones included)."""
+    from sim.camera import shade_board_compiled, shade_board_numpy
+
+    f32 = np.float32
+    bench = bench_factory(lambert, seed=1)
+    k = np.asarray(bench.sensor.responsivity, dtype=np.float32) / f32(np.pi)
+    for pose in [(0, 0, 30, 90), (60, 45, 75, 200), (85, 10, 5, 300), (30, 200, 88, 20)]:
+        bench.place(*pose)
+        px, py, hit, albedo = bench.camera._board_view()
+        S = bench.camera._light_pos
+        args = (px, py, hit, albedo, f32(S[0]), f32(S[1]), f32(S[2] ** 2), f32(max(S[2], 0.0)), k)
+        for a, b in zip(shade_board_numpy(*args), shade_board_compiled(*args)):
+            assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def test_geometry_variance_all_cases_at_once_is_one_case_at_a_time_bit_for_bit():
+    """gonio.pipeline.uncertainty: the perturbation cases evaluated as one stack give, bit for bit, the sum of the
+    cases evaluated one at a time with plane_transfer (the formulation it replaced)."""
+    from gonio.pipeline.target import CameraPose
+    from gonio.pipeline.uncertainty import (_half, _log_irradiance, geometry_variance, local_h_gradient,
+                                            plane_transfer, plane_transfer_many)
+    from gonio.geometry import normalize
+
+    rng = np.random.default_rng(5)
+    n = 4
+    p_tile = np.column_stack([rng.uniform(-0.01, 0.01, (n * n, 2)), np.zeros(n * n)])
+    p_white = np.array([0.03, -0.01, 0.0])
+    f = rng.uniform(0.1, 0.5, (n * n, 3))
+    pose = CameraPose.look_at([0.2, -0.3, 0.5])
+    perturbed = [CameraPose.look_at([0.2 + d, -0.3, 0.5 - d]) for d in (1e-3, -2e-3, 5e-4)]
+    S = np.array([-0.3, 0.2, 0.6])
+    many = plane_transfer_many(p_tile, pose, perturbed)
+    for k, q in enumerate(perturbed):
+        assert many[k].tobytes() == plane_transfer(p_tile, pose, q).tobytes()
+    for white in (p_white, None):
+        got = geometry_variance(f, p_tile, white, pose, S, n, pose_perturbations=perturbed, light_sigma=4e-4)
+        h0 = _half(normalize(S - p_tile), normalize(pose.centre - p_tile))
+        G = local_h_gradient(f, h0, n)
+        want = np.zeros_like(f)
+        for q, S_q in [(q, S) for q in perturbed] + [(pose, S + 4e-4 * e) for e in np.eye(3)]:
+            pt = plane_transfer(p_tile, pose, q) if q is not pose else p_tile
+            h = _half(normalize(S_q - pt), normalize(q.centre - pt))
+            dlnE = _log_irradiance(pt, S_q) - _log_irradiance(p_tile, S)
+            if white is not None:
+                pw = plane_transfer(white, pose, q) if q is not pose else white
+                dlnE = dlnE - (_log_irradiance(pw, S_q) - _log_irradiance(white, S))
+            want += (np.einsum("tci,ti->tc", G, (h - h0)[:, :2]) + f * dlnE[:, None]) ** 2
+        assert got.tobytes() == np.where(np.isfinite(want), want, 0.0).tobytes()
