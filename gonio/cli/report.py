@@ -59,6 +59,20 @@ def run_report(args) -> int:
     return 0
 
 
+def _arm_stop_signals() -> None:
+    """``gonio view`` says "Ctrl-C to stop", so Ctrl-C (SIGINT) stops it whatever it inherited: the default
+    handler, unblocked, even if the parent ignored or blocked SIGINT (a process started from a program
+    that does); SIGTERM (a service manager, ``kill``) stops it the same clean way."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+
+
 def run_view(args) -> int:
     import webbrowser
 
@@ -72,6 +86,7 @@ def run_view(args) -> int:
     except OSError as exc:
         raise ConfigError.field("--port", "port", args.port, f"cannot listen ({exc.strerror or exc})") from None
     url = f"http://127.0.0.1:{server.server_address[1]}/"
+    _arm_stop_signals()
     print(f"gonio view: serving {url} (Ctrl-C to stop)", flush=True)
     if not args.no_browser:
         webbrowser.open(url)

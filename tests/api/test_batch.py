@@ -117,6 +117,10 @@ def test_interrupted_batch_starts_nothing_more_and_leaves_no_worker(tmp_path):
                 return
         os.kill(os.getpid(), signal.SIGINT)  # what Ctrl-C sends to the parent
 
+    # Ctrl-C as a terminal delivers it to a fresh `gonio` process: Python's handler armed and SIGINT unblocked in
+    # this thread, whatever earlier tests in this worker process left behind
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    mask = signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     watcher = threading.Thread(target=interrupt_when_one_started, daemon=True)
     watcher.start()
     try:
@@ -125,6 +129,8 @@ def test_interrupted_batch_starts_nothing_more_and_leaves_no_worker(tmp_path):
     finally:
         first.set()
         watcher.join()
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        signal.signal(signal.SIGINT, old)
     started = sorted(tmp_path.glob("*.started"))
     assert 1 <= len(started) < len(sources)  # running ones finished; queued ones were cancelled
     time.sleep(0.5)  # a worker still running would start another source within this

@@ -156,18 +156,25 @@ def test_viewer_sliders_rerender_and_nothing_is_written(browser, inputs, fit_jso
     assert digest(session) == before
 
 
-def test_view_command_serves_and_stops_cleanly_on_ctrl_c(inputs, fit_json):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_view_command_serves_and_stops_cleanly_on_ctrl_c(inputs, fit_json, sig):
     session, _ = inputs
-    proc = subprocess.Popen([sys.executable, "-m", "gonio.cli.main", "view", str(session), "--model", str(fit_json),
-                             "--no-browser"],
-                            cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    # started with SIGINT ignored, as a program that ignores Ctrl-C would start it: `gonio view` arms it itself
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        proc = subprocess.Popen([sys.executable, "-m", "gonio.cli.main", "view", str(session), "--model",
+                                 str(fit_json), "--no-browser"],
+                                cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+    finally:
+        signal.signal(signal.SIGINT, old)
     try:
         line = proc.stdout.readline()
         assert line.startswith("gonio view: serving http://127.0.0.1:"), line
         url = line.split()[3]
-        assert b"<html" in urllib.request.urlopen(url, timeout=30).read()
-        proc.send_signal(signal.SIGINT)
+        with urllib.request.urlopen(url, timeout=30) as page:
+            assert b"<html" in page.read()
+        proc.send_signal(sig)
         out, err = proc.communicate(timeout=30)
     finally:
         proc.kill()
