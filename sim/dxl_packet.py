@@ -22,6 +22,9 @@ ERR_ALERT = 0x80
 
 
 def _crc_table() -> list[int]:
+    """The Protocol 2.0 CRC-16 table, written here from the e-manual and not imported from the host's
+    driver (gonio.rig.dynamixel keeps its own for the SDK): the emulator checks the host's bytes with its
+    own codec, so one wrong table cannot hide in both."""
     table = []
     for i in range(256):
         crc = i << 8
