@@ -151,15 +151,20 @@ def adaptive_args(lab_budget: float, target_error: float, quick: bool = False):
     return build_parser().parse_args(argv)
 
 
-def simulate_adaptive(args, out: Path):
+def simulate_adaptive(args, out: Path, n_starts: int | None = None):
     """Run the adaptive session ``args`` describe (:func:`gonio.cli.plan.adaptive_from_args`, then
     :class:`gonio.session.adaptive.AdaptiveSession` on the simulated rig rendering :data:`MATERIAL`):
-    ``(AdaptiveSessionResult, wall s, SampleSet)``."""
+    ``(AdaptiveSessionResult, wall s, SampleSet)``. ``n_starts``: the rounds' fits' starts instead of the
+    CLI's (the quick tier's 1, as its uniform rows' fits)."""
+    from dataclasses import replace
+
     from benchmarks.bench_session import _adaptive_session
     from gonio.cli.plan import adaptive_from_args
     from gonio.rig.kinematics import load_rig
 
     candidates, settings, spec = adaptive_from_args(args, load_rig(), source="bench --plan adaptive")
+    if n_starts is not None:
+        spec = replace(spec, n_starts=n_starts)
     return _adaptive_session(candidates, settings, spec, RESOLUTION, out, material=MATERIAL)
 
 
@@ -280,7 +285,7 @@ def plan_table(quick: bool = False) -> Table:
         base = next(r for r in rows if r.default)
         for j, (label, args) in enumerate(_adaptive_runs(base, overhead, quick)):
             try:
-                result, wall, s = simulate_adaptive(args, Path(tmp) / f"a{j}")
+                result, wall, s = simulate_adaptive(args, Path(tmp) / f"a{j}", n_starts=1 if quick else None)
                 n = sum(r["n_poses"] for r in result.rounds)
                 rows.append(_session_row("adaptive", f"{label}: {len(result.rounds)} rounds, stop: {result.stop}",
                                          n, result, wall, s, wi, wo, f_true, f_truth, n_starts=starts))
@@ -302,7 +307,8 @@ def plan_table(quick: bool = False) -> Table:
     t.notes.append("adaptive rows: `gonio measure --sim --plan adaptive --model "
                    f"{MATERIAL['model']} --lab-budget S --target-error E` (gonio.cli.plan.adaptive_from_args + "
                    "gonio.session.adaptive.AdaptiveSession; CLI defaults otherwise: the isotropic 10°/30° "
-                   "candidates, a coarse round of 24, 16 poses a round, each round fitted with 3 starts). The budget "
+                   "candidates, a coarse round of 24, 16 poses a round, each round fitted with "
+                   f"{'1 start (quick run; the CLI: 3)' if quick else '3 starts'}). The budget "
                    "counts the poses and each round's light check, not the session's start-up, so its lab time "
                    "is comparable with a uniform session's; target error 0 runs to the budget. The rounds' fits "
                    f"are in the wall time; the BRDF error is the same {starts}-start fit as the uniform rows'.")

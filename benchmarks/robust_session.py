@@ -80,7 +80,10 @@ def _poses(d: Path) -> dict:
 # -- kill -9 at random instants, then resume -------------------------------------------------------------
 def run_kill_resume(n: int = 20, quick: bool = False, *, seed: int = 1) -> list[tuple]:
     """``n`` runs of ``gonio measure --sim`` killed with SIGKILL at a uniformly random instant of an
-    uninterrupted run's wall time (from process start: imports, session creation, poses), then resumed."""
+    uninterrupted run's wall time (from process start: imports, session creation, poses), then resumed:
+    with ``gonio resume`` in a process of its own, or (``quick``) through :func:`gonio.cli.main.main` in this
+    process (:func:`_cli`, which counts an escaping exception as a traceback): the resume reads only the killed
+    run's directory, so the same check without an interpreter start-up (imports, numba cache) per resume."""
     from gonio.session.store import scan_samples
 
     rng = random.Random(seed)
@@ -105,10 +108,15 @@ def run_kill_resume(n: int = 20, quick: bool = False, *, seed: int = 1) -> list[
                     not_resumable += 1
                 continue
             for _attempt in range(3):
-                r = _gonio("resume", str(d), "--quiet")
-                _, err = r.communicate(timeout=300)
-                tracebacks += b"Traceback" in err
-                if r.returncode == 0:
+                if quick:
+                    code, _, tb = _cli("resume", str(d), "--quiet")
+                    tracebacks += tb
+                else:
+                    r = _gonio("resume", str(d), "--quiet")
+                    _, err = r.communicate(timeout=300)
+                    tracebacks += b"Traceback" in err
+                    code = r.returncode
+                if code == 0:
                     break
             else:
                 not_resumable += 1
