@@ -568,15 +568,11 @@ class SimCamera:
                      meta={"device": "sim", "light_output": level,
                            **({"sensor_temp_c": round(temp, 1)} if sn.reports_temperature else {})})
 
-    def _standard_normal(self, shape) -> np.ndarray:
-        """Standard normal float32 deviates by inverse-CDF lookup of 16-bit uniform integers
-        (:func:`normal_table` indexed by :meth:`_normal_indices`): ~3× faster than NumPy's float32 ziggurat
-        for a full frame, with the same mean and variance; the tails are cut at ±4.3σ (probability ~2·10⁻⁵
-        per value)."""
-        return np.take(normal_table(), self._normal_indices(shape))
-
     def _normal_indices(self, shape) -> np.ndarray:
-        """Uniform 16-bit integers of ``shape``: ``Generator.integers(0, 2¹⁶, dtype=uint16)``'s.
+        """Uniform 16-bit integers of ``shape``: ``Generator.integers(0, 2¹⁶, dtype=uint16)``'s, the indices of
+        the standard normal deviates looked up in :func:`normal_table` (~3× faster than NumPy's float32
+        ziggurat for a full frame, with the same mean and variance; the tails are cut at ±4.3σ, probability
+        ~2·10⁻⁵ per value).
 
         That call splits each 64-bit output of the bit generator into 32-bit halves and those into 16-bit
         halves, low first, one value at a time. When the count is a multiple of four and no 32-bit half is
