@@ -64,27 +64,21 @@ def plane_transfer(points: np.ndarray, src: CameraPose, dst: CameraPose) -> np.n
     """Where the pixels that see ``points`` (on z = 0) under pose ``src`` meet z = 0 under ``dst``.
 
     The plane-to-image map of a pinhole is the homography ``[r₁ r₂ t]`` (Hartley & Zisserman §8.1.1);
-    intrinsics and distortion cancel. Returns (..., 3) with z = 0.
+    intrinsics and distortion cancel. Returns (..., 3) with z = 0 (:func:`plane_transfer_many` for one pose).
     """
-    Hs = np.column_stack([src.R[:, 0], src.R[:, 1], src.t])
-    Hd = np.column_stack([dst.R[:, 0], dst.R[:, 1], dst.t])
-    p = np.asarray(points, dtype=np.float64)
-    q = np.concatenate([p[..., :2], np.ones(p.shape[:-1] + (1,))], axis=-1) @ (np.linalg.solve(Hd, Hs)).T
-    out = np.zeros_like(p)
-    out[..., :2] = q[..., :2] / q[..., 2:3]
-    return out
+    return plane_transfer_many(points, src, [dst])[0]
 
 
 def plane_transfer_many(points: np.ndarray, src: CameraPose, dsts) -> np.ndarray:
-    """:func:`plane_transfer` of ``points`` to each pose of ``dsts`` (a stack (len(dsts), ..., 3)): the same
-    homographies, solved as one stack."""
+    """:func:`plane_transfer` of ``points`` to each pose of ``dsts``, a stack (len(dsts), ..., 3): the
+    homographies ``[r₁ r₂ t]_dst⁻¹ [r₁ r₂ t]_src`` solved as one stack, then one 2-D product per pose."""
     Hs = np.column_stack([src.R[:, 0], src.R[:, 1], src.t])
     Hd = np.stack([np.column_stack([d.R[:, 0], d.R[:, 1], d.t]) for d in dsts])
     p = np.asarray(points, dtype=np.float64)
     H = np.linalg.solve(Hd, np.broadcast_to(Hs, Hd.shape))
     ph = np.concatenate([p[..., :2], np.ones(p.shape[:-1] + (1,))], axis=-1)
     out = np.zeros((len(Hd),) + p.shape)
-    for k in range(len(Hd)):  # one 2-D product per pose, as plane_transfer computes it
+    for k in range(len(Hd)):
         q = ph @ H[k].T
         out[k, ..., :2] = q[..., :2] / q[..., 2:3]
     return out

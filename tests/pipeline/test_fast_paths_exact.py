@@ -259,7 +259,8 @@ def test_board_shading_compiled_is_the_numpy_reference_bit_for_bit(bench_factory
 
 def test_geometry_variance_all_cases_at_once_is_one_case_at_a_time_bit_for_bit():
     """gonio.pipeline.uncertainty: the perturbation cases evaluated as one stack give, bit for bit, the sum of the
-    cases evaluated one at a time with plane_transfer (the formulation it replaced)."""
+    cases evaluated one at a time (the formulation it replaced), and the stacked homographies are those solved one
+    pose at a time."""
     from gonio.pipeline.target import CameraPose
     from gonio.pipeline.uncertainty import (_half, _log_irradiance, geometry_variance, local_h_gradient,
                                             plane_transfer, plane_transfer_many)
@@ -273,9 +274,18 @@ def test_geometry_variance_all_cases_at_once_is_one_case_at_a_time_bit_for_bit()
     pose = CameraPose.look_at([0.2, -0.3, 0.5])
     perturbed = [CameraPose.look_at([0.2 + d, -0.3, 0.5 - d]) for d in (1e-3, -2e-3, 5e-4)]
     S = np.array([-0.3, 0.2, 0.6])
+    def one_homography(points, src, dst):  # the plane-to-plane homography of one pose, solved alone
+        Hs = np.column_stack([src.R[:, 0], src.R[:, 1], src.t])
+        Hd = np.column_stack([dst.R[:, 0], dst.R[:, 1], dst.t])
+        q = np.concatenate([points[..., :2], np.ones(points.shape[:-1] + (1,))], axis=-1) @ np.linalg.solve(Hd, Hs).T
+        out = np.zeros_like(points)
+        out[..., :2] = q[..., :2] / q[..., 2:3]
+        return out
+
     many = plane_transfer_many(p_tile, pose, perturbed)
     for k, q in enumerate(perturbed):
-        assert many[k].tobytes() == plane_transfer(p_tile, pose, q).tobytes()
+        assert many[k].tobytes() == one_homography(p_tile, pose, q).tobytes()
+        assert plane_transfer(p_tile, pose, q).tobytes() == many[k].tobytes()
     for white in (p_white, None):
         got = geometry_variance(f, p_tile, white, pose, S, n, pose_perturbations=perturbed, light_sigma=4e-4)
         h0 = _half(normalize(S - p_tile), normalize(pose.centre - p_tile))
