@@ -16,7 +16,7 @@ from gonio.errors import ConfigError, HardwareError
 from gonio.pipeline.dark import DarkCache
 from gonio.pipeline.exposure import CapturePlan, ExposureSettings, plan_bracket
 from gonio.pipeline.hdr import BadFrame, SATURATION_MARGIN, HdrImage, average_frames, check_frame, merge_linear
-from gonio.pipeline.markers import BoardPose, detect_board_pose, to_gray8
+from gonio.pipeline.markers import BoardPose, board_poses_agree, detect_board_pose, to_gray8
 from gonio.pipeline.signal import SignalCheck
 from gonio.pipeline.reflectance import build_roi, reflectance_samples
 from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
@@ -90,6 +90,11 @@ class PoseResult:
     #: when each ``light`` reading was taken (:class:`gonio.rig.interfaces.PhotodiodeReading`): the host
     #: clock's time, the controller's uptime and the sampling span, seconds (None where not known)
     light_times: list[tuple] = field(default_factory=list)
+    #: how ``board`` was obtained: ``"detected"`` in this pose's metering frame, ``"reused"`` (the ``board`` the
+    #: caller passed: the camera has not moved since), ``"confirmed"`` (passed, and a detection in this pose's
+    #: metering frame agreed with it), ``"replaced"`` (passed, but this pose's detection disagreed and was used),
+    #: or ``None`` (no board: the kinematic pose)
+    board_source: str | None = None
 
 
 class Pipeline:
@@ -193,21 +198,35 @@ class Pipeline:
 
     # -- the pose -----------------------------------------------------------------------------
     def measure(self, light_position, *, pose_index: int = -1, camera_pose_hint: CameraPose | None = None,
-                plan: CapturePlan | None = None, nominal=None, meter_exposure: float | None = None) -> PoseResult:
+                plan: CapturePlan | None = None, nominal=None, meter_exposure: float | None = None,
+                board: BoardPose | None = None, confirm_board: bool = False) -> PoseResult:
         """Measure one pose; see the module docstring. Raises :class:`BoardNotFound` or :class:`BadFrame`.
 
         ``nominal = (camera centre, light position)`` of the planned pose fixes the tiling (see
         :func:`gonio.pipeline.reflectance.build_roi`). ``meter_exposure``: exposure of the metering frame
         (default: the previous pose's shortest exposure); a fixed value makes a pose's bracket depend on the
-        pose only."""
+        pose only.
+
+        ``board``: the board pose found at an earlier pose from which the camera has not moved (the caller
+        knows: :class:`gonio.session.runner.SessionRunner`), used instead of a search in this pose's metering
+        frame. With ``confirm_board`` the metering frame is searched anyway (once, no re-metering) and the
+        given pose kept only if the two agree (:func:`board_poses_agree`); else this pose's own is used."""
         st = self.settings
         gain = st.gain if plan is None else plan.gain
         flags = 0
         t = self._next_exposure if meter_exposure is None else float(meter_exposure)
         # 1. meter (and locate the board on the metering frame)
         frame, px, level, _ = self._grab(t, gain, meter=True)
-        board = cam_pose = None
-        for _ in range(st.meter_tries):
+        known, board, cam_pose, source = board, None, None, None
+        if known is not None:
+            board, cam_pose, source = known, known.pose, "reused"
+            if confirm_board:
+                found, _ = self._locate(frame, px, None)
+                if found is not None and not board_poses_agree(known, found):
+                    board, cam_pose, source = found, found.pose, "replaced"
+                elif found is not None:
+                    source = "confirmed"
+        for _ in range(0 if known is not None else st.meter_tries):
             board, cam_pose = self._locate(frame, px, camera_pose_hint)
             if board is not None:
                 break
@@ -222,6 +241,8 @@ class Pipeline:
                 break
             t = t_new
             frame, px, level, _ = self._grab(t, gain, meter=True)
+        if source is None and board is not None:
+            source = "detected"
         if cam_pose is None:
             raise BoardNotFound("camera frame: ChArUco board not found (fewer than 6 corners) and no kinematic "
                                 "camera pose given", device="camera")
@@ -265,7 +286,7 @@ class Pipeline:
                                       min_snr=st.min_snr, pose_index=pose_index, flags=flags,
                                       pose_perturbations=perturb, light_sigma=st.light_position_sigma)
         self._next_exposure = plan.exposures[0]
-        return PoseResult(samples, plan, board, cam_pose, lights, times)
+        return PoseResult(samples, plan, board, cam_pose, lights, times, source)
 
     def _meter(self, frame: Frame, px: np.ndarray, level: float, roi, gain: float) -> CapturePlan:
         """Find signal rates of the sample and white pixels; re-meter (bounded) when saturated or dark."""

@@ -15,7 +15,7 @@ import numpy as np
 
 from gonio.pipeline.target import BOARD_TO_SAMPLE_R, CameraCalibration, CameraPose, CharucoSpec
 
-__all__ = ["BoardPose", "to_gray8", "detect_board_pose", "board_pose_from_points", "corner_spread"]
+__all__ = ["BoardPose", "to_gray8", "detect_board_pose", "board_pose_from_points", "board_poses_agree", "corner_spread"]
 
 #: Fewest ChArUco corners accepted for a pose.
 MIN_CORNERS = 6
@@ -60,6 +60,41 @@ class BoardPose:
     cov: np.ndarray | None = None
     board_size: tuple[float, float] = (0.0, 0.0)
 
+    def to_record(self) -> dict | None:
+        """The pose as JSON-able lists (a pose record's ``board_pose``, docs/formats.md): OpenCV's ``rvec`` and
+        ``tvec``, the 6×6 ``cov``, ``n_corners``, ``rms_px`` and the board's ``size_m``; None without a PnP
+        solution (a pose given directly). :meth:`from_record` rebuilds it bit for bit (float64 ↔ JSON is exact:
+        Python writes the shortest repr that reads back to the same double)."""
+        if self.rvec is None or self.tvec is None:
+            return None
+        return {"rvec": [float(v) for v in self.rvec], "tvec": [float(v) for v in self.tvec],
+                "cov": None if self.cov is None else np.asarray(self.cov, dtype=np.float64).tolist(),
+                "n_corners": int(self.n_corners), "rms_px": float(self.rms_px),
+                "size_m": [float(v) for v in self.board_size]}
+
+    @classmethod
+    def from_record(cls, rec) -> "BoardPose | None":
+        """The :class:`BoardPose` of a :meth:`to_record` dict, its camera pose recomputed from ``rvec`` and
+        ``tvec``; None when ``rec`` is not such a record (wrong shapes, non-finite values, a covariance that is
+        not symmetric positive semi-definite): a record read from a file is checked before it is used."""
+        try:
+            rvec = np.asarray(rec["rvec"], dtype=np.float64).reshape(3)
+            tvec = np.asarray(rec["tvec"], dtype=np.float64).reshape(3)
+            size = tuple(float(v) for v in np.asarray(rec["size_m"], dtype=np.float64).reshape(2))
+            cov = None if rec.get("cov") is None else np.asarray(rec["cov"], dtype=np.float64).reshape(6, 6)
+            n, rms = int(rec["n_corners"]), float(rec["rms_px"])
+        except (TypeError, ValueError, KeyError, AttributeError):
+            return None
+        values = np.concatenate([rvec, tvec, size, [rms]] + ([] if cov is None else [cov.ravel()]))
+        if not (np.isfinite(values).all() and n >= MIN_CORNERS and 0.0 <= rms and min(size) > 0):
+            return None
+        if cov is not None:  # symmetric positive semi-definite, up to the rounding of (vec / λ) @ vecᵀ
+            scale = float(np.abs(cov).max())
+            if not (np.abs(cov - cov.T).max() <= 1e-9 * scale and np.linalg.eigvalsh(cov)[0] >= -1e-9 * scale):
+                return None
+        return cls(_sample_frame_pose(rvec, tvec, size), n_corners=n, rms_px=rms, rvec=rvec, tvec=tvec, cov=cov,
+                   board_size=size)
+
     def perturbed(self) -> list[CameraPose]:
         """Camera poses at ``θ + √λ_j e_j`` for the eigenpairs (λ_j, e_j) of :attr:`cov` (linear error
         propagation: Σ_j (g(θ + √λ_j e_j) − g(θ))² ≈ ∇gᵀ Σ ∇g for any smooth g; JCGM 101 / GUM §5.1.2)."""
@@ -73,6 +108,27 @@ class BoardPose:
             step = np.sqrt(lam[k]) * vec[:, k]
             out.append(_sample_frame_pose(self.rvec + step[:3], self.tvec + step[3:], self.board_size))
         return out
+
+
+#: χ²₆ quantile 0.999 (scipy.stats.chi2.ppf(0.999, 6)): two estimates of one board pose whose difference lies
+#: beyond it differ by more than their noise (probability 0.1 % for the same pose)
+AGREE_CHI2_6 = 22.4577
+
+
+def board_poses_agree(a: BoardPose, b: BoardPose, threshold: float = AGREE_CHI2_6) -> bool:
+    """Two independent estimates of the same board pose: the Mahalanobis distance (Mahalanobis 1936) of their
+    parameter difference ``Δ = (rvec, tvec)_a − (rvec, tvec)_b``, ``d² = Δᵀ (Σ_a + Σ_b)⁻¹ Δ``, is at most
+    ``threshold`` (a χ² with 6 degrees of freedom when both are unbiased with covariances Σ_a, Σ_b).
+    The Rodrigues vectors are subtracted directly: for rotations that differ by a small angle this is their
+    difference to first order. False when either has no covariance (nothing to compare with)."""
+    if a.cov is None or b.cov is None or a.rvec is None or b.rvec is None:
+        return False
+    d = np.concatenate([np.asarray(a.rvec) - np.asarray(b.rvec), np.asarray(a.tvec) - np.asarray(b.tvec)])
+    try:
+        d2 = float(d @ np.linalg.solve(np.asarray(a.cov) + np.asarray(b.cov), d))
+    except np.linalg.LinAlgError:
+        return False
+    return bool(np.isfinite(d2) and d2 <= threshold)
 
 
 def _sample_frame_pose(rvec, tvec, board_size) -> CameraPose:

@@ -11,7 +11,10 @@ tolerance), then for each remaining pose in plan order:
    watchdog fed meanwhile), verify the *measured* joint angles against the target (re-issue the move a
    bounded number of times, then :class:`~gonio.errors.HardwareError`);
 3. capture through the pipeline with the light position and camera-pose hint from the forward
-   kinematics of the *measured* joints, photodiode normalization inside the pipeline. Exposure: with
+   kinematics of the *measured* joints, photodiode normalization inside the pipeline. The board pose is
+   searched once per camera position: while the camera stays where the last stored pose had it (same goal,
+   same encoder readings, :meth:`SessionRunner._camera_key`) that pose's board pose is reused; one read back
+   from an earlier run is first confirmed against this pose's metering frame. Exposure: with
    ``plan.capture.auto_exposure`` (the default) the pipeline chooses each pose's bracket from its
    metering frame (metered at the expected bracket's shortest exposure, so a pose's bracket depends on the
    pose only and a resumed session measures what an uninterrupted one does) on the exposure ladder, more
@@ -279,6 +282,10 @@ class SessionRunner:
         self.lab_offset = 0.0
         self._stop = threading.Event()
         self._interrupts = 0
+        #: the board pose of the last stored pose and where its camera was (:meth:`_camera_key`), and whether it
+        #: must be confirmed (it comes from an earlier run): reused while the camera stays put (:meth:`_measure`)
+        self._board_prev: tuple[bytes, object, bool] | None = None
+        self._board_next: tuple[bytes, object] | None = None
 
     # -- messages -------------------------------------------------------------------------------
     def _say(self, msg: str) -> None:
@@ -401,6 +408,31 @@ class SessionRunner:
         self.warm_up()  # switching the light off and on restarts its warm-up
         return True
 
+    def _camera_key(self, target, measured) -> bytes:
+        """Where the camera is relative to the sample, as bytes: the planned and the measured camera pose
+        (forward kinematics, sample frame: the camera arm's joints and a turntable's). Two poses with the same
+        key have the camera's servos at the same goal and the same encoder readings: the camera has not moved."""
+        rig = self.dev.rig
+        parts = [*rig.camera_pose(rig.as_array(target)), *rig.camera_pose(rig.as_array(measured))]
+        return b"".join(np.ascontiguousarray(p, dtype=np.float64).tobytes() for p in parts)
+
+    def _load_board_prev(self) -> None:
+        """At the start of a run: the last stored pose's board pose (``board_pose`` in its meta, docs/formats.md), to be
+        confirmed before it is reused (the rig may have been stopped, moved or touched since)."""
+        from gonio.pipeline.markers import BoardPose
+
+        meta = getattr(self.store, "last_meta", None)
+        if not isinstance(meta, dict) or not isinstance(meta.get("board_pose"), dict):
+            return
+        try:
+            key = self._camera_key({k: float(v) for k, v in meta["target_joints_rad"].items()},
+                                   {k: float(v) for k, v in meta["joints_rad"].items()})
+        except (KeyError, TypeError, ValueError, AttributeError, ConfigError):
+            return  # not this rig's joints, or not numbers: nothing to reuse
+        board = BoardPose.from_record(meta["board_pose"])
+        if board is not None:
+            self._board_prev = (key, board, True)
+
     def _dark_meta(self) -> dict:
         """The dark model's state for the pose's meta (modelled darks only): scale k of the dark current
         and the sensor temperature it was predicted at."""
@@ -424,6 +456,10 @@ class SessionRunner:
             self.before_pose(index)
         joints = rig.as_array(measured)
         position, R = rig.camera_pose(joints)
+        # the camera has not moved since the last stored pose (same goal, same encoder readings): its board pose
+        # stands, the board is not searched again (confirmed once when it comes from an earlier run)
+        key = self._camera_key(target, measured)
+        prev = self._board_prev if self._board_prev is not None and self._board_prev[0] == key else None
         cam_w, cam_l, frames = self.camera.wall, self.camera.lab, self.camera.frames
         # meter every pose at the expected bracket's shortest exposure, not at the previous pose's: a pose's
         # bracket then depends on the pose only, so a resumed session measures what an uninterrupted one does
@@ -431,7 +467,9 @@ class SessionRunner:
         res = self.pipeline.measure(rig.light_position(joints), pose_index=index,
                                     camera_pose_hint=CameraPose(R, -R @ position), plan=self.bracket,
                                     meter_exposure=self.plan.capture.exposures[0],
-                                    nominal=(rig.camera_pose(planned)[0], rig.light_position(planned)))
+                                    nominal=(rig.camera_pose(planned)[0], rig.light_position(planned)),
+                                    board=None if prev is None else prev[1],
+                                    confirm_board=prev is not None and prev[2])
         self.check_devices()  # an E-stop during the capture: the frames are not of a lit sample, keep nothing
         w3, l3 = time.perf_counter(), self.clock.now()
         capture_wall = self.camera.wall - cam_w
@@ -451,12 +489,20 @@ class SessionRunner:
                            "min": float(pd.min()) if pd.size else None, "max": float(pd.max()) if pd.size else None,
                            **_reading_times(res.light_times)},
             "board_found": res.board is not None,
+            "board_pose": None if res.board is None else res.board.to_record(),
+            "board_source": res.board_source,
             "darks_refreshed": darks,
             **self._dark_meta(),
             "lab_time_s": float(self.clock.now()),
             "run_lab_time_s": float(self.clock.now() - self._lab0),  # lab time of this run so far
             "timing": timing,
         }
+        # what the next pose may reuse: the pose as stored (rebuilt from its record, so a resumed run that reads
+        # it back from the file gets the same bits)
+        from gonio.pipeline.markers import BoardPose
+
+        board = None if meta["board_pose"] is None else BoardPose.from_record(meta["board_pose"])
+        self._board_next = None if board is None else (key, board)
         return res.samples, meta, timing
 
     def _recover(self, exc: HardwareError) -> None:
@@ -493,6 +539,8 @@ class SessionRunner:
         ends = self._predict(todo)
         result.estimated_lab_time = float(ends[-1]) if len(ends) else 0.0
         brackets: dict[str, int] = {}
+        if self._board_prev is None:
+            self._load_board_prev()
         old_handler = None
         if threading.current_thread() is threading.main_thread():
             old_handler = signal.signal(signal.SIGINT, self._on_sigint)
@@ -513,8 +561,10 @@ class SessionRunner:
                         break
                     if k in done:
                         continue
+                    self._board_next = None
                     samples, meta, timing = self._pose_with_retries(k, result)
                     if samples is None:
+                        self._board_prev = None  # the camera may have moved: search the board again
                         failed_run = failed_run + 1 if result.failed and result.failed[-1][0] == k else 0
                         if failed_run >= self.settings.max_failed_in_a_row:
                             raise HardwareError(f"camera: {failed_run} poses in a row without a usable frame "
@@ -523,6 +573,7 @@ class SessionRunner:
                         continue
                     failed_run = 0
                     self.store.append(k, samples, meta)
+                    self._board_prev = None if self._board_next is None else (*self._board_next, False)
                     done.add(k)
                     result.measured += 1
                     result.samples += len(samples)
@@ -588,6 +639,7 @@ class SessionRunner:
             try:
                 if attempt:
                     result.retries += 1
+                    self._board_prev = None  # a recovery may have moved the servos: search the board again
                     self._recover(last)
                 samples, meta, timing = self._measure(k)
                 meta["attempts"] = attempt + 1

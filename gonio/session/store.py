@@ -265,6 +265,10 @@ class SessionStore:
         self._manifest = manifest
         self._fd = fd
         self._records = {p: len(s) for p, (s, _m) in scan.records.items()}
+        #: the ``meta`` of the last good record (the pose measured last), None in an empty store: a resumed run
+        #: continues from it (:class:`gonio.session.runner.SessionRunner` reuses its board pose when the camera
+        #: is where it was). Read from the file, so unchecked: its reader validates what it uses
+        self.last_meta: dict | None = scan.records[scan.order[-1][0]][1] if scan.order else None
         self.n_records = scan.n_records
         self.torn = scan.torn  #: why a torn last record was dropped on open (None if none was)
         self.repaired: dict | None = None  #: the damaged records moved to quarantine.jsonl on open, if any
@@ -428,6 +432,7 @@ class SessionStore:
         os.fsync(self._fd)
         self._records[pose_index] = len(samples)
         self.n_records += 1
+        self.last_meta = dict(meta or {})
 
     def done_poses(self) -> set[int]:
         """Indices of the plan poses that have a record."""
