@@ -183,6 +183,35 @@ def test_sensor_chain_compiled_is_the_numpy_reference_bit_for_bit(shape, bits, d
         assert got.dtype == want.dtype and got.tobytes() == want.tobytes() and after_got == after_want
 
 
+def test_sensor_chain_compiled_with_the_poisson_values_in_a_few_blocks_is_the_reference():
+    """A bright frame with dark patches (as the board's black squares and the background make them): the compiled
+    chain gathers the values below the Poisson threshold only from the blocks of its first pass that hold some
+    (sim.sensor_noise.BLOCK), the frame not a multiple of the block; still the NumPy reference's frame, and the
+    generator left in the same state."""
+    from sim import sensor_noise
+    from sim.camera import POISSON_EXACT_BELOW, normal_table
+
+    sn = SensorModel()
+    kw = dict(read_noise=sn.read_noise_e, full_well=sn.full_well, gain_k=sn.dn_per_electron, black=sn.black_level,
+              saturation=sn.saturation)
+    shape = (61, 47, 3)
+    assert np.prod(shape) % sensor_noise.BLOCK and np.prod(shape) > 4 * sensor_noise.BLOCK
+    rate = np.full(shape, 5000.0, dtype=np.float32)
+    rate[3:5, 10:12] = 0.0  # a few values, inside one block
+    rate[30:34] = np.linspace(0.0, 40.0, 34 * 47 * 3 - 30 * 47 * 3, dtype=np.float32).reshape(4, 47, 3)  # across blocks
+    rate[-1, -1] = 3.0  # the last value, in the last (short) block
+    for seed in range(3):
+        frames = []
+        for expose in (sensor_noise.expose_numpy, sensor_noise.expose_compiled):
+            rng = np.random.default_rng(seed)
+            frames.append(expose(rate, np.float32(1.0), None, np.float32(0.5), rng,
+                                 lambda s: rng.integers(0, 1 << 16, size=s, dtype=np.uint16), normal_table(),
+                                 POISSON_EXACT_BELOW, **kw))
+            frames.append(rng.random())
+        want, after_want, got, after_got = frames
+        assert got.tobytes() == want.tobytes() and after_got == after_want
+
+
 def test_camera_frames_are_the_same_with_and_without_numba(bench_factory, lambert, monkeypatch):
     """A seed gives the same frames whichever implementation of the sensor chain runs (sim.sensor_noise)."""
     from sim import sensor_noise
