@@ -71,35 +71,40 @@ def shade_board_numpy(px, py, hit, albedo, sx, sy, sz2, intensity_z, k):
 
 
 def _shade_board_loop(px, py, hit, albedo, sx, sy, sz2, intensity_z, k, irr, rate):
-    """:func:`shade_board_numpy` per pixel (compiled by numba: the same float32 operations in the same order)."""
+    """:func:`shade_board_numpy` per pixel (compiled by numba: the same float32 operations in the same order), the
+    irradiance first, then the rates (``rate`` flat, three per pixel): two loops that vectorize."""
     for i in range(px.size):
         dx = sx - px[i]
         dy = sy - py[i]
         r2 = dx * dx + dy * dy + sz2
-        e = intensity_z / (r2 * np.sqrt(r2))
-        irr[i] = e
-        sh = albedo[i] * e
+        irr[i] = intensity_z / (r2 * np.sqrt(r2))
+    k0, k1, k2 = k[0], k[1], k[2]
+    for i in range(px.size):
+        sh = albedo[i] * irr[i]
         sh = sh * (np.float32(1.0) if hit[i] else np.float32(0.0))
-        for c in range(3):
-            rate[i, c] = sh * k[c]
+        rate[3 * i] = sh * k0
+        rate[3 * i + 1] = sh * k1
+        rate[3 * i + 2] = sh * k2
 
 
 @functools.lru_cache(maxsize=1)
 def _shade_board_kernel():
     import numba
 
-    return numba.njit(cache=True, nogil=True)(_shade_board_loop)
+    # error_model="numpy": a division by zero gives inf as NumPy's does instead of raising (no check in the loop,
+    # which then vectorizes)
+    return numba.njit(cache=True, nogil=True, error_model="numpy")(_shade_board_loop)
 
 
 def shade_board_compiled(px, py, hit, albedo, sx, sy, sz2, intensity_z, k):
-    """:func:`shade_board_numpy` in one numba pass over the pixels: the same numbers bit for bit."""
+    """:func:`shade_board_numpy` in numba (:func:`_shade_board_loop`): the same numbers bit for bit."""
     shape = px.shape
     irr = np.empty(shape, dtype=np.float32)
     rate = np.empty(shape + (3,), dtype=np.float32)
     _shade_board_kernel()(np.ascontiguousarray(px).reshape(-1), np.ascontiguousarray(py).reshape(-1),
                           np.ascontiguousarray(hit).reshape(-1), np.ascontiguousarray(albedo).reshape(-1),
                           sx, sy, sz2, intensity_z, np.ascontiguousarray(k, dtype=np.float32),
-                          irr.reshape(-1), rate.reshape(-1, 3))
+                          irr.reshape(-1), rate.reshape(-1))
     return irr, rate
 
 
@@ -289,6 +294,8 @@ class SimCamera:
         self._view_scene = self._view = None
         self._sample_key: bytes | None = None
         self._sample_scene = self._sample_cached = None
+        # per scene: the sample patch's placement (see _patch)
+        self._patch_scene = self._patch_cached = None
         self._closed = False
         self._t_power = clock.now() if clock is not None else 0.0  #: power-on: the sensor starts at ambient
         self._dsnu: np.ndarray | None = None
@@ -478,11 +485,25 @@ class SimCamera:
         uv = self._pose.project(corners, c)
         c0, r0 = np.floor(uv.min(axis=0)).astype(int) - 2
         c1, r1 = np.ceil(uv.max(axis=0)).astype(int) + 3
-        rows = slice(int(np.clip(r0, 0, c.height)), int(np.clip(r1, 0, c.height)))
-        cols = slice(int(np.clip(c0, 0, c.width)), int(np.clip(c1, 0, c.width)))
+        rows = slice(min(max(int(r0), 0), c.height), min(max(int(r1), 0), c.height))
+        cols = slice(min(max(int(c0), 0), c.width), min(max(int(c1), 0), c.width))
         if rows.stop <= rows.start or cols.stop <= cols.start:
             return None
         return rows, cols
+
+    def _patch(self):
+        """What the scene alone decides about the sample patch (cached per scene: a session renders one scene from
+        hundreds of poses): its placement ``M`` (4×4), its corners in the sample frame, its surface frame
+        ``(origin, normal, frame)`` (:func:`gonio.pipeline.target.surface_frame`) and ``M⁻¹``."""
+        s = self.scene
+        if self._patch_scene is not s:
+            M = s.layout.mount.transform if s.sample_transform is None else np.asarray(s.sample_transform,
+                                                                                      dtype=np.float64)
+            corners = s.layout.sample.corners() @ M[:3, :3].T + M[:3, 3]
+            # the normal by the inverse-transpose (lecture notes 000)
+            self._patch_cached = (M, corners, *surface_frame(M), np.linalg.inv(M))
+            self._patch_scene = s
+        return self._patch_cached
 
     def _sample_view(self, C: np.ndarray):
         """What the camera pose alone decides about the sample patch (cached per pose): its pixel box,
@@ -492,19 +513,16 @@ class SimCamera:
         key = self._pose.R.tobytes() + self._pose.t.tobytes()
         if self._sample_key == key and self._sample_scene is s:
             return self._sample_cached
-        M = s.layout.mount.transform if s.sample_transform is None else np.asarray(s.sample_transform, dtype=np.float64)
-        corners = s.layout.sample.corners() @ M[:3, :3].T + M[:3, 3]
+        M, corners, origin, n, frame, Minv = self._patch()
         view = None
         box = self._bbox(corners)
         if box is not None:
             d = self._world_rays(box)
-            origin, n, frame = surface_frame(M)  # normal by the inverse-transpose (lecture notes 000)
             dn = d @ n
             with np.errstate(divide="ignore", invalid="ignore"):
                 t = np.dot(origin - C, n) / dn
             ok = np.isfinite(t) & (t > 0) & (dn < 0)
             p = C + np.where(ok, t, 0.0)[..., None] * d
-            Minv = np.linalg.inv(M)
             q = p @ Minv[:3, :3].T + Minv[:3, 3]  # back to the patch's own coordinates
             inside = ok & s.layout.sample.contains(q[..., 0], q[..., 1])
             if inside.any():

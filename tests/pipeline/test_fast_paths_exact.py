@@ -16,6 +16,7 @@ from sim.camera import SensorModel
 
 def _clear_render_caches(cam) -> None:
     cam._cache_key = cam._view_key = cam._sample_key = None
+    cam._patch_scene = None
     cam._rays, cam._texture = None, None
     cam._blurred.clear()
 
