@@ -108,6 +108,70 @@ def shade_board_compiled(px, py, hit, albedo, sx, sy, sz2, intensity_z, k):
     return irr, rate
 
 
+def board_points_numpy(x, y, R, C, inv, origin):
+    """Where the pixels' rays ``Rᵀ(x, y, 1)`` meet the board plane z = 0: ``C − C_z d / d_z`` (no normalization
+    needed), whether they meet it (``d_z < −10⁻⁶`` and the camera above the plane) and the texture coordinates
+    there (``inv`` texels per metre, ``origin`` the texel coordinates of the board point (0, 0)), float32 (H, W):
+    ``(px, py, hit, mx, my)``. ``x`` (1, W) or (H, W) and ``y`` (H, 1) or (H, W): the undistorted normalized image
+    coordinates, float32. The reference of :func:`board_points_compiled`."""
+    f32 = np.float32
+    dz = x * f32(R[0, 2]) + (y * f32(R[1, 2]) + f32(R[2, 2]))
+    hit = dz < -1e-6
+    if not C[2] > 0:  # a camera below the board plane sees its back: nothing
+        hit[...] = False
+    # t = −C_z / d_z on hits; elsewhere a huge finite t sends the lookup off the board
+    t = np.minimum(dz, f32(-1e-6), out=dz)
+    np.divide(f32(-C[2]), t, out=t)
+    px = x * f32(R[0, 0]) + (y * f32(R[1, 0]) + f32(R[2, 0]))
+    px *= t
+    px += f32(C[0])
+    py = x * f32(R[0, 1]) + (y * f32(R[1, 1]) + f32(R[2, 1]))
+    py *= t
+    py += f32(C[1])
+    mx = px * f32(inv) + f32(origin[0])
+    my = py * f32(-inv) + f32(origin[1])
+    return px, py, hit, mx, my
+
+
+def _board_points_loop(x, y, r, c, above, inv, ox, oy, px, py, hit, mx, my):
+    """:func:`board_points_numpy` per pixel (compiled by numba: the same float32 operations in the same order;
+    every array flat, one value per pixel; ``r`` the rotation's nine entries and ``c`` the centre, float32)."""
+    eps = np.float32(-1e-6)
+    mcz = -c[2]
+    for i in range(x.size):
+        xv = x[i]
+        yv = y[i]
+        dz = xv * r[2] + (yv * r[5] + r[8])
+        hit[i] = above and dz < eps
+        t = mcz / (dz if not dz >= eps else eps)  # np.minimum(dz, eps), NaN included
+        u = (xv * r[0] + (yv * r[3] + r[6])) * t + c[0]
+        v = (xv * r[1] + (yv * r[4] + r[7])) * t + c[1]
+        px[i] = u
+        py[i] = v
+        mx[i] = u * inv + ox
+        my[i] = v * -inv + oy
+
+
+@functools.lru_cache(maxsize=1)
+def _board_points_kernel():
+    import numba
+
+    return numba.njit(cache=True, nogil=True, error_model="numpy")(_board_points_loop)
+
+
+def board_points_compiled(x, y, R, C, inv, origin):
+    """:func:`board_points_numpy` in one numba pass over the pixels: the same numbers bit for bit."""
+    f32 = np.float32
+    shape = np.broadcast_shapes(x.shape, y.shape)
+    x, y = (np.ascontiguousarray(np.broadcast_to(a, shape)).reshape(-1) for a in (x, y))
+    px, py, mx, my = (np.empty(shape, dtype=f32) for _ in range(4))
+    hit = np.empty(shape, dtype=bool)
+    _board_points_kernel()(x, y, np.ascontiguousarray(R, dtype=f32).reshape(-1), np.asarray(C, dtype=f32),
+                           bool(C[2] > 0), f32(inv), f32(origin[0]), f32(origin[1]),
+                           *(a.reshape(-1) for a in (px, py, hit, mx, my)))
+    return px, py, hit, mx, my
+
+
 @dataclass(frozen=True)
 class SensorModel:
     """Linear sensor (EMVA 1288 model) with an optional 8-bit gamma response.
@@ -406,8 +470,8 @@ class SimCamera:
         the board-plane point ``(px, py)`` each pixel's ray meets, whether it meets it (``hit``) and the
         board / background albedo there, all float32 (H, W) and read-only.
 
-        A pixel's ray ``Rᵀ(x, y, 1)`` meets z = 0 at ``C − C_z d / d_z`` (no normalization needed); the
-        albedo is a bilinear lookup in the texture prefiltered to the pixel footprint."""
+        The points: :func:`board_points_numpy` (or its compiled twin); the albedo is a bilinear lookup in the
+        texture prefiltered to the pixel footprint."""
         import cv2
 
         key = self._pose.R.tobytes() + self._pose.t.tobytes()
@@ -415,30 +479,15 @@ class SimCamera:
             return self._view
         s, c = self.scene, self.calibration
         C = self._pose.centre
-        R = self._pose.R
-        f32 = np.float32
         x, y = (a.astype(np.float32) for a in self._ray_maps())
-        dz = x * f32(R[0, 2]) + (y * f32(R[1, 2]) + f32(R[2, 2]))
-        hit = dz < -1e-6
-        if not C[2] > 0:  # a camera below the board plane sees its back: nothing
-            hit[...] = False
-        # t = −C_z / d_z on hits; elsewhere a huge finite t sends the lookup off the board
-        t = np.minimum(dz, f32(-1e-6), out=dz)
-        np.divide(f32(-C[2]), t, out=t)
-        px = x * f32(R[0, 0]) + (y * f32(R[1, 0]) + f32(R[2, 0]))
-        px *= t
-        px += f32(C[0])
-        py = x * f32(R[0, 1]) + (y * f32(R[1, 1]) + f32(R[2, 1]))
-        py *= t
-        py += f32(C[1])
-        tex = self._board_texture()
         w, h = s.layout.charuco.size
+        inv = 1.0 / s.texel
+        points = board_points_compiled if sensor_noise.compiled_available() else board_points_numpy
+        px, py, hit, mx, my = points(x, y, self._pose.R, C, inv, (w / 2 * inv - 0.5, h / 2 * inv - 0.5))
+        tex = self._board_texture()
         footprint = np.linalg.norm(C) / c.K[0, 0] / s.texel  # texels per pixel at the board centre
         if footprint > 1.0:
             tex = self._blurred_texture(0.5 * footprint)
-        inv = 1.0 / s.texel
-        mx = px * f32(inv) + f32(w / 2 * inv - 0.5)
-        my = py * f32(-inv) + f32(h / 2 * inv - 0.5)
         albedo = cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=s.background)
         for a in (px, py, hit, albedo):
             a.flags.writeable = False

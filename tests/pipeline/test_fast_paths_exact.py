@@ -287,6 +287,34 @@ def test_board_shading_compiled_is_the_numpy_reference_bit_for_bit(bench_factory
             assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
 
 
+@pytest.mark.parametrize("distorted", [False, True])
+def test_board_points_compiled_are_the_numpy_reference_bit_for_bit(bench_factory, lambert, distorted):
+    """sim.camera: where the pixels' rays meet the board, whether they do and the texture coordinates there, from the
+    numba pass and from the NumPy reference, for cameras around the sample (grazing, and below the board plane: no
+    hits), with an ideal pinhole (ray maps of one row and one column, broadcast) and with lens distortion (full
+    maps)."""
+    from dataclasses import replace
+
+    from gonio.pipeline.target import CameraPose
+    from sim.camera import board_points_compiled, board_points_numpy
+
+    bench = bench_factory(lambert, seed=1)
+    cam = bench.camera
+    if distorted:
+        cam.calibration = replace(cam.calibration, dist=np.array([-0.12, 0.03, 0.001, -0.002, 0.0]))
+    x, y = (a.astype(np.float32) for a in cam._ray_maps())
+    assert (x.ndim, x.shape[0] > 1) == (2, distorted)
+    for pose in [(0, 0, 30, 90), (60, 45, 75, 200), (89, 10, 5, 300), (30, 200, 88, 20)]:
+        bench.place(*pose)
+        poses = [cam._pose, CameraPose.look_at(cam._pose.centre * [1.0, 1.0, -1.0])]  # and from below the board
+        for p in poses:
+            args = (x, y, p.R, p.centre, 1.0 / 0.25e-3, (123.5, 87.25))
+            want, got = board_points_numpy(*args), board_points_compiled(*args)
+            for a, b in zip(want, got):
+                assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+            assert want[2].any() == (p.centre[2] > 0)
+
+
 def test_geometry_variance_all_cases_at_once_is_one_case_at_a_time_bit_for_bit():
     """gonio.pipeline.uncertainty: the perturbation cases evaluated as one stack give, bit for bit, the sum of the
     cases evaluated one at a time (the formulation it replaced), and the stacked homographies are those solved one
