@@ -71,36 +71,105 @@ def shade_board_numpy(px, py, hit, albedo, sx, sy, sz2, intensity_z, k):
 
 
 def _shade_board_loop(px, py, hit, albedo, sx, sy, sz2, intensity_z, k, irr, rate):
-    """:func:`shade_board_numpy` per pixel (compiled by numba: the same float32 operations in the same order)."""
+    """:func:`shade_board_numpy` per pixel (compiled by numba: the same float32 operations in the same order), the
+    irradiance first, then the rates (``rate`` flat, three per pixel): two loops that vectorize."""
     for i in range(px.size):
         dx = sx - px[i]
         dy = sy - py[i]
         r2 = dx * dx + dy * dy + sz2
-        e = intensity_z / (r2 * np.sqrt(r2))
-        irr[i] = e
-        sh = albedo[i] * e
+        irr[i] = intensity_z / (r2 * np.sqrt(r2))
+    k0, k1, k2 = k[0], k[1], k[2]
+    for i in range(px.size):
+        sh = albedo[i] * irr[i]
         sh = sh * (np.float32(1.0) if hit[i] else np.float32(0.0))
-        for c in range(3):
-            rate[i, c] = sh * k[c]
+        rate[3 * i] = sh * k0
+        rate[3 * i + 1] = sh * k1
+        rate[3 * i + 2] = sh * k2
 
 
 @functools.lru_cache(maxsize=1)
 def _shade_board_kernel():
     import numba
 
-    return numba.njit(cache=True, nogil=True)(_shade_board_loop)
+    # error_model="numpy": a division by zero gives inf as NumPy's does instead of raising (no check in the loop,
+    # which then vectorizes)
+    return numba.njit(cache=True, nogil=True, error_model="numpy")(_shade_board_loop)
 
 
 def shade_board_compiled(px, py, hit, albedo, sx, sy, sz2, intensity_z, k):
-    """:func:`shade_board_numpy` in one numba pass over the pixels: the same numbers bit for bit."""
+    """:func:`shade_board_numpy` in numba (:func:`_shade_board_loop`): the same numbers bit for bit."""
     shape = px.shape
     irr = np.empty(shape, dtype=np.float32)
     rate = np.empty(shape + (3,), dtype=np.float32)
     _shade_board_kernel()(np.ascontiguousarray(px).reshape(-1), np.ascontiguousarray(py).reshape(-1),
                           np.ascontiguousarray(hit).reshape(-1), np.ascontiguousarray(albedo).reshape(-1),
                           sx, sy, sz2, intensity_z, np.ascontiguousarray(k, dtype=np.float32),
-                          irr.reshape(-1), rate.reshape(-1, 3))
+                          irr.reshape(-1), rate.reshape(-1))
     return irr, rate
+
+
+def board_points_numpy(x, y, R, C, inv, origin):
+    """Where the pixels' rays ``Rᵀ(x, y, 1)`` meet the board plane z = 0: ``C − C_z d / d_z`` (no normalization
+    needed), whether they meet it (``d_z < −10⁻⁶`` and the camera above the plane) and the texture coordinates
+    there (``inv`` texels per metre, ``origin`` the texel coordinates of the board point (0, 0)), float32 (H, W):
+    ``(px, py, hit, mx, my)``. ``x`` (1, W) or (H, W) and ``y`` (H, 1) or (H, W): the undistorted normalized image
+    coordinates, float32. The reference of :func:`board_points_compiled`."""
+    f32 = np.float32
+    dz = x * f32(R[0, 2]) + (y * f32(R[1, 2]) + f32(R[2, 2]))
+    hit = dz < -1e-6
+    if not C[2] > 0:  # a camera below the board plane sees its back: nothing
+        hit[...] = False
+    # t = −C_z / d_z on hits; elsewhere a huge finite t sends the lookup off the board
+    t = np.minimum(dz, f32(-1e-6), out=dz)
+    np.divide(f32(-C[2]), t, out=t)
+    px = x * f32(R[0, 0]) + (y * f32(R[1, 0]) + f32(R[2, 0]))
+    px *= t
+    px += f32(C[0])
+    py = x * f32(R[0, 1]) + (y * f32(R[1, 1]) + f32(R[2, 1]))
+    py *= t
+    py += f32(C[1])
+    mx = px * f32(inv) + f32(origin[0])
+    my = py * f32(-inv) + f32(origin[1])
+    return px, py, hit, mx, my
+
+
+def _board_points_loop(x, y, r, c, above, inv, ox, oy, px, py, hit, mx, my):
+    """:func:`board_points_numpy` per pixel (compiled by numba: the same float32 operations in the same order;
+    every array flat, one value per pixel; ``r`` the rotation's nine entries and ``c`` the centre, float32)."""
+    eps = np.float32(-1e-6)
+    mcz = -c[2]
+    for i in range(x.size):
+        xv = x[i]
+        yv = y[i]
+        dz = xv * r[2] + (yv * r[5] + r[8])
+        hit[i] = above and dz < eps
+        t = mcz / (dz if not dz >= eps else eps)  # np.minimum(dz, eps), NaN included
+        u = (xv * r[0] + (yv * r[3] + r[6])) * t + c[0]
+        v = (xv * r[1] + (yv * r[4] + r[7])) * t + c[1]
+        px[i] = u
+        py[i] = v
+        mx[i] = u * inv + ox
+        my[i] = v * -inv + oy
+
+
+@functools.lru_cache(maxsize=1)
+def _board_points_kernel():
+    import numba
+
+    return numba.njit(cache=True, nogil=True, error_model="numpy")(_board_points_loop)
+
+
+def board_points_compiled(x, y, R, C, inv, origin):
+    """:func:`board_points_numpy` in one numba pass over the pixels: the same numbers bit for bit."""
+    f32 = np.float32
+    shape = np.broadcast_shapes(x.shape, y.shape)
+    x, y = (np.ascontiguousarray(np.broadcast_to(a, shape)).reshape(-1) for a in (x, y))
+    px, py, mx, my = (np.empty(shape, dtype=f32) for _ in range(4))
+    hit = np.empty(shape, dtype=bool)
+    _board_points_kernel()(x, y, np.ascontiguousarray(R, dtype=f32).reshape(-1), np.asarray(C, dtype=f32),
+                           bool(C[2] > 0), f32(inv), f32(origin[0]), f32(origin[1]),
+                           *(a.reshape(-1) for a in (px, py, hit, mx, my)))
+    return px, py, hit, mx, my
 
 
 @dataclass(frozen=True)
@@ -289,6 +358,8 @@ class SimCamera:
         self._view_scene = self._view = None
         self._sample_key: bytes | None = None
         self._sample_scene = self._sample_cached = None
+        # per scene: the sample patch's placement (see _patch)
+        self._patch_scene = self._patch_cached = None
         self._closed = False
         self._t_power = clock.now() if clock is not None else 0.0  #: power-on: the sensor starts at ambient
         self._dsnu: np.ndarray | None = None
@@ -399,8 +470,8 @@ class SimCamera:
         the board-plane point ``(px, py)`` each pixel's ray meets, whether it meets it (``hit``) and the
         board / background albedo there, all float32 (H, W) and read-only.
 
-        A pixel's ray ``Rᵀ(x, y, 1)`` meets z = 0 at ``C − C_z d / d_z`` (no normalization needed); the
-        albedo is a bilinear lookup in the texture prefiltered to the pixel footprint."""
+        The points: :func:`board_points_numpy` (or its compiled twin); the albedo is a bilinear lookup in the
+        texture prefiltered to the pixel footprint."""
         import cv2
 
         key = self._pose.R.tobytes() + self._pose.t.tobytes()
@@ -408,30 +479,15 @@ class SimCamera:
             return self._view
         s, c = self.scene, self.calibration
         C = self._pose.centre
-        R = self._pose.R
-        f32 = np.float32
         x, y = (a.astype(np.float32) for a in self._ray_maps())
-        dz = x * f32(R[0, 2]) + (y * f32(R[1, 2]) + f32(R[2, 2]))
-        hit = dz < -1e-6
-        if not C[2] > 0:  # a camera below the board plane sees its back: nothing
-            hit[...] = False
-        # t = −C_z / d_z on hits; elsewhere a huge finite t sends the lookup off the board
-        t = np.minimum(dz, f32(-1e-6), out=dz)
-        np.divide(f32(-C[2]), t, out=t)
-        px = x * f32(R[0, 0]) + (y * f32(R[1, 0]) + f32(R[2, 0]))
-        px *= t
-        px += f32(C[0])
-        py = x * f32(R[0, 1]) + (y * f32(R[1, 1]) + f32(R[2, 1]))
-        py *= t
-        py += f32(C[1])
-        tex = self._board_texture()
         w, h = s.layout.charuco.size
+        inv = 1.0 / s.texel
+        points = board_points_compiled if sensor_noise.compiled_available() else board_points_numpy
+        px, py, hit, mx, my = points(x, y, self._pose.R, C, inv, (w / 2 * inv - 0.5, h / 2 * inv - 0.5))
+        tex = self._board_texture()
         footprint = np.linalg.norm(C) / c.K[0, 0] / s.texel  # texels per pixel at the board centre
         if footprint > 1.0:
             tex = self._blurred_texture(0.5 * footprint)
-        inv = 1.0 / s.texel
-        mx = px * f32(inv) + f32(w / 2 * inv - 0.5)
-        my = py * f32(-inv) + f32(h / 2 * inv - 0.5)
         albedo = cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=s.background)
         for a in (px, py, hit, albedo):
             a.flags.writeable = False
@@ -478,11 +534,25 @@ class SimCamera:
         uv = self._pose.project(corners, c)
         c0, r0 = np.floor(uv.min(axis=0)).astype(int) - 2
         c1, r1 = np.ceil(uv.max(axis=0)).astype(int) + 3
-        rows = slice(int(np.clip(r0, 0, c.height)), int(np.clip(r1, 0, c.height)))
-        cols = slice(int(np.clip(c0, 0, c.width)), int(np.clip(c1, 0, c.width)))
+        rows = slice(min(max(int(r0), 0), c.height), min(max(int(r1), 0), c.height))
+        cols = slice(min(max(int(c0), 0), c.width), min(max(int(c1), 0), c.width))
         if rows.stop <= rows.start or cols.stop <= cols.start:
             return None
         return rows, cols
+
+    def _patch(self):
+        """What the scene alone decides about the sample patch (cached per scene: a session renders one scene from
+        hundreds of poses): its placement ``M`` (4×4), its corners in the sample frame, its surface frame
+        ``(origin, normal, frame)`` (:func:`gonio.pipeline.target.surface_frame`) and ``M⁻¹``."""
+        s = self.scene
+        if self._patch_scene is not s:
+            M = s.layout.mount.transform if s.sample_transform is None else np.asarray(s.sample_transform,
+                                                                                      dtype=np.float64)
+            corners = s.layout.sample.corners() @ M[:3, :3].T + M[:3, 3]
+            # the normal by the inverse-transpose (lecture notes 000)
+            self._patch_cached = (M, corners, *surface_frame(M), np.linalg.inv(M))
+            self._patch_scene = s
+        return self._patch_cached
 
     def _sample_view(self, C: np.ndarray):
         """What the camera pose alone decides about the sample patch (cached per pose): its pixel box,
@@ -492,19 +562,16 @@ class SimCamera:
         key = self._pose.R.tobytes() + self._pose.t.tobytes()
         if self._sample_key == key and self._sample_scene is s:
             return self._sample_cached
-        M = s.layout.mount.transform if s.sample_transform is None else np.asarray(s.sample_transform, dtype=np.float64)
-        corners = s.layout.sample.corners() @ M[:3, :3].T + M[:3, 3]
+        M, corners, origin, n, frame, Minv = self._patch()
         view = None
         box = self._bbox(corners)
         if box is not None:
             d = self._world_rays(box)
-            origin, n, frame = surface_frame(M)  # normal by the inverse-transpose (lecture notes 000)
             dn = d @ n
             with np.errstate(divide="ignore", invalid="ignore"):
                 t = np.dot(origin - C, n) / dn
             ok = np.isfinite(t) & (t > 0) & (dn < 0)
             p = C + np.where(ok, t, 0.0)[..., None] * d
-            Minv = np.linalg.inv(M)
             q = p @ Minv[:3, :3].T + Minv[:3, 3]  # back to the patch's own coordinates
             inside = ok & s.layout.sample.contains(q[..., 0], q[..., 1])
             if inside.any():

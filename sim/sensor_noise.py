@@ -1,12 +1,13 @@
 """The simulated sensor's per-pixel chain: electron rates → mean electrons → shot and read noise → full well →
 digital numbers.
 
-:class:`sim.camera.SimCamera` hands a frame's electron rates to :func:`expose_compiled` (numba: two passes over
-memory instead of ~20 whole-array operations; used when numba, the ``fast`` extra, is installed) or to its
-reference :func:`expose_numpy` (whole-array NumPy operations). Both draw the frame's random numbers with NumPy in
-one fixed order (:func:`draw`: the normal table's indices, then one uniform per Poisson value) and then do the same
-IEEE operations in the same order and precision on them, so they give the same frame bit for bit
-(tests/pipeline/test_fast_paths_exact.py), and a seed gives the same samples with or without numba.
+:class:`sim.camera.SimCamera` hands a frame's electron rates to :func:`expose_compiled` (numba, used when numba,
+the ``fast`` extra, is installed: one vectorized pass over every value by the normal approximation, which also
+gathers the values below the Poisson threshold, then a pass over those alone, instead of ~20 whole-array
+operations) or to its reference :func:`expose_numpy` (whole-array NumPy operations). Both draw the frame's random
+numbers with NumPy in one fixed order (:func:`draw`: the normal table's indices, then one uniform per Poisson
+value) and then do the same IEEE operations in the same order and precision on them, so they give the same frame
+bit for bit (tests/pipeline/test_fast_paths_exact.py), and a seed gives the same samples with or without numba.
 
 Noise model (EMVA Standard 1288 R4.0, 2021, §2: shot noise Poisson in the electrons, read noise Gaussian):
 
@@ -15,7 +16,8 @@ Noise model (EMVA Standard 1288 R4.0, 2021, §2: shot noise Poisson in the elect
 * below it: ``k + σ_r z`` with ``k`` Poisson(μ) drawn exactly by inversion, the sequential search of
   Devroye, *Non-Uniform Random Variate Generation*, 1986, §X.3.3: with one uniform ``u``, the smallest
   ``k`` with ``u ≤ Σ_{j≤k} e^{−μ} μʲ/j!``, the terms by the recurrence ``p_j = p_{j−1} · (μ · (1/j))`` (one
-  multiplication on the chain of dependent operations instead of a division: a step is ~4 cycles). The search
+  multiplication on the chain of dependent operations instead of a division: a step is ~4 cycles; the compiled
+  search loads ``1/j`` from a table, :data:`RECIPROCALS`, instead of dividing). The search
   stops when a term no longer changes the float64 partial sum (the tail beyond it is below 2⁻⁵³ of the sum),
   so the law is exact up to the rounding of the partial sums; it costs ~μ + 1 steps, cheap where it is used
   (μ < 30, most pixels μ < 5).
@@ -126,88 +128,141 @@ def expose_numpy(rate, scale, pattern, dark_e, rng, normal_indices, table, below
     return frame_numpy(mean_e, table, *draw(rng, normal_indices, mean_e, below), **kw)
 
 
-def _means(rate, scale, pattern, dark_e, has_pattern, below, mean, lam):
-    """:func:`means_numpy` per value (compiled), and the means below ``below`` floored at 0 as float64, in C order
-    (what :func:`draw` gathers), into ``lam``; returns their count."""
-    j = 0
-    for i in range(rate.size):
+#: 1/k for k = 1 … 256, float64: the factors of the Poisson search's steps, loaded instead of divided (IEEE 754
+#: division is correctly rounded, so these are the quotients ``1.0 / k`` the search computed; the division was the
+#: slowest operation of a step). The search divides beyond k = 256 (λ < 30 ends it long before).
+RECIPROCALS = 1.0 / np.arange(1, 257, dtype=np.float64)
+
+
+def _dn(e, full_well, gain_k, black, saturation):
+    """Electrons ``e`` (float32) to DN as :func:`frame_numpy` does: clipped at ``full_well``, times ``gain_k`` plus
+    ``black``, ``np.rint`` then clipped to [0, ``saturation``] (compiled; branch-free, so that loops calling it
+    vectorize).
+
+    x ≤ 0 rounds to a value ≤ 0, clipped to 0; 0 < x < 2²³ rounds half to even as (x + 2²³) − 2²³ does in float32
+    (the sum's rounding is the rounding to an integer; exact for these x, and vectorizable where the rint call is
+    not); saturation < 2²³ clips everything larger, and NaN, whose comparisons are false, to ``saturation``."""
+    if e > full_well:
+        e = full_well
+    x = e * gain_k + black
+    d = (x + TWO23) - TWO23
+    if x <= 0:
+        d = np.float32(0.0)
+    if not d <= saturation:
+        d = saturation
+    return d
+
+
+def _block(rate, pattern, scale, dark_e, has_pattern, idx, table, z, below, rn2, full_well, gain_k, black,
+           saturation, out):
+    """One block of values (slices): every value by the normal approximation (the means as :func:`means_numpy`
+    computes them, the module docstring's ``μ + √(μ + σ_r²) z``, :func:`_dn`) into ``out``; returns whether any
+    mean is below ``below`` (compiled). The table lookups go first into ``z``: the loop that follows, without an
+    indirect load, vectorizes."""
+    for k in range(rate.size):
+        z[k] = table[idx[k]]
+    low = False
+    for k in range(rate.size):
+        if has_pattern:
+            m = rate[k] * scale + pattern[k] * dark_e
+        else:
+            m = rate[k] * scale + dark_e
+        out[k] = _dn(np.sqrt(m + rn2) * z[k] + m, full_well, gain_k, black, saturation)
+        low |= m < below
+    return low
+
+
+def _gather(rate, pattern, scale, dark_e, has_pattern, below, a, b, j, pos, lam):
+    """The values among ``a … b−1`` whose mean is below ``below``: their indices into ``pos`` and their means floored
+    at 0, as float64 (what :func:`draw` gathers), into ``lam``, from ``j`` on; returns the next ``j`` (compiled)."""
+    for i in range(a, b):
         if has_pattern:
             m = rate[i] * scale + pattern[i] * dark_e
         else:
             m = rate[i] * scale + dark_e
-        mean[i] = m
         if m < below:
+            pos[j] = i
             lm = np.float64(m)
             lam[j] = lm if lm > 0.0 else 0.0
             j += 1
     return j
 
 
-def _loop(mean, idx, table, below, lam, p0, u, rn2, rn, full_well, gain_k, black, saturation, out):
-    """:func:`frame_numpy`'s arithmetic per value (compiled by numba; the same operations, types and order)."""
+#: values per block of the first pass (blocks without a mean below the threshold skip the gathering)
+BLOCK = 1024
+
+
+def _pass1(rate, pattern, scale, dark_e, has_pattern, idx, table, below, rn2, full_well, gain_k, black, saturation,
+           out, pos, lam):
+    """Every value by the normal approximation, block by block (:func:`_block`), and the values below ``below``
+    gathered in C order (:func:`_gather`); returns their count (compiled)."""
+    size = rate.size
+    z = np.empty(BLOCK, dtype=np.float32)
     j = 0
-    for i in range(mean.size):
-        m = mean[i]
-        z = table[idx[i]]
-        if m < below:
-            lm = lam[j]
-            p = p0[j]
-            cdf = p
-            uj = u[j]
-            k = 0
-            while uj > cdf:
-                k += 1
-                p = p * (lm * (1.0 / k))
-                cn = cdf + p
-                if cn == cdf:
-                    break
-                cdf = cn
-            e = np.float32(np.float64(k) + np.float64(rn * z))
-            j += 1
-        else:
-            e = np.sqrt(m + rn2) * z + m
-        if e > full_well:
-            e = full_well
-        x = e * gain_k + black
-        # np.rint(x) then clipped to [0, saturation]: x ≤ 0 rounds to a value ≤ 0, clipped to 0; 0 < x < 2²³ rounds
-        # half to even as (x + 2²³) − 2²³ does in float32 (the sum's rounding is the rounding to an integer; exact
-        # for these x, and vectorizable where the rint call is not); saturation < 2²³ clips everything larger
-        if x <= 0:
-            d = np.float32(0.0)
-        elif x < TWO23:
-            d = (x + TWO23) - TWO23
-            if d > saturation:
-                d = saturation
-        else:
-            d = saturation
-        out[i] = d
+    for a in range(0, size, BLOCK):
+        b = min(size, a + BLOCK)
+        if _block(rate[a:b], pattern[a:b], scale, dark_e, has_pattern, idx[a:b], table, z, below, rn2, full_well,
+                  gain_k, black, saturation, out[a:b]):
+            j = _gather(rate, pattern, scale, dark_e, has_pattern, below, a, b, j, pos, lam)
+    return j
+
+
+def _pass2(pos, idx, table, lam, p0, u, recip, rn, full_well, gain_k, black, saturation, out):
+    """The values gathered by :func:`_pass1` (means below the threshold): ``k + σ_r z`` with ``k`` Poisson by
+    inversion (:func:`poisson_inversion`'s operations for one value, with ``recip`` = :data:`RECIPROCALS`;
+    int64 + float32 in float64, stored as float32, as :func:`electrons_numpy` does), to DN over what the first pass
+    wrote (compiled)."""
+    nr = recip.size
+    for j in range(lam.size):
+        lm = lam[j]
+        p = p0[j]
+        cdf = p
+        uj = u[j]
+        k = 0
+        while uj > cdf:
+            k += 1
+            p = p * (lm * (recip[k - 1] if k <= nr else 1.0 / k))
+            cn = cdf + p
+            if cn == cdf:
+                break
+            cdf = cn
+        i = pos[j]
+        out[i] = _dn(np.float32(np.float64(k) + np.float64(rn * table[idx[i]])), full_well, gain_k, black,
+                     saturation)
 
 
 @functools.lru_cache(maxsize=1)
 def _compiled():
     import numba
+    from numba.extending import register_jitable
 
+    for f in (_dn, _block, _gather):
+        register_jitable(f)
     jit = numba.njit(cache=True, nogil=True)
-    return jit(_means), jit(_loop)
+    return jit(_pass1), jit(_pass2)
 
 
 def expose_compiled(rate, scale, pattern, dark_e, rng, normal_indices, table, below, *, read_noise, full_well, gain_k,
                     black, saturation, dtype=np.uint16) -> np.ndarray:
-    """:func:`expose_numpy` in two numba passes over the values (the means and the Poisson means' gathering, then
-    the noise and the conversion to DN), with the same random numbers drawn in the same order: the same frame bit
-    for bit."""
+    """:func:`expose_numpy` in two numba passes: every value by the normal approximation, block by block, and the
+    means below ``below`` gathered (:func:`_pass1`); then, with the uniforms drawn for those, their Poisson values
+    written over the first pass's (:func:`_pass2`). The same random numbers drawn in the same order and the same
+    operations on each value: the same frame bit for bit."""
     f32 = np.float32
-    means, loop = _compiled()
-    idx = normal_indices(rate.shape)
+    pass1, pass2 = _compiled()
+    idx = np.ascontiguousarray(normal_indices(rate.shape)).reshape(-1)
     rate1 = np.ascontiguousarray(rate, dtype=f32).reshape(-1)
     pat1 = rate1 if pattern is None else np.ascontiguousarray(pattern, dtype=f32).reshape(-1)
-    mean = np.empty(rate1.size, dtype=f32)
-    lam = np.empty(rate1.size, dtype=np.float64)
-    n = means(rate1, f32(scale), pat1, f32(dark_e), pattern is not None, f32(below), mean, lam)
-    lam = lam[:n]
-    p0 = np.exp(-lam)
-    u = rng.random(n)
     out = np.empty(rate.shape, dtype=dtype)
-    loop(mean, np.ascontiguousarray(idx).reshape(-1), table, f32(below), lam, p0, u, f32(read_noise ** 2),
-         f32(read_noise), f32(full_well), f32(gain_k), f32(black), f32(saturation), out.reshape(-1))
+    out1 = out.reshape(-1)
+    pos = np.empty(rate1.size, dtype=np.intp)
+    lam = np.empty(rate1.size, dtype=np.float64)
+    conv = (f32(full_well), f32(gain_k), f32(black), f32(saturation))
+    n = pass1(rate1, pat1, f32(scale), f32(dark_e), pattern is not None, idx, table, f32(below), f32(read_noise ** 2),
+              *conv, out1, pos, lam)
+    if n:
+        lam = lam[:n]
+        p0 = np.negative(lam)
+        np.exp(p0, out=p0)  # np.exp(-lam) in one array instead of two (fresh pages cost more than the exp)
+        pass2(pos, idx, table, lam, p0, rng.random(n), RECIPROCALS, f32(read_noise), *conv, out1)
     return out

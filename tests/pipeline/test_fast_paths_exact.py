@@ -16,6 +16,7 @@ from sim.camera import SensorModel
 
 def _clear_render_caches(cam) -> None:
     cam._cache_key = cam._view_key = cam._sample_key = None
+    cam._patch_scene = None
     cam._rays, cam._texture = None, None
     cam._blurred.clear()
 
@@ -183,6 +184,35 @@ def test_sensor_chain_compiled_is_the_numpy_reference_bit_for_bit(shape, bits, d
         assert got.dtype == want.dtype and got.tobytes() == want.tobytes() and after_got == after_want
 
 
+def test_sensor_chain_compiled_with_the_poisson_values_in_a_few_blocks_is_the_reference():
+    """A bright frame with dark patches (as the board's black squares and the background make them): the compiled
+    chain gathers the values below the Poisson threshold only from the blocks of its first pass that hold some
+    (sim.sensor_noise.BLOCK), the frame not a multiple of the block; still the NumPy reference's frame, and the
+    generator left in the same state."""
+    from sim import sensor_noise
+    from sim.camera import POISSON_EXACT_BELOW, normal_table
+
+    sn = SensorModel()
+    kw = dict(read_noise=sn.read_noise_e, full_well=sn.full_well, gain_k=sn.dn_per_electron, black=sn.black_level,
+              saturation=sn.saturation)
+    shape = (61, 47, 3)
+    assert np.prod(shape) % sensor_noise.BLOCK and np.prod(shape) > 4 * sensor_noise.BLOCK
+    rate = np.full(shape, 5000.0, dtype=np.float32)
+    rate[3:5, 10:12] = 0.0  # a few values, inside one block
+    rate[30:34] = np.linspace(0.0, 40.0, 34 * 47 * 3 - 30 * 47 * 3, dtype=np.float32).reshape(4, 47, 3)  # across blocks
+    rate[-1, -1] = 3.0  # the last value, in the last (short) block
+    for seed in range(3):
+        frames = []
+        for expose in (sensor_noise.expose_numpy, sensor_noise.expose_compiled):
+            rng = np.random.default_rng(seed)
+            frames.append(expose(rate, np.float32(1.0), None, np.float32(0.5), rng,
+                                 lambda s: rng.integers(0, 1 << 16, size=s, dtype=np.uint16), normal_table(),
+                                 POISSON_EXACT_BELOW, **kw))
+            frames.append(rng.random())
+        want, after_want, got, after_got = frames
+        assert got.tobytes() == want.tobytes() and after_got == after_want
+
+
 def test_camera_frames_are_the_same_with_and_without_numba(bench_factory, lambert, monkeypatch):
     """A seed gives the same frames whichever implementation of the sensor chain runs (sim.sensor_noise)."""
     from sim import sensor_noise
@@ -255,6 +285,34 @@ def test_board_shading_compiled_is_the_numpy_reference_bit_for_bit(bench_factory
         args = (px, py, hit, albedo, f32(S[0]), f32(S[1]), f32(S[2] ** 2), f32(max(S[2], 0.0)), k)
         for a, b in zip(shade_board_numpy(*args), shade_board_compiled(*args)):
             assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+@pytest.mark.parametrize("distorted", [False, True])
+def test_board_points_compiled_are_the_numpy_reference_bit_for_bit(bench_factory, lambert, distorted):
+    """sim.camera: where the pixels' rays meet the board, whether they do and the texture coordinates there, from the
+    numba pass and from the NumPy reference, for cameras around the sample (grazing, and below the board plane: no
+    hits), with an ideal pinhole (ray maps of one row and one column, broadcast) and with lens distortion (full
+    maps)."""
+    from dataclasses import replace
+
+    from gonio.pipeline.target import CameraPose
+    from sim.camera import board_points_compiled, board_points_numpy
+
+    bench = bench_factory(lambert, seed=1)
+    cam = bench.camera
+    if distorted:
+        cam.calibration = replace(cam.calibration, dist=np.array([-0.12, 0.03, 0.001, -0.002, 0.0]))
+    x, y = (a.astype(np.float32) for a in cam._ray_maps())
+    assert (x.ndim, x.shape[0] > 1) == (2, distorted)
+    for pose in [(0, 0, 30, 90), (60, 45, 75, 200), (89, 10, 5, 300), (30, 200, 88, 20)]:
+        bench.place(*pose)
+        poses = [cam._pose, CameraPose.look_at(cam._pose.centre * [1.0, 1.0, -1.0])]  # and from below the board
+        for p in poses:
+            args = (x, y, p.R, p.centre, 1.0 / 0.25e-3, (123.5, 87.25))
+            want, got = board_points_numpy(*args), board_points_compiled(*args)
+            for a, b in zip(want, got):
+                assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+            assert want[2].any() == (p.centre[2] > 0)
 
 
 def test_geometry_variance_all_cases_at_once_is_one_case_at_a_time_bit_for_bit():
