@@ -1,0 +1,117 @@
+"""The host side's fast paths give exactly what the plain formulations give (issue 17: faster, the same samples
+bit for bit): the pipeline's pixel gathers, the tiles' sums, the compact merge's samples, the local gradient."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gonio.pipeline.acquire import _take, _used_index
+from gonio.pipeline.hdr import HdrImage
+from gonio.pipeline.reflectance import _tile_sums, build_roi, reflectance_samples, used_pixel_samples
+from gonio.pipeline.uncertainty import local_h_gradient
+
+
+def _same(a, b) -> bool:
+    a, b = np.asarray(a), np.asarray(b)
+    return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+@pytest.mark.parametrize("nt, m, n", [(25, 6, 3000), (1, 3, 7), (64, 9, 0), (16, 12, 500)])
+def test_tile_sums_are_the_per_column_bincounts_bit_for_bit(nt, m, n):
+    rng = np.random.default_rng(nt * m + n)
+    lab = rng.integers(0, nt, n)
+    vals = rng.standard_normal((n, m)) * 10.0 ** rng.integers(-8, 8, (n, m))  # sums that round
+    if n:
+        vals[rng.integers(0, n, 3), rng.integers(0, m, 3)] = [np.nan, np.inf, -0.0]
+    got = _tile_sums(lab, vals, nt)
+    want = np.stack([np.bincount(lab, vals[:, k], minlength=nt) for k in range(m)], axis=-1)
+    assert _same(got, want)
+
+
+def _pose_roi(bench_factory, lambert, view=(35, 20, 45, 200)):
+    bench = bench_factory(lambert)
+    pose, light = bench.place(*view)
+    roi = build_roi(pose, bench.calib, bench.layout, light)
+    return bench, pose, light, roi
+
+
+def test_pipeline_gathers_are_the_masked_box(bench_factory, lambert):
+    bench, _, _, roi = _pose_roi(bench_factory, lambert)
+    used = (roi.label >= 0) | roi.white
+    index = _used_index(roi, used, bench.calib.width)
+    rng = np.random.default_rng(2)
+    for img in (rng.integers(0, 4096, (bench.calib.height, bench.calib.width, 3)).astype(np.uint16),
+                rng.random((bench.calib.height, bench.calib.width, 1)).astype(np.float32)):
+        assert _same(_take(img, index), img[roi.region][used])
+
+
+@pytest.mark.parametrize("light_weight", [True, False])
+def test_compact_merge_gives_the_samples_of_the_box(bench_factory, lambert, light_weight):
+    """used_pixel_samples on the merge of the used pixels alone (what Pipeline.measure passes) gives bit for bit the
+    samples reflectance_samples gives for the same values scattered on the ROI's box (NaN elsewhere)."""
+    bench, pose, light, roi = _pose_roi(bench_factory, lambert)
+    used = (roi.label >= 0) | roi.white
+    n, K = int(used.sum()), 3
+    rng = np.random.default_rng(4)
+    rate = rng.uniform(50, 500, (n, 1, 3))
+    var = rate * rng.uniform(0.01, 0.1, (n, 1, 3))
+    sat = rng.random((n, 1, 3)) < 0.01
+    rate[sat], var[sat] = np.nan, np.nan
+    lw = rng.dirichlet(np.ones(K), (n, 1, 3)).transpose(3, 0, 1, 2).copy() if light_weight else None
+    compact = HdrImage(rate=rate, var=var, saturated=sat, used=np.full((n, 1, 3), K),
+                       light_weight=lw, light_rel_var=np.array([1e-6, 4e-6, 2e-6]))
+
+    def box(values, fill, lead=()):
+        out = np.full(lead + used.shape + values.shape[-1:], fill, dtype=values.dtype)
+        out[(slice(None),) * len(lead) + (used,)] = values.reshape(lead + (n, values.shape[-1]))
+        return out
+
+    scattered = HdrImage(rate=box(rate, np.nan), var=box(var, np.nan), saturated=box(sat, False),
+                         used=box(compact.used, 0), light_weight=None if lw is None else box(lw, np.nan, (K,)),
+                         light_rel_var=compact.light_rel_var)
+    perturbed = [type(pose)(pose.R, pose.t + d) for d in (np.array([1e-4, 0, 0]), np.array([0, -2e-4, 1e-4]))]
+    kw = dict(pose_index=3, flags=4, pose_perturbations=perturbed, light_sigma=4e-4)
+    got = used_pixel_samples(compact, roi, pose, light, bench.layout, **kw)
+    want = reflectance_samples(scattered, roi, pose, light, bench.layout, **kw)
+    assert len(got) == len(want) > 4
+    for k, v in want.to_dict().items():
+        assert _same(getattr(got, k), v), k
+
+
+def _plain_local_h_gradient(f, h, n):
+    """local_h_gradient as one neighbour at a time (the formulation the stacked one replaced)."""
+    nt, chans = f.shape
+    ok = np.isfinite(f).all(axis=1) & np.isfinite(h[:, :2]).all(axis=1)
+    hxy = np.where(ok[:, None], h[:, :2], 0.0)
+    f = np.where(ok[:, None], f, 0.0)
+    iy, ix = np.divmod(np.arange(nt), n)
+    A = np.zeros((nt, 2, 2))
+    b = np.zeros((nt, chans, 2))
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dx == 0 and dy == 0:
+                continue
+            jx, jy = ix + dx, iy + dy
+            inside = (jx >= 0) & (jx < n) & (jy >= 0) & (jy < n)
+            j = np.where(inside, jy * n + jx, 0)
+            use = inside & ok & ok[j]
+            dh = np.where(use[:, None], hxy[j] - hxy, 0.0)
+            df = np.where(use[:, None], f[j] - f, 0.0)
+            A += dh[:, :, None] * dh[:, None, :]
+            b += df[:, :, None] * dh[:, None, :]
+    G = np.einsum("tcj,tij->tci", b, np.linalg.pinv(A, rcond=1e-9, hermitian=True))
+    G[~ok] = 0.0
+    return G
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 5, 8])
+def test_local_gradient_stacked_is_one_neighbour_at_a_time_bit_for_bit(n):
+    rng = np.random.default_rng(n)
+    h = np.column_stack([rng.normal(0, 0.05, (n * n, 2)), np.ones(n * n)])
+    f = rng.uniform(0.05, 2.0, (n * n, 3))
+    if n > 2:
+        f[rng.integers(0, n * n)] = np.nan  # a tile without a value
+        h[rng.integers(0, n * n), 0] = np.inf
+        h[rng.integers(0, n * n), :2] = h[0, :2]  # a neighbour at the same h: a zero step
+    assert _same(local_h_gradient(f, h, n), _plain_local_h_gradient(f, h, n))
