@@ -115,3 +115,33 @@ def test_local_gradient_stacked_is_one_neighbour_at_a_time_bit_for_bit(n):
         h[rng.integers(0, n * n), 0] = np.inf
         h[rng.integers(0, n * n), :2] = h[0, :2]  # a neighbour at the same h: a zero step
     assert _same(local_h_gradient(f, h, n), _plain_local_h_gradient(f, h, n))
+
+
+@pytest.mark.parametrize("shape, dtype", [((48, 64, 3), np.uint16), ((47, 63, 3), np.uint16), ((48, 64, 1), np.uint8),
+                                          ((9, 7, 3), np.uint8)])
+def test_signal_checks_integer_comparisons_are_the_float_ones(shape, dtype):
+    """SignalCheck's whole-frame integer comparisons decide exactly as the quarter's float comparisons: values at
+    ⌊a⌋ and ⌊a⌋ + 1 of every threshold, thresholds below 0, above the dtype's range, NaN; limits between
+    integers, on them, at 0 and below, beyond the range, infinite and NaN."""
+    from gonio.pipeline.signal import SignalCheck
+
+    rng = np.random.default_rng(shape[0] * shape[1])
+    top = np.iinfo(dtype).max
+    sub_shape = np.zeros(shape)[::2, ::2].shape
+    above = rng.uniform(-2, top + 2, sub_shape)
+    above[rng.random(sub_shape) < 0.1] = np.nan
+    integral = rng.random(sub_shape) < 0.3
+    above[integral] = np.floor(above[integral])  # thresholds on an integer
+    check = SignalCheck(None, None)
+    for case in range(40):
+        px = rng.integers(0, top + 1, shape).astype(dtype)
+        if case % 2:  # every quarter pixel at its threshold's floor or one above: the decision is at the edge
+            edge = np.clip(np.nan_to_num(np.floor(above), nan=0) + rng.integers(0, 2, sub_shape), 0, top)
+            px[::2, ::2] = edge.astype(dtype)
+        a = above if case % 3 else np.where(above < 0, 0.5, above)  # some with no threshold below 0
+        ints = {}
+        for _ in range(2):  # the integer image built, then kept
+            assert SignalCheck._surely_above(px, a, ints) == bool(np.any(px[::2, ::2] > a))
+        for limit in (0.0, -3.0, 0.5, 1.0, 17.0, 17.25, top - 0.5, float(top), top + 1.0, np.inf, np.nan,
+                      float(px[::2, ::2].max()), float(px.max()), float(np.median(px))):
+            assert check._count_at_or_above(px, limit) == int(np.count_nonzero(px[::2, ::2] >= limit)), limit
