@@ -226,13 +226,14 @@ def used_pixel_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_position
             white_flags |= S.SATURATED
         wmask &= ~sat_px
         if wmask.any():
-            den = rho * E[wmask][:, None]
-            kI_px = h_rate[wmask] / den
+            iw = np.flatnonzero(wmask)  # the white's pixels: x[wmask] is np.take(x, iw, axis=0)
+            den = rho * np.take(E, iw)[:, None]
+            kI_px = np.take(h_rate, iw, axis=0) / den
             kI = kI_px.mean(axis=0)
-            kI_var = (h_var[wmask] / den**2).sum(axis=0) / wmask.sum() ** 2
-            p_white = p[wmask].mean(axis=0)
+            kI_var = (np.take(h_var, iw, axis=0) / den**2).sum(axis=0) / len(iw) ** 2
+            p_white = np.take(p, iw, axis=0).mean(axis=0)
             if h_lw is not None:  # (K, C): the white's share of each exposure
-                alpha_w = (h_lw[:, wmask] * kI_px).sum(axis=1) / kI_px.sum(axis=0)
+                alpha_w = (np.take(h_lw, iw, axis=1) * kI_px).sum(axis=1) / kI_px.sum(axis=0)
         else:
             kI = np.full(3 if h_rate.shape[-1] == 3 else 1, np.nan)
             kI_var = kI.copy()
@@ -243,10 +244,12 @@ def used_pixel_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_position
     # --- sample pixels -> tiles ----------------------------------------------------------------
     in_s = (lab >= 0) & finite
     good = in_s & ~sat_px
+    ig = np.flatnonzero(good)  # the sample's unsaturated pixels: x[good] is np.take(x, ig, axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        f_px = h_rate[good] / (kI * E[good][:, None])
-        v_px = h_var[good] / (kI * E[good][:, None]) ** 2
-    lg = lab[good]
+        den = kI * np.take(E, ig)[:, None]
+        f_px = np.take(h_rate, ig, axis=0) / den
+        v_px = np.take(h_var, ig, axis=0) / den**2
+    lg = np.take(lab, ig)
     n = np.bincount(lg, minlength=nt).astype(np.float64)
     nsat = np.bincount(lab[in_s & sat_px], minlength=nt)
     nany = np.bincount(lab[in_s], minlength=nt)
@@ -267,7 +270,7 @@ def used_pixel_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_position
         f = fsum / n[:, None]
         var = vsum / n[:, None] ** 2 + f**2 * (kI_var / kI**2 + light_rel_sigma**2)
     if h_lw is not None and hdr.light_rel_var is not None and hdr.light_rel_var.any():
-        aw = h_lw[:, good] * f_px  # (K, Ngood, C)
+        aw = np.take(h_lw, ig, axis=1) * f_px  # (K, Ngood, C)
         K = aw.shape[0]
         with np.errstate(invalid="ignore", divide="ignore"):
             # per exposure k and channel c the tiles' sums of aw[k, :, c] (columns k·C + c), as (K, nt, C)
