@@ -287,6 +287,8 @@ class Pipeline:
             frame, px, level, _ = self._grab(t, gain, meter=True)
         scale = frame.exposure * frame.gain * max(level, 1e-12)
         vals = np.maximum(_take(px, used).astype(np.float64) - frame.black_level, 0.5) / scale
-        rate_bright = float(np.percentile(vals, 99.9)) * (1.0 if frac_sat <= 0.001 else 4.0)
-        rate_dim = float(np.percentile(vals, 2.0))
+        # both percentiles in one call (float64 values: each is the one a call of its own gives)
+        hi, lo = (float(v) for v in np.percentile(vals, [99.9, 2.0]))
+        rate_bright = hi * (1.0 if frac_sat <= 0.001 else 4.0)
+        rate_dim = lo
         return plan_bracket(rate_bright, rate_dim, rng, n_min, self.calib.noise, es, gain)

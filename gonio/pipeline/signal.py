@@ -69,23 +69,26 @@ class SignalCheck:
             self._last = cur.copy()
         return same
 
-    def _dark_thresholds(self, dark, gain: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
-        """For the quarter of the pixels checked: the dark frame's mean, its noise σ and a raw value above which
-        a pixel is certainly more than :data:`BLACK_SIGMAS` σ above it (cached per dark frame and gain: a
-        session's dark set, one frame per exposure of its ladder); and a dict the integer form of that raw
-        value is kept in per frame dtype (:meth:`_surely_above`)."""
+    def _dark_thresholds(self, dark, gain: float) -> tuple[np.ndarray, dict]:
+        """For the quarter of the pixels checked: a raw value above which a pixel is certainly more than
+        :data:`BLACK_SIGMAS` σ above the dark frame (σ: :meth:`_dark_sigma`), cached per dark frame and gain (a
+        session's dark set, one frame per exposure of its ladder); and a dict the integer form of that raw value
+        is kept in per frame dtype (:meth:`_surely_above`)."""
         key = (id(dark), float(gain))
         hit = self._dark_thr.get(key)
         if hit is None or hit[0]() is not dark:  # DarkFrame is frozen: the object is the key (weakly held)
             live = {k: v for k, v in self._dark_thr.items() if v[0]() is not None}  # forget dark frames gone
             self._dark_thr = live if len(live) < DARK_THRESHOLDS_KEPT else {}
-            mean = np.ascontiguousarray(dark.mean[::2, ::2])  # a copy: the dark frame is not kept alive
-            sd = np.sqrt(dark.var[::2, ::2] + self.noise.variance(0.0, gain))  # as the z-scores have always used it
             # z = (x − mean)/σ > BLACK_SIGMAS for every x above this (float64, margins far above rounding)
-            m64 = mean.astype(np.float64)
-            above = m64 + (BLACK_SIGMAS * (1 + 1e-9)) * sd.astype(np.float64) + 1e-9 * (np.abs(m64) + 1.0)
-            hit = self._dark_thr[key] = (weakref.ref(dark), (mean, sd, above, {}))
+            m64 = dark.mean[::2, ::2].astype(np.float64)
+            above = m64 + (BLACK_SIGMAS * (1 + 1e-9)) * self._dark_sigma(dark, gain).astype(np.float64) \
+                + 1e-9 * (np.abs(m64) + 1.0)
+            hit = self._dark_thr[key] = (weakref.ref(dark), (above, {}))  # the dark frame itself is not kept alive
         return hit[1]
+
+    def _dark_sigma(self, dark, gain: float) -> np.ndarray:
+        """The noise σ of the quarter's pixels of a frame with the light off: the dark frame's and the sensor's."""
+        return np.sqrt(dark.var[::2, ::2] + self.noise.variance(0.0, gain))  # as the z-scores have always used it
 
     @staticmethod
     def _surely_above(px: np.ndarray, above: np.ndarray, ints: dict) -> bool:
@@ -150,11 +153,11 @@ class SignalCheck:
         if not levels and dark is None:
             return
         if dark is not None:  # against this exposure's dark frame: dark current is not light
-            mean, sd, above, ints = self._dark_thresholds(dark, frame.gain)
+            above, ints = self._dark_thresholds(dark, frame.gain)
             # one pixel surely above the threshold settles it; otherwise the z-scores themselves decide
             black, top = False, np.inf
             if not self._surely_above(px, above, ints):
-                top = float(((sub.astype(np.float64) - mean) / sd).max())
+                top = float(((sub.astype(np.float64) - dark.mean[::2, ::2]) / self._dark_sigma(dark, frame.gain)).max())
                 black = top <= BLACK_SIGMAS
             what = f"no pixel above the noise of its dark frame, highest {top:+.1f} σ"
         else:

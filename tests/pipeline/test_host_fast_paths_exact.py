@@ -1,5 +1,6 @@
 """The host side's fast paths give exactly what the plain formulations give (issue 17: faster, the same samples
-bit for bit): the pipeline's pixel gathers, the tiles' sums, the compact merge's samples, the local gradient."""
+bit for bit): the pipeline's pixel gathers, the tiles' sums, the compact merge's samples, the local gradient, the
+frame checks' integer comparisons, normalize, the metering percentiles, a record's meta encoding."""
 
 from __future__ import annotations
 
@@ -168,3 +169,46 @@ def test_normalize_is_the_linalg_norm_formula_bit_for_bit():
     for v in cases:
         for fallback in (Z, [1.0, 0.0, 0.0]):
             assert _same(normalize(v, fallback), plain(v, fallback))
+
+
+def test_record_meta_encoding_is_unchanged_by_the_builtin_fast_path():
+    """records._jsonable handles the built-in types of a pose's meta before its generic checks: the same JSON for
+    nested dicts, lists, tuples, finite and non-finite floats, numpy scalars and arrays, objects with to_dict."""
+    import json
+    import math
+
+    from gonio.session.records import _jsonable
+
+    class Plan:
+        def to_dict(self):
+            return {"n": 2, "x": (1.5, float("inf"))}
+
+    def plain(obj):  # the generic checks alone, in their order
+        if hasattr(obj, "to_dict") and callable(obj.to_dict):
+            return plain(obj.to_dict())
+        if isinstance(obj, dict):
+            return {str(k): plain(v) for k, v in obj.items()}
+        if isinstance(obj, (list, tuple)):
+            return [plain(v) for v in obj]
+        if isinstance(obj, np.ndarray):
+            return plain(obj.tolist())
+        if isinstance(obj, np.generic):
+            return obj.item()
+        if isinstance(obj, float) and not math.isfinite(obj):
+            return repr(obj)
+        return obj
+
+    meta = {"pose_rad": [0.1, -0.0, 2.5], 7: {"k": float("nan"), "u": None, "ok": True, "n": 3, "s": "x"},
+            "t": (1, (2.0, float("-inf"))), "np": [np.float64(0.25), np.int64(4), np.arange(3), np.float32(1.5)],
+            "plan": Plan(), "nested": [[{"a": [{"b": 1e-300}]}]]}
+    assert json.dumps(_jsonable(meta), allow_nan=False) == json.dumps(plain(meta), allow_nan=False)
+
+
+def test_metering_percentiles_in_one_call_are_the_separate_ones():
+    """Pipeline._meter takes its two percentiles of float64 values in one np.percentile call: each is bit for bit
+    the value of its own call (ties, distinct values, tiny and large samples)."""
+    rng = np.random.default_rng(8)
+    for n in (1, 2, 7, 600, 6001):
+        for vals in (rng.integers(0, 50, (n, 3)).astype(np.float64) + 0.5, rng.lognormal(3, 2, (n, 3)) / 0.016):
+            both = np.percentile(vals, [99.9, 2.0])
+            assert _same(both[0], np.percentile(vals, 99.9)) and _same(both[1], np.percentile(vals, 2.0))
