@@ -60,11 +60,18 @@ def normalize(v, fallback=Z) -> np.ndarray:
 
     Vectors of zero (or sub-normal) length have no direction; they map to ``fallback``
     (default +z, the surface normal) instead of NaN.
+
+    The length is ``np.linalg.norm(v, axis=-1)``'s, ``√((x² + y²) + z²)``, computed on the components
+    (numpy sums a last axis of three in that order: the same numbers, without its slow reduction over
+    a short axis); vectors all of usable length skip the fallback's selection.
     """
     v = _vec(v)
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    n = np.sqrt((x * x + y * y) + z * z)[..., None]
     ok = n > 1e-300
     with np.errstate(invalid="ignore", divide="ignore"):
+        if ok.all():
+            return v / n
         u = v / np.where(ok, n, 1.0)
     return np.where(ok, u, np.broadcast_to(_vec(fallback), v.shape))
 

@@ -15,10 +15,10 @@ from gonio import samples as S
 from gonio.errors import ConfigError, HardwareError
 from gonio.pipeline.dark import DarkCache
 from gonio.pipeline.exposure import CapturePlan, ExposureSettings, plan_bracket
-from gonio.pipeline.hdr import BadFrame, SATURATION_MARGIN, HdrImage, average_frames, check_frame, merge_linear
+from gonio.pipeline.hdr import BadFrame, SATURATION_MARGIN, average_frames, check_frame, merge_linear
 from gonio.pipeline.markers import BoardPose, board_poses_agree, detect_board_pose, to_gray8
 from gonio.pipeline.signal import SignalCheck
-from gonio.pipeline.reflectance import build_roi, reflectance_samples
+from gonio.pipeline.reflectance import build_roi, used_pixel_samples
 from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
 from gonio.rig.interfaces import Camera, Clock, Frame
 from gonio.samples import SampleSet
@@ -34,19 +34,17 @@ __all__ = ["PipelineSettings", "PoseResult", "BoardNotFound", "Pipeline"]
 BOARD_REMETER_FACTOR = 1.5
 
 
-def _scattered(hdr: HdrImage, used: np.ndarray) -> HdrImage:
-    """A merge of the pixels ``used`` (an (h, w) mask; ``hdr``'s arrays hold them in C order as an (n, 1, C)
-    image) placed back on the (h, w) box: NaN rate and variance, not saturated, no exposure used where a pixel was
-    not merged."""
-    def put(values, fill, lead=()):
-        k = len(lead)
-        out = np.full(lead + used.shape + values.shape[k + 2:], fill, dtype=values.dtype)
-        out[(slice(None),) * k + (used,)] = values.reshape(values.shape[:k + 1] + values.shape[k + 2:])
-        return out
+def _used_index(roi, used: np.ndarray, width: int) -> np.ndarray:
+    """Flat indices, into a frame ``width`` pixels wide, of the ROI box's pixels ``used`` (an (h, w) mask), in
+    the box's C order: ``_take(img, index)`` is ``img[roi.region][used]``, the same values in the same order."""
+    r, c = np.nonzero(used)
+    return (r + roi.rows.start) * width + (c + roi.cols.start)
 
-    lw = None if hdr.light_weight is None else put(hdr.light_weight, np.nan, hdr.light_weight.shape[:1])
-    return HdrImage(rate=put(hdr.rate, np.nan), var=put(hdr.var, np.nan), saturated=put(hdr.saturated, False),
-                    used=put(hdr.used, 0), light_weight=lw, light_rel_var=hdr.light_rel_var)
+
+def _take(img: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """The pixels ``index`` (:func:`_used_index`) of an (H, W, C) image, (n, C): a gather of the flattened frame
+    (a copy)."""
+    return np.take(img.reshape(-1, img.shape[-1]), index, axis=0)
 
 
 class BoardNotFound(HardwareError):
@@ -258,8 +256,8 @@ class Pipeline:
         # 2. capture the bracket, darks, merge
         stacks, darks, lights, times = [], [], [], []
         # only the ROI's sample and white pixels are merged (a quarter of its box, typically): the merge is per pixel,
-        # so they get the values a merge of the whole box gives them, and the rest of the box stays unmerged (NaN)
-        used = (roi.label >= 0) | roi.white
+        # so they get the values a merge of the whole box gives them; the samples are computed from these alone
+        used = _used_index(roi, (roi.label >= 0) | roi.white, self.calib.width)
         for t_k, n_k in zip(plan.exposures, plan.frames):
             cached = self.darks.cached(t_k, plan.gain)  # the runner measures the dark set before the poses
             grabs = []
@@ -271,33 +269,33 @@ class Pipeline:
             lv = [g[2] for g in grabs]
             lights.extend(lv)
             # the used pixels as an (n, 1, C) image: what merge_linear takes
-            stacks.append(average_frames([g[1][roi.region][used][:, None] for g in grabs], [g[0] for g in grabs], lv,
+            stacks.append(average_frames([_take(g[1], used)[:, None] for g in grabs], [g[0] for g in grabs], lv,
                                          self._limit(grabs[0][0]), light_u=[g[3] for g in grabs]))
-            darks.append((d.mean[roi.region][used][:, None].astype(np.float64),
-                          d.var[roi.region][used][:, None].astype(np.float64)))
-        hdr = _scattered(merge_linear(stacks, darks, self.calib.noise), used)
+            darks.append((_take(d.mean, used)[:, None].astype(np.float64),
+                          _take(d.var, used)[:, None].astype(np.float64)))
+        hdr = merge_linear(stacks, darks, self.calib.noise)  # the used pixels' merge: what used_pixel_samples takes
         lv = np.asarray(lights)
         if lv.size and (lv.max() - lv.min()) > st.drift_tolerance * max(lv.mean(), 1e-12):
             flags |= S.DRIFT
         if lv.size and not (lv.min() > 0):
             raise HardwareError(f"light: photodiode reads {lv.min():g}: the light is off or failed", device="light")
         perturb = board.perturbed() if (board is not None and st.pose_uncertainty) else []
-        samples = reflectance_samples(hdr, roi, cam_pose, light_position, self.layout, absolute_scale=self.absolute_scale,
-                                      min_snr=st.min_snr, pose_index=pose_index, flags=flags,
-                                      pose_perturbations=perturb, light_sigma=st.light_position_sigma)
+        samples = used_pixel_samples(hdr, roi, cam_pose, light_position, self.layout, absolute_scale=self.absolute_scale,
+                                     min_snr=st.min_snr, pose_index=pose_index, flags=flags,
+                                     pose_perturbations=perturb, light_sigma=st.light_position_sigma)
         self._next_exposure = plan.exposures[0]
         return PoseResult(samples, plan, board, cam_pose, lights, times, source)
 
     def _meter(self, frame: Frame, px: np.ndarray, level: float, roi, gain: float) -> CapturePlan:
         """Find signal rates of the sample and white pixels; re-meter (bounded) when saturated or dark."""
         st, es = self.settings, self.settings.exposure
-        mask = (roi.label >= 0) | roi.white
+        used = _used_index(roi, (roi.label >= 0) | roi.white, self.calib.width)
         n_min = max(1, int(np.bincount(roi.label[roi.label >= 0], minlength=roi.n_tiles).min()))
         t = frame.exposure
         for _ in range(st.meter_tries):
             limit = self._limit(frame)
             rng = limit - frame.black_level
-            vals = px[roi.region][mask].astype(np.float64) - frame.black_level
+            vals = _take(px, used).astype(np.float64) - frame.black_level
             sat = vals >= (1 - SATURATION_MARGIN) * rng
             frac_sat = sat.any(axis=-1).mean()
             bright = float(np.percentile(vals, 99.9))
@@ -309,7 +307,9 @@ class Pipeline:
                 break
             frame, px, level, _ = self._grab(t, gain, meter=True)
         scale = frame.exposure * frame.gain * max(level, 1e-12)
-        vals = np.maximum(px[roi.region][mask].astype(np.float64) - frame.black_level, 0.5) / scale
-        rate_bright = float(np.percentile(vals, 99.9)) * (1.0 if frac_sat <= 0.001 else 4.0)
-        rate_dim = float(np.percentile(vals, 2.0))
+        vals = np.maximum(_take(px, used).astype(np.float64) - frame.black_level, 0.5) / scale
+        # both percentiles in one call (float64 values: each is the one a call of its own gives)
+        hi, lo = (float(v) for v in np.percentile(vals, [99.9, 2.0]))
+        rate_bright = hi * (1.0 if frac_sat <= 0.001 else 4.0)
+        rate_dim = lo
         return plan_bracket(rate_bright, rate_dim, rng, n_min, self.calib.noise, es, gain)

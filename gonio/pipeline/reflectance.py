@@ -26,7 +26,7 @@ from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
 from gonio.pipeline.uncertainty import geometry_variance
 from gonio.samples import SampleSet
 
-__all__ = ["Roi", "build_roi", "reflectance_samples"]
+__all__ = ["Roi", "build_roi", "reflectance_samples", "used_pixel_samples"]
 
 
 @dataclass
@@ -139,6 +139,17 @@ def build_roi(pose: CameraPose, calib: CameraCalibration, layout: TargetLayout, 
     return Roi(rows, cols, p, label, white, n * n)
 
 
+def _tile_sums(lab: np.ndarray, values: np.ndarray, nt: int) -> np.ndarray:
+    """Per-tile sums ``np.bincount(lab, values[:, k], minlength=nt)`` of every column k of ``values`` (N, m), as
+    one (nt, m) array, in one pass: bin ``lab·m + k`` of a combined index. ``np.bincount`` adds a bin's weights
+    one after the other in input order (numpy's ``arr_bincount``: ``out[idx[i]] += w[i]``), and a bin of the
+    combined index holds exactly column k's weights of tile ``lab`` in the same order: the very sums of the
+    per-column calls, bit for bit. ``lab`` ≥ 0."""
+    m = values.shape[1]
+    idx = (lab[:, None] * m + np.arange(m)).ravel()
+    return np.bincount(idx, np.asarray(values, dtype=np.float64).ravel(), minlength=nt * m).reshape(nt, m)
+
+
 def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_position, layout: TargetLayout, *,
                         absolute_scale=None, min_snr: float = 10.0, pose_index: int = -1, flags: int = 0,
                         light_rel_sigma: float = 0.0, pose_perturbations=(), light_sigma: float = 0.0) -> SampleSet:
@@ -156,17 +167,41 @@ def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_positio
     with no usable pixel gets f = σ = NaN (flagged). SNR below ``min_snr`` → ``LOW_SIGNAL``.
     ``flags`` (e.g. ``NO_BOARD``, ``DRIFT``) are set on every sample.
     """
+    # only the sample's and the white's pixels count (a quarter of the ROI's box, typically): every per-pixel
+    # quantity is computed for them alone, in the box's C order (the order the sums have always used)
+    used = np.flatnonzero((roi.label >= 0) | roi.white)
+    C = hdr.rate.shape[-1]
+    lw = hdr.light_weight
+    merged = HdrImage(rate=hdr.rate.reshape(-1, C)[used], var=hdr.var.reshape(-1, C)[used],
+                      saturated=hdr.saturated.reshape(-1, C)[used], used=hdr.used.reshape(-1, C)[used],
+                      light_weight=None if lw is None else lw.reshape(len(lw), -1, C)[:, used],
+                      light_rel_var=hdr.light_rel_var)
+    return used_pixel_samples(merged, roi, pose, light_position, layout, absolute_scale=absolute_scale,
+                              min_snr=min_snr, pose_index=pose_index, flags=flags, light_rel_sigma=light_rel_sigma,
+                              pose_perturbations=pose_perturbations, light_sigma=light_sigma)
+
+
+def used_pixel_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_position, layout: TargetLayout, *,
+                       absolute_scale=None, min_snr: float = 10.0, pose_index: int = -1, flags: int = 0,
+                       light_rel_sigma: float = 0.0, pose_perturbations=(), light_sigma: float = 0.0) -> SampleSet:
+    """:func:`reflectance_samples` from a merge of the ROI's used pixels only — the sample's and the white's
+    (``(roi.label >= 0) | roi.white``), in the box's C order: ``hdr``'s arrays are (n, C) or (n, 1, C), its
+    ``light_weight`` (K, n, C) or (K, n, 1, C), what :func:`~gonio.pipeline.hdr.merge_linear` returns for those
+    pixels as an (n, 1, C) image (:meth:`gonio.pipeline.acquire.Pipeline.measure`: no box to scatter them into
+    and gather them back from). Same formulas, same samples (see :func:`reflectance_samples`)."""
     C = pose.centre
     S_ = np.asarray(light_position, dtype=np.float64)
     nt = roi.n_tiles
-    # only the sample's and the white's pixels count (a quarter of the ROI's box, typically): every per-pixel
-    # quantity below is computed for them alone, in the box's C order (the order the sums below have always used)
-    used = (roi.label >= 0) | roi.white
-    p = roi.p[used]
-    lab = roi.label[used]
-    white = roi.white[used]
-    h_rate, h_var, h_sat = hdr.rate[used], hdr.var[used], hdr.saturated[used]
-    h_lw = None if hdr.light_weight is None else hdr.light_weight[:, used]
+    used = np.flatnonzero((roi.label >= 0) | roi.white)
+    p = roi.p.reshape(-1, 3)[used]
+    lab = roi.label.reshape(-1)[used]
+    white = roi.white.reshape(-1)[used]
+    chans_in = hdr.rate.shape[-1]
+    h_rate, h_var = hdr.rate.reshape(-1, chans_in), hdr.var.reshape(-1, chans_in)
+    h_sat = hdr.saturated.reshape(-1, chans_in)
+    h_lw = None if hdr.light_weight is None else hdr.light_weight.reshape(len(hdr.light_weight), -1, chans_in)
+    if len(h_rate) != len(used):
+        raise ValueError(f"used_pixel_samples: {len(h_rate)} merged pixels for the ROI's {len(used)} used pixels")
     flat = layout.mount.is_flat
     origin, nrm, frame = layout.mount.frame()
     to_l = S_ - p
@@ -191,13 +226,14 @@ def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_positio
             white_flags |= S.SATURATED
         wmask &= ~sat_px
         if wmask.any():
-            den = rho * E[wmask][:, None]
-            kI_px = h_rate[wmask] / den
+            iw = np.flatnonzero(wmask)  # the white's pixels: x[wmask] is np.take(x, iw, axis=0)
+            den = rho * np.take(E, iw)[:, None]
+            kI_px = np.take(h_rate, iw, axis=0) / den
             kI = kI_px.mean(axis=0)
-            kI_var = (h_var[wmask] / den**2).sum(axis=0) / wmask.sum() ** 2
-            p_white = p[wmask].mean(axis=0)
+            kI_var = (np.take(h_var, iw, axis=0) / den**2).sum(axis=0) / len(iw) ** 2
+            p_white = np.take(p, iw, axis=0).mean(axis=0)
             if h_lw is not None:  # (K, C): the white's share of each exposure
-                alpha_w = (h_lw[:, wmask] * kI_px).sum(axis=1) / kI_px.sum(axis=0)
+                alpha_w = (np.take(h_lw, iw, axis=1) * kI_px).sum(axis=1) / kI_px.sum(axis=0)
         else:
             kI = np.full(3 if h_rate.shape[-1] == 3 else 1, np.nan)
             kI_var = kI.copy()
@@ -208,38 +244,43 @@ def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_positio
     # --- sample pixels -> tiles ----------------------------------------------------------------
     in_s = (lab >= 0) & finite
     good = in_s & ~sat_px
+    ig = np.flatnonzero(good)  # the sample's unsaturated pixels: x[good] is np.take(x, ig, axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        f_px = h_rate[good] / (kI * E[good][:, None])
-        v_px = h_var[good] / (kI * E[good][:, None]) ** 2
-    lg = lab[good]
+        den = kI * np.take(E, ig)[:, None]
+        f_px = np.take(h_rate, ig, axis=0) / den
+        v_px = np.take(h_var, ig, axis=0) / den**2
+    lg = np.take(lab, ig)
     n = np.bincount(lg, minlength=nt).astype(np.float64)
     nsat = np.bincount(lab[in_s & sat_px], minlength=nt)
     nany = np.bincount(lab[in_s], minlength=nt)
-    chans = f_px.shape[-1] if f_px.ndim == 2 else h_rate.shape[-1]
-    fsum = np.stack([np.bincount(lg, f_px[:, c], minlength=nt) for c in range(chans)], axis=-1)
-    vsum = np.stack([np.bincount(lg, v_px[:, c], minlength=nt) for c in range(chans)], axis=-1)
-
-    def vec_mean(vecs: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        return normalize(np.stack([np.bincount(lab[mask], vecs[mask][:, k], minlength=nt) for k in range(3)], -1))
-
-    # directions: mean over all sample pixels of the tile (saturated ones included: same geometry)
-    wi_t = vec_mean(wi, in_s)
-    wo_t = vec_mean(wo, in_s)
+    chans = f_px.shape[-1]
+    # the tiles' sums of f and of its variance (one bincount per column, in one pass: _tile_sums)
+    sums = _tile_sums(lg, np.concatenate([f_px, v_px], axis=1), nt)
+    fsum, vsum = np.ascontiguousarray(sums[:, :chans]), np.ascontiguousarray(sums[:, chans:])
+    # directions: mean over all sample pixels of the tile (saturated ones included: same geometry); the tiles'
+    # mean plane points too when the geometry's uncertainty needs them
+    geometry = bool((pose_perturbations or light_sigma > 0) and chans == 3)
+    lab_s = lab[in_s]
+    vecs = _tile_sums(lab_s, np.concatenate([wi, wo, p] if geometry else [wi, wo], axis=1)[in_s], nt)
+    wi_t = normalize(np.ascontiguousarray(vecs[:, 0:3]))
+    wo_t = normalize(np.ascontiguousarray(vecs[:, 3:6]))
     if not flat:  # into the mounted sample's frame (docs/architecture.md §3: z = its normal)
         wi_t, wo_t = to_local(wi_t, frame), to_local(wo_t, frame)
     with np.errstate(invalid="ignore", divide="ignore"):
         f = fsum / n[:, None]
         var = vsum / n[:, None] ** 2 + f**2 * (kI_var / kI**2 + light_rel_sigma**2)
     if h_lw is not None and hdr.light_rel_var is not None and hdr.light_rel_var.any():
-        aw = h_lw[:, good] * f_px  # (K, Ngood, C)
+        aw = np.take(h_lw, ig, axis=1) * f_px  # (K, Ngood, C)
+        K = aw.shape[0]
         with np.errstate(invalid="ignore", divide="ignore"):
-            alpha_t = np.stack([np.stack([np.bincount(lg, aw[k, :, c], minlength=nt) for c in range(chans)], -1)
-                                for k in range(aw.shape[0])]) / fsum  # (K, nt, C)
+            # per exposure k and channel c the tiles' sums of aw[k, :, c] (columns k·C + c), as (K, nt, C)
+            alpha_t = np.ascontiguousarray(_tile_sums(lg, aw.transpose(1, 0, 2).reshape(len(lg), K * chans), nt)
+                                           .reshape(nt, K, chans).transpose(1, 0, 2)) / fsum
             alpha_w_ = np.asarray(alpha_w, dtype=np.float64)
             d = alpha_t - (alpha_w_[:, None, :] if alpha_w_.ndim == 2 else alpha_w_)
             var = var + f**2 * np.einsum("ktc,k->tc", d**2, hdr.light_rel_var)
-    if (pose_perturbations or light_sigma > 0) and chans == 3:
-        p_tile = np.stack([np.bincount(lab[in_s], p[in_s][:, k], minlength=nt) for k in range(3)], -1)
+    if geometry:
+        p_tile = np.ascontiguousarray(vecs[:, 6:9])
         with np.errstate(invalid="ignore", divide="ignore"):
             p_tile = p_tile / nany[:, None]
         n_grid = int(round(np.sqrt(nt)))

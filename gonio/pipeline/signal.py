@@ -17,6 +17,7 @@ frames, which the metering put in range, get every check.
 
 from __future__ import annotations
 
+import math
 import weakref
 
 import numpy as np
@@ -51,6 +52,7 @@ class SignalCheck:
         self._last: np.ndarray | None = None  # a copy of the previous frame's pixels (bytes compared: exact)
         #: black thresholds per (dark frame, gain): a bracket alternates between its exposures' dark frames
         self._dark_thr: dict[tuple[int, float], tuple] = {}
+        self._sat_thr: tuple | None = None  #: (dtype, shape, threshold) and its image (_count_at_or_above)
 
     def _is_repeat(self, px: np.ndarray) -> bool:
         """Whether ``px`` is bit for bit the previous frame, and remember it. A copy is kept (a driver may hand
@@ -67,47 +69,95 @@ class SignalCheck:
             self._last = cur.copy()
         return same
 
-    def _dark_thresholds(self, dark, gain: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """For the quarter of the pixels checked: the dark frame's mean, its noise σ and a raw value above which
-        a pixel is certainly more than :data:`BLACK_SIGMAS` σ above it (cached per dark frame and gain: a
-        session's dark set, one frame per exposure of its ladder)."""
+    def _dark_thresholds(self, dark, gain: float) -> tuple[np.ndarray, dict]:
+        """For the quarter of the pixels checked: a raw value above which a pixel is certainly more than
+        :data:`BLACK_SIGMAS` σ above the dark frame (σ: :meth:`_dark_sigma`), cached per dark frame and gain (a
+        session's dark set, one frame per exposure of its ladder); and a dict the integer form of that raw value
+        is kept in per frame dtype (:meth:`_surely_above`)."""
         key = (id(dark), float(gain))
         hit = self._dark_thr.get(key)
         if hit is None or hit[0]() is not dark:  # DarkFrame is frozen: the object is the key (weakly held)
             live = {k: v for k, v in self._dark_thr.items() if v[0]() is not None}  # forget dark frames gone
             self._dark_thr = live if len(live) < DARK_THRESHOLDS_KEPT else {}
-            mean = np.ascontiguousarray(dark.mean[::2, ::2])  # a copy: the dark frame is not kept alive
-            sd = np.sqrt(dark.var[::2, ::2] + self.noise.variance(0.0, gain))  # as the z-scores have always used it
             # z = (x − mean)/σ > BLACK_SIGMAS for every x above this (float64, margins far above rounding)
-            m64 = mean.astype(np.float64)
-            above = m64 + (BLACK_SIGMAS * (1 + 1e-9)) * sd.astype(np.float64) + 1e-9 * (np.abs(m64) + 1.0)
-            hit = self._dark_thr[key] = (weakref.ref(dark), (mean, sd, above))
+            m64 = dark.mean[::2, ::2].astype(np.float64)
+            above = m64 + (BLACK_SIGMAS * (1 + 1e-9)) * self._dark_sigma(dark, gain).astype(np.float64) \
+                + 1e-9 * (np.abs(m64) + 1.0)
+            hit = self._dark_thr[key] = (weakref.ref(dark), (above, {}))  # the dark frame itself is not kept alive
         return hit[1]
+
+    def _dark_sigma(self, dark, gain: float) -> np.ndarray:
+        """The noise σ of the quarter's pixels of a frame with the light off: the dark frame's and the sensor's."""
+        return np.sqrt(dark.var[::2, ::2] + self.noise.variance(0.0, gain))  # as the z-scores have always used it
+
+    @staticmethod
+    def _surely_above(px: np.ndarray, above: np.ndarray, ints: dict) -> bool:
+        """``np.any(px[::2, ::2] > above)``. For an unsigned-integer frame of the dark frame's shape, one
+        contiguous comparison of the whole frame with an integer image of the same dtype (kept in ``ints``): for
+        an integer x, ``x > a`` ⟺ ``x > ⌊a⌋`` (a finite), so the quarter's pixels get ⌊a⌋ clipped to the dtype's
+        largest value M (x > a ≥ M is never true: M stands for it, and for a = NaN, which no x exceeds), and
+        the other pixels get M, which no pixel exceeds; where some a < 0 every pixel of the quarter there is
+        above it, whatever the frame. The strided quarter read element by element costs ~4× the whole frame."""
+        if px.dtype.kind != "u" or px.ndim != 3 or px[::2, ::2].shape != above.shape:
+            return bool(np.any(px[::2, ::2] > above))
+        key = (px.dtype, px.shape)
+        hit = ints.get(key)
+        if hit is None:
+            top = np.iinfo(px.dtype).max
+            thr = np.full(px.shape, top, dtype=px.dtype)
+            thr[::2, ::2] = np.where(np.isnan(above), top, np.clip(np.floor(above), 0, top))
+            hit = ints[key] = (thr, bool(np.any(above < 0)))
+        thr, always = hit
+        # every 8th row first (rows of the quarter; a lit frame has a pixel above there): a pixel found there is
+        # one of the whole comparison's, and only a frame with none there is compared whole
+        return always or bool(np.any(px[::8] > thr[::8])) or bool(np.any(px > thr))
+
+    def _count_at_or_above(self, px: np.ndarray, limit: float) -> int:
+        """``np.count_nonzero(px[::2, ::2] >= limit)``. For an unsigned-integer frame and a finite limit L, one
+        contiguous comparison of the whole frame: for an integer x, ``x ≥ L`` ⟺ ``x > ⌈L⌉ − 1``; the quarter's
+        pixels get ⌈L⌉ − 1 and the others the dtype's largest value M, which no pixel exceeds (L ≤ 0: every pixel
+        of the quarter counts; ⌈L⌉ − 1 ≥ M: none does). The threshold image is kept for the last shape, dtype and
+        limit (a session's frames share them)."""
+        sub_size = px[::2, ::2].size
+        if px.dtype.kind != "u" or not math.isfinite(limit):
+            return int(np.count_nonzero(px[::2, ::2] >= limit))
+        top = int(np.iinfo(px.dtype).max)
+        c = math.ceil(limit) - 1
+        if c < 0:
+            return sub_size
+        if c >= top:
+            return 0
+        if int(px.max()) <= c:  # no pixel of the frame at L or above (the usual frame): none of the quarter either
+            return 0
+        key = (px.dtype, px.shape, c)
+        if self._sat_thr is None or self._sat_thr[0] != key:
+            thr = np.full(px.shape, top, dtype=px.dtype)
+            thr[::2, ::2] = c
+            self._sat_thr = (key, thr)
+        return int(np.count_nonzero(px > self._sat_thr[1]))
 
     def dark_frame(self, frame, px: np.ndarray) -> None:
         """A dark frame (light off) is black by design; it must still be a new frame and not overload."""
         self(frame, px, levels=False)
-        sub = px[::2, ::2]
-        if np.count_nonzero(sub >= self.limit(frame)) >= SATURATED_FRACTION * sub.size:
+        if self._count_at_or_above(px, self.limit(frame)) >= SATURATED_FRACTION * px[::2, ::2].size:
             raise FrameSignalError("camera dark frame: saturated everywhere with the light off", device="camera")
 
     def __call__(self, frame, px: np.ndarray, *, levels: bool = True, dark=None) -> None:
         """Raise :class:`FrameSignalError` naming the fault; otherwise remember the frame. ``levels=False``
         (metering frames, which may be dim or saturated: the pipeline re-meters them) checks repeats only."""
         stale = self._is_repeat(px)
-        sub = px[::2, ::2]
+        sub = px[::2, ::2]  # a quarter of the pixels is plenty for both statistics
         if stale and sub.min() != sub.max():  # a uniform frame (black, saturated) repeats legitimately: see below
             raise FrameSignalError("camera frame: identical to the previous frame (stale: the camera returned an "
                                    "old buffer)", device="camera")
         if not levels and dark is None:
             return
-        sub = sub.astype(np.float64)  # a quarter of the pixels is plenty for both statistics
         if dark is not None:  # against this exposure's dark frame: dark current is not light
-            mean, sd, above = self._dark_thresholds(dark, frame.gain)
+            above, ints = self._dark_thresholds(dark, frame.gain)
             # one pixel surely above the threshold settles it; otherwise the z-scores themselves decide
             black, top = False, np.inf
-            if not np.any(sub > above):
-                top = float(((sub - mean) / sd).max())
+            if not self._surely_above(px, above, ints):
+                top = float(((sub.astype(np.float64) - dark.mean[::2, ::2]) / self._dark_sigma(dark, frame.gain)).max())
                 black = top <= BLACK_SIGMAS
             what = f"no pixel above the noise of its dark frame, highest {top:+.1f} σ"
         else:
@@ -120,6 +170,6 @@ class SignalCheck:
         if not levels:
             return
         limit = self.limit(frame)
-        if np.count_nonzero(sub >= limit) >= SATURATED_FRACTION * sub.size:
+        if self._count_at_or_above(px, float(limit)) >= SATURATED_FRACTION * sub.size:
             raise FrameSignalError(f"camera frame: saturated everywhere (≥ {SATURATED_FRACTION:.0%} of the pixels at "
                                    f"{limit:g})", device="camera")

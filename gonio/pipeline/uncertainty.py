@@ -30,31 +30,51 @@ def _half(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     return normalize(wi + wo)
 
 
+#: The 8 neighbours (Δi, Δj) of a tile, in the order their terms are added up.
+_NEIGHBOURS = tuple((dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dx or dy)
+
+
+def _neighbour_table(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """For an ``n × n`` tile grid: ``j`` (8, n²), the index of each tile's neighbour :data:`_NEIGHBOURS`[k] (0 where
+    outside the grid), and ``inside`` (8, n²), whether it is in the grid. Depends on n only (cached)."""
+    hit = _TABLES.get(n)
+    if hit is None:
+        iy, ix = np.divmod(np.arange(n * n), n)
+        jx = ix + np.array([dx for dx, _ in _NEIGHBOURS])[:, None]
+        jy = iy + np.array([dy for _, dy in _NEIGHBOURS])[:, None]
+        inside = (jx >= 0) & (jx < n) & (jy >= 0) & (jy < n)
+        j = np.where(inside, jy * n + jx, 0)
+        j.flags.writeable = inside.flags.writeable = False
+        hit = _TABLES[n] = (j, inside)
+    return hit
+
+
+_TABLES: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+
 def local_h_gradient(f: np.ndarray, h: np.ndarray, n: int) -> np.ndarray:
     """Per-tile gradient of ``f`` (nt, C) with respect to ``(h_x, h_y)`` on an ``n × n`` tile grid.
 
     Least squares over each tile's valid neighbours (|Δi|, |Δj| ≤ 1): ``G = (Σ Δh Δhᵀ)⁺ Σ Δh Δf``.
-    Tiles with no valid neighbour get 0. Returns (nt, C, 2).
+    Tiles with no valid neighbour get 0. Returns (nt, C, 2). The neighbours' terms are computed as one
+    stack (elementwise: the same numbers as one neighbour at a time) and added up one neighbour after
+    the other, in :data:`_NEIGHBOURS` order, from zero: the same sums as a loop over the neighbours.
     """
     nt, chans = f.shape
     ok = np.isfinite(f).all(axis=1) & np.isfinite(h[:, :2]).all(axis=1)
     hxy = np.where(ok[:, None], h[:, :2], 0.0)
     f = np.where(ok[:, None], f, 0.0)
-    iy, ix = np.divmod(np.arange(nt), n)
+    j, inside = _neighbour_table(n)
+    use = inside & ok & ok[j]  # (8, nt)
+    dh = np.where(use[..., None], hxy[j] - hxy, 0.0)  # (8, nt, 2)
+    df = np.where(use[..., None], f[j] - f, 0.0)  # (8, nt, C)
+    dA = dh[..., :, None] * dh[..., None, :]  # (8, nt, 2, 2)
+    db = df[..., :, None] * dh[..., None, :]  # (8, nt, C, 2)
     A = np.zeros((nt, 2, 2))
     b = np.zeros((nt, chans, 2))
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if dx == 0 and dy == 0:
-                continue
-            jx, jy = ix + dx, iy + dy
-            inside = (jx >= 0) & (jx < n) & (jy >= 0) & (jy < n)
-            j = np.where(inside, jy * n + jx, 0)
-            use = inside & ok & ok[j]
-            dh = np.where(use[:, None], hxy[j] - hxy, 0.0)
-            df = np.where(use[:, None], f[j] - f, 0.0)
-            A += dh[:, :, None] * dh[:, None, :]
-            b += df[:, :, None] * dh[:, None, :]
+    for k in range(len(_NEIGHBOURS)):
+        A += dA[k]
+        b += db[k]
     G = np.einsum("tcj,tij->tci", b, np.linalg.pinv(A, rcond=1e-9, hermitian=True))
     G[~ok] = 0.0
     return G
@@ -72,13 +92,23 @@ def plane_transfer(points: np.ndarray, src: CameraPose, dst: CameraPose) -> np.n
 def plane_transfer_many(points: np.ndarray, src: CameraPose, dsts) -> np.ndarray:
     """:func:`plane_transfer` of ``points`` to each pose of ``dsts``, a stack (len(dsts), ..., 3): the
     homographies ``[r₁ r₂ t]_dst⁻¹ [r₁ r₂ t]_src`` solved as one stack, then one 2-D product per pose."""
+    return _apply_homographies(_plane_homographies(src, dsts), points)
+
+
+def _plane_homographies(src: CameraPose, dsts) -> np.ndarray:
+    """The plane-to-plane homographies ``[r₁ r₂ t]_dst⁻¹ [r₁ r₂ t]_src`` of each pose of ``dsts`` (Hartley &
+    Zisserman §8.1.1), solved as one stack: (len(dsts), 3, 3)."""
     Hs = np.column_stack([src.R[:, 0], src.R[:, 1], src.t])
     Hd = np.stack([np.column_stack([d.R[:, 0], d.R[:, 1], d.t]) for d in dsts])
+    return np.linalg.solve(Hd, np.broadcast_to(Hs, Hd.shape))
+
+
+def _apply_homographies(H: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Plane points (..., 3), z = 0, mapped by each homography of ``H`` (K, 3, 3): (K, ..., 3), z = 0."""
     p = np.asarray(points, dtype=np.float64)
-    H = np.linalg.solve(Hd, np.broadcast_to(Hs, Hd.shape))
     ph = np.concatenate([p[..., :2], np.ones(p.shape[:-1] + (1,))], axis=-1)
-    out = np.zeros((len(Hd),) + p.shape)
-    for k in range(len(Hd)):
+    out = np.zeros((len(H),) + p.shape)
+    for k in range(len(H)):
         q = ph @ H[k].T
         out[k, ..., :2] = q[..., :2] / q[..., 2:3]
     return out
@@ -127,9 +157,10 @@ def geometry_variance(f: np.ndarray, p_tile: np.ndarray, p_white: np.ndarray | N
     pt = np.broadcast_to(p_tile, (nc,) + p_tile.shape).copy()
     pw = None if p_white is None else np.broadcast_to(p_white, (nc,) + np.shape(p_white)).copy()
     if nq:
-        pt[:nq] = plane_transfer_many(p_tile, pose, qs)
+        H = _plane_homographies(pose, qs)  # the tiles' and the white's points move by the same homographies
+        pt[:nq] = _apply_homographies(H, p_tile)
         if pw is not None:
-            pw[:nq] = plane_transfer_many(p_white, pose, qs)
+            pw[:nq] = _apply_homographies(H, p_white)
     h = _half(normalize(Sq - pt), normalize(Cq - pt))
     dlnE = _log_irradiance(pt, Sq) - lE_t
     if pw is not None:

@@ -49,7 +49,19 @@ _COLUMNS = {name: width for name, width in (("wi", 3), ("wo", 3), ("f", 3), ("si
                                             ("n_pixels", None), ("pose", None))}
 
 
+_PLAIN = (int, str, bool, type(None))
+
+
 def _jsonable(obj: Any) -> Any:
+    t = type(obj)  # the built-in types a pose's meta is made of first (none has a to_dict): what the checks below do
+    if t is float:
+        return obj if math.isfinite(obj) else repr(obj)
+    if t in _PLAIN:
+        return obj
+    if t is dict:
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if t is list or t is tuple:
+        return [_jsonable(v) for v in obj]
     if hasattr(obj, "to_dict") and callable(obj.to_dict):  # e.g. a gonio.plan.Plan
         return _jsonable(obj.to_dict())
     if isinstance(obj, Mapping):
