@@ -38,7 +38,7 @@ import numpy as np
 
 from gonio.rig.clock import RealClock
 from gonio.rig.control_table import ControlTable, load_control_table
-from gonio.rig.kinematics import trapezoid_time
+from gonio.rig.kinematics import trapezoid_progress, trapezoid_time
 from sim import dxl_packet as P
 from sim.faults import LinkFaults
 from sim.pty import PtyServer
@@ -46,29 +46,6 @@ from sim.seeding import SETUP, pose_rng, position_key
 
 #: Hardware Error Status bits (e-manual, "Shutdown(63)").
 HW_INPUT_VOLTAGE, HW_OVERHEATING, HW_ENCODER, HW_ELECTRICAL_SHOCK, HW_OVERLOAD = 0x01, 0x04, 0x08, 0x10, 0x20
-
-
-def _progress(t: float, distance: float, v: float, a: float, total: float) -> tuple[float, float]:
-    """Position and velocity ``(s, ds/dt)`` at ``t`` of a move still on its way (``0 <= t < total``,
-    ``distance != 0``, ``v`` finite): :func:`gonio.rig.kinematics.trapezoid_progress` on Python floats, the
-    same operations in the same order (so the same values; a test checks it), without NumPy's cost on
-    scalars; ``total`` is the move's :func:`~gonio.rig.kinematics.trapezoid_time`. The profile: ROBOTIS
-    e-manual, X series, "Profile Velocity(112)" (trapezoidal, triangular or rectangular)."""
-    sign, dist = (1.0 if distance > 0 else -1.0), abs(distance)
-    inf_a = math.isinf(a)
-    peak = min(v, math.sqrt(a * dist))
-    t_acc = 0.0 if inf_a else peak / a
-    af = 0.0 if inf_a else a  # infinite acceleration: velocity jumps, no ramp
-    tc = min(max(t, 0.0), total)
-    t_dec0 = total - t_acc  # deceleration starts
-    s_acc = 0.5 * af * min(tc, t_acc) ** 2  # ** 2 is pow() as for NumPy's scalars, not x * x (1 ulp apart)
-    s_cruise = peak * max(min(tc, t_dec0) - t_acc, 0.0)
-    td = max(tc - t_dec0, 0.0)
-    s_dec = peak * td - 0.5 * af * td ** 2
-    if tc >= total:
-        return sign * dist, sign * 0.0
-    vel = (peak if inf_a else af * tc) if tc < t_acc else (peak if tc < t_dec0 else peak - af * td)
-    return sign * (s_acc + s_cruise + s_dec), sign * vel
 
 
 class SimServo:
@@ -164,7 +141,7 @@ class SimServo:
         if self._move is not None:
             t0, start, dist, v, a = self._move
             if now - t0 < self._move_time:  # on the way: the profile's position and velocity now
-                s, vel = _progress(now - t0, dist, v, a, self._move_time)
+                s, vel = trapezoid_progress(now - t0, dist, v, a, self._move_time)
                 self.horn = start + float(s)
             else:  # arrived
                 self.horn, self._move = start + dist, None

@@ -93,33 +93,33 @@ def trapezoid_time(distance, v_max, a_max) -> np.ndarray:
     return np.where(d == 0.0, 0.0, t)
 
 
-def trapezoid_progress(t, distance, v_max, a_max) -> tuple[np.ndarray, np.ndarray]:
-    """Position and velocity ``(s, ds/dt)`` at time ``t`` of the move of :func:`trapezoid_time`.
+def trapezoid_progress(t: float, distance: float, v_max: float, a_max: float,
+                       total: float | None = None) -> tuple[float, float]:
+    """Position and velocity ``(s, ds/dt)`` at time ``t`` of the move of :func:`trapezoid_time` (Python floats).
 
-    Signed along ``distance``; ``s`` goes from 0 at ``t ≤ 0`` to ``distance`` at the end. The cruise
-    speed is ``v`` if reached, else the triangular peak ``√(a·d)``.
-    """
-    d = np.asarray(distance, dtype=np.float64)
-    sign, dist = np.sign(d), np.abs(d)
-    t = np.asarray(t, dtype=np.float64)
-    v = np.asarray(v_max, dtype=np.float64)
-    a = np.asarray(a_max, dtype=np.float64)
-    total = trapezoid_time(dist, v, a)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        peak = np.minimum(v, np.sqrt(a * dist))
-        t_acc = np.where(np.isinf(a), 0.0, peak / a)
-    af = np.where(np.isinf(a), 0.0, a)  # infinite acceleration: velocity jumps, no ramp
-    tc = np.clip(t, 0.0, total)
+    Signed along ``distance``; ``s`` goes from 0 at ``t ≤ 0`` to ``distance`` at the end (``t ≥ total``, the
+    move's :func:`trapezoid_time`, computed when not given). The cruise speed is ``v`` if reached, else the
+    triangular peak ``√(a·d)``; ``a = inf``: the velocity jumps (rectangular profile). ROBOTIS e-manual, X
+    series, "Profile Velocity(112)". Scalar on purpose: the servo emulator (sim/servo_bus.py) evaluates it on
+    every read of a moving servo, where NumPy's per-call cost on scalars (~30 µs) would dominate."""
+    t, distance, v, a = float(t), float(distance), float(v_max), float(a_max)
+    if total is None:
+        total = float(trapezoid_time(distance, v, a))
+    sign, dist = (1.0 if distance > 0 else -1.0), abs(distance)
+    if dist == 0.0 or t >= total:
+        return sign * dist, sign * 0.0
+    inf_a = math.isinf(a)
+    peak = min(v, math.sqrt(a * dist))
+    t_acc = 0.0 if inf_a else peak / a
+    af = 0.0 if inf_a else a  # infinite acceleration: velocity jumps, no ramp
+    tc = max(t, 0.0)
     t_dec0 = total - t_acc  # deceleration starts
-    s_acc = 0.5 * af * np.minimum(tc, t_acc) ** 2
-    s_cruise = peak * np.clip(np.minimum(tc, t_dec0) - t_acc, 0.0, None)
-    td = np.clip(tc - t_dec0, 0.0, None)
+    s_acc = 0.5 * af * min(tc, t_acc) ** 2
+    s_cruise = peak * max(min(tc, t_dec0) - t_acc, 0.0)
+    td = max(tc - t_dec0, 0.0)
     s_dec = peak * td - 0.5 * af * td ** 2
-    s = np.where(tc >= total, dist, s_acc + s_cruise + s_dec)
-    ramp_up = np.where(np.isinf(a), peak, af * tc)
-    ramp_down = peak - af * td
-    vel = np.where(tc >= total, 0.0, np.where(tc < t_acc, ramp_up, np.where(tc < t_dec0, peak, ramp_down)))
-    return sign * s, sign * vel
+    vel = (peak if inf_a else af * tc) if tc < t_acc else (peak if tc < t_dec0 else peak - af * td)
+    return sign * (s_acc + s_cruise + s_dec), sign * vel
 
 
 # -- rig description ----------------------------------------------------------------------------------

@@ -128,7 +128,7 @@ def test_trapezoid_profile_formulas_and_move_time():
     assert trapezoid_time(10.0, 2.0, 1.0) == pytest.approx(10 / 2 + 2)  # d/v + v/a
     assert trapezoid_time(3.0, 2.0, np.inf) == pytest.approx(1.5)
     t = np.linspace(0, 7, 71)
-    s, v = trapezoid_progress(t, 10.0, 2.0, 1.0)
+    s, v = np.array([trapezoid_progress(x, 10.0, 2.0, 1.0) for x in t]).T
     assert s[0] == 0 and s[-1] == pytest.approx(10.0) and np.all(np.diff(s) >= -1e-12)
     assert np.max(v) == pytest.approx(2.0) and np.allclose(np.gradient(s, t)[5:-5], v[5:-5], atol=0.11)
     a = np.zeros(4)
@@ -136,6 +136,35 @@ def test_trapezoid_profile_formulas_and_move_time():
     expect = max(trapezoid_time(d, vm, am) for d, vm, am in zip(b - a, RIG.max_speed, RIG.max_accel))
     assert RIG.move_time(a, b) == pytest.approx(expect)
     assert RIG.move_time(np.zeros((3, 4)), np.tile(b, (3, 1))).shape == (3,)
+
+
+@pytest.mark.parametrize("d, v, a", [(10.0, 2.0, 1.0), (1.0, 2.0, 1.0), (-10.0, 2.0, 1.0), (3.0, 2.0, np.inf),
+                                     (-3.0, 2.0, np.inf), (250.0, 1e3, 5e4)])
+def test_trapezoid_progress_is_the_profile_in_closed_form(d, v, a):
+    """Against the profile's phases written out (ROBOTIS e-manual, Profile Velocity(112)): accelerate at a to
+    the peak min(v, √(a·|d|)), cruise, decelerate; s(t) = ½at², then peak·(t − t_acc) + ½a·t_acc², then by symmetry."""
+    total = float(trapezoid_time(d, v, a))
+    dist, sign = abs(d), np.sign(d)
+    peak = min(v, np.sqrt(a * dist))
+    t_acc = 0.0 if np.isinf(a) else peak / a
+    for t in np.linspace(-0.5, total + 0.5, 41):
+        s, vel = trapezoid_progress(t, d, v, a)
+        tc = min(max(t, 0.0), total)
+        if tc <= t_acc:
+            want_s, want_v = 0.5 * (0 if np.isinf(a) else a) * tc ** 2, (peak if np.isinf(a) else a * tc)
+        elif tc <= total - t_acc:
+            want_s, want_v = 0.5 * peak * t_acc + peak * (tc - t_acc), peak
+        else:
+            r = total - tc
+            want_s, want_v = dist - 0.5 * a * r ** 2, a * r
+        if t <= 0:
+            want_v = want_v if np.isinf(a) else 0.0
+        if t >= total:
+            want_s, want_v = dist, 0.0
+        assert s == pytest.approx(sign * want_s, rel=1e-9, abs=1e-9), t
+        assert vel == pytest.approx(sign * want_v, rel=1e-9, abs=1e-9), t
+    assert trapezoid_progress(0.3, 0.0, 2.0, 1.0) == (0.0, 0.0)  # no move
+    assert trapezoid_progress(0.3, d, v, a, total) == trapezoid_progress(0.3, d, v, a)  # total given or computed
 
 
 def test_rig_file_errors_name_file_and_field(tmp_path, monkeypatch):

@@ -84,20 +84,3 @@ def test_an_alarm_after_the_check_is_still_seen_by_the_move(axes, servo_bus):
     servo_bus.servo(2).trip()  # between the safety check and the move, at the same Clock time
     with pytest.raises(ServoAlarm, match="overload"):
         axes.move_to({"light_el": 0.25})
-
-
-def test_the_emulators_scalar_profile_is_the_kinematics_profile_exactly():
-    """sim.servo_bus._progress (Python floats) gives the very values of gonio's trapezoid_progress (NumPy)."""
-    from gonio.rig.kinematics import trapezoid_progress, trapezoid_time
-    from sim.servo_bus import _progress
-
-    rng = np.random.default_rng(5)
-    for _ in range(3000):
-        d = float(rng.choice([-1.0, 1.0]) * 10 ** rng.uniform(-1, 4))
-        v = float(10 ** rng.uniform(1, 4))
-        a = math.inf if rng.random() < 0.2 else float(10 ** rng.uniform(1, 5))
-        total = float(trapezoid_time(d, v, a))
-        for t in (0.0, float(rng.uniform(0, total)), float(rng.uniform(0, total)), total * (1 - 1e-12)):
-            if t < total:
-                s, vel = trapezoid_progress(t, d, v, a)
-                assert _progress(t, d, v, a, total) == (float(s), float(vel))
