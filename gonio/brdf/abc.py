@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio._jit import jitable
+from gonio._jit import jitable, power
 from gonio.brdf.base import BRDF, Param
 from gonio.brdf.fresnel import dielectric_core, dielectric_parts
 from gonio.brdf.microfacet import vgroove_g_parts
@@ -44,8 +44,8 @@ def abc_s(x, A, B, C) -> np.ndarray:
 @jitable
 def abc_s_core(x, B, C):
     """S(x)/A = (1 + B x)^−C = exp(−C · log(1 + B x)) (Löw et al. 2012, eq. 7; see :func:`abc_s`), x clamped
-    at 0; arrays or scalars."""
-    return np.exp(-C * np.log(1.0 + B * np.maximum(x, 0.0)))
+    at 0; arrays or scalars (:func:`gonio._jit.power`)."""
+    return power(1.0 + B * np.maximum(x, 0.0), -C)
 
 
 @jitable

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio._jit import jitable, select
+from gonio._jit import jitable, power, select
 from gonio.brdf.base import BRDF, Param
 from gonio.brdf.pairs import Lobe
 from gonio.brdf.phong import EXPONENT_MAX
@@ -19,12 +19,12 @@ def ashikhmin_shirley_spec(p, nu, nv):
     ((h·k) max(n·k_1, n·k_2)), on the shared geometry ``p`` (:func:`gonio.brdf.pairs.pair_geometry`).
 
     The exponent n_u cos²φ_h + n_v sin²φ_h is written with h_x, h_y (over h_x² + h_y² = sin²θh; 0 at h = n,
-    where the power is 1), the power in log space with n·h clamped to [tiny, 1]; h·k and the larger cosine
+    where the power is 1), the power in log space (:func:`gonio._jit.power`) with n·h clamped to [tiny, 1]; h·k and the larger cosine
     are guarded at tiny."""
     tiny = p.tiny
     expo = select(p.s2h > 0.0, (nu * (p.hx * p.hx) + nv * (p.hy * p.hy)) / np.maximum(p.s2h, tiny), 0.0)
-    power = np.exp(expo * np.log(np.minimum(np.maximum(p.hz, tiny), 1.0)))
-    return power / (np.maximum(p.ih, tiny) * np.maximum(np.maximum(p.iz, p.oz), tiny))
+    lobe = power(np.minimum(np.maximum(p.hz, tiny), 1.0), expo)
+    return lobe / (np.maximum(p.ih, tiny) * np.maximum(np.maximum(p.iz, p.oz), tiny))
 
 
 @jitable

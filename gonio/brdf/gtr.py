@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio._jit import jitable, select
+from gonio._jit import jitable, power, select
 from gonio.brdf.base import BRDF, Param
 from gonio.brdf.microfacet import ALPHA_MIN, clamp_alpha, ggx_g1_den
 from gonio.brdf.pairs import Lobe
@@ -51,10 +51,10 @@ def gtr_shape(cos_h, alpha, gamma, c):
 @jitable
 def gtr_shape_c2(c2, alpha, gamma, c):
     """D(θh) = c / (α² cos²θh + sin²θh)^γ of :func:`gtr_d` (Burley 2012, Appendix B) for cos θh > 0, from
-    c2 = cos²θh ≤ 1, as c · exp(−γ ln(α² c2 + 1 − c2)); the base is ≥ α² > 0."""
+    c2 = cos²θh ≤ 1, as c · exp(−γ ln(α² c2 + 1 − c2)) (:func:`gonio._jit.power`); the base is ≥ α² > 0."""
     a2 = np.minimum(np.maximum(alpha, ALPHA_MIN), ALPHA_MAX) ** 2
     q = a2 * c2 + (1.0 - c2)
-    return c * np.exp(-gamma * np.log(q))
+    return c * power(q, -gamma)
 
 
 @jitable
