@@ -78,7 +78,7 @@ _P4 = -1.65339022054652515390e-06
 _P5 = 4.13813679705723846039e-08
 
 
-@register_jitable(error_model="numpy", inline="always")
+@register_jitable(error_model="numpy")
 def vlog(x):
     """log(x) of a float64 (fdlibm ``__ieee754_log``, branch-free): x = 2ᵏ m with
     m ∈ [√2/2, √2), f = m − 1, s = f/(2 + f), log(1 + f) = f − (hfsq − s (hfsq + R(s²))) with hfsq = f²/2, and
@@ -106,7 +106,7 @@ def vlog(x):
     return np.nan if not x >= 0.0 else y  # negative or NaN
 
 
-@register_jitable(error_model="numpy", inline="always")
+@register_jitable(error_model="numpy")
 def vexp(x):
     """exp(x) (fdlibm ``__ieee754_exp``, branch-free): k = round(x / ln 2), r = (x − k ln2_hi) − k ln2_lo,
     exp(r) = 1 − ((lo − r c / (2 − c)) − hi) with c = r − r² P(r²), times 2ᵏ in two exact steps (2^⌊k/2⌋ then

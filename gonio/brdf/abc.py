@@ -17,10 +17,10 @@ from gonio._jit import jitable, power
 from gonio.brdf.base import BRDF, Param
 from gonio.brdf.fresnel import dielectric_core, dielectric_parts
 from gonio.brdf.microfacet import vgroove_g_parts
-from gonio.brdf.pairs import Lobe
+from gonio.brdf.pairs import Lobe, cos_d, split_value
 
-__all__ = ["ABCMicrofacet", "ABCSmooth", "abc_s", "abc_s_core", "abc_spec", "abc_smooth_spec", "abc_smooth_x",
-           "abc_fresnel"]
+__all__ = ["ABCMicrofacet", "ABCSmooth", "abc_s", "abc_s_core", "abc_base", "abc_spec", "abc_spec_split",
+           "abc_smooth_spec", "abc_smooth_spec_split", "abc_smooth_x", "abc_fresnel"]
 
 #: Upper bound of B: ~1/B is the lobe width in (1 − cos θh); 1e7 resolves lobes far narrower than a
 #: MERL cell at θh = 0 (Löw's fits reach B ≈ 6·10⁶ for fabrics' grazing lobes).
@@ -44,8 +44,14 @@ def abc_s(x, A, B, C) -> np.ndarray:
 @jitable
 def abc_s_core(x, B, C):
     """S(x)/A = (1 + B x)^−C = exp(−C · log(1 + B x)) (Löw et al. 2012, eq. 7; see :func:`abc_s`), x clamped
-    at 0; arrays or scalars (:func:`gonio._jit.power`)."""
-    return power(1.0 + B * np.maximum(x, 0.0), -C)
+    at 0; arrays or scalars (:func:`gonio._jit.power` of :func:`abc_base`)."""
+    return power(abc_base(x, B), -C)
+
+
+@jitable
+def abc_base(x, B):
+    """The base 1 + B x of the ABC function's power (:func:`abc_s_core`), x clamped at 0."""
+    return 1.0 + B * np.maximum(x, 0.0)
 
 
 @jitable
@@ -54,35 +60,52 @@ def abc_spec(p, B, C, eta):
     D/A = (1 + B (1 − cos θh))^−C (:func:`abc_s_core`), F the exact dielectric Fresnel at θd
     (:func:`gonio.brdf.fresnel.dielectric_parts`) and G the V-groove shadowing
     (:func:`gonio.brdf.microfacet.vgroove_g_parts`) (Löw et al. 2012, §5, eqs. 12–13), on the shared
-    geometry ``p`` (:func:`gonio.brdf.pairs.pair_geometry`); F and G are fractions, divided once."""
-    d = abc_s_core(1.0 - np.minimum(np.maximum(p.hz, 0.0), 1.0), B, C)
-    fn, fd = dielectric_parts(np.minimum(np.maximum(p.ih, 0.0), 1.0), eta)
-    gn, gd = vgroove_g_parts(p.iz, p.oz, p.hz, p.oh, p.tiny)
-    return d * (fn * gn / (fd * gd * (np.pi * p.cc)))
+    geometry ``p`` (:func:`gonio.brdf.pairs.pair_geometry`); F and G are fractions, divided once: the
+    :func:`~gonio.brdf.pairs.split_value` of :func:`abc_spec_split`."""
+    return split_value(*abc_spec_split(p, B, C, eta))
+
+
+@jitable
+def abc_spec_split(p, B, C, eta):
+    """:func:`abc_spec` as ``(base, exponent, factor)`` (:func:`gonio.brdf.pairs.split_value`): D/A =
+    :func:`abc_base` (1 − cos θh, B) ^ −C and the factor F G / (π cos θi cos θo)."""
+    cd = cos_d(p)
+    fn, fd = dielectric_parts(np.minimum(np.maximum(cd, 0.0), 1.0), eta)
+    gn, gd = vgroove_g_parts(p.iz, p.oz, p.hz, cd, p.tiny)
+    return abc_base(1.0 - np.minimum(np.maximum(p.hz, 0.0), 1.0), B), -C, fn * gn / (fd * gd * (np.pi * p.cc))
 
 
 @jitable
 def abc_smooth_x(p):
     """x = ‖wi⊥ + wo⊥‖², the squared projection of wi + wo on the surface plane (the frequency of Löw et al.
     2012, §4, without the wavelength), from the pair geometry ``p``: wi + wo = |wi + wo| h and, for unit wi, wo,
-    |wi + wo| = 2 wi·h, so x = 4 (wi·h)² (h_x² + h_y²) (products of positive terms: no cancellation at the
+    |wi + wo| = 2 wi·h, so x = 4 (cos θd)² (h_x² + h_y²) with cos θd = wi·h (:func:`~gonio.brdf.pairs.cos_d`) (products of positive terms: no cancellation at the
     specular peak, where x → 0)."""
-    return 4.0 * (p.ih * p.ih) * p.s2h
+    cd = cos_d(p)
+    return 4.0 * (cd * cd) * p.s2h
 
 
 @jitable
 def abc_fresnel(p, eta):
     """The Fresnel factor of both ABC models: the exact dielectric reflectance at θd
-    (:func:`gonio.brdf.fresnel.dielectric_core`; Born & Wolf §1.5) of cos θd = wi·h clamped to [0, 1]."""
-    return dielectric_core(np.minimum(np.maximum(p.ih, 0.0), 1.0), eta)
+    (:func:`gonio.brdf.fresnel.dielectric_core`; Born & Wolf §1.5) of cos θd (:func:`~gonio.brdf.pairs.cos_d`) clamped to [0, 1]."""
+    return dielectric_core(np.minimum(np.maximum(cos_d(p), 0.0), 1.0), eta)
 
 
 @jitable
 def abc_smooth_spec(p, B, C, eta):
     """The lobe of :class:`ABCSmooth` without its colour A: S(x)/A · F(θd; η) (Löw et al. 2012, §4, eq. 7 with
     F in place of Q) with x of :func:`abc_smooth_x`, S of :func:`abc_s_core`, F of :func:`abc_fresnel`, on the
-    shared geometry ``p`` (:func:`gonio.brdf.pairs.pair_geometry`)."""
-    return abc_s_core(abc_smooth_x(p), B, C) * abc_fresnel(p, eta)
+    shared geometry ``p`` (:func:`gonio.brdf.pairs.pair_geometry`): the :func:`~gonio.brdf.pairs.split_value`
+    of :func:`abc_smooth_spec_split`."""
+    return split_value(*abc_smooth_spec_split(p, B, C, eta))
+
+
+@jitable
+def abc_smooth_spec_split(p, B, C, eta):
+    """:func:`abc_smooth_spec` as ``(base, exponent, factor)`` (:func:`gonio.brdf.pairs.split_value`): S(x)/A =
+    :func:`abc_base` (x, B) ^ −C and the factor F(θd; η)."""
+    return abc_base(abc_smooth_x(p), B), -C, abc_fresnel(p, eta)
 
 
 class ABCMicrofacet(BRDF):

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio._jit import jitable, power, select
+from gonio._jit import jitable, select
 from gonio.brdf.base import BRDF, Param
-from gonio.brdf.pairs import Lobe
+from gonio.brdf.pairs import Lobe, cos_d, split_value
 from gonio.brdf.phong import EXPONENT_MAX
 
-__all__ = ["AshikhminShirley", "ashikhmin_shirley_spec", "ashikhmin_shirley_diffuse"]
+__all__ = ["AshikhminShirley", "ashikhmin_shirley_spec", "ashikhmin_shirley_spec_split", "ashikhmin_shirley_diffuse"]
 
 
 @jitable
@@ -20,11 +20,18 @@ def ashikhmin_shirley_spec(p, nu, nv):
 
     The exponent n_u cos²φ_h + n_v sin²φ_h is written with h_x, h_y (over h_x² + h_y² = sin²θh; 0 at h = n,
     where the power is 1), the power in log space (:func:`gonio._jit.power`) with n·h clamped to [tiny, 1]; h·k and the larger cosine
-    are guarded at tiny."""
+    are guarded at tiny. The :func:`~gonio.brdf.pairs.split_value` of :func:`ashikhmin_shirley_spec_split`."""
+    return split_value(*ashikhmin_shirley_spec_split(p, nu, nv))
+
+
+@jitable
+def ashikhmin_shirley_spec_split(p, nu, nv):
+    """:func:`ashikhmin_shirley_spec` as ``(base, exponent, factor)`` (:func:`gonio.brdf.pairs.split_value`):
+    n·h clamped to [tiny, 1], the exponent, and 1 / ((h·k) max(n·k_1, n·k_2))."""
     tiny = p.tiny
     expo = select(p.s2h > 0.0, (nu * (p.hx * p.hx) + nv * (p.hy * p.hy)) / np.maximum(p.s2h, tiny), 0.0)
-    lobe = power(np.minimum(np.maximum(p.hz, tiny), 1.0), expo)
-    return lobe / (np.maximum(p.ih, tiny) * np.maximum(np.maximum(p.iz, p.oz), tiny))
+    return (np.minimum(np.maximum(p.hz, tiny), 1.0), expo,
+            1.0 / (np.maximum(cos_d(p), tiny) * np.maximum(np.maximum(p.iz, p.oz), tiny)))
 
 
 @jitable

@@ -7,7 +7,7 @@ import numpy as np
 from gonio._jit import jitable, select
 from gonio.brdf.base import BRDF, Param
 from gonio.brdf.microfacet import ALPHA_MIN, beckmann_d_parts, clamp_alpha, vgroove_g_parts
-from gonio.brdf.pairs import Lobe
+from gonio.brdf.pairs import Lobe, cos_d
 
 __all__ = ["CookTorrance", "cook_torrance_spec"]
 
@@ -22,7 +22,7 @@ def cook_torrance_spec(p, roughness):
     im = 1.0 / m
     tiny = p.tiny
     dn, dd = beckmann_d_parts(p.th2 * (im * im), np.maximum(p.hz2, tiny), m, m, tiny)
-    gn, gd = vgroove_g_parts(p.iz, p.oz, p.hz, p.oh, tiny)
+    gn, gd = vgroove_g_parts(p.iz, p.oz, p.hz, cos_d(p), tiny)
     return select(p.hz > 0.0, np.pi * dn * gn / (dd * gd * p.cc), 0.0)
 
 

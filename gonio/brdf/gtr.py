@@ -7,9 +7,9 @@ import numpy as np
 from gonio._jit import jitable, power, select
 from gonio.brdf.base import BRDF, Param
 from gonio.brdf.microfacet import ALPHA_MIN, clamp_alpha, ggx_g1_den
-from gonio.brdf.pairs import Lobe
+from gonio.brdf.pairs import Lobe, split_value
 
-__all__ = ["GTR", "gtr_d", "gtr_norm", "gtr_shape", "gtr_shape_c2", "gtr_spec"]
+__all__ = ["GTR", "gtr_d", "gtr_norm", "gtr_shape", "gtr_shape_c2", "gtr_base", "gtr_spec", "gtr_spec_split"]
 
 #: Roughness ceiling: the normalization has a removable singularity at α = 1 (a uniform distribution).
 ALPHA_MAX = 0.999
@@ -52,9 +52,14 @@ def gtr_shape(cos_h, alpha, gamma, c):
 def gtr_shape_c2(c2, alpha, gamma, c):
     """D(θh) = c / (α² cos²θh + sin²θh)^γ of :func:`gtr_d` (Burley 2012, Appendix B) for cos θh > 0, from
     c2 = cos²θh ≤ 1, as c · exp(−γ ln(α² c2 + 1 − c2)) (:func:`gonio._jit.power`); the base is ≥ α² > 0."""
+    return c * power(gtr_base(c2, alpha), -gamma)
+
+
+@jitable
+def gtr_base(c2, alpha):
+    """The base α² c2 + 1 − c2 of :func:`gtr_shape_c2`'s power (α clamped as there), ≥ α² > 0."""
     a2 = np.minimum(np.maximum(alpha, ALPHA_MIN), ALPHA_MAX) ** 2
-    q = a2 * c2 + (1.0 - c2)
-    return c * power(q, -gamma)
+    return a2 * c2 + (1.0 - c2)
 
 
 @jitable
@@ -63,11 +68,20 @@ def gtr_spec(p, alpha, gamma, c):
     2007, eq. 20 with D of :func:`gtr_d` and the GGX Smith G1 of eq. 34, Burley 2012 §5.6) on the shared
     geometry ``p`` (:func:`gonio.brdf.pairs.pair_geometry`); G1(v) = 2 cos θ_v / S_v
     (:func:`gonio.brdf.microfacet.ggx_g1_den`), so D G2 / (4 cos θi cos θo) = D / (S_i S_o). ``c`` is D's
-    normalization :func:`gtr_norm` (computed once per model)."""
+    normalization :func:`gtr_norm` (computed once per model). The :func:`~gonio.brdf.pairs.split_value` of
+    :func:`gtr_spec_split`."""
+    return split_value(*gtr_spec_split(p, alpha, gamma, c))
+
+
+@jitable
+def gtr_spec_split(p, alpha, gamma, c):
+    """:func:`gtr_spec` as ``(base, exponent, factor)`` (:func:`gonio.brdf.pairs.split_value`): the power of
+    :func:`gtr_shape_c2` (:func:`gtr_base` of min(cos²θh, 1), −γ) and the factor c / (S_i S_o) where the
+    microfacet is visible, else 0."""
     a = clamp_alpha(alpha)
     a2 = a * a
     s = ggx_g1_den(p.iz, p.iz2, a2 * p.si2) * ggx_g1_den(p.oz, p.oz2, a2 * p.so2)
-    return select(p.vis > 0.0, gtr_shape_c2(np.minimum(p.hz2, 1.0), alpha, gamma, c) / s, 0.0)
+    return gtr_base(np.minimum(p.hz2, 1.0), alpha), -gamma, select(p.vis > 0.0, c / s, 0.0)
 
 
 class GTR(BRDF):
