@@ -164,24 +164,30 @@ def test_sensor_chain_compiled_is_the_numpy_reference_bit_for_bit(shape, bits, d
     """sim.sensor_noise: the numba passes and the NumPy reference turn the same electron rates and seed into the
     same frame (every branch: Poisson by inversion, the normal approximation, the full well, the DN range; with and
     without a dark pattern)."""
-    from sim import sensor_noise
-    from sim.camera import POISSON_EXACT_BELOW, normal_table
-
     sn = SensorModel(bit_depth=bits)
     kw = dict(read_noise=sn.read_noise_e, full_well=sn.full_well, gain_k=sn.dn_per_electron * 1.7,
               black=sn.black_level, saturation=sn.saturation, dtype=np.uint8 if bits == 8 else np.uint16)
     for seed in range(5):
         rate = _sensor_inputs(shape, seed) / np.float32(0.01)
         pattern = np.random.default_rng(seed + 100).uniform(0.5, 1.5, shape).astype(np.float32) if dsnu else None
-        frames = []
-        for expose in (sensor_noise.expose_numpy, sensor_noise.expose_compiled):
-            rng = np.random.default_rng(seed)
-            frames.append(expose(rate, np.float32(0.01), pattern, np.float32(0.37), rng,
-                                 lambda s: rng.integers(0, 1 << 16, size=s, dtype=np.uint16), normal_table(),
-                                 POISSON_EXACT_BELOW, **kw))
-            frames.append(rng.random())  # and the generator is left in the same state
-        want, after_want, got, after_got = frames
-        assert got.dtype == want.dtype and got.tobytes() == want.tobytes() and after_got == after_want
+        _assert_chains_agree(rate, np.float32(0.01), pattern, np.float32(0.37), seed, kw)
+
+
+def _assert_chains_agree(rate, scale, pattern, dark_e, seed, kw):
+    """sim.sensor_noise's NumPy reference and compiled chain give the same frame from the same generator, and leave
+    it in the same state."""
+    from sim import sensor_noise
+    from sim.camera import POISSON_EXACT_BELOW, normal_table
+
+    frames = []
+    for expose in (sensor_noise.expose_numpy, sensor_noise.expose_compiled):
+        rng = np.random.default_rng(seed)
+        frames.append(expose(rate, scale, pattern, dark_e, rng,
+                             lambda s: rng.integers(0, 1 << 16, size=s, dtype=np.uint16), normal_table(),
+                             POISSON_EXACT_BELOW, **kw))
+        frames.append(rng.random())  # and the generator is left in the same state
+    want, after_want, got, after_got = frames
+    assert got.dtype == want.dtype and got.tobytes() == want.tobytes() and after_got == after_want
 
 
 def test_sensor_chain_compiled_with_the_poisson_values_in_a_few_blocks_is_the_reference():
@@ -190,7 +196,6 @@ def test_sensor_chain_compiled_with_the_poisson_values_in_a_few_blocks_is_the_re
     (sim.sensor_noise.BLOCK), the frame not a multiple of the block; still the NumPy reference's frame, and the
     generator left in the same state."""
     from sim import sensor_noise
-    from sim.camera import POISSON_EXACT_BELOW, normal_table
 
     sn = SensorModel()
     kw = dict(read_noise=sn.read_noise_e, full_well=sn.full_well, gain_k=sn.dn_per_electron, black=sn.black_level,
@@ -202,15 +207,7 @@ def test_sensor_chain_compiled_with_the_poisson_values_in_a_few_blocks_is_the_re
     rate[30:34] = np.linspace(0.0, 40.0, 34 * 47 * 3 - 30 * 47 * 3, dtype=np.float32).reshape(4, 47, 3)  # across blocks
     rate[-1, -1] = 3.0  # the last value, in the last (short) block
     for seed in range(3):
-        frames = []
-        for expose in (sensor_noise.expose_numpy, sensor_noise.expose_compiled):
-            rng = np.random.default_rng(seed)
-            frames.append(expose(rate, np.float32(1.0), None, np.float32(0.5), rng,
-                                 lambda s: rng.integers(0, 1 << 16, size=s, dtype=np.uint16), normal_table(),
-                                 POISSON_EXACT_BELOW, **kw))
-            frames.append(rng.random())
-        want, after_want, got, after_got = frames
-        assert got.tobytes() == want.tobytes() and after_got == after_want
+        _assert_chains_agree(rate, np.float32(1.0), None, np.float32(0.5), seed, kw)
 
 
 def test_camera_frames_are_the_same_with_and_without_numba(bench_factory, lambert, monkeypatch):

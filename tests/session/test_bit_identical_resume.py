@@ -28,14 +28,17 @@ CONFIG = dict(seed=5, width=240, height=180, focal_px=285.0, backlash_ticks=0.0,
 COLUMNS = ("wi", "wo", "f", "sigma", "n_pixels", "flags", "pose")
 
 
-def run_session(directory, *, stop_after=None, resume=False, config=CONFIG):
-    """Run (or resume) the small plan on a fresh simulated rig; ``stop_after``: stop after that pose."""
-    plan = small_plan()
+def run_session(directory, *, stop_after=None, resume=False, config=CONFIG, plan=None, on_store=None):
+    """Run (or resume) ``plan`` (default: the small plan) on a fresh simulated rig; ``stop_after``: stop after that
+    pose; ``on_store(store)``: called with the opened store before the runner reads it."""
+    plan = small_plan() if plan is None else plan
     sim = SimRig(config=SimRigConfig(**config)).start()
     devices = None
     try:
         devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
         store = SessionStore.open(directory) if resume else SessionStore.create(directory, {"plan": plan, "mode": "test"})
+        if on_store is not None:
+            on_store(store)
         runner = None
 
         def before(index):

@@ -12,10 +12,8 @@ import pytest
 
 from gonio.pipeline.markers import BoardPose, board_poses_agree
 from gonio.plan.plan import CaptureSettings, Plan
-from gonio.session.runner import SessionRunner, open_devices
-from gonio.session.store import SessionStore, load_session, scan_samples
-from sim.rig import SimRig, SimRigConfig
-from tests.session.test_bit_identical_resume import CONFIG, assert_bit_identical
+from gonio.session.store import load_session, scan_samples
+from tests.session.test_bit_identical_resume import assert_bit_identical, run_session
 
 #: (θi, φi, θo, φo) degrees: the camera stays at θo 30° for poses 0-2 and at 40° for poses 3-4
 POSES_DEG = [(30, 0, 30, 180), (45, 0, 30, 180), (20, 0, 30, 180), (60, 0, 40, 180), (10, 0, 40, 180)]
@@ -26,30 +24,14 @@ def plan() -> Plan:
 
 
 def run(directory, *, stop_after=None, resume=False, edit_last_board=None):
-    """Run (or resume) the plan on a fresh simulated rig; ``edit_last_board(board record)`` changes the store's
-    last record's board pose as the resumed runner reads it."""
-    p = plan()
-    sim = SimRig(config=SimRigConfig(**CONFIG)).start()
-    devices = None
-    try:
-        devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
-        store = SessionStore.open(directory) if resume else SessionStore.create(directory, {"plan": p, "mode": "test"})
-        if edit_last_board is not None:
-            store.last_meta = copy.deepcopy(store.last_meta)
-            edit_last_board(store.last_meta["board_pose"])
-        runner = None
+    """Run (or resume) the plan on a fresh simulated rig (the bit-identity tests' run_session);
+    ``edit_last_board(board record)`` changes the store's last record's board pose as the resumed runner reads it."""
+    def edit(store):
+        store.last_meta = copy.deepcopy(store.last_meta)
+        edit_last_board(store.last_meta["board_pose"])
 
-        def before(index):
-            sim.begin_pose(index)
-            if index == stop_after:
-                runner.request_stop()
-
-        runner = SessionRunner(p, store, devices, sim.calibration, sim.layout, before_pose=before, stream=None)
-        return runner.run()
-    finally:
-        if devices is not None:
-            devices.close()
-        sim.stop()
+    return run_session(directory, stop_after=stop_after, resume=resume, plan=plan(),
+                       on_store=None if edit_last_board is None else edit)
 
 
 def metas(directory) -> dict[int, dict]:
