@@ -251,13 +251,13 @@ class Pipeline:
         if roi.empty:
             raise BoardNotFound("camera frame: the sample or white patch is outside the image at this pose",
                                 device="camera")
+        # only the ROI's sample and white pixels are metered and merged (a quarter of its box, typically): the merge
+        # is per pixel, so they get the values a merge of the whole box gives them; the samples come from these alone
+        used = _used_index(roi, (roi.label >= 0) | roi.white, self.calib.width)
         if plan is None:
-            plan = self._meter(frame, px, level, roi, gain)
+            plan = self._meter(frame, px, level, roi, used, gain)
         # 2. capture the bracket, darks, merge
         stacks, darks, lights, times = [], [], [], []
-        # only the ROI's sample and white pixels are merged (a quarter of its box, typically): the merge is per pixel,
-        # so they get the values a merge of the whole box gives them; the samples are computed from these alone
-        used = _used_index(roi, (roi.label >= 0) | roi.white, self.calib.width)
         for t_k, n_k in zip(plan.exposures, plan.frames):
             cached = self.darks.cached(t_k, plan.gain)  # the runner measures the dark set before the poses
             grabs = []
@@ -286,10 +286,10 @@ class Pipeline:
         self._next_exposure = plan.exposures[0]
         return PoseResult(samples, plan, board, cam_pose, lights, times, source)
 
-    def _meter(self, frame: Frame, px: np.ndarray, level: float, roi, gain: float) -> CapturePlan:
-        """Find signal rates of the sample and white pixels; re-meter (bounded) when saturated or dark."""
+    def _meter(self, frame: Frame, px: np.ndarray, level: float, roi, used: np.ndarray, gain: float) -> CapturePlan:
+        """Find signal rates of the sample and white pixels (``used``: their :func:`_used_index`); re-meter
+        (bounded) when saturated or dark."""
         st, es = self.settings, self.settings.exposure
-        used = _used_index(roi, (roi.label >= 0) | roi.white, self.calib.width)
         n_min = max(1, int(np.bincount(roi.label[roi.label >= 0], minlength=roi.n_tiles).min()))
         t = frame.exposure
         for _ in range(st.meter_tries):

@@ -282,10 +282,9 @@ class SessionRunner:
         self.lab_offset = 0.0
         self._stop = threading.Event()
         self._interrupts = 0
-        #: the board pose of the last stored pose and where its camera was (:meth:`_camera_key`), and whether it
+        #: the board pose of the last stored pose and where its camera was (:meth:`_board_entry`), and whether it
         #: must be confirmed (it comes from an earlier run): reused while the camera stays put (:meth:`_measure`)
         self._board_prev: tuple[bytes, object, bool] | None = None
-        self._board_next: tuple[bytes, object] | None = None
 
     # -- messages -------------------------------------------------------------------------------
     def _say(self, msg: str) -> None:
@@ -408,30 +407,32 @@ class SessionRunner:
         self.warm_up()  # switching the light off and on restarts its warm-up
         return True
 
-    def _camera_key(self, target, measured) -> bytes:
+    @staticmethod
+    def _camera_key(planned_pose, measured_pose) -> bytes:
         """Where the camera is relative to the sample, as bytes: the planned and the measured camera pose
-        (forward kinematics, sample frame: the camera arm's joints and a turntable's). Two poses with the same
-        key have the camera's servos at the same goal and the same encoder readings: the camera has not moved."""
-        rig = self.dev.rig
-        parts = [*rig.camera_pose(rig.as_array(target)), *rig.camera_pose(rig.as_array(measured))]
-        return b"".join(np.ascontiguousarray(p, dtype=np.float64).tobytes() for p in parts)
+        (``(position, R)`` of :meth:`Rig.camera_pose`, sample frame: the camera arm's joints and a turntable's). Two
+        poses with the same key have the camera's servos at the same goal and the same encoder readings: the
+        camera has not moved."""
+        return b"".join(np.ascontiguousarray(p, dtype=np.float64).tobytes() for p in (*planned_pose, *measured_pose))
 
-    def _load_board_prev(self) -> None:
-        """At the start of a run: the last stored pose's board pose (``board_pose`` in its meta, docs/formats.md), to be
-        confirmed before it is reused (the rig may have been stopped, moved or touched since)."""
+    def _board_entry(self, meta, confirm: bool) -> tuple[bytes, object, bool] | None:
+        """What a stored pose's ``meta`` lets the next pose reuse: ``(camera key, board pose, confirm)``, the board
+        pose rebuilt from its record (``board_pose``, docs/formats.md) — the very bits a resumed run reads back from
+        the file; None without a usable one (no board, an older session, not this rig's joints, not numbers).
+        ``confirm``: it comes from an earlier run (the rig may have been stopped, moved or touched since)."""
         from gonio.pipeline.markers import BoardPose
 
-        meta = getattr(self.store, "last_meta", None)
         if not isinstance(meta, dict) or not isinstance(meta.get("board_pose"), dict):
-            return
+            return None
+        rig = self.dev.rig
         try:
-            key = self._camera_key({k: float(v) for k, v in meta["target_joints_rad"].items()},
-                                   {k: float(v) for k, v in meta["joints_rad"].items()})
+            planned = rig.as_array({k: float(v) for k, v in meta["target_joints_rad"].items()})
+            measured = rig.as_array({k: float(v) for k, v in meta["joints_rad"].items()})
         except (KeyError, TypeError, ValueError, AttributeError, ConfigError):
-            return  # not this rig's joints, or not numbers: nothing to reuse
+            return None
         board = BoardPose.from_record(meta["board_pose"])
-        if board is not None:
-            self._board_prev = (key, board, True)
+        return None if board is None else (self._camera_key(rig.camera_pose(planned), rig.camera_pose(measured)),
+                                           board, confirm)
 
     def _dark_meta(self) -> dict:
         """The dark model's state for the pose's meta (modelled darks only): scale k of the dark current
@@ -454,20 +455,20 @@ class SessionRunner:
         w2, l2 = time.perf_counter(), self.clock.now()
         if self.before_pose is not None:
             self.before_pose(index)
-        joints = rig.as_array(measured)
+        joints, planned = rig.as_array(measured), rig.as_array(target)
         position, R = rig.camera_pose(joints)
+        planned_pose = rig.camera_pose(planned)
         # the camera has not moved since the last stored pose (same goal, same encoder readings): its board pose
         # stands, the board is not searched again (confirmed once when it comes from an earlier run)
-        key = self._camera_key(target, measured)
+        key = self._camera_key(planned_pose, (position, R))
         prev = self._board_prev if self._board_prev is not None and self._board_prev[0] == key else None
         cam_w, cam_l, frames = self.camera.wall, self.camera.lab, self.camera.frames
         # meter every pose at the expected bracket's shortest exposure, not at the previous pose's: a pose's
         # bracket then depends on the pose only, so a resumed session measures what an uninterrupted one does
-        planned = rig.as_array(target)
         res = self.pipeline.measure(rig.light_position(joints), pose_index=index,
                                     camera_pose_hint=CameraPose(R, -R @ position), plan=self.bracket,
                                     meter_exposure=self.plan.capture.exposures[0],
-                                    nominal=(rig.camera_pose(planned)[0], rig.light_position(planned)),
+                                    nominal=(planned_pose[0], rig.light_position(planned)),
                                     board=None if prev is None else prev[1],
                                     confirm_board=prev is not None and prev[2])
         self.check_devices()  # an E-stop during the capture: the frames are not of a lit sample, keep nothing
@@ -497,12 +498,6 @@ class SessionRunner:
             "run_lab_time_s": float(self.clock.now() - self._lab0),  # lab time of this run so far
             "timing": timing,
         }
-        # what the next pose may reuse: the pose as stored (rebuilt from its record, so a resumed run that reads
-        # it back from the file gets the same bits)
-        from gonio.pipeline.markers import BoardPose
-
-        board = None if meta["board_pose"] is None else BoardPose.from_record(meta["board_pose"])
-        self._board_next = None if board is None else (key, board)
         return res.samples, meta, timing
 
     def _recover(self, exc: HardwareError) -> None:
@@ -540,7 +535,7 @@ class SessionRunner:
         result.estimated_lab_time = float(ends[-1]) if len(ends) else 0.0
         brackets: dict[str, int] = {}
         if self._board_prev is None:
-            self._load_board_prev()
+            self._board_prev = self._board_entry(getattr(self.store, "last_meta", None), confirm=True)
         old_handler = None
         if threading.current_thread() is threading.main_thread():
             old_handler = signal.signal(signal.SIGINT, self._on_sigint)
@@ -561,7 +556,6 @@ class SessionRunner:
                         break
                     if k in done:
                         continue
-                    self._board_next = None
                     samples, meta, timing = self._pose_with_retries(k, result)
                     if samples is None:
                         self._board_prev = None  # the camera may have moved: search the board again
@@ -573,7 +567,7 @@ class SessionRunner:
                         continue
                     failed_run = 0
                     self.store.append(k, samples, meta)
-                    self._board_prev = None if self._board_next is None else (*self._board_next, False)
+                    self._board_prev = self._board_entry(meta, confirm=False)  # what the next pose may reuse
                     done.add(k)
                     result.measured += 1
                     result.samples += len(samples)
