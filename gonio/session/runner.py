@@ -58,6 +58,7 @@ from gonio.errors import (ConfigError, EmergencyStop, GonioError, HardwareError,
                           UnreachablePose)
 from gonio.plan.labtime import SessionTiming, dark_exposures, session_lab_time
 from gonio.rig.interfaces import Frame
+from gonio.session.records import MAX_POSE
 
 __all__ = ["RunnerSettings", "Devices", "RunResult", "SessionRunner", "open_devices", "format_lab_time"]
 
@@ -284,7 +285,7 @@ class SessionRunner:
         self._interrupts = 0
         #: the board pose of the last stored pose and where its camera was (:meth:`_board_entry`), and whether it
         #: must be confirmed (it comes from an earlier run): reused while the camera stays put (:meth:`_measure`)
-        self._board_prev: tuple[bytes, object, bool] | None = None
+        self._board_prev: tuple[bytes, object, bool, int | None] | None = None
 
     # -- messages -------------------------------------------------------------------------------
     def _say(self, msg: str) -> None:
@@ -415,11 +416,13 @@ class SessionRunner:
         camera has not moved."""
         return b"".join(np.ascontiguousarray(p, dtype=np.float64).tobytes() for p in (*planned_pose, *measured_pose))
 
-    def _board_entry(self, meta, confirm: bool) -> tuple[bytes, object, bool] | None:
-        """What a stored pose's ``meta`` lets the next pose reuse: ``(camera key, board pose, confirm)``, the board
-        pose rebuilt from its record (``board_pose``, docs/formats.md) — the very bits a resumed run reads back from
-        the file; None without a usable one (no board, an older session, not this rig's joints, not numbers).
-        ``confirm``: it comes from an earlier run (the rig may have been stopped, moved or touched since)."""
+    def _board_entry(self, meta, confirm: bool) -> tuple[bytes, object, bool, int | None] | None:
+        """What a stored pose's ``meta`` lets the next pose reuse: ``(camera key, board pose, confirm, origin)``, the
+        board pose rebuilt from its record (``board_pose``, docs/formats.md) — the very bits a resumed run reads back
+        from the file; None without a usable one (no board, an older session, not this rig's joints, not numbers).
+        ``confirm``: it comes from an earlier run (the rig may have been stopped, moved or touched since).
+        ``origin``: the pose whose metering frame the board pose was found in (``board_from``; None if the record
+        does not say: a session written before that field)."""
         from gonio.pipeline.markers import BoardPose
 
         if not isinstance(meta, dict) or not isinstance(meta.get("board_pose"), dict):
@@ -431,8 +434,10 @@ class SessionRunner:
         except (KeyError, TypeError, ValueError, AttributeError, ConfigError):
             return None
         board = BoardPose.from_record(meta["board_pose"])
+        origin = meta.get("board_from")
+        origin = origin if isinstance(origin, int) and not isinstance(origin, bool) and 0 <= origin <= MAX_POSE else None
         return None if board is None else (self._camera_key(rig.camera_pose(planned), rig.camera_pose(measured)),
-                                           board, confirm)
+                                           board, confirm, origin)
 
     def _dark_meta(self) -> dict:
         """The dark model's state for the pose's meta (modelled darks only): scale k of the dark current
@@ -492,6 +497,10 @@ class SessionRunner:
             "board_found": res.board is not None,
             "board_pose": None if res.board is None else res.board.to_record(),
             "board_source": res.board_source,
+            # the pose whose metering frame gave the board pose: samples of poses with the same board_from share
+            # its pose error (their camera-pose uncertainty is one draw, not independent ones)
+            "board_from": (None if res.board is None else
+                           prev[3] if res.board_source in ("reused", "confirmed") else int(index)),
             "darks_refreshed": darks,
             **self._dark_meta(),
             "lab_time_s": float(self.clock.now()),

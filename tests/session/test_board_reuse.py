@@ -23,15 +23,19 @@ def plan() -> Plan:
     return Plan(poses=np.radians(np.asarray(POSES_DEG, dtype=float)), capture=CaptureSettings(), generator="custom")
 
 
-def run(directory, *, stop_after=None, resume=False, edit_last_board=None):
+def run(directory, *, stop_after=None, resume=False, edit_last_board=None, edit_last_meta=None):
     """Run (or resume) the plan on a fresh simulated rig (the bit-identity tests' run_session);
-    ``edit_last_board(board record)`` changes the store's last record's board pose as the resumed runner reads it."""
+    ``edit_last_board(board record)`` / ``edit_last_meta(meta)`` change the store's last record's board pose / meta
+    as the resumed runner reads it."""
     def edit(store):
         store.last_meta = copy.deepcopy(store.last_meta)
-        edit_last_board(store.last_meta["board_pose"])
+        if edit_last_board is not None:
+            edit_last_board(store.last_meta["board_pose"])
+        if edit_last_meta is not None:
+            edit_last_meta(store.last_meta)
 
     return run_session(directory, stop_after=stop_after, resume=resume, plan=plan(),
-                       on_store=None if edit_last_board is None else edit)
+                       on_store=None if edit_last_board is edit_last_meta is None else edit)
 
 
 def metas(directory) -> dict[int, dict]:
@@ -50,6 +54,8 @@ def test_a_camera_that_has_not_moved_reuses_the_board_pose_of_the_pose_before(re
     assert [m[k]["board_source"] for k in range(5)] == ["detected", "reused", "reused", "detected", "reused"]
     assert m[1]["board_pose"] == m[0]["board_pose"] == m[2]["board_pose"]
     assert m[4]["board_pose"] == m[3]["board_pose"] != m[0]["board_pose"]
+    # the pose whose frame each board pose came from: the samples of a group share that pose error
+    assert [m[k]["board_from"] for k in range(5)] == [0, 0, 0, 3, 3]
     cam = [(m[k]["joints_rad"]["camera_az"], m[k]["joints_rad"]["camera_el"]) for k in range(5)]
     assert cam[0] == cam[1] == cam[2] != cam[3] == cam[4]  # the plan keeps the camera still within each group
     _, s = load_session(reference)
@@ -65,6 +71,7 @@ def test_a_resumed_run_confirms_the_stored_board_pose_and_measures_the_same_bits
     assert m[2]["board_source"] == "confirmed"  # searched once, agreed with pose 1's: kept
     assert m[4]["board_source"] == "reused"
     assert m[2]["board_pose"] == m[1]["board_pose"]
+    assert [m[k]["board_from"] for k in range(5)] == [0, 0, 0, 3, 3]  # across the two runs
     assert_bit_identical(reference, d)
 
 
@@ -82,6 +89,7 @@ def test_a_stored_board_pose_that_disagrees_with_the_frame_is_replaced(tmp_path,
     assert m[2]["board_pose"] != ref[2]["board_pose"]
     assert np.allclose(m[2]["board_pose"]["tvec"], ref[2]["board_pose"]["tvec"], atol=2e-3)
     assert m[4]["board_source"] == "reused"
+    assert [m[k]["board_from"] for k in range(5)] == [0, 0, 2, 3, 3]
 
 
 def test_a_stored_board_record_that_is_not_one_is_ignored_and_the_board_searched(tmp_path, reference):
@@ -89,6 +97,16 @@ def test_a_stored_board_record_that_is_not_one_is_ignored_and_the_board_searched
     assert run(d, stop_after=1).status == "interrupted"
     assert run(d, resume=True, edit_last_board=lambda b: b.update(cov="not a matrix")).status == "completed"
     assert metas(d)[2]["board_source"] == "detected"
+    assert metas(d)[2]["board_from"] == 2
+
+
+def test_a_board_pose_reused_from_a_record_that_does_not_name_its_origin_says_so(tmp_path, reference):
+    d = tmp_path / "s"  # a session written before board_from, or a value that is not a pose index
+    assert run(d, stop_after=1).status == "interrupted"
+    assert run(d, resume=True, edit_last_meta=lambda m: m.update(board_from="pose 0")).status == "completed"
+    m = metas(d)
+    assert m[2]["board_source"] == "confirmed" and m[2]["board_from"] is None  # unknown, not a guess
+    assert [m[k]["board_from"] for k in (3, 4)] == [3, 3]
 
 
 def _board() -> BoardPose:
