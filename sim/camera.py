@@ -341,7 +341,7 @@ class SimCamera:
                  clock: Clock | None = None, light_output: Callable[[], float] | None = None):
         self.calibration = calibration
         self.sensor = sensor
-        self.scene = scene
+        self._scene = scene
         self.clock = clock
         self._rng = np.random.default_rng(seed)
         self._light_output = light_output
@@ -363,6 +363,18 @@ class SimCamera:
         self._closed = False
         self._t_power = clock.now() if clock is not None else 0.0  #: power-on: the sensor starts at ambient
         self._dsnu: np.ndarray | None = None
+
+    @property
+    def scene(self) -> SimScene:
+        """What the camera looks at; setting another one drops everything rendered from the old one (the board
+        texture, the electron rates: a scene is frozen, so a new scene is the only way it changes)."""
+        return self._scene
+
+    @scene.setter
+    def scene(self, scene: SimScene) -> None:
+        self._scene = scene
+        self._texture, self._cache_key, self._rate = None, None, None
+        self._blurred = {}
 
     def reseed(self, seed) -> None:
         """Restart the noise generator from ``seed`` (anything ``numpy.random.default_rng`` takes, e.g.

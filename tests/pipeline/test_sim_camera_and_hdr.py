@@ -180,3 +180,21 @@ def test_reseed_restarts_the_noise(bench_factory, lambert):
     c = cam.capture(0.01).pixels
     assert not np.array_equal(a, b)
     assert np.array_equal(a, c)
+
+
+def test_a_new_scene_is_rendered_not_the_old_ones_cache(bench_factory, lambert):
+    import dataclasses
+
+    from sim.camera import SimCamera
+
+    b = bench_factory(lambert)
+    b.place(30, 40, 20, 180)
+    before = b.camera.electron_rate().copy()
+    scene = dataclasses.replace(b.scene, material=make("lambert", albedo=[0.1, 0.2, 0.3]), board_white=0.5)
+    b.camera.scene = scene  # the same pose and light: only the scene changed
+    fresh = SimCamera(b.calib, b.sensor, scene)
+    fresh.set_pose(b.camera._pose)
+    fresh.set_light(b.camera._light_pos)
+    after = b.camera.electron_rate()
+    assert not np.array_equal(after, before)
+    assert np.array_equal(after, fresh.electron_rate())
