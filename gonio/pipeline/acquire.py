@@ -16,7 +16,7 @@ from gonio.errors import ConfigError, HardwareError
 from gonio.pipeline.dark import DarkCache
 from gonio.pipeline.exposure import CapturePlan, ExposureSettings, plan_bracket
 from gonio.pipeline.hdr import BadFrame, SATURATION_MARGIN, average_frames, check_frame, merge_linear
-from gonio.pipeline.markers import BoardPose, board_poses_agree, detect_board_pose, to_gray8
+from gonio.pipeline.markers import BoardPose, board_poses_agree, detect_board_pose, refine_board_pose, to_gray8
 from gonio.pipeline.signal import SignalCheck
 from gonio.pipeline.reflectance import build_roi, used_pixel_samples
 from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
@@ -89,9 +89,10 @@ class PoseResult:
     #: clock's time, the controller's uptime and the sampling span, seconds (None where not known)
     light_times: list[tuple] = field(default_factory=list)
     #: how ``board`` was obtained: ``"detected"`` in this pose's metering frame, ``"reused"`` (the ``board`` the
-    #: caller passed: the camera has not moved since), ``"confirmed"`` (passed, and a detection in this pose's
-    #: metering frame agreed with it), ``"replaced"`` (passed, but this pose's detection disagreed and was used),
-    #: or ``None`` (no board: the kinematic pose)
+    #: caller passed: the camera has not moved since, and its corners are where it puts them in this frame),
+    #: ``"confirmed"`` (passed, and a detection in this pose's metering frame agreed with it), ``"replaced"``
+    #: (passed, but this pose's detection disagreed and was used), ``"unverified"`` (passed and kept, the board
+    #: found in this frame neither way), or ``None`` (no board: the kinematic pose)
     board_source: str | None = None
 
 
@@ -187,9 +188,18 @@ class Pipeline:
     def _limit(self, frame: Frame) -> float:
         return self.calib.noise.linear_limit(frame.saturation_level, frame.black_level, frame.gain)
 
+    @staticmethod
+    def _gray(frame: Frame, px: np.ndarray) -> np.ndarray:
+        return to_gray8(px, frame.bit_depth if frame.linear else 8, frame.black_level if frame.linear else 0.0)
+
+    def _still(self, frame: Frame, px: np.ndarray, known: BoardPose) -> bool:
+        """``known``'s corners are where it puts them in this frame: :func:`refine_board_pose` agrees with it
+        (:func:`board_poses_agree`)."""
+        found = refine_board_pose(self._gray(frame, px), known, self.calib, self.layout.charuco, self._board)
+        return found is not None and board_poses_agree(known, found)
+
     def _locate(self, frame: Frame, px: np.ndarray, hint: CameraPose | None) -> tuple[BoardPose | None, CameraPose | None]:
-        gray = to_gray8(px, frame.bit_depth if frame.linear else 8, frame.black_level if frame.linear else 0.0)
-        bp = detect_board_pose(gray, self.calib, self.layout.charuco, self._board)
+        bp = detect_board_pose(self._gray(frame, px), self.calib, self.layout.charuco, self._board)
         if bp is not None:
             return bp, bp.pose
         return None, hint
@@ -207,8 +217,12 @@ class Pipeline:
 
         ``board``: the board pose found at an earlier pose from which the camera has not moved (the caller
         knows: :class:`gonio.session.runner.SessionRunner`), used instead of a search in this pose's metering
-        frame. With ``confirm_board`` the metering frame is searched anyway (once, no re-metering) and the
-        given pose kept only if the two agree (:func:`board_poses_agree`); else this pose's own is used."""
+        frame once its corners are found again where it puts them (:meth:`_still`: a board or sample holder
+        bumped since shows). When they are not, or with ``confirm_board``, the metering frame is searched
+        (once, no re-metering) and the given pose kept only if the two agree (:func:`board_poses_agree`);
+        else this pose's own is used. The result's ``board_source`` says which: ``reused`` (corners found
+        again), ``confirmed``, ``replaced``, or ``unverified`` (the board found in neither way: the given pose
+        is kept), ``detected`` without a given pose."""
         st = self.settings
         gain = st.gain if plan is None else plan.gain
         flags = 0
@@ -218,11 +232,13 @@ class Pipeline:
         known, board, cam_pose, source = board, None, None, None
         if known is not None:
             board, cam_pose, source = known, known.pose, "reused"
-            if confirm_board:
+            if confirm_board or not self._still(frame, px, known):
                 found, _ = self._locate(frame, px, None)
-                if found is not None and not board_poses_agree(known, found):
+                if found is None:
+                    source = "unverified"
+                elif not board_poses_agree(known, found):
                     board, cam_pose, source = found, found.pose, "replaced"
-                elif found is not None:
+                else:
                     source = "confirmed"
         for _ in range(0 if known is not None else st.meter_tries):
             board, cam_pose = self._locate(frame, px, camera_pose_hint)

@@ -28,9 +28,10 @@ CONFIG = dict(seed=5, width=240, height=180, focal_px=285.0, backlash_ticks=0.0,
 COLUMNS = ("wi", "wo", "f", "sigma", "n_pixels", "flags", "pose")
 
 
-def run_session(directory, *, stop_after=None, resume=False, config=CONFIG, plan=None, on_store=None):
+def run_session(directory, *, stop_after=None, resume=False, config=CONFIG, plan=None, on_store=None, on_pose=None):
     """Run (or resume) ``plan`` (default: the small plan) on a fresh simulated rig; ``stop_after``: stop after that
-    pose; ``on_store(store)``: called with the opened store before the runner reads it."""
+    pose; ``on_store(store)``: called with the opened store before the runner reads it; ``on_pose(sim, index)``:
+    called when the rig stands at a pose, before its frames."""
     plan = small_plan() if plan is None else plan
     sim = SimRig(config=SimRigConfig(**config)).start()
     devices = None
@@ -43,6 +44,8 @@ def run_session(directory, *, stop_after=None, resume=False, config=CONFIG, plan
 
         def before(index):
             sim.begin_pose(index)
+            if on_pose is not None:
+                on_pose(sim, index)
             if index == stop_after:
                 runner.request_stop()
 
@@ -54,11 +57,14 @@ def run_session(directory, *, stop_after=None, resume=False, config=CONFIG, plan
         sim.stop()
 
 
-def assert_bit_identical(a_dir, b_dir):
+def assert_bit_identical(a_dir, b_dir, poses=None):
+    """The two sessions' samples are the same bits (``poses``: of those poses only)."""
     _, a = load_session(a_dir)
     _, b = load_session(b_dir)
-    assert np.array_equal(np.unique(a.pose), np.unique(b.pose))
-    for k in np.unique(a.pose):
+    if poses is None:
+        assert np.array_equal(np.unique(a.pose), np.unique(b.pose))
+        poses = np.unique(a.pose)
+    for k in poses:
         x, y = a.subset(a.pose == k), b.subset(b.pose == k)
         for c in COLUMNS:
             assert np.array_equal(getattr(x, c), getattr(y, c)), f"pose {k}: column {c} differs"

@@ -12,6 +12,7 @@ import pytest
 
 from gonio.pipeline.markers import BoardPose, board_poses_agree
 from gonio.plan.plan import CaptureSettings, Plan
+from gonio.rig.kinematics import load_rig
 from gonio.session.store import load_session, scan_samples
 from tests.session.test_bit_identical_resume import assert_bit_identical, run_session
 
@@ -23,7 +24,7 @@ def plan() -> Plan:
     return Plan(poses=np.radians(np.asarray(POSES_DEG, dtype=float)), capture=CaptureSettings(), generator="custom")
 
 
-def run(directory, *, stop_after=None, resume=False, edit_last_board=None, edit_last_meta=None):
+def run(directory, *, stop_after=None, resume=False, edit_last_board=None, edit_last_meta=None, on_pose=None):
     """Run (or resume) the plan on a fresh simulated rig (the bit-identity tests' run_session);
     ``edit_last_board(board record)`` / ``edit_last_meta(meta)`` change the store's last record's board pose / meta
     as the resumed runner reads it."""
@@ -35,7 +36,22 @@ def run(directory, *, stop_after=None, resume=False, edit_last_board=None, edit_
             edit_last_meta(store.last_meta)
 
     return run_session(directory, stop_after=stop_after, resume=resume, plan=plan(),
-                       on_store=None if edit_last_board is edit_last_meta is None else edit)
+                       on_store=None if edit_last_board is edit_last_meta is None else edit, on_pose=on_pose)
+
+
+class Bumped:
+    """The simulator's geometry with the camera ``shift`` metres off in the sample frame and looking as before:
+    to the camera, the board and sample holder were pushed by −``shift`` while the servos stood still."""
+
+    def __init__(self, geometry, shift):
+        self.geometry, self.shift = geometry, np.asarray(shift, dtype=np.float64)
+
+    def camera_pose(self, joints):
+        position, R = self.geometry.camera_pose(joints)
+        return position + self.shift, R
+
+    def __getattr__(self, name):
+        return getattr(self.geometry, name)
 
 
 def metas(directory) -> dict[int, dict]:
@@ -60,6 +76,26 @@ def test_a_camera_that_has_not_moved_reuses_the_board_pose_of_the_pose_before(re
     assert cam[0] == cam[1] == cam[2] != cam[3] == cam[4]  # the plan keeps the camera still within each group
     _, s = load_session(reference)
     assert not np.any(s.flags & 4)  # NO_BOARD: every pose has a board pose
+
+
+def test_a_board_bumped_while_the_camera_stands_still_is_found_again(tmp_path, reference):
+    def bump(sim, index):  # between poses 1 and 2: the camera's servos have not moved, the board has
+        if index == 2:
+            sim.geometry = Bumped(sim.geometry, [0.002, 0.0, 0.0])
+
+    d = tmp_path / "s"
+    assert run(d, on_pose=bump).status == "completed"
+    m, ref = metas(d), metas(reference)
+    assert [m[k]["board_source"] for k in range(5)] == ["detected", "reused", "replaced", "detected", "reused"]
+    assert [m[k]["board_from"] for k in range(5)] == [0, 0, 2, 3, 3]
+    # pose 2's own board pose: it disagrees with pose 0's, and puts the camera where the bump did (within the
+    # ~1.5 mm a board pose at 320×240 is good for: its rvec's σ ≈ 1.7 mrad at 0.6 m)
+    before, after = (BoardPose.from_record(m[k]["board_pose"]) for k in (0, 2))
+    assert not board_poses_agree(before, after)
+    rig = load_rig()
+    truth = rig.camera_pose(rig.as_array(m[2]["joints_rad"]))[0] + [0.002, 0.0, 0.0]
+    assert np.linalg.norm(after.pose.centre - truth) < 2e-3
+    assert_bit_identical(reference, d, poses=[0, 1])  # before the bump: the same bits
 
 
 def test_a_resumed_run_confirms_the_stored_board_pose_and_measures_the_same_bits(tmp_path, reference):
