@@ -72,8 +72,29 @@ def write_json_atomic(path: Path, obj: Mapping[str, Any]) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     data = (json.dumps(_jsonable(obj), indent=1, allow_nan=False) + "\n").encode()
     _write_new_file(tmp, data)
-    os.replace(tmp, path)  # replaces a link itself, never its target
+    try:
+        os.replace(tmp, path)  # replaces a link itself, never its target
+    except OSError:
+        _unlink_quietly(tmp)
+        raise
     _fsync_dir(path.parent)
+
+
+def _unlink_quietly(path: Path) -> None:
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+
+
+def write_failed(path: Path, exc: OSError) -> DataError:
+    """The one line for a session file that could not be written (a full disk, a read-only mount, or a planted
+    directory, FIFO or symbolic link at one of the store's names), saying that nothing stored is lost."""
+    why = {errno.ELOOP: "is a symbolic link; a session's files are never written through links",
+           errno.EISDIR: "is a directory, not a file gonio may write; remove it",
+           errno.ENXIO: "is not a regular file (a FIFO?); remove it"}.get(exc.errno, f"cannot write: {exc.strerror or exc}")
+    return DataError(f"{path}: {why}; every record already in {SAMPLES} is kept, and `gonio resume` continues "
+                     "the session once this is fixed")
 
 
 def _write_new_file(path: Path, data: bytes) -> None:
@@ -89,8 +110,11 @@ def _write_new_file(path: Path, data: bytes) -> None:
         while view:
             view = view[os.write(fd, view):]
         os.fsync(fd)
-    finally:
+    except BaseException:  # e.g. ENOSPC: no partial file is left under the temporary name
         os.close(fd)
+        _unlink_quietly(path)
+        raise
+    os.close(fd)
 
 
 # -- reading, never through a link -------------------------------------------------------------------
@@ -158,8 +182,11 @@ def _quarantine(d: Path, path: Path, scan: ScanResult) -> dict:
     replace ``samples.jsonl`` by its good lines (a new file renamed over it). Returns the repair entry."""
     data = read_file_nofollow(path, MAX_SAMPLES_FILE, "samples file")[: scan.good_end]
     bad = [(a, b) for _ln, a, b, _why in scan.damaged]
-    qfd = os.open(d / QUARANTINE, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW, 0o644)
+    # O_NONBLOCK: a FIFO planted at this name is refused (ENXIO, or not S_ISREG), never waited on for a reader
+    qfd = os.open(d / QUARANTINE, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
     try:
+        if not stat.S_ISREG(os.fstat(qfd).st_mode):
+            raise OSError(errno.ENXIO, "not a regular file", str(d / QUARANTINE))
         for a, b in bad:
             chunk = data[a:b] if data[a:b].endswith(b"\n") else data[a:b] + b"\n"
             view = memoryview(chunk)
@@ -390,8 +417,13 @@ class SessionStore:
                 manifest["stopped"] = None if resume else manifest.get("stopped")
                 manifest["running"] = {"records_before": scan.n_records, "started": _wall()} if resume else None
                 write_json_atomic(d / MANIFEST, manifest)
-        except BaseException:
-            os.close(fd)
+        except BaseException as exc:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+            if isinstance(exc, OSError):  # quarantine.jsonl, the repaired copy or the manifest could not be written
+                raise write_failed(Path(exc.filename) if exc.filename else d, exc) from None
             raise
         store = cls(d, manifest, fd, scan)
         store.repaired = repaired
@@ -426,10 +458,19 @@ class SessionStore:
             raise ConfigError.field(None, "pose_index", pose_index, "must be >= 0")
         samples = SampleSet(**{**samples.to_dict(), "pose": np.full(len(samples), pose_index, dtype=np.int64)})
         line = encode_record(pose_index, samples, meta or {})
-        view = memoryview(line)
-        while view:
-            view = view[os.write(self._fd, view):]
-        os.fsync(self._fd)
+        size = os.fstat(self._fd).st_size
+        try:
+            view = memoryview(line)
+            while view:
+                view = view[os.write(self._fd, view):]
+            os.fsync(self._fd)
+        except OSError as exc:  # e.g. a full disk: cut what landed, so the next append starts a clean line
+            try:
+                os.ftruncate(self._fd, size)
+                os.fsync(self._fd)
+            except OSError:
+                pass  # the partial line has no newline: a reader drops it as torn
+            raise write_failed(self.directory / SAMPLES, exc) from None
         self._records[pose_index] = len(samples)
         self.n_records += 1
         self.last_meta = dict(meta or {})
@@ -467,7 +508,10 @@ class SessionStore:
         if reserved:
             raise ConfigError.field(None, "manifest", sorted(reserved)[0], "is managed by the store")
         self._manifest.update(_jsonable(fields))
-        write_json_atomic(self.directory / MANIFEST, self._manifest)
+        try:
+            write_json_atomic(self.directory / MANIFEST, self._manifest)
+        except OSError as exc:
+            raise write_failed(Path(exc.filename) if exc.filename else self.directory / MANIFEST, exc) from None
 
     def finish(self, exit_status: str, **fields: Any) -> None:
         """Record how the session ended (``"completed"``, ``"interrupted"``, ``"error: ..."``), the stop
