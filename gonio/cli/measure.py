@@ -216,7 +216,7 @@ def _manifest_rig(manifest, where: str, rig_file: str | None = None):
         return load_rig(str(src))
     if hashlib.sha256(str(text).encode("utf-8")).hexdigest() != rec.get("sha256"):
         raise DataError(f"{where}: rig.toml does not match its rig.sha256 (the manifest was altered)")
-    rig = load_rig(text=str(text), source=f"{where} rig")
+    rig = load_rig(text=str(text), source=f"{where} rig", strict=False)  # what the session was started with
     src = rig_file or rec.get("source") or rec.get("name")
     try:
         declared = load_rig(src.removeprefix("rigs/").removesuffix(".toml") if str(src).startswith("rigs/") else src)

@@ -479,9 +479,36 @@ def read_rig_text(path: str | Path | None = None) -> tuple[str, str]:
     return text, src
 
 
-def load_rig(path: str | Path | None = None, *, text: str | None = None, source: str | None = None) -> Rig:
+#: The keys a rig file may hold (the shipped ``default.toml`` documents each); anything else is a typo that would
+#: otherwise be ignored silently, the key it meant taking its default (``directon = -1``: the joint turns the
+#: wrong way). ``calibration`` is checked by :meth:`gonio.rig.chain.ChainErrors.from_dict`.
+RIG_KEYS = {"name", "layout", "geometry", "bus", "joints", "calibration"}
+GEOMETRY_KEYS = {"light_arm_radius_m", "camera_arm_radius_m", "camera_body_radius_m", "light_beam_radius_m",
+                 "min_arm_separation_deg", "light_azimuth_deg"}
+BUS_KEYS = {"baud", "protocol"}
+JOINT_KEYS = {"name", "arm", "kind", "servo_id", "model", "gear_ratio", "zero_offset_deg", "direction", "min_deg",
+              "max_deg", "max_speed_deg_s", "max_accel_deg_s2"}
+
+
+def _known_keys(src, where: str, table: dict, known: set) -> None:
+    """Refuse a key that is not in ``known``, naming it and the known key it most resembles."""
+    import difflib
+
+    for key in table:
+        if key not in known:
+            near = difflib.get_close_matches(str(key), sorted(known), n=1)
+            hint = f"did you mean {near[0]!r}?" if near else f"known keys: {', '.join(sorted(known))}"
+            raise ConfigError.field(src, f"{where}{key}", table[key], f"unknown key ({hint})")
+
+
+def load_rig(path: str | Path | None = None, *, text: str | None = None, source: str | None = None,
+             strict: bool = True) -> Rig:
     """Load a rig TOML file (a path, or a name of a shipped rig: ``"default"``, ``"turntable"``), or
-    parse ``text`` (e.g. the copy a session manifest keeps; ``source`` names it in error messages)."""
+    parse ``text`` (e.g. the copy a session manifest keeps; ``source`` names it in error messages).
+
+    An unknown key (a typo) is refused, naming it; ``strict=False`` ignores unknown keys — for the rig text a
+    session recorded, which was accepted when the session started, so that an older session stays resumable.
+    ``bus.protocol``, when given, must be 2.0 (gonio speaks Dynamixel Protocol 2.0 only)."""
     if text is None:
         text, src = read_rig_text(path)
     else:
@@ -489,6 +516,16 @@ def load_rig(path: str | Path | None = None, *, text: str | None = None, source:
     data = parse_toml(text, src)
     geo = _table(src, "geometry", data.get("geometry", {}))
     bus = _table(src, "bus", data.get("bus", {}))
+    if strict:
+        _known_keys(src, "", data, RIG_KEYS)
+        _known_keys(src, "geometry.", geo, GEOMETRY_KEYS)
+        _known_keys(src, "bus.", bus, BUS_KEYS)
+        for i, j in enumerate(data.get("joints", []) if isinstance(data.get("joints"), list) else []):
+            if isinstance(j, dict):
+                _known_keys(src, f"joints[{i}].", j, JOINT_KEYS)
+        protocol = bus.get("protocol", 2.0)
+        if isinstance(protocol, bool) or protocol != 2.0:
+            raise ConfigError.field(src, "bus.protocol", protocol, "must be 2.0 (gonio speaks Dynamixel Protocol 2.0)")
     layout = data.get("layout", "arms")
     if not isinstance(layout, str) or layout not in LAYOUTS:
         raise ConfigError.field(src, "layout", layout, f"must be one of {', '.join(LAYOUTS)}")
