@@ -715,6 +715,41 @@ def _nothing_to_resume(d) -> bool:
     return True
 
 
+def _check_plan_against_records(d) -> None:
+    """Refuse a plan that no longer describes the stored poses: every record names the plan pose it measured
+    (``pose``) and the angles it was measured at (``meta.pose_rad``, [θi, φi, θo, φo] rad, written from the
+    plan); a manifest whose plan was edited, reordered or replaced since would make a resume measure the poses
+    still missing at other angles than planned, and skip planned angles that no record holds, yet end
+    "completed". Records without ``pose_rad`` (older sessions) are not checked; nor is an adaptive session.
+    Read-only: run before the store marks the session as resumed."""
+    import numpy as np
+
+    from gonio.errors import DataError
+    from gonio.plan.plan import Plan
+    from gonio.session.store import MANIFEST, SAMPLES, _read_manifest, scan_samples
+
+    manifest = _read_manifest(d)
+    if "adaptive" in manifest:  # an adaptive session's plan is rebuilt from its rounds as it grows
+        return
+    plan = Plan.from_dict(manifest.get("plan"), source=str(d / MANIFEST))
+    scan = scan_samples(d / SAMPLES)
+    for pose in sorted(scan.records):
+        got = scan.records[pose][1].get("pose_rad")
+        if got is None:
+            continue
+        if pose >= len(plan):
+            raise DataError(f"{d / MANIFEST}: plan has {len(plan)} poses, but {d / SAMPLES} holds a record of pose "
+                            f"{pose}: the manifest's plan is not the one this session measured")
+        try:
+            stored = np.asarray(got, dtype=np.float64).reshape(4)
+        except (TypeError, ValueError):
+            continue  # not angles: the record's own reader refuses it where it matters
+        if not np.allclose(stored, plan.poses[pose], rtol=0.0, atol=1e-9):
+            raise DataError(f"{d / MANIFEST}: plan.poses[{pose}] = {np.round(plan.poses[pose], 6).tolist()} rad, but "
+                            f"pose {pose} was measured at {np.round(stored, 6).tolist()}: the manifest's plan is not "
+                            "the one this session measured (edited or replaced); nothing is resumed")
+
+
 def run_resume(args) -> int:
     from pathlib import Path
 
@@ -734,6 +769,7 @@ def run_resume(args) -> int:
 
             return finish_from_directory(d, manifest, rig_file=args.rig)
         return 0
+    _check_plan_against_records(d)  # before the store marks the session as resumed
     store = SessionStore.open(d)
     if store.repaired is not None:
         q = store.repaired["quarantined"]
