@@ -30,16 +30,16 @@ def session_status(directory) -> dict:
     done = set(scan.records)
     # per-record lab clock (the runner writes meta["lab_time_s"]); a finished run also leaves its total
     lab = [m.get("lab_time_s", m.get("lab_time")) for _, m in scan.records.values()]
-    lab = [t for t in lab if isinstance(t, (int, float))]
+    lab = [t for t in lab if _seconds(t) is not None]
     last_run = manifest.get("last_run") if isinstance(manifest.get("last_run"), dict) else {}
     runs_list = manifest.get("runs") if isinstance(manifest.get("runs"), list) else []
     runs = [r.get("lab_time_s") for r in runs_list if isinstance(r, dict)]
-    runs = [t for t in runs if isinstance(t, (int, float)) and not isinstance(t, bool)]
+    runs = [t for t in runs if _seconds(t) is not None]
     current = _killed_run(manifest, scan)  # a run in progress or killed: its records' lab time so far
     if runs or current is not None:  # every finished (or killed) run recorded its lab time: the session's total
         lab_time = float(sum(runs)) + (current["lab_time_s"] if current else 0.0)
     elif manifest.get("exit_status"):  # older sessions kept the last run's only
-        lab_time = last_run.get("lab_time_s", manifest.get("lab_time"))
+        lab_time = _seconds(last_run.get("lab_time_s", manifest.get("lab_time")))
     else:
         lab_time = max(lab) if lab else None
     return {
@@ -63,6 +63,16 @@ def session_status(directory) -> dict:
         "missing_poses": missing_poses(manifest, len(done) + len(scan.damaged)),
     }
 
+
+
+def _seconds(value) -> float | None:
+    """A lab time read from the manifest or a record as a finite number of seconds, else None (a hand-edited
+    ``"abc"``, ``NaN`` or ``1e308`` twice is not a lab time: it reads as unknown, never a traceback or ``nan s``)."""
+    import math
+
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    return float(value) if math.isfinite(value) and 0 <= value <= 1e9 else None
 
 
 def _failed_poses(manifest) -> list[tuple[int, str]]:
