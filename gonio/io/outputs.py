@@ -67,7 +67,8 @@ def check_output(path, *, option: str, force: bool = False, suffixes: tuple[str,
     """``path`` if an output may be written there, else a one-line :class:`ConfigError` naming
     ``option``: inside a session directory (its own files or anything else in it: a session directory
     holds only what gonio measured), one of the command's ``inputs`` (or a MERL input's sidecar; even
-    with ``force``), an existing file without ``force``, a directory, a file name ending other than
+    with ``force``), an existing file without ``force``, a directory, a device or FIFO (even with ``force``: the
+    atomic rename would replace the device node, e.g. ``/dev/null``, by a file), a file name ending other than
     ``suffixes``, or a missing parent directory."""
     p = Path(path).expanduser()
     _refuse_in_session(p, path, option, session_root)
@@ -80,6 +81,9 @@ def check_output(path, *, option: str, force: bool = False, suffixes: tuple[str,
         raise ConfigError.field(None, option, str(path), f"must end in {' or '.join(suffixes)}")
     if p.is_dir():
         raise ConfigError.field(None, option, str(path), "is a directory; name a file")
+    if p.exists() and not p.is_symlink() and not p.is_file():  # even with force: the rename would replace it
+        raise ConfigError.field(None, option, str(path), "is not a regular file (a device or a FIFO): an output is "
+                                "written as a new file renamed into place, which would replace it; name a file")
     if (p.exists() or p.is_symlink()) and not force:
         raise ConfigError.field(None, option, str(path), "exists (use --force to overwrite it)")
     if not p.parent.exists():
