@@ -29,6 +29,10 @@ def _as_float_tuple(values, name: str, source: str) -> tuple[float, ...]:
     return out
 
 
+#: Longest settle or readout time a plan may ask for, seconds (an hour per pose; ``--warmup-wait`` has the same bound).
+MAX_WAIT_S = 3600.0
+
+
 @dataclass(frozen=True)
 class CaptureSettings:
     """How each pose is captured.
@@ -48,7 +52,8 @@ class CaptureSettings:
     readout : float
         Per-frame overhead (readout + transfer), seconds.
     settle : float
-        Time to wait after a move before capturing (vibration settling), seconds.
+        Time to wait after a move before capturing (vibration settling), seconds; at most
+        :data:`MAX_WAIT_S` (as ``readout``), like ``--warmup-wait``.
     auto_exposure : bool
         Choose the bracket per pose from its metering frame (:func:`gonio.pipeline.exposure.plan_bracket`
         on the exposure ladder; more frames where the SNR is below target) instead of capturing the
@@ -75,6 +80,8 @@ class CaptureSettings:
             v = float(getattr(self, name))
             if not math.isfinite(v) or v < 0 or (name == "gain" and v == 0):
                 raise DataError(f"plan: capture.{name} = {v!r}: must be finite and positive")
+            if name != "gain" and v > MAX_WAIT_S:  # 1e308 overflowed the lab-time estimate; 1e6 s never ends
+                raise DataError(f"plan: capture.{name} = {v!r}: must be seconds in [0, {MAX_WAIT_S:g}]")
             object.__setattr__(self, name, v)
         if not isinstance(self.auto_exposure, (bool, np.bool_)):
             raise DataError(f"plan: capture.auto_exposure = {self.auto_exposure!r}: must be true or false")
