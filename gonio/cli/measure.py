@@ -661,6 +661,7 @@ def run_measure(args) -> int:
         manifest["sim"] = config.to_dict()
         manifest["calibration"] = _calibration_dict(config.calibration())
         _record_detector(manifest, config.calibration(), rig, pinhole=True)
+        _check_servo_models(rig)  # the simulated servos need their control tables: say so before a session exists
         store = SessionStore.create(out, manifest)
         _say_plan(plan, store, args.quiet, rig)
         return _sim_session(store, plan, store.manifest, args.quiet)
@@ -713,6 +714,20 @@ def _nothing_to_resume(d) -> bool:
         SessionStore.open(d, resume=False).finish("completed")
     print(f"{d}: all {len(plan)} poses are measured; nothing to resume (not counted as a resume)")
     return True
+
+
+def _check_servo_models(rig) -> None:
+    """Every joint's servo model has a control table (:func:`gonio.rig.control_table.load_control_table`), else
+    one line naming the rig file and the joint — checked before the session directory is made (it was made, then
+    left marked running with nothing in it, when the simulated bus refused the model)."""
+    from gonio.errors import ConfigError
+    from gonio.rig.control_table import load_control_table
+
+    for j in rig.joints:
+        try:
+            load_control_table(j.model)
+        except ConfigError as exc:
+            raise ConfigError(f"{rig.source}: joint {j.name}: {exc}") from None
 
 
 def _check_plan_against_records(d) -> None:
