@@ -18,6 +18,9 @@ from gonio.samples import SampleSet
 
 #: Default grazing cutoff: samples with θi or θo above it are excluded (Ngan et al. 2005 fit θ < 80°).
 DEFAULT_MAX_THETA_DEG = 80.0
+#: Largest |f| (1/sr) a fit uses: squares of larger values overflow float64 (√DBL_MAX ≈ 1.34e154), and a sum of
+#: up to 10⁶ of them must stay finite; no measured BRDF comes near (a mirror seen by a 1e-6 sr detector: 1e6 1/sr).
+MAX_ABS_F = 1e150
 
 
 @dataclass(frozen=True)
@@ -171,6 +174,10 @@ def prepare(data, *, max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG, use_fl
         for k in range(3):
             finite &= np.isfinite(a[:, k])
     drop("non-finite", ~finite)
+    with np.errstate(invalid="ignore"):  # a finite value whose square overflows float64 (|f| > √DBL_MAX ≈ 1.3e154)
+        # makes every loss inf/NaN: the fit crashed (no bounded least-squares candidate) or reported rms_rel nan
+        drop(f"beyond {MAX_ABS_F:g} 1/sr", (np.abs(f[:, 0]) > MAX_ABS_F) | (np.abs(f[:, 1]) > MAX_ABS_F)
+             | (np.abs(f[:, 2]) > MAX_ABS_F))
     with np.errstate(invalid="ignore"):
         drop("negative (unmeasured)", (f[:, 0] < 0) | (f[:, 1] < 0) | (f[:, 2] < 0))
         drop("below horizon", (wi[:, 2] <= 0) | (wo[:, 2] <= 0))
