@@ -136,7 +136,14 @@ def open_devices(rig, servo_port: str, controller_port: str, camera, clock, *, l
 
 
 def format_lab_time(seconds: float) -> str:
-    """``h:mm:ss`` (or ``m:ss``) of a lab-time duration."""
+    """``h:mm:ss`` (or ``m:ss``) of a lab-time duration; ``unknown`` for one that is not a finite number (a
+    duration read from a hand-edited file, an estimate that overflowed), never an exception."""
+    try:
+        seconds = float(seconds)
+    except (TypeError, ValueError):
+        return "unknown"
+    if not math.isfinite(seconds):
+        return "unknown"
     s = int(round(max(seconds, 0.0)))
     h, rem = divmod(s, 3600)
     m, s = divmod(rem, 60)

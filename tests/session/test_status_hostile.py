@@ -39,3 +39,12 @@ def test_a_lab_time_that_is_not_seconds_reads_as_unknown(measured, tmp_path, cap
     assert "Traceback" not in out.err and "nan" not in out.out and "inf" not in out.out
     lab = next(line for line in out.out.splitlines() if line.startswith("lab time:"))
     assert lab == "lab time:     unknown" or lab.endswith(" s"), lab  # unknown, or the last run's (finite) time
+
+
+@pytest.mark.parametrize("value, text", [(0.0, "0:00"), (59.6, "1:00"), (3725.0, "1:02:05"), (-3.0, "0:00"),
+                                         (float("inf"), "unknown"), (float("nan"), "unknown"),
+                                         ("abc", "unknown"), (None, "unknown")])
+def test_a_lab_time_is_formatted_or_said_unknown_never_an_exception(value, text):
+    from gonio.session.runner import format_lab_time
+
+    assert format_lab_time(value) == text
