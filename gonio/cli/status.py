@@ -15,19 +15,16 @@ def session_status(directory) -> dict:
     """The facts ``gonio status`` prints, as a dict (read-only; nothing in DIR changes)."""
     from pathlib import Path
 
-    from gonio.session.store import _killed_run, _read_manifest, _samples_path, missing_poses, scan_samples
+    from gonio.session.store import (_killed_run, _read_manifest, _samples_path, missing_poses, plan_pose_count,
+                                     poses_beyond_plan, scan_samples)
 
     d = Path(directory)
     manifest = _read_manifest(d)
     scan = scan_samples(_samples_path(d, manifest))
     plan = manifest.get("plan") or {}
-    from gonio.session.records import MAX_POSE
-
-    poses = plan.get("poses") if isinstance(plan, dict) else None
-    n_plan = plan.get("n_poses", len(poses) if isinstance(poses, list) else None) if isinstance(plan, dict) else None
-    if isinstance(n_plan, bool) or not isinstance(n_plan, int) or not 0 <= n_plan <= MAX_POSE:
-        n_plan = None  # a crafted or damaged plan: unknown, not a loop over 10**30 poses
-    done = set(scan.records)
+    n_plan = plan_pose_count(manifest)  # None for a crafted or damaged plan: unknown, not a loop over 10**30 poses
+    beyond = poses_beyond_plan(manifest, scan.records)
+    done = set(scan.records) - set(beyond)
     # per-record lab clock (the runner writes meta["lab_time_s"]); a finished run also leaves its total
     lab = [m.get("lab_time_s", m.get("lab_time")) for _, m in scan.records.values()]
     lab = [t for t in lab if _seconds(t) is not None]
@@ -47,7 +44,8 @@ def session_status(directory) -> dict:
         "plan": plan.get("generator") if isinstance(plan, dict) else None,
         "plan_poses": n_plan,
         "poses_done": len(done),
-        "samples": sum(len(s) for s, _ in scan.records.values()),
+        "samples": sum(len(s) for p, (s, _) in scan.records.items() if p in done),
+        "beyond_plan": beyond,  # records of poses the plan does not have: not counted, not loaded
         "remaining": None if n_plan is None else sum(1 for i in range(n_plan) if i not in done),
         "lab_time": lab_time,  # seconds, summed over the finished runs
         "lab_time_runs": len(runs) + (current is not None),  # runs that sum covers (0: older session)
@@ -60,7 +58,7 @@ def session_status(directory) -> dict:
         "failed_poses": [(k, why) for k, why in _failed_poses(manifest) if k not in done],
         "damaged": scan.describe_damage() if scan.damaged else None,
         "n_damaged": len(scan.damaged),
-        "missing_poses": missing_poses(manifest, len(done) + len(scan.damaged)),
+        "missing_poses": missing_poses(manifest, len(scan.records) + len(scan.damaged)),
     }
 
 
@@ -105,6 +103,11 @@ def run(args) -> int:
     status = s["exit_status"] or "none (still running, or killed: resume with `gonio resume DIR`)"
     print(f"exit status:  {status}")
     print(f"started:      {s['started']}; stopped: {s['stopped'] or '-'}; resumed {s['resumes']} time(s)")
+    if s["beyond_plan"]:
+        b = s["beyond_plan"]
+        print(f"NOT IN PLAN: {len(b)} record(s) of poses the plan does not have (pose "
+              f"{', '.join(map(str, b[:5]))}{' …' if len(b) > 5 else ''}): not counted, and left out when the "
+              "session is read (another session's records, or an edited file?)")
     if s["missing_poses"]:
         print(f"MISSING: {s['missing_poses']} pose(s) the manifest counted at its last stop are not in samples.jsonl "
               "(a truncated or replaced file?); restore it from a backup, or `gonio resume DIR` measures them again")

@@ -195,13 +195,18 @@ def observations_from_store(directory, rig):
     """``(cams, highs, refused)`` from the records of the calibration session in ``directory``: every board
     pose is a camera observation, every kept highlight a highlight observation; ``refused``: ``(pose, reason)``."""
     from gonio.errors import DataError
-    from gonio.session.store import _read_manifest, _samples_path, scan_samples
+    from gonio.session.store import _read_manifest, _samples_path, poses_beyond_plan, scan_samples
     from pathlib import Path
 
     d = Path(directory)
-    scan = scan_samples(_samples_path(d, _read_manifest(d)))
+    manifest = _read_manifest(d)
+    scan = scan_samples(_samples_path(d, manifest))
     cams, highs, refused = [], [], []
+    beyond = set(poses_beyond_plan(manifest, scan.records))
     for pose in sorted(scan.records):
+        if pose in beyond:
+            refused.append((pose, "not a pose of this session's plan"))
+            continue
         meta = scan.records[pose][1]
         try:
             j = rig.as_array({k: float(v) for k, v in meta["joints_rad"].items()})

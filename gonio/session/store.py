@@ -258,8 +258,28 @@ def missing_poses(manifest, present: int) -> int:
     return max(0, count - present - moved)
 
 
+def plan_pose_count(manifest) -> int | None:
+    """The number of poses of the manifest's plan (``plan.n_poses``, else its ``poses``' count); None when the
+    manifest does not say or says something that is not a pose count (a crafted or damaged plan)."""
+    plan = manifest.get("plan") if isinstance(manifest, Mapping) else None
+    if not isinstance(plan, Mapping):
+        return None
+    poses = plan.get("poses")
+    n = plan.get("n_poses", len(poses) if isinstance(poses, list) else None)
+    return n if isinstance(n, int) and not isinstance(n, bool) and 0 <= n <= MAX_POSE else None
+
+
+def poses_beyond_plan(manifest, poses) -> list[int]:
+    """The pose indices among ``poses`` (a session's records) that its plan does not have — a record of pose 500
+    in a 38-pose plan comes from another session or an edit, not from this plan: its samples are not this
+    session's. [] when the plan's size is not known."""
+    n = plan_pose_count(manifest)
+    return [] if n is None else sorted(int(p) for p in poses if p >= n)
+
+
 def load_session(path) -> tuple[dict, SampleSet]:
-    """``(manifest, samples)`` of a session directory, read-only; a torn last record is ignored.
+    """``(manifest, samples)`` of a session directory, read-only; a torn last record is ignored, and records of
+    poses the plan does not have (:func:`poses_beyond_plan`) are left out with a warning.
 
     Samples are in pose order, one record per pose. Raises :class:`DataError` naming the file.
     """
@@ -275,6 +295,15 @@ def load_session(path) -> tuple[dict, SampleSet]:
         warnings.warn(f"{_samples_path(d, manifest)}: {len(scan.damaged)} damaged record(s) skipped: "
                       f"{scan.describe_damage()}; `gonio repair {d}` quarantines them and `gonio resume {d}` "
                       "measures their poses again", stacklevel=2)
+    beyond = poses_beyond_plan(manifest, scan.records)
+    if beyond:
+        import warnings
+
+        for p in beyond:
+            del scan.records[p]
+        warnings.warn(f"{_samples_path(d, manifest)}: {len(beyond)} record(s) of poses the plan does not have "
+                      f"(pose {', '.join(map(str, beyond[:5]))}{' …' if len(beyond) > 5 else ''}; the plan has "
+                      f"{plan_pose_count(manifest)}) left out: not this session's measurements", stacklevel=2)
     return manifest, scan.samples()
 
 

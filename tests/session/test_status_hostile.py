@@ -48,3 +48,35 @@ def test_a_lab_time_is_formatted_or_said_unknown_never_an_exception(value, text)
     from gonio.session.runner import format_lab_time
 
     assert format_lab_time(value) == text
+
+
+def test_a_record_of_a_pose_the_plan_does_not_have_is_not_counted_nor_loaded(measured, tmp_path, capsys):
+    """A record of pose 500 in a small plan (another session's line pasted in): its samples went into fit and
+    export, and status said more poses were done than the plan has (found by QA, qa-hostile)."""
+    import warnings
+
+    import numpy as np
+
+    from gonio.samples import SampleSet
+    from gonio.session.records import encode_record
+    from gonio.session.store import load_session, scan_samples
+
+    d = tmp_path / "s"
+    shutil.copytree(measured, d)
+    _, before = load_session(d)
+    scan = scan_samples(d / "samples.jsonl")
+    s, meta = scan.records[max(scan.records)]
+    s = SampleSet(**{**s.to_dict(), "pose": np.full(len(s), 500, dtype=np.int64)})  # a good record of pose 500
+    with open(d / "samples.jsonl", "ab") as f:
+        f.write(encode_record(500, s, meta))
+    capsys.readouterr()
+    assert main(["status", str(d)]) == 0
+    out = capsys.readouterr().out
+    n_plan = int(next(line for line in out.splitlines() if line.startswith("plan poses:")).split()[-1])
+    assert f"poses done:   {n_plan} ({len(before)} samples)" in out
+    assert "NOT IN PLAN: 1 record(s)" in out and "pose 500" in out
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _, after = load_session(d)
+    assert len(after) == len(before) and 500 not in set(after.pose.tolist())
+    assert any("pose 500" in str(w.message) and "left out" in str(w.message) for w in caught)
