@@ -26,10 +26,15 @@ from gonio.geometry import angles_from_dirs, dirs_from_half_diff
 from gonio.plan.ordering import MotionModel, optimize_order, raster_order
 from gonio.plan.plan import CaptureSettings, Plan
 
-__all__ = ["PlanParam", "Generator", "GENERATORS", "make_plan", "solve_plan_joints",
-           "grid_poses", "isotropic_poses", "in_plane_poses", "half_diff_poses"]
+__all__ = ["PlanParam", "Generator", "GENERATORS", "make_plan", "solve_plan_joints", "candidate_count",
+           "MAX_PLAN_CANDIDATES", "grid_poses", "isotropic_poses", "in_plane_poses", "half_diff_poses"]
 
 _TOL = 1e-9
+#: Most candidate poses a generator may produce, checked before they are built. The densest grid of
+#: benchmarks/bench_plan.py (5°/20°) has 73,441; 10⁶ poses already take ~16 days at the default plan's
+#: ~1.4 s per pose. Past it a step typed in radians where degrees are expected (``--theta-step 0.17``)
+#: would build tens of millions of poses and their drop records and exhaust the memory.
+MAX_PLAN_CANDIDATES = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -136,6 +141,34 @@ def half_diff_poses(n_theta_h: int, theta_d_step: float, phi_d_step: float, thet
     return np.column_stack(angles_from_dirs(wi, wo))
 
 
+def _n_steps(hi: float, step: float, start: float = 0.0) -> int:
+    """``len(_steps(hi, step, start))`` without building the array."""
+    return max(int(math.floor((hi - start) / step + 1e-9)) + 1, 0)
+
+
+def candidate_count(name: str, values: Mapping[str, Any]) -> int:
+    """How many poses generator ``name`` returns for ``values`` (radians), counted as its pose
+    function builds them (the pole once; see each function above), without building them."""
+    v = values
+    if name == "grid":
+        nt = _n_steps(v["theta_max"], v["theta_step"])
+        n_phi = max(1, int(round(2 * math.pi / v["phi_step"])))
+        per_side = (1 + (nt - 1) * n_phi) if nt else 0
+        return per_side * per_side
+    if name == "isotropic":
+        nt = _n_steps(v["theta_max"], v["theta_step"])
+        n_phi = max(1, int(round(math.pi / v["phi_step"])))
+        return nt * ((1 + (nt - 1) * (n_phi + 1)) if nt else 0)
+    if name == "in_plane":
+        so = v["theta_o_step"]
+        return _n_steps(v["theta_max"], v["theta_i_step"]) * _n_steps(
+            v["theta_max"], so, start=-so * math.floor(v["theta_max"] / so + 1e-9))
+    if name == "half_diff":
+        return int(v["n_theta_h"]) * _n_steps(math.pi / 2 - _TOL, v["theta_d_step"]) * max(
+            1, int(round(math.pi / v["phi_d_step"])))
+    raise KeyError(f"candidate_count: no pose count for generator {name!r}")
+
+
 _A = math.radians
 GENERATORS: dict[str, Generator] = {g.name: g for g in (
     Generator("grid", grid_poses, {
@@ -215,6 +248,12 @@ def make_plan(name: str, *, rig=None, capture: CaptureSettings | None = None, or
     if order not in ("optimized", "raster"):
         raise ConfigError.field(source, "order", order, "must be 'optimized' or 'raster'")
     values = {k: spec.coerce(name, k, params.get(k, spec.default), source) for k, spec in gen.params.items()}
+    n = candidate_count(name, values)
+    if n > MAX_PLAN_CANDIDATES:
+        shown = ", ".join(f"{k} {math.degrees(values[k]):g} deg" if spec.kind == "angle" else f"{k} {values[k]:g}"
+                          for k, spec in gen.params.items())
+        raise ConfigError.field(source, "plan", name, f"{shown} gives {n:,} poses, more than {MAX_PLAN_CANDIDATES:,} "
+                                "(on the command line plan angles are in degrees: a 10 deg step is --theta-step 10, not 0.17)")
     rig = rig if isinstance(rig, Rig) else load_rig(rig)
     capture = capture or CaptureSettings()
 
