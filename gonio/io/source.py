@@ -176,7 +176,10 @@ def load_source(path) -> Measured:
 
         content = read_npz(p)
         manifest = content.metadata.get("manifest") or {}
-        return Measured(p, "npz", dict(manifest), content.samples, content.table)
+        samples = content.samples
+        if samples is not None and len(samples) == 0 and content.table is not None:
+            samples = None  # a table's export (`gonio export T.binary --format npz`) reads as the table did
+        return Measured(p, "npz", dict(manifest), samples, content.table)
     if kind == "csv":
         from gonio.io.csv import read_csv
 

@@ -1,0 +1,50 @@
+"""An NPZ that holds a table and no samples (``gonio export TABLE.binary --format npz``) reads like the
+MERL table it came from: fit, plot and MERL export use the table's cells; a CSV export is refused as for
+the table itself, not written empty."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import gonio
+from gonio.brdf import make
+from gonio.cli.main import main
+from gonio.io.merl import MerlTable, cell_directions, read_merl, write_merl
+
+MODEL = make("microfacet", kd=[0.3, 0.2, 0.1], ks=0.8, alpha=0.25, f0=0.04)
+
+
+@pytest.fixture(scope="module")
+def table_npz(tmp_path_factory):
+    d = tmp_path_factory.mktemp("tnpz")
+    wi, wo, ok = cell_directions()
+    values = np.full((90, 90, 180, 3), np.nan)
+    values[ok] = MODEL.eval(wi[ok], wo[ok])
+    write_merl(d / "m.binary", MerlTable(values))
+    assert main(["export", str(d / "m.binary"), "--format", "npz", "-o", str(d / "m.npz")]) == 0
+    return d
+
+
+def test_table_npz_loads_as_a_table(table_npz):
+    data = gonio.load(table_npz / "m.npz")
+    assert data.table is not None and data.samples is None
+    assert len(data.to_samples()) == int(data.table.measured.sum())
+
+
+def test_table_npz_fits_like_its_merl_table(table_npz):
+    r = gonio.fit(table_npz / "m.npz", "microfacet", max_theta_deg=80)
+    assert r.params["alpha"] == pytest.approx(0.25, rel=1e-3)
+
+
+def test_table_npz_exports_back_to_the_same_merl_table(table_npz):
+    out = table_npz / "back.binary"
+    assert main(["export", str(table_npz / "m.npz"), "--format", "merl", "-o", str(out)]) == 0
+    np.testing.assert_array_equal(read_merl(out).values, read_merl(table_npz / "m.binary").values)
+
+
+def test_table_npz_csv_export_is_refused_not_written_empty(table_npz, capsys):
+    out = table_npz / "m.csv"
+    assert main(["export", str(table_npz / "m.npz"), "--format", "csv", "-o", str(out)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "without samples" in err[0] and not out.exists()
