@@ -86,7 +86,7 @@ def load_entries(sources: Sequence[str], fit_files: Sequence[str] = (), *, fit_m
                             "first pose)")
         e = Entry(Path(src).name or str(src), data)
         if given:
-            e.fits = {label: (model, rep) for label, model, rep in given}
+            e.fits = {label: (model, scored_on(model, rep, data)) for label, model, rep in given}
         elif fit_models:
             samples = preview_samples(data, e.notes)
             for m in fit_models:
@@ -97,6 +97,38 @@ def load_entries(sources: Sequence[str], fit_files: Sequence[str] = (), *, fit_m
                     e.notes.append(f"fit of {m} failed: {exc}")
         entries.append(e)
     return entries
+
+
+def model_errors(model, samples, n_params: int = 0) -> dict:
+    """``rms_rel`` and ``chi2_red`` of ``model`` on ``samples`` as :func:`gonio.fit.fit.fit` reports them
+    for its own fit (gonio/fit/fit.py): on the samples :func:`gonio.fit.data.prepare` keeps,
+    rms_rel = √(Σ (cos θi (m − y))² / Σ (cos θi y)²) and, where the samples state every σ,
+    χ²/dof = Σ ((m − y)/σ)² / (3N − k), k = ``n_params``; None where not defined."""
+    from gonio.errors import DataError
+    from gonio.fit.data import prepare
+
+    try:
+        d = prepare(samples)
+    except DataError:
+        return {"rms_rel": None, "chi2_red": None, "n": 0}
+    m = np.asarray(model.eval(d.wi, d.wo), dtype=np.float64)
+    c = d.cos_i[:, None]
+    rms = float(np.sqrt(np.sum((c * (m - d.y)) ** 2) / max(np.sum((c * d.y) ** 2), 1e-300)))
+    chi2 = None
+    if d.sigma is not None:
+        chi2 = float(np.sum(((m - d.y) / d.sigma) ** 2) / max(3 * len(d) - int(n_params), 1))
+    return {"rms_rel": rms if np.isfinite(rms) else None, "chi2_red": chi2, "n": len(d)}
+
+
+def scored_on(model, rep: dict, data) -> dict:
+    """A saved fit's report with its errors measured on ``data`` (:func:`model_errors`): the JSON's own
+    errors are those of the data it was fitted to, and one FIT.json is shown for every input."""
+    own = rep.get("error") or {}
+    err = model_errors(model, data.to_samples(), rep.get("n_params") or 0)
+    note = (f"errors on this input's {err['n']} samples; the fit's own (on its {rep.get('n_used', '?')} samples): "
+            f"relative RMS {_fmt(own.get('rms_rel'))}, χ²/dof {_fmt(own.get('chi2_red'))}")
+    return {**rep, "error": {"rms_rel": err["rms_rel"], "chi2_red": err["chi2_red"]},
+            "notes": [*(rep.get("notes") or []), note]}
 
 
 def preview_samples(data, notes: list | None = None, limit: int = MAX_PREVIEW_FIT_SAMPLES):
