@@ -161,7 +161,8 @@ def run_one(args) -> int:
         write_csv(out, src.samples)
     else:
         samples = src.samples if src.samples is not None else SampleSet.empty()
-        write_npz(out, samples, build_metadata(src.manifest, source=str(src.path), **extra), table)
+        write_npz(out, samples, build_metadata(src.manifest, source=str(src.path), **extra), table,
+                  filled=src.filled if table is src.table else None)
     n = len(src.samples) if src.samples is not None else 0
     print(f"wrote {out} ({args.format}, {n} samples)")
     if args.format == "merl":

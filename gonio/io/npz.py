@@ -89,10 +89,16 @@ class NpzContent:
     metadata: dict
     samples: SampleSet
     table: MerlTable | None
+    #: (90, 90, 180) bool: table cells interpolated, not measured (``table/filled``, or where ``table/count``
+    #: is 0 but a value is given), or None
+    filled: np.ndarray | None = None
 
 
-def write_npz(path, samples: SampleSet, metadata: Mapping[str, Any], table: MerlTable | None = None) -> Path:
-    """Write samples, an optional table and JSON metadata to a compressed NPZ; returns the path."""
+def write_npz(path, samples: SampleSet, metadata: Mapping[str, Any], table: MerlTable | None = None,
+              filled: np.ndarray | None = None) -> Path:
+    """Write samples, an optional table and JSON metadata to a compressed NPZ; returns the path.
+    ``filled`` ((90, 90, 180) bool): the table's cells that were interpolated, not measured (a MERL
+    export's sidecar), kept as ``table/filled`` so no reader takes them for measurements."""
     path = Path(path)
     arrays = {f"samples/{k}": v for k, v in samples.to_dict().items()}
     if table is not None:
@@ -100,6 +106,8 @@ def write_npz(path, samples: SampleSet, metadata: Mapping[str, Any], table: Merl
         for name in ("sigma", "count"):
             if getattr(table, name) is not None:
                 arrays[f"table/{name}"] = getattr(table, name)
+        if filled is not None and np.any(filled):
+            arrays["table/filled"] = np.asarray(filled, dtype=bool)
     try:
         text = json.dumps(dict(metadata), default=_json_default, ensure_ascii=False)
     except (TypeError, ValueError) as exc:
@@ -136,12 +144,21 @@ def read_npz(path) -> NpzContent:
             metadata = json.loads(str(z["metadata"][0]))
             samples = SampleSet.from_dict(
                 {k.split("/", 1)[1]: z[k] for k in files if k.startswith("samples/")}, source=str(path))
-            table = None
+            table, filled = None, None
             if "table/values" in files:
                 table = MerlTable(z["table/values"], z["table/sigma"] if "table/sigma" in files else None,
                                   z["table/count"] if "table/count" in files else None)
+                if "table/filled" in files:
+                    filled = np.asarray(z["table/filled"])
+                    if filled.dtype != bool or filled.shape != table.values.shape[:3]:
+                        raise DataError(f"{path}: table/filled must be bool of shape {table.values.shape[:3]}, "
+                                        f"not {filled.dtype} {filled.shape}")
+                elif table.count is not None:  # a tabulation's filled cells: a value, no sample
+                    filled = (table.count == 0) & np.isfinite(table.values).any(axis=-1)
+                if filled is not None and not filled.any():
+                    filled = None
     except DataError:
         raise
     except (OSError, ValueError, KeyError, IndexError, zipfile.BadZipFile) as exc:
         raise DataError(f"{path}: cannot read NPZ ({exc})") from None
-    return NpzContent(metadata, samples, table)
+    return NpzContent(metadata, samples, table, filled)

@@ -179,7 +179,7 @@ def load_source(path) -> Measured:
         samples = content.samples
         if samples is not None and len(samples) == 0 and content.table is not None:
             samples = None  # a table's export (`gonio export T.binary --format npz`) reads as the table did
-        return Measured(p, "npz", dict(manifest), samples, content.table)
+        return Measured(p, "npz", dict(manifest), samples, content.table, filled=content.filled)
     if kind == "csv":
         from gonio.io.csv import read_csv
 

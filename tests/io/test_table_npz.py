@@ -48,3 +48,34 @@ def test_table_npz_csv_export_is_refused_not_written_empty(table_npz, capsys):
     assert main(["export", str(table_npz / "m.npz"), "--format", "csv", "-o", str(out)]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "without samples" in err[0] and not out.exists()
+
+
+def test_filled_cells_stay_filled_through_an_npz(tmp_path):
+    """A MERL export made with --fill, converted to NPZ: its interpolated cells are still not
+    measurements (the sidecar's promise), so a fit of the NPZ uses the measured cells only."""
+    wi, wo, ok = cell_directions()
+    values = np.full((90, 90, 180, 3), np.nan)
+    values[ok] = MODEL.eval(wi[ok], wo[ok])
+    from gonio.samples import SampleSet
+
+    keep = np.zeros(ok.shape, bool)
+    keep[::7, ::5, ::9] = True
+    keep &= ok
+    s = SampleSet(wi[keep], wo[keep], values[keep], 0.01 * values[keep])
+    from gonio.io.npz import build_metadata, write_npz
+
+    write_npz(tmp_path / "s.npz", s, build_metadata({}))
+    assert main(["export", str(tmp_path / "s.npz"), "--format", "merl", "--fill", "5", "-o",
+                 str(tmp_path / "f.binary")]) == 0
+    merl = gonio.load(tmp_path / "f.binary")
+    n_measured = int(merl.table.measured.sum() - merl.filled.sum())
+    assert merl.filled.sum() > 0 and len(merl.to_samples()) == n_measured
+    assert main(["export", str(tmp_path / "f.binary"), "--format", "npz", "-o", str(tmp_path / "f.npz")]) == 0
+    back = gonio.load(tmp_path / "f.npz")
+    assert back.filled is not None and np.array_equal(back.filled, merl.filled)
+    assert len(back.to_samples()) == n_measured
+    # a session's own NPZ export with --fill: its table's filled cells are those with no sample
+    assert main(["export", str(tmp_path / "s.npz"), "--format", "npz", "--fill", "5", "-o",
+                 str(tmp_path / "s2.npz")]) == 0
+    s2 = gonio.load(tmp_path / "s2.npz")
+    assert s2.filled is not None and int(s2.filled.sum()) == int(merl.filled.sum())
