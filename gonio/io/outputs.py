@@ -69,7 +69,11 @@ def check_output(path, *, option: str, force: bool = False, suffixes: tuple[str,
     holds only what gonio measured), one of the command's ``inputs`` (or a MERL input's sidecar; even
     with ``force``), an existing file without ``force``, a directory, a device or FIFO (even with ``force``: the
     atomic rename would replace the device node, e.g. ``/dev/null``, by a file), a file name ending other than
-    ``suffixes``, or a missing parent directory."""
+    ``suffixes``, a missing parent directory, or a name spelled as a directory (``fits/``: ``Path`` drops the
+    separator, so the file would be named ``fits``)."""
+    if isinstance(path, str) and path.endswith(("/", os.sep)):
+        raise ConfigError.field(None, option, path, "names a directory (ends in a separator); name a file "
+                                "(a directory of one output per source is for several sources, or --jobs)")
     p = Path(path).expanduser()
     _refuse_in_session(p, path, option, session_root)
     for q in _input_files(inputs):
