@@ -76,6 +76,11 @@ def run_one(args) -> int:
         raise ConfigError.field("--tol", "tol", args.tol, "must be in (0, 45] degrees")
     if args.theta_i is not None and not 0.0 <= args.theta_i < 90.0:
         raise ConfigError.field("--theta-i", "theta_i", args.theta_i, "must be in [0, 90) degrees")
+    if args.model and args.kind in ("polar", "coverage"):
+        import sys
+
+        print(f"gonio plot: note: --model {args.model} is not drawn by --kind {args.kind} (--kind inplane "
+              "overlays it, --kind residual shows its residuals)", file=sys.stderr)
     from gonio.io.outputs import check_output
 
     check_output(args.output, option="-o", force=args.force, suffixes=(".png", ".pdf", ".svg"),
