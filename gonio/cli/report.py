@@ -8,7 +8,7 @@ def _common(p) -> None:
     p.add_argument("source", metavar="DIR|FILE", nargs="+", help="sessions or data files (several: one comparison)")
     p.add_argument("--model", action="append", default=[], metavar="FIT.json",
                    help="fitted model(s) to show (gonio fit --json; repeatable); default: fit --fit MODELS now")
-    p.add_argument("--fit", default="microfacet", metavar="MODELS",
+    p.add_argument("--fit", default=None, metavar="MODELS",
                    help="comma-separated models fitted on the fly when no --model is given (default microfacet)")
     p.add_argument("--max-theta", type=float, default=80.0, help="grazing cutoff of the on-the-fly fits (deg)")
 
@@ -35,7 +35,12 @@ def _entries(args):
 
     if not 0.0 < args.max_theta <= 90.0:
         raise ConfigError.field("--max-theta", "max_theta", args.max_theta, "must be in (0, 90] degrees")
-    models = [m.strip() for m in args.fit.split(",") if m.strip()]
+    if args.model and args.fit is not None:
+        import sys
+
+        print(f"gonio {args.command}: note: --fit {args.fit} is not fitted: --model gives the models shown "
+              "(--fit fits on the spot only without --model)", file=sys.stderr)
+    models = [m.strip() for m in (args.fit or "microfacet").split(",") if m.strip()]
     return load_entries(args.source, args.model, fit_models=models, fit_kw={"max_theta_deg": args.max_theta})
 
 
