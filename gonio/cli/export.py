@@ -58,7 +58,8 @@ def check_merl_output(args):
     from gonio.io.merl_sidecar import sidecar_path
     from gonio.io.outputs import check_output
 
-    out = str(check_output(args.output, option="-o", force=args.force, inputs=[args.source]))
+    out = str(check_output(args.output, option="-o", force=args.force, inputs=[args.source],
+                           suffixes=(".binary", ".merl")))
     check_output(sidecar_path(out), option="-o (its sidecar)", force=args.force, inputs=[args.source])
     return out
 
