@@ -110,7 +110,10 @@ def fit_row(source: str, opts: dict) -> dict:
         (sel or result).to_json(target, force=opts["force"])
     return {"model": result.model_name, "n_used": result.n_used, "rms_rel": result.rms_rel,
             "chi2_red": result.chi2_red, "seconds": round(result.seconds, 3),
-            "params": "; ".join(f"{k}={v}" for k, v in result.params.items()), "notes": " | ".join(result.notes)}
+            "params": "; ".join(f"{k}={v}" for k, v in result.params.items()),
+            "at_bound": "; ".join(f"{k} ({', '.join(f'{c} {w}' for c, w in b.items())})"
+                                  for k, b in result.at_bound.items()),
+            "notes": " | ".join(result.notes)}
 
 
 def run(args) -> int:
@@ -125,7 +128,8 @@ def run(args) -> int:
         summary = many.summary_path("fit", args, paths)  # both refused before anything is created
         opts["json_dir"] = str(many.output_dir("--json", args.json, required=False) or "") or None
         return many.run("fit", args, fit_row, paths, opts,
-                        ["source", "status", "model", "n_used", "rms_rel", "chi2_red", "seconds", "params", "error"],
+                        ["source", "status", "model", "n_used", "rms_rel", "chi2_red", "seconds", "params", "at_bound",
+                         "error"],
                         summary=summary)
     args.source = str(paths[0])
     return run_one(args)
