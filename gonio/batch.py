@@ -150,6 +150,9 @@ def _run_dask(fn, names: list[str], options: dict, scheduler: str, desc: str) ->
         client = Client(scheduler, timeout="10s")
     except (OSError, TimeoutError) as exc:
         raise ConfigError.field("--scheduler", "scheduler", scheduler, f"cannot connect ({exc})") from None
+    except ValueError as exc:  # a malformed address, e.g. no port ("localhost")
+        raise ConfigError.field("--scheduler", "scheduler", scheduler,
+                                f"not a scheduler address tcp://HOST:PORT ({exc})") from None
     try:
         futures = [client.submit(_guarded, fn, s, options, key=f"gonio-{k}-{os.getpid()}-{id(options)}")
                    for k, s in enumerate(names)]
