@@ -65,7 +65,7 @@ def _options(args) -> dict:
         raise ConfigError.field("--max-theta", "max_theta", args.max_theta, "must be in (0, 90] degrees")
     if args.select and args.fix:
         raise ConfigError.field("--fix", "fix", args.fix, "not supported with --select")
-    fixed = dict(_parse_param(t) for t in args.fix) if args.fix else {}
+    fixed = dict(_parse_param(t, "--fix") for t in args.fix) if args.fix else {}
     if fixed:  # checked before any source is read (names as `gonio fit` prints them, gonio.fit.layout.resolve_fixed)
         from gonio.fit.layout import model_class, resolve_fixed
 

@@ -14,12 +14,12 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _parse_param(text: str):
+def _parse_param(text: str, option: str = "--param"):
     from gonio.errors import ConfigError
 
-    if "=" not in text:
-        raise ConfigError.field("--param", "param", text, "expected NAME=VALUE")
-    name, value = text.split("=", 1)
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip():
+        raise ConfigError.field(option, option.lstrip("-"), text, "expected NAME=VALUE")
     parts = value.split(",")
     try:
         nums = [float(x) for x in parts]
