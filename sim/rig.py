@@ -118,6 +118,11 @@ class SimRigConfig:
         return CameraCalibration.pinhole(self.width, self.height, self.focal_px,
                                          noise=SensorModel(bit_depth=self.bit_depth).noise_model())
 
+    def exposure_range(self) -> tuple[float, float]:
+        """Shortest and longest exposure (s) the simulated camera takes (:class:`sim.camera.SensorModel`)."""
+        sensor = SensorModel(bit_depth=self.bit_depth)
+        return sensor.min_exposure, sensor.max_exposure
+
     @classmethod
     def at_resolution(cls, width: int, height: int, **kw) -> "SimRigConfig":
         """The default camera at another resolution: same field of view (focal length scaled with the width)."""

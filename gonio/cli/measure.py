@@ -662,6 +662,7 @@ def run_measure(args) -> int:
         manifest["calibration"] = _calibration_dict(config.calibration())
         _record_detector(manifest, config.calibration(), rig, pinhole=True)
         _check_servo_models(rig)  # the simulated servos need their control tables: say so before a session exists
+        _check_exposures(plan, config.exposure_range(), "the simulated camera")
         store = SessionStore.create(out, manifest)
         _say_plan(plan, store, args.quiet, rig)
         return _sim_session(store, plan, store.manifest, args.quiet)
@@ -714,6 +715,22 @@ def _nothing_to_resume(d) -> bool:
         SessionStore.open(d, resume=False).finish("completed")
     print(f"{d}: all {len(plan)} poses are measured; nothing to resume (not counted as a resume)")
     return True
+
+
+def _check_exposures(plan, limits, camera: str) -> None:
+    """A fixed bracket's exposures lie in the camera's range ``limits`` (s), else one line naming the value —
+    checked before the session directory is made (an exposure typed in milliseconds, ``--exposures 4,16,64``,
+    left a session that failed at its first pose on every resume). Automatic exposure stays in range itself."""
+    from gonio.errors import ConfigError
+
+    cap = plan.capture
+    if cap.auto_exposure:
+        return
+    lo, hi = limits
+    for t in cap.exposures:
+        if not lo <= t <= hi:
+            raise ConfigError.field("--exposures", "capture.exposures", t,
+                                    f"must be in [{lo:g}, {hi:g}] s for {camera} (exposures are in seconds)")
 
 
 def _check_servo_models(rig) -> None:
