@@ -137,9 +137,13 @@ class FitResult:
         :func:`gonio.io.mitsuba.mitsuba_export`'s result) (:mod:`gonio.io.mitsuba`)."""
         import json
 
+        from gonio.errors import ConfigError
         from gonio.io import mitsuba
 
-        ex = mitsuba.mitsuba_export(self.model, approx=approx)
+        try:
+            ex = mitsuba.mitsuba_export(self.model, approx=approx)
+        except ConfigError as exc:  # the refusal names the CLI's option; in Python it is the keyword
+            raise ConfigError(str(exc).replace("--approx", "approx=True")) from None
         if path is not None:
             mitsuba.write_mitsuba(self.model, path, approx=approx)
         return json.loads(ex.text)

@@ -80,3 +80,13 @@ def test_bad_inputs_are_one_line(tmp_path):
         gonio.load(tmp_path / "missing.binary")
     with pytest.raises(TypeError, match="expected a path"):
         gonio.fit(42, "lambert")
+
+
+def test_a_mitsuba_refusal_names_the_python_keyword_not_the_cli_option(merl_file):
+    """A notebook user told to "pass --approx" has no such thing to pass (found by QA, qa-user)."""
+    path, _ = merl_file
+    samples = gonio.load(path).to_samples()
+    result = gonio.fit(samples.subset(np.arange(0, len(samples), 100)), "ward")  # no exact Mitsuba 3 counterpart
+    with pytest.raises(ConfigError, match="approx=True") as refused:
+        result.to_mitsuba()
+    assert "--approx" not in str(refused.value)
