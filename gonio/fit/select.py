@@ -29,11 +29,14 @@ Honesty guards
 --------------
 *Error inflation.* With χ² and stated uncertainties that are too small (or small systematic errors the
 models cannot represent), every candidate has χ²_red ≫ 1 and an information criterion on raw χ² rewards
-any extra parameter that absorbs a little of the misfit. When the most complex candidate still has
-χ²_red > :data:`INFLATE_ABOVE`, every χ² is divided by that χ²_red before AIC/BIC are compared — the
-standard rescaling of the σ by the Birge ratio √χ²_red of the most complete model (e.g. Burnham &
+any extra parameter that absorbs a little of the misfit. When even the best-fitting candidate (the lowest
+χ²_red) has χ²_red > :data:`INFLATE_ABOVE`, every χ² is divided by that χ²_red before AIC/BIC are compared —
+the standard rescaling of the σ by the Birge ratio √χ²_red of the most complete model (e.g. Burnham &
 Anderson, *Model Selection and Multimodel Inference*, 2nd ed., 2002, §2.5 "overdispersion", c-hat
-estimated from the global model). The table says so in every row (``chi2_scale``).
+estimated from the global model, which must itself fit). For nested candidates that is the most complex one;
+candidates that are not nested (an anisotropic Ward beside isotropic lobes) have no global model, and the one
+that fits best is the closest to it: a candidate that cannot represent the data must not make the stated
+uncertainties look too small. The table says so in every row (``chi2_scale``).
 
 *Redundant terms.* A sum of lobes whose terms the data cannot tell apart — the correlation between
 parameters of two different terms is above :data:`REDUNDANT_RHO` (e.g. two GGX lobes of equal width
@@ -69,7 +72,7 @@ from gonio.fit.result import FitResult, _clean
 #: diffuse + two GGX lobes.
 DEFAULT_CANDIDATES = ("lambert", "blinn-phong", "microfacet", "lambert+2ggx")
 CRITERIA = ("auto", "bic", "aic", "cv")
-#: χ²_red of the most complex candidate above which χ² is rescaled before AIC/BIC (see module docstring).
+#: χ²_red of the best-fitting candidate above which χ² is rescaled before AIC/BIC (see module docstring).
 INFLATE_ABOVE = 1.5
 #: |correlation| between parameters of two terms of a sum above which the terms are redundant.
 REDUNDANT_RHO = 0.99
@@ -392,10 +395,11 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
     adjustment = ""
     ok = [r for r in rows if "score" in r]
     if criterion in ("aic", "bic") and lossobj.name == "chi2" and ok:
-        top = max(ok, key=lambda r: r["n_params"])
-        scale = top["chi2_red"] if top["chi2_red"] and top["chi2_red"] > INFLATE_ABOVE else 1.0
+        reds = [r for r in ok if r["chi2_red"] is not None and np.isfinite(r["chi2_red"])]
+        top = min(reds, key=lambda r: r["chi2_red"]) if reds else None
+        scale = top["chi2_red"] if top is not None and top["chi2_red"] > INFLATE_ABOVE else 1.0
         if scale > 1.0:
-            adjustment = (f"chi2 divided by {scale:.4g} = chi2_red of {top['model']} (the most complex candidate): "
+            adjustment = (f"chi2 divided by {scale:.4g} = chi2_red of {top['model']} (the best-fitting candidate): "
                           f"the stated uncertainties are too small or the data have systematic errors")
         for r in ok:
             f = fits[r["model"]]

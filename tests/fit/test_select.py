@@ -47,6 +47,19 @@ def test_too_small_sigmas_do_not_buy_extra_lobes():
     assert sel.adjustment and sel.to_dict()["adjustment"] == sel.adjustment
 
 
+def test_a_candidate_that_cannot_represent_the_data_does_not_rescale_the_uncertainties():
+    """Anisotropic data with right σ: the isotropic lobes cannot fit (χ²_red ≫ 1) but Ward does (≈ 1); the
+    uncertainties are not too small and must not be rescaled by the most complex candidate's misfit (they were:
+    "chi2 divided by … of lambert+2ggx (the most complex candidate)"; found by QA, qa-user)."""
+    s = synth("ward", {"kd": [0.2, 0.2, 0.2], "ks": 0.4, "alpha_x": 0.08, "alpha_y": 0.3}, n=1200)
+    sel = select(s, ("lambert", "microfacet", "lambert+2ggx", "ward"), n_starts=2)
+    rows = {r["model"]: r for r in sel.candidates}
+    assert _chosen(sel) == "ward" and rows["ward"]["chi2_red"] < 1.3
+    assert rows["lambert+2ggx"]["chi2_red"] > 3  # the most complex candidate, and it cannot fit
+    assert all(r["chi2_scale"] == 1.0 for r in rows.values() if "chi2_scale" in r)
+    assert not sel.adjustment
+
+
 def test_cv_without_uncertainties_uses_the_one_se_rule():
     s = synth("lambert", {"albedo": 0.4}, n=300)
     sel = select((s.wi, s.wo, s.f), ("lambert", "microfacet"), folds=3)
