@@ -3,6 +3,8 @@
 import subprocess
 import sys
 
+import pytest
+
 from gonio.cli.main import main
 
 
@@ -57,3 +59,20 @@ def test_every_subcommand_help_is_plain_text(capsys):
         assert exc.value.code == 0 and "usage: gonio" in out, path
         for markup in ("``", ":func:", ":mod:", ":class:", ":data:"):
             assert markup not in out, (path, markup)
+
+
+@pytest.mark.parametrize("argv, where, hint", [
+    (["fit", "demo", "--modle", "lambert"], "gonio fit: error:", "--modle: did you mean --model?"),
+    (["export", "demo", "--format", "csv", "-o", "x.csv", "--froce"], "gonio export: error:", "did you mean --force?"),
+    (["servo", "scan", "--port", "/dev/null", "--bauds", "1"], "gonio servo scan: error:", "did you mean --baud"),
+    (["measure", "--sim", "extra"], "gonio measure: error: unrecognized arguments: extra", ""),
+])
+def test_an_unknown_option_names_its_command_and_the_option_it_resembles(capsys, argv, where, hint):
+    """Typos printed the top-level usage and 'gonio: error: unrecognized arguments' (found by QA, qa-user)."""
+    from gonio.cli.main import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and where in err and hint in err, err
+    assert err.count("error:") == 1

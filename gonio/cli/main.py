@@ -27,6 +27,28 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _unrecognized(parser: argparse.ArgumentParser, args, extra: list[str]) -> None:
+    """Refuse arguments no option takes as argparse does (usage, one error line, exit 2), but with the usage of the
+    (sub)command they were given to and, for an option, the one it most resembles (``--modle``: ``--model``)."""
+    import difflib
+
+    p = parser
+    while True:  # down to the deepest subcommand the arguments chose
+        subs = [a for a in p._actions if isinstance(a, argparse._SubParsersAction)]
+        name = getattr(args, subs[0].dest, None) if subs else None
+        if name not in (subs[0].choices if subs else {}):
+            break
+        p = subs[0].choices[name]
+    options = sorted({o for a in p._actions for o in a.option_strings if o.startswith("--")})
+    hints = []
+    for x in extra:
+        if x.startswith("-"):
+            near = difflib.get_close_matches(x.split("=", 1)[0], options, n=1)
+            if near:
+                hints.append(f"{x.split('=', 1)[0]}: did you mean {near[0]}?")
+    p.error(f"unrecognized arguments: {' '.join(extra)}" + (f" ({'; '.join(hints)})" if hints else ""))
+
+
 def _warning_line(message, category, filename, lineno, file=None, line=None) -> None:
     print(f"gonio: warning: {message}", file=sys.stderr)
 
@@ -42,7 +64,9 @@ def _check_common(args) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        _unrecognized(parser, args, extra)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
