@@ -12,6 +12,22 @@ from gonio.session.runner import SessionRunner, open_devices
 from gonio.session.store import SessionStore, scan_samples
 from sim.rig import SimRig, SimRigConfig
 
+#: ``gonio measure --sim`` options of a small session (in-plane, 30° steps, 160×120 camera: about a second)
+SMALL = ["--quiet", "--plan", "in_plane", "--theta-i-step", "30", "--theta-o-step", "30", "--theta-max", "60",
+         "--sim-resolution", "160x120"]
+
+
+@pytest.fixture(scope="session")
+def measured(tmp_path_factory):
+    """A small completed ``gonio measure --sim`` session, made once per test process: tests copy it before they
+    change it."""
+    from gonio.cli.main import main
+
+    d = tmp_path_factory.mktemp("measured") / "s"
+    assert main(["measure", "--sim", *SMALL, "--out", str(d)]) == 0
+    return d
+
+
 #: A small in-plane plan (degrees: θi, φi, θo, φo), all reachable on the default rig.
 POSES_DEG = [(30, 0, 30, 180), (45, 0, 20, 180), (20, 0, 50, 180), (60, 0, 40, 180), (10, 0, 30, 0),
              (40, 0, 60, 180), (0, 0, 45, 180), (50, 0, 10, 180)]

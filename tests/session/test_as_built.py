@@ -3,7 +3,6 @@ the host sees only the declared rig file; a perfect rig changes nothing."""
 
 from __future__ import annotations
 
-import json
 
 import numpy as np
 import pytest

@@ -85,7 +85,7 @@ def test_a_board_bumped_while_the_camera_stands_still_is_found_again(tmp_path, r
 
     d = tmp_path / "s"
     assert run(d, on_pose=bump).status == "completed"
-    m, ref = metas(d), metas(reference)
+    m = metas(d)
     assert [m[k]["board_source"] for k in range(5)] == ["detected", "reused", "replaced", "detected", "reused"]
     assert [m[k]["board_from"] for k in range(5)] == [0, 0, 2, 3, 3]
     # pose 2's own board pose: it disagrees with pose 0's, and puts the camera where the bump did (within the

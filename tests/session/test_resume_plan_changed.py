@@ -7,19 +7,7 @@ from __future__ import annotations
 import json
 import shutil
 
-import pytest
-
 from gonio.cli.main import main
-
-SMALL = ["--quiet", "--plan", "in_plane", "--theta-i-step", "30", "--theta-o-step", "30", "--theta-max", "60",
-         "--sim-resolution", "160x120"]
-
-
-@pytest.fixture(scope="module")
-def measured(tmp_path_factory):
-    d = tmp_path_factory.mktemp("measured") / "s"
-    assert main(["measure", "--sim", *SMALL, "--out", str(d)]) == 0
-    return d
 
 
 def without_last_record(measured, tmp_path):

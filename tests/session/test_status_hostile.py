@@ -11,17 +11,6 @@ import pytest
 
 from gonio.cli.main import main
 
-SMALL = ["--quiet", "--plan", "in_plane", "--theta-i-step", "30", "--theta-o-step", "30", "--theta-max", "60",
-         "--sim-resolution", "160x120"]
-
-
-@pytest.fixture(scope="module")
-def measured(tmp_path_factory):
-    d = tmp_path_factory.mktemp("measured") / "s"
-    assert main(["measure", "--sim", *SMALL, "--out", str(d)]) == 0
-    return d
-
-
 @pytest.mark.parametrize("edit", [
     lambda m: (m.pop("runs"), m["last_run"].__setitem__("lab_time_s", "abc")),
     lambda m: m["runs"][0].__setitem__("lab_time_s", float("nan")),

@@ -17,17 +17,6 @@ from gonio.errors import DataError
 from gonio.session import store as store_mod
 from gonio.session.store import SessionStore, scan_samples
 
-SMALL = ["--quiet", "--plan", "in_plane", "--theta-i-step", "30", "--theta-o-step", "30", "--theta-max", "60",
-         "--sim-resolution", "160x120"]
-
-
-@pytest.fixture(scope="module")
-def measured(tmp_path_factory):
-    d = tmp_path_factory.mktemp("measured") / "s"
-    assert main(["measure", "--sim", *SMALL, "--out", str(d)]) == 0
-    return d
-
-
 @pytest.fixture
 def damaged(measured, tmp_path):
     """A copy of the session with one flipped bit in its second record (a repair has something to move)."""

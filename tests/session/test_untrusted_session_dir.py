@@ -14,18 +14,6 @@ from gonio.cli.main import main
 from gonio.errors import DataError
 from gonio.session.store import SessionStore, load_session, scan_samples
 
-SMALL = ["--quiet", "--plan", "in_plane", "--theta-i-step", "30", "--theta-o-step", "30", "--theta-max", "60",
-         "--sim-resolution", "160x120"]
-
-
-@pytest.fixture(scope="module")
-def measured(tmp_path_factory):
-    """A small completed simulated session (copied per test)."""
-    d = tmp_path_factory.mktemp("measured") / "s"
-    assert main(["measure", "--sim", *SMALL, "--out", str(d)]) == 0
-    return d
-
-
 @pytest.fixture
 def session(measured, tmp_path):
     import shutil
