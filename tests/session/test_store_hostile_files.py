@@ -16,6 +16,7 @@ from gonio.cli.main import main
 from gonio.errors import DataError
 from gonio.session import store as store_mod
 from gonio.session.store import SessionStore, scan_samples
+from tests.session.test_untrusted_session_dir import one_line
 
 @pytest.fixture
 def damaged(measured, tmp_path):
@@ -26,15 +27,6 @@ def damaged(measured, tmp_path):
     data[data.index(b"\n") + 20] ^= 1
     (d / "samples.jsonl").write_bytes(bytes(data))
     return d
-
-
-def one_line(capsys, code, *, expect):
-    out = capsys.readouterr()
-    assert code not in (0, None), out
-    err = [line for line in out.err.splitlines() if line.strip()]
-    assert len(err) == 1 and "Traceback" not in out.err, out.err
-    assert expect in err[0], err[0]
-    return err[0]
 
 
 def run_with_timeout(argv, seconds=30):
