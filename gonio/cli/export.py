@@ -164,8 +164,13 @@ def run_one(args) -> int:
         samples = src.samples if src.samples is not None else SampleSet.empty()
         write_npz(out, samples, build_metadata(src.manifest, source=str(src.path), **extra), table,
                   filled=src.filled if table is src.table else None)
-    n = len(src.samples) if src.samples is not None else 0
-    print(f"wrote {out} ({args.format}, {n} samples)")
+    if src.samples is not None:
+        what = f"{len(src.samples)} samples"
+    else:  # a table source: its cells are what was written
+        import numpy as np
+
+        what = f"a table of {int(np.count_nonzero(np.isfinite(table.values).all(axis=-1)))} cells with values"
+    print(f"wrote {out} ({args.format}, {what})")
     if args.format == "merl":
         print(f"wrote {side} (what the table holds: source, measured and filled cells)")
     if tab is not None:

@@ -66,7 +66,9 @@ def read_plan_file(path, rig):
     if bad:
         k = bad[0]
         deg = ", ".join(f"{x:.3g}" for x in np.degrees(poses[k]))
+        hint = (f"was the plan made for another rig? it says {plan.params.get('rig', 'nothing')!r}"
+                if np.abs(poses).max() <= 2 * np.pi else
+                f"angles up to {np.abs(poses).max():.4g} in a file whose angles are radians: were degrees written?")
         raise DataError(f"{p}: pose {k} ({deg} deg) is unreachable on rig {rig.name!r} ({reasons[k]}); "
-                        f"{len(bad)} of {len(plan)} poses are (was the plan made for another rig? "
-                        f"it says {plan.params.get('rig', 'nothing')!r})")
+                        f"{len(bad)} of {len(plan)} poses are ({hint})")
     return replace(plan, joints=joints)

@@ -217,7 +217,10 @@ class Plan:
         if not isinstance(d, Mapping):
             raise DataError(f"{source}: a plan must be a JSON object, got {type(d).__name__}")
         if d.get("format") != PLAN_FORMAT:
-            raise DataError(f"{source}: format = {d.get('format')!r}: expected {PLAN_FORMAT}")
+            what = ("; it is not a plan (no 'poses'; a fit result, a report?)" if "poses" not in d else
+                    "; written by a newer gonio?" if isinstance(d.get("format"), int) and d["format"] > PLAN_FORMAT
+                    else "")
+            raise DataError(f"{source}: format = {d.get('format')!r}: expected {PLAN_FORMAT}{what}")
         if d.get("units", "rad") != "rad":
             raise DataError(f"{source}: units = {d.get('units')!r}: expected 'rad'")
         for key in ("poses", "generator"):

@@ -58,7 +58,10 @@ def _bad(tmp_path, plan_file, edit) -> str:
 
 
 @pytest.mark.parametrize("edit, says", [
-    (lambda d: d.update(format=2), "format = 2: expected 1"),
+    (lambda d: d.update(format=2), "format = 2: expected 1; written by a newer gonio?"),
+    (lambda d: (d.clear(), d.update(model="lambert", params={})), "expected 1; it is not a plan (no 'poses'"),
+    (lambda d: d["poses"].__setitem__(0, [30.0, 0.0, 45.0, 180.0]), "in a file whose angles are radians: were "
+                                                                     "degrees written?"),
     (lambda d: d.update(units="deg"), "units = 'deg': expected 'rad'"),
     (lambda d: d.update(n_poses=d["n_poses"] + 1), "n_poses ="),
     (lambda d: d.pop("poses"), "missing field 'poses'"),
