@@ -137,7 +137,10 @@ def _warn_if_unfinished(path: Path, manifest: dict, samples) -> None:
     n_plan = plan.get("n_poses") if isinstance(plan, dict) else None
     if isinstance(n_plan, int) and not isinstance(n_plan, bool) and done is not None and done >= n_plan:
         return
-    how = {None: "no exit status: killed, or still running", "interrupted": "interrupted"}.get(status, str(status)[:80])
+    import textwrap
+
+    how = {None: "no exit status: killed, or still running", "interrupted": "interrupted"}.get(
+        status, textwrap.shorten(str(status), 160, placeholder=" …"))  # whole words: "(no ): 0 of 38" was cut mid-word
     of = f"{done} of {n_plan} poses" if isinstance(n_plan, int) and done is not None else "part of its plan"
     warnings.warn(f"{path}: the session is not complete ({how}): {of} measured; `gonio resume {path}` "
                   "measures the rest", stacklevel=4)
