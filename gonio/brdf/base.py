@@ -15,6 +15,29 @@ import numpy as np
 
 from gonio.errors import ConfigError
 
+#: Largest | |w|² − 1 | of a direction :meth:`BRDF.eval` accepts (float32 directions round to ~1e-7).
+UNIT_TOLERANCE = 1e-5
+#: Directions :meth:`BRDF.eval` checks per call: all of a small call, evenly spaced ones of a large call (a
+#: caller that forgets to normalize does so everywhere; a full check would cost a third of a compiled evaluation)
+UNIT_CHECKED = 1024
+
+
+def check_unit(w: np.ndarray, name: str) -> None:
+    """``w`` (..., 3) holds unit vectors — all of them up to :data:`UNIT_CHECKED`, else that many evenly spaced —
+    or a ValueError naming ``name``, the first offending pair and its length (a non-unit direction scales most
+    models' values silently: Ward's halves for |wi| = 2)."""
+    if w.shape[-1:] != (3,):
+        raise ValueError(f"{name}: directions must be (..., 3) arrays, got shape {w.shape}")
+    flat = w.reshape(-1, 3)
+    n = len(flat)
+    rows = flat if n <= UNIT_CHECKED else flat[:: -(-n // UNIT_CHECKED)]
+    r2 = np.einsum("ij,ij->i", rows, rows, dtype=np.float64)
+    bad = np.flatnonzero(~(np.abs(r2 - 1.0) <= UNIT_TOLERANCE))
+    if bad.size:
+        k = int(bad[0]) * (1 if n <= UNIT_CHECKED else -(-n // UNIT_CHECKED))
+        raise ValueError(f"{name}: directions must be unit vectors; pair {k} has length {np.sqrt(r2[bad[0]]):.6g} "
+                         "(normalize them, e.g. gonio.geometry.normalize)")
+
 
 @dataclass(frozen=True)
 class Param:
@@ -156,8 +179,8 @@ class BRDF:
     def eval(self, wi, wo, dtype=np.float64, backend: str = "auto") -> np.ndarray:
         """BRDF value f(wi, wo) in 1/sr, RGB on the last axis, shape ``broadcast(wi, wo)[:-1] + (3,)``.
 
-        ``wi`` (toward the light) and ``wo`` (toward the camera) are unit vectors in the local frame.
-        Where either is at or below the horizon the result is exactly 0.
+        ``wi`` (toward the light) and ``wo`` (toward the camera) are unit vectors in the local frame (checked:
+        :func:`check_unit`, ValueError otherwise). Where either is at or below the horizon the result is exactly 0.
 
         ``dtype`` (default float64) is the floating type of the computation and the result;
         ``np.float32`` evaluates with float32 inputs and parameters (faster, less accurate: see
@@ -175,6 +198,8 @@ class BRDF:
             raise ValueError(f"backend must be 'auto', 'numpy' or 'compiled', not {backend!r}")
         wi = np.asarray(wi, dtype=dtype)
         wo = np.asarray(wo, dtype=dtype)
+        check_unit(wi, "wi")
+        check_unit(wo, "wo")
         wi, wo = np.broadcast_arrays(wi, wo)
         if backend != "numpy":
             from gonio.brdf import compiled

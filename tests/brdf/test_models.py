@@ -131,3 +131,26 @@ def test_regression_values(name, params, expected):
     wi = from_spherical(np.radians(40), 0.3)
     wo = from_spherical(np.radians(25), 3.0)
     assert make(name, **params).eval(wi, wo)[0] == pytest.approx(expected, rel=1e-6)
+
+
+@pytest.mark.parametrize("name, params", [("ward", {}), ("lambert+ggx", {"diffuse.albedo": 0.5}), ("abc", {})])
+def test_directions_that_are_not_unit_vectors_are_refused_not_evaluated(name, params):
+    """A notebook user passing [0, 0, 2] got Ward's value halved, silently (found by QA, qa-user)."""
+    model = make(name, **params)
+    wi, wo = np.array([0.0, 0.0, 1.0]), np.array([0.6, 0.0, 0.8])
+    assert np.all(np.isfinite(model.eval(wi, wo)))
+    with pytest.raises(ValueError, match=r"wi: directions must be unit vectors; pair 0 has length 2"):
+        model.eval(2 * wi, wo)
+    with pytest.raises(ValueError, match=r"wo: .*unit vectors"):
+        model.eval(wi, [1.2, 0.0, 1.6])
+    with pytest.raises(ValueError, match=r"\(\.\.\., 3\) arrays"):
+        model.eval(wi[:2], wo[:2])
+    rng = np.random.default_rng(0)  # a large call: checked on evenly spaced pairs, compiled path or not
+    big = from_spherical(np.arccos(rng.uniform(0.2, 1, 100_000)), rng.uniform(0, 2 * np.pi, 100_000))
+    model.eval(big, big[::-1])
+    with pytest.raises(ValueError, match="wo: directions must be unit vectors"):
+        model.eval(big, 3.0 * big)
+    nan = big.copy()
+    nan[0] = np.nan
+    with pytest.raises(ValueError, match="pair 0 has length nan"):
+        model.eval(nan, big)
