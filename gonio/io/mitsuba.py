@@ -97,9 +97,29 @@ def _terms(model, source: str, approx: bool = False, reasons: list | None = None
                             "fitted to it, its error printed)")
 
 
+def _reflectance(rgb: list[float]) -> dict:
+    """An RGB reflectance as Mitsuba 3 accepts it: ``{"type": "rgb", "value": rgb}`` when every value is in
+    [0, 1], else an ``srgb`` texture with ``unbounded = true``.
+
+    Mitsuba 3 turns an ``rgb`` reflectance into its ``srgb`` texture, which refuses a colour outside [0, 1]
+    unless ``unbounded`` is set ("Invalid RGB reflectance value ..., must be in the range [0, 1]!":
+    mitsuba-renderer/mitsuba3 ``src/textures/srgb.cpp``; ``src/core/xml.cpp`` ``create_texture_from_rgb`` sets
+    ``unbounded`` only for ``eta``, ``k``, ``int_ior``, ``ext_ior``). A blend term's reflectance is divided by
+    its weight, so it exceeds 1 whenever the terms' largest reflectances add up to more than 1.
+    """
+    if all(0.0 <= c <= 1.0 for c in rgb):
+        return {"type": "rgb", "value": rgb}
+    return {"type": "srgb", "color": rgb, "unbounded": True}
+
+
+def _rgb_of(spec: dict) -> np.ndarray:
+    """The RGB values of a :func:`_reflectance` (an ``rgb`` value or an ``srgb`` texture's colour)."""
+    return np.asarray(spec["color"] if spec.get("type") == "srgb" else spec["value"], dtype=np.float64)
+
+
 def _plugin(kind: str, params: dict, rgb: list[float]) -> dict:
     key = "reflectance" if kind == "diffuse" else "specular_reflectance"
-    return {"type": kind, **params, key: {"type": "rgb", "value": rgb}}
+    return {"type": kind, **params, key: _reflectance(rgb)}
 
 
 def to_mitsuba_dict(model, source: str = "--mitsuba", approx: bool = False, reasons: list | None = None) -> dict:
@@ -143,6 +163,11 @@ def _xml(bsdf: dict) -> str:
                 continue
             if isinstance(v, dict) and v.get("type") == "rgb":
                 lines.append(f"{pad}    <rgb name={quoteattr(k)} value=\"{', '.join(f'{x:.9g}' for x in v['value'])}\"/>")
+            elif isinstance(v, dict) and v.get("type") == "srgb":  # an unbounded reflectance (_reflectance)
+                lines += [f"{pad}    <texture type=\"srgb\" name={quoteattr(k)}>",
+                          f"{pad}        <rgb name=\"color\" value=\"{', '.join(f'{x:.9g}' for x in v['color'])}\"/>",
+                          f"{pad}        <boolean name=\"unbounded\" value=\"{str(bool(v['unbounded'])).lower()}\"/>",
+                          f"{pad}    </texture>"]
             elif isinstance(v, dict):
                 lines += emit(v, None, depth + 1)
             elif isinstance(v, bool):
@@ -168,14 +193,14 @@ def mitsuba_eval(d: dict, wi, wo) -> np.ndarray:
     wi = np.asarray(wi, dtype=np.float64)
     wo = np.asarray(wo, dtype=np.float64)
     if d["type"] == "diffuse":
-        return make("lambert", albedo=1.0).eval(wi, wo) * np.asarray(d["reflectance"]["value"])
+        return make("lambert", albedo=1.0).eval(wi, wo) * _rgb_of(d["reflectance"])
     if d["type"] == "roughplastic":
         from gonio.io.mitsuba_plastic import roughplastic_eval
 
         return roughplastic_eval(d, wi, wo)
     if d["type"] == "roughconductor":
         lobe = make("microfacet", kd=0.0, ks=1.0, alpha=d["alpha"], f0=1.0, distribution=d["distribution"])
-        v = lobe.eval(wi, wo) * np.asarray(d["specular_reflectance"]["value"])
+        v = lobe.eval(wi, wo) * _rgb_of(d["specular_reflectance"])
         if d.get("material") != "none":
             h = wi + wo
             h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)

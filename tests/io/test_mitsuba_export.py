@@ -16,16 +16,26 @@ from gonio.geometry import from_spherical
 from gonio.io.mitsuba import to_mitsuba_dict, to_mitsuba_xml
 
 
+def reflectance(spec: dict) -> np.ndarray:
+    """An RGB reflectance of a Mitsuba 3 dict: ``rgb`` (Mitsuba refuses values outside [0, 1] there) or an
+    ``srgb`` texture with ``unbounded`` (mitsuba3 src/textures/srgb.cpp)."""
+    if spec["type"] == "rgb":
+        assert all(0.0 <= x <= 1.0 for x in spec["value"]), spec  # else: "Invalid RGB reflectance value"
+        return np.asarray(spec["value"])
+    assert spec["type"] == "srgb" and spec["unbounded"] is True, spec
+    return np.asarray(spec["color"])
+
+
 def mitsuba_eval(d: dict, wi, wo) -> np.ndarray:
     """f(wi, wo) of a Mitsuba BSDF dict by the plugins' definitions (Mitsuba 3 docs): diffuse = ρ/π;
     roughconductor with material "none" = F = 1 microfacet lobe (gonio's, checked against Mitsuba's values
     in tests/brdf/test_reference.py); blendbsdf = (1 − w)·bsdf_0 + w·bsdf_1."""
-    if d["type"] == "diffuse":  # reflectance may exceed 1 inside a blend (Mitsuba does not clamp it)
-        return make("lambert", albedo=1.0).eval(wi, wo) * np.asarray(d["reflectance"]["value"])
+    if d["type"] == "diffuse":  # reflectance may exceed 1 inside a blend: an unbounded srgb texture then
+        return make("lambert", albedo=1.0).eval(wi, wo) * reflectance(d["reflectance"])
     if d["type"] == "roughconductor":
         assert d["material"] == "none"
         return make("microfacet", kd=0.0, ks=1.0, alpha=d["alpha"], f0=1.0,
-                    distribution=d["distribution"]).eval(wi, wo) * np.asarray(d["specular_reflectance"]["value"])
+                    distribution=d["distribution"]).eval(wi, wo) * reflectance(d["specular_reflectance"])
     assert d["type"] == "blendbsdf"
     return (1 - d["weight"]) * mitsuba_eval(d["bsdf_0"], wi, wo) + d["weight"] * mitsuba_eval(d["bsdf_1"], wi, wo)
 
@@ -53,6 +63,30 @@ def test_exported_bsdf_reproduces_the_model(name, params):
     if name == "lambert+2ggx":  # weights add up to <= 1 (0.25 + 0.3 + 0.3): every reflectance stays <= 1
         values = [float(x) for e in root.iter("rgb") for x in e.get("value").split(",")]
         assert max(values) <= 1.0 + 1e-12
+
+
+def test_blend_reflectances_above_one_are_unbounded_srgb_textures():
+    """Mitsuba 3 refuses an ``rgb`` reflectance outside [0, 1] ("Invalid RGB reflectance value [1.3, 1.04, 0.78],
+    must be in the range [0, 1]!", mitsuba3 src/textures/srgb.cpp; xml.cpp sets ``unbounded`` only for eta, k,
+    int_ior, ext_ior). A blend divides each term by its weight, so terms whose largest reflectances add up to
+    more than 1 (0.5 + 0.8 here; the lambert+2ggx fit of MERL pink-fabric: 1.37) need the srgb texture with
+    ``unbounded`` (checked with mitsuba 3.9.1: loads, and evaluates to the model within 5e-6)."""
+    model = make("lambert+ggx", **{"diffuse.albedo": [0.5, 0.4, 0.3], "lobe1.ks": 0.8, "lobe1.alpha": 0.2,
+                                   "lobe1.f0": 1.0})
+    d = to_mitsuba_dict(model)
+    assert d["bsdf_0"]["reflectance"] == {"type": "srgb", "color": pytest.approx([1.3, 1.04, 0.78]), "unbounded": True}
+    rng = np.random.default_rng(5)
+    wi = from_spherical(rng.uniform(0, 1.5, 300), rng.uniform(0, 6.3, 300))
+    wo = from_spherical(rng.uniform(0, 1.5, 300), rng.uniform(0, 6.3, 300))
+    np.testing.assert_allclose(mitsuba_eval(d, wi, wo), model.eval(wi, wo), rtol=1e-12, atol=1e-15)
+    root = ET.fromstring(to_mitsuba_xml(model))
+    assert all(float(x) <= 1.0 for e in root.iter("rgb") if e.get("name") != "color" for x in e.get("value").split(","))
+    textures = list(root.iter("texture"))
+    assert [t.get("name") for t in textures] == ["reflectance", "specular_reflectance"]
+    for t in textures:
+        assert t.get("type") == "srgb" and t.find("rgb").get("name") == "color"
+        assert t.find("boolean").attrib == {"name": "unbounded", "value": "true"}
+    assert textures[0].find("rgb").get("value") == "1.3, 1.04, 0.78"
 
 
 def test_models_without_an_exact_plugin_are_refused():
@@ -105,7 +139,7 @@ def mitsuba_eval_any(d, wi, wo):
         c = np.abs(np.sum(wo * h, axis=-1))[:, None]
         F = fresnel_conductor(c, np.asarray(d["eta"]["value"]), np.asarray(d["k"]["value"]))
         lobe = make("microfacet", kd=0.0, ks=1.0, alpha=d["alpha"], f0=1.0, distribution=d["distribution"])
-        return lobe.eval(wi, wo) * np.asarray(d["specular_reflectance"]["value"]) * F
+        return lobe.eval(wi, wo) * reflectance(d["specular_reflectance"]) * F
     if d["type"] == "blendbsdf":
         return (1 - d["weight"]) * mitsuba_eval_any(d["bsdf_0"], wi, wo) + d["weight"] * mitsuba_eval_any(d["bsdf_1"], wi, wo)
     return mitsuba_eval(d, wi, wo)
