@@ -9,10 +9,14 @@ Fresnel term of ``KHR_materials_specular`` (its "Implementation" section) and th
     α = roughness²
     D = α² / (π ((n·h)² (α² − 1) + 1)²)                                   (Trowbridge-Reitz / GGX)
     V = G1(l) G1(v) / (4 |n·l| |n·v|),  G1(x) = 2 (n·x) / ((n·x) + sqrt(α² + (1 − α²)(n·x)²))
-    F0 = lerp(((ior − 1)/(ior + 1))² · specular · specularColor, baseColor, metallic)
-    F90 = lerp(specular, 1, metallic)
-    F = F0 + (F90 − F0)(1 − v·h)⁵
-    f = (1 − F) · lerp(baseColor, 0, metallic) / π + F · D · V
+    w = (1 − v·h)⁵
+    F_d = F0_d + (specular − F0_d) w,   F0_d = min(((ior − 1)/(ior + 1))² · specularColor, 1) · specular
+    F_m = baseColor + (1 − baseColor) w
+    f = (1 − metallic) (F_d · D · V + (1 − max(F_d)) · baseColor / π) + metallic · F_m · D · V
+
+(the ratified ``KHR_materials_specular``, KhronosGroup/glTF extensions/2.0/Khronos/KHR_materials_specular/README.md
+"Implementation": the diffuse base is weighted by 1 − max_value(dielectric_fresnel), one number for the three
+channels, not by (1 − F) per channel as in the extension's first draft).
 
 gonio's GGX lobe ``ks·D·G·F_schlick(f0)/(4 cosθi cosθo)`` (separable Smith G, the same G1) is this
 material exactly when there is no diffuse term and ks is grey (metallic 0, baseColor 0, specular = ks,
@@ -60,10 +64,14 @@ def gltf_eval(mat: dict, wi, wo) -> np.ndarray:
     m = float(mat["metallic"])
     ior = float(mat["ior"])
     f0_ior = 1.0 if ior == 0 else ((ior - 1.0) / (ior + 1.0)) ** 2
-    f0 = (1 - m) * f0_ior * float(mat["specular"]) * np.asarray(mat["specularColor"], dtype=np.float64) + m * base
-    f90 = (1 - m) * float(mat["specular"]) + m * 1.0
-    fr = f0 + (f90 - f0) * ((1.0 - v_h) ** 5)[..., None]
-    f = (1.0 - fr) * ((1 - m) * base) / np.pi + fr * (d * v)[..., None]
+    spec = float(mat["specular"])
+    w = ((1.0 - v_h) ** 5)[..., None]
+    f0_d = np.minimum(f0_ior * np.asarray(mat["specularColor"], dtype=np.float64), 1.0) * spec
+    fr_d = f0_d + (spec - f0_d) * w  # dielectric_fresnel (RGB)
+    fr_m = base + (1.0 - base) * w  # conductor_fresnel of the metal BRDF
+    lobe = (d * v)[..., None]
+    dielectric = fr_d * lobe + (1.0 - np.max(fr_d, axis=-1, keepdims=True)) * base / np.pi
+    f = (1 - m) * dielectric + m * fr_m * lobe
     above = (n_l > 0) & (n_v > 0)
     return np.where(above[..., None], np.nan_to_num(f), 0.0)
 
@@ -112,10 +120,10 @@ def gltf_material(model, approx: bool = False) -> tuple[dict, list[str]]:
     mat = {"baseColor": np.zeros(3), "metallic": 0.0, "roughness": rough, "ior": ior, "specular": spec,
            "specularColor": colour}
     if np.any(d > 0):
-        reasons.append("glTF weights the diffuse term by (1 − F), gonio does not")
+        reasons.append("glTF weights the diffuse term by (1 − F), gonio does not")  # F: its largest channel
         wi, wo = direction_pairs(2048, seed=7)
         spec_only = gltf_eval(mat, wi, wo)
-        one = gltf_eval({**mat, "baseColor": np.ones(3)}, wi, wo) - spec_only  # (1 − F)/π per channel
+        one = gltf_eval({**mat, "baseColor": np.ones(3)}, wi, wo) - spec_only  # (1 − max F)/π
         target = model.eval(wi, wo) - spec_only
         base = np.sum(one * target, axis=0) / np.maximum(np.sum(one * one, axis=0), 1e-300)
         if np.any(base > 1):

@@ -50,12 +50,38 @@ def gltf_reference(doc: dict, wi, wo) -> np.ndarray:
         G1V = 2 * NdotV / (NdotV + np.sqrt(alpha ** 2 + (1 - alpha ** 2) * NdotV ** 2))
         Vis = G1L * G1V / (4 * abs(NdotL) * abs(NdotV))
         ior_f0 = 1.0 if ior == 0 else ((ior - 1) / (ior + 1)) ** 2
-        F0 = (1 - metallic) * (ior_f0 * spec * spec_col) + metallic * base
-        F90 = (1 - metallic) * spec + metallic * 1.0
-        F = F0 + (F90 - F0) * (1 - VdotH) ** 5
-        c_diff = (1 - metallic) * base
-        out[n] = (1 - F) * c_diff / np.pi + F * D * Vis
+        # KHR_materials_specular (ratified text, "Implementation"): dielectric_f0 = min(f0_ior * specularColor, 1)
+        # * specular, dielectric_f90 = specular; dielectric_brdf = dielectric_fresnel * specular_brdf
+        # + (1 - max_value(dielectric_fresnel)) * diffuse_brdf; glTF Appendix B: mix(dielectric, metal, metallic)
+        F_d0 = np.minimum(ior_f0 * spec_col, 1.0) * spec
+        F_d = F_d0 + (spec - F_d0) * (1 - VdotH) ** 5
+        F_m = base + (1 - base) * (1 - VdotH) ** 5
+        dielectric = F_d * D * Vis + (1 - F_d.max()) * base / np.pi
+        out[n] = (1 - metallic) * dielectric + metallic * F_m * D * Vis
     return out
+
+
+def test_gltf_diffuse_is_weighted_by_the_largest_fresnel_channel():
+    """KHR_materials_specular (ratified): 'The base is weighted with 1 - weight * max_value(fresnel(ior, f0_color))'
+    (KhronosGroup/glTF extensions/2.0/Khronos/KHR_materials_specular/README.md). gonio weighted it by (1 − F) per
+    channel (the extension's first draft): with a coloured specularColor and a diffuse base its values differed
+    from the specification's by up to 80 % and the printed error was 2.2 % instead of 6.6 % (found by QA)."""
+    from gonio.io.gltf import gltf_eval
+
+    mat = {"baseColor": np.array([0.5, 0.3, 0.1]), "metallic": 0.0, "roughness": 0.45, "ior": 3.0, "specular": 0.6,
+           "specularColor": np.array([1.0, 0.5, 0.2])}
+    wi, wo = pairs(300)
+    f0 = 0.25 * mat["specularColor"] * 0.6  # ((3 - 1)/(3 + 1))² = 0.25
+    h = (wi + wo) / np.linalg.norm(wi + wo, axis=-1, keepdims=True)
+    F = f0 + (0.6 - f0) * ((1 - np.sum(wo * h, -1)) ** 5)[:, None]
+    diffuse = gltf_eval(mat, wi, wo) - gltf_eval({**mat, "baseColor": np.zeros(3)}, wi, wo)
+    np.testing.assert_allclose(diffuse, (1 - F.max(axis=1, keepdims=True)) * mat["baseColor"] / np.pi, rtol=1e-12)
+    doc = {"materials": [{"pbrMetallicRoughness": {"baseColorFactor": [0.5, 0.3, 0.1, 1], "metallicFactor": 0.0,
+                                                   "roughnessFactor": 0.45},
+                          "extensions": {"KHR_materials_specular": {"specularFactor": 0.6,
+                                                                    "specularColorFactor": [1.0, 0.5, 0.2]},
+                                         "KHR_materials_ior": {"ior": 3.0}}}]}
+    np.testing.assert_allclose(gltf_eval(mat, wi, wo), gltf_reference(doc, wi, wo), rtol=1e-12)
 
 
 GLTF_EXACT = [
