@@ -26,7 +26,12 @@ import numpy as np
 
 from gonio.io.approx import Exported, decompose, direction_pairs, relative_error
 
-__all__ = ["pbrt_terms", "pbrt_eval", "to_pbrt", "write_pbrt", "fr_complex"]
+__all__ = ["pbrt_terms", "pbrt_eval", "to_pbrt", "write_pbrt", "fr_complex", "SMOOTH_ALPHA"]
+
+#: pbrt-v4 renders a Trowbridge-Reitz conductor with α below this as a perfect mirror, whose BRDF is 0 at every
+#: pair of directions (``TrowbridgeReitzDistribution::EffectivelySmooth``, src/pbrt/util/scattering.h:
+#: α < 1e-3; ``ConductorBxDF::f`` returns 0 then): :func:`pbrt_eval` evaluates such a lobe so, and says so.
+SMOOTH_ALPHA = 1e-3
 
 
 def fr_complex(cos_i, eta) -> np.ndarray:
@@ -71,6 +76,8 @@ def pbrt_eval(terms, wi, wo) -> np.ndarray:
     for w, kind, p in terms:
         if kind == "diffuse":
             v = np.broadcast_to(np.clip(p["reflectance"], 0, 1) / np.pi, total.shape)
+        elif p["roughness"] < SMOOTH_ALPHA:  # a perfect mirror: 0 at every pair of directions
+            continue
         else:
             with np.errstate(invalid="ignore", divide="ignore"):
                 v = _conductor(p["reflectance"], p["roughness"], wi, wo)
@@ -95,6 +102,8 @@ def pbrt_terms(model, approx: bool = False) -> tuple[list, list[str]]:
         r = lobe.ks * lobe.f0 / w
         if np.any(r >= 0.9999):
             reasons.append("normal-incidence reflectance clipped below 1")
+        if lobe.alpha < SMOOTH_ALPHA:
+            reasons.append(f"alpha {lobe.alpha:.3g} < {SMOOTH_ALPHA:g}: pbrt-v4 renders the lobe as a perfect mirror")
         terms.append([w, "conductor", {"reflectance": np.minimum(r, 0.9999), "roughness": lobe.alpha}])
     if dec.lobes:
         reasons.append("pbrt's conductor has height-correlated Smith G and a conductor's Fresnel, gonio's lobe "
