@@ -146,17 +146,24 @@ def to_mitsuba_dict(model, source: str = "--mitsuba", approx: bool = False, reas
     return nest(0, 1.0)
 
 
+#: The scene-format version the root ``<bsdf>`` element declares: Mitsuba 3 loads a file (``mitsuba.load_file``,
+#: ``<include>``) only when its root element has one ("missing version attribute in root element")
+XML_VERSION = "3.0.0"
+
+
 def to_mitsuba_xml(model, source: str = "--mitsuba", approx: bool = False) -> str:
-    """The same BSDF as a Mitsuba 3 scene-file ``<bsdf>`` element."""
+    """The same BSDF as a Mitsuba 3 ``<bsdf>`` element with ``version`` (:data:`XML_VERSION`): a file
+    ``mitsuba.load_file`` loads and a scene can ``<include>``; pasted into a scene, drop the attribute."""
     return _xml(to_mitsuba_dict(model, source, approx))
 
 
 def _xml(bsdf: dict) -> str:
-    """A BSDF dictionary as a Mitsuba 3 scene-file ``<bsdf>`` element."""
+    """A BSDF dictionary as a Mitsuba 3 ``<bsdf>`` element, the root declaring :data:`XML_VERSION`."""
 
     def emit(d: dict, name: str | None, depth: int) -> list[str]:
         pad = "    " * depth
-        attr = f" type={quoteattr(d['type'])}" + (f" name={quoteattr(name)}" if name else "")
+        attr = (f" type={quoteattr(d['type'])}" + (f" name={quoteattr(name)}" if name else "")
+                + (f" version={quoteattr(XML_VERSION)}" if depth == 0 else ""))
         lines = [f"{pad}<bsdf{attr}>"]
         for k, v in d.items():
             if k == "type":
