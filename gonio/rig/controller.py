@@ -37,7 +37,7 @@ import time
 from dataclasses import dataclass
 
 from firmware_protocol import codec as fp
-from gonio.errors import ChecksumError, ConfigError, ControllerError, EmergencyStop, HardwareTimeout
+from gonio.errors import ChecksumError, ConfigError, ControllerError, EmergencyStop, HardwareError, HardwareTimeout
 from gonio.rig.clock import RealClock
 from gonio.rig.interfaces import ControllerStatus, PhotodiodeReading
 
@@ -263,7 +263,11 @@ class RigController:
                 raise ConfigError.field(self.device, "port", None, "controller is closed")
             for _ in range(2):  # second pass only after recovering from a controller reset
                 self._seq = (self._seq + 1) & 0xFF
-                reply = self._exchange(name, code, self._seq, fp.encode_frame(code, self._seq, payload))
+                try:
+                    reply = self._exchange(name, code, self._seq, fp.encode_frame(code, self._seq, payload))
+                except OSError as exc:  # pyserial's SerialException too: the board unplugged or powered off
+                    raise HardwareError(f"{self.device}: {name}: serial link lost ({exc}); the controller "
+                                        "unplugged or powered off?", device=self.device) from None
                 if reply.name != "ERROR":
                     return reply
                 err = reply["code"]

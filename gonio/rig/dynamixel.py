@@ -256,6 +256,16 @@ class DynamixelBus:
         lock with retries; returns ``fn``'s output. Alarms raise :class:`ServoAlarm` unless ``alarm_ok``."""
         if dxl_id is not None and (isinstance(dxl_id, bool) or not isinstance(dxl_id, int) or not 0 <= dxl_id <= MAX_ID):
             raise ConfigError.field(None, "servo id", dxl_id, f"must be an integer in 0..{MAX_ID}")
+        try:
+            return self._transact(what, dxl_id, fn, alarm_ok)
+        except OSError as exc:  # pyserial's SerialException too: the adapter was unplugged or lost power
+            raise self._link_lost(what, dxl_id, exc) from None
+
+    def _link_lost(self, what: str, dxl_id: int | None, exc: OSError) -> HardwareError:
+        return HardwareError(f"{self._who(dxl_id)}: {what}: serial link lost ({exc}); the USB adapter unplugged "
+                             "or the bus powered off?", device=self.port_name)
+
+    def _transact(self, what: str, dxl_id: int | None, fn: Callable[[], tuple], alarm_ok: bool):
         last = sdk.COMM_RX_TIMEOUT
         for attempt in range(self.retries + 1):
             with self._lock:
@@ -326,6 +336,12 @@ class DynamixelBus:
         if ids is None:
             data, _, _ = self.transact("broadcast ping", None, lambda: self._broadcast(), alarm_ok=True)
             return {i: v[0] for i, v in sorted(data.items())}
+        try:
+            return self._scan_ids(ids, attempts, faults)
+        except OSError as exc:  # as in transact: the link itself is gone
+            raise self._link_lost("ping", None, exc) from None
+
+    def _scan_ids(self, ids, attempts: int, faults) -> dict[int, int]:
         found: dict[int, int] = {}
         last: dict[int, str] = {}
         pending = list(ids)
