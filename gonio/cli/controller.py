@@ -45,10 +45,15 @@ def _caps(bits: int) -> str:
 
 
 def _print_status(st) -> None:
+    from firmware_protocol import codec as fp
+
     print(f"E-stop      {'PRESSED' if st.estop else 'released'}")
     print(f"interlock   {'OPEN' if st.interlock_open else 'closed'}")
     print(f"light       {'on' if st.light_on else 'off'} (level {st.light_level:.3f})")
-    print(f"temperature {st.temperature_c:.2f} °C")
+    print(f"temperature {st.temperature_c:.2f} °C" + ("  OVERTEMP (above the controller's limit)"
+                                                      if st.flags & fp.FLAG_OVERTEMP else ""))
+    if st.flags & fp.FLAG_WATCHDOG_TRIPPED:  # SPEC.md §4.2: cleared by the next successful switch-on
+        print("watchdog    TRIPPED (it switched the light off: the host stopped talking while the light was on)")
     print(f"uptime      {st.uptime_s:.1f} s")
 
 
@@ -56,7 +61,7 @@ def run(args) -> int:
     import math
     import os
 
-    from gonio.errors import ConfigError, EmergencyStop
+    from gonio.errors import ConfigError, ControllerError, EmergencyStop
     from gonio.rig.controller import RigController
 
     if "://" not in args.port and not os.path.exists(args.port):
@@ -97,6 +102,13 @@ def run(args) -> int:
         for _ in range(int(args.seconds / args.every) + 1):  # bounded
             mean, sem = ctl.read_photodiode(16)
             print(f"{ctl.clock.now() - t0:>6.1f} {mean:>12.6f} {sem:>10.6f}", flush=True)
+            st = ctl.status()  # the E-stop or the interlock cut the light in hardware: say so, do not go on
+            if st.estop or st.interlock_open:
+                raise EmergencyStop(f"{args.port}: light off after {ctl.clock.now() - t0:.1f} s: "
+                                    f"{'E-stop pressed' if st.estop else 'interlock opened'}", device=args.port)
+            if not st.light_on:
+                raise ControllerError(f"{args.port}: light off after {ctl.clock.now() - t0:.1f} s: the controller "
+                                      f"switched it off (status flags 0x{st.flags:02X})", device=args.port)
             left = args.seconds - (ctl.clock.now() - t0)
             if left <= 0:
                 break

@@ -72,3 +72,40 @@ def test_python_m_sim_controller_serves_a_pty_for_the_bench_tools(capsys):
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def test_status_says_when_the_watchdog_switched_the_light_off(bench, capsys):
+    """A host that stopped talking with the light on: the controller's watchdog switched it off and says so
+    in STATUS (WATCHDOG_TRIPPED); `gonio controller status` printed only 'light off' (found by QA, qa-lab)."""
+    from gonio.rig.controller import RigController
+
+    ctl = RigController.open(bench.path)
+    ctl._transact("SET_WATCHDOG", period_ms=200)
+    ctl.set_light(True, 0.5)
+    ctl._port.close()  # the host goes away without switching the light off
+    ctl._port = None
+    import time
+
+    time.sleep(0.6)
+    assert main(["controller", "status", "--port", bench.path]) == 0
+    out = capsys.readouterr().out
+    assert "light       off" in out and "watchdog    TRIPPED" in out, out
+
+
+def test_light_stops_in_one_line_when_the_e_stop_is_pressed_while_it_is_on(bench, capsys):
+    """E-stop pressed during `gonio controller light`: the command printed photodiode readings of ~0 for the
+    rest of --seconds, then 'light off' and exit 0, never naming the E-stop (found by QA, qa-lab)."""
+    import threading
+
+    timer = threading.Timer(0.35, bench.set_estop, args=(True,))
+    timer.start()
+    try:
+        code = main(["controller", "light", "--port", bench.path, "--level", "0.5", "--seconds", "3",
+                     "--every", "0.1"])
+    finally:
+        timer.cancel()
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert code == 3 and "E-stop pressed" in err and "\n" not in err, (code, err)
+    assert len(captured.out.splitlines()) < 15  # it stopped, not after --seconds
+    assert not bench.light_on
