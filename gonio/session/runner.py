@@ -113,7 +113,19 @@ def open_devices(rig, servo_port: str, controller_port: str, camera, clock, *, l
     from gonio.rig.controller import RigController
     from gonio.rig.dynamixel import DynamixelAxes, DynamixelBus
 
-    bus = DynamixelBus(servo_port, rig.baud, latency_timer_ms=latency_timer_ms).open()
+    # the controller first: with the E-stop pressed or the enclosure open not one byte may go to a servo
+    # (configuring them writes EEPROM, reboots an alarmed one and switches torque on)
+    controller = RigController.open(controller_port, clock=clock, watchdog=watchdog)
+    try:
+        st = controller.status()
+        if st.estop or st.interlock_open:
+            what = "E-stop is pressed" if st.estop else "enclosure interlock is open"
+            raise EmergencyStop(f"rig controller: {what}: release it and run the command again (nothing was sent "
+                                "to the servos)", device="rig controller")
+        bus = DynamixelBus(servo_port, rig.baud, latency_timer_ms=latency_timer_ms).open()
+    except BaseException:
+        controller.close()
+        raise
     try:
         ids = [j.servo_id for j in rig.joints]
         faults: dict[int, str] = {}
@@ -126,11 +138,7 @@ def open_devices(rig, servo_port: str, controller_port: str, camera, clock, *, l
         axes = DynamixelAxes.from_rig(rig, bus, clock, auto_recover=auto_recover, clear_alarms=clear_alarms)
     except BaseException:
         bus.close()
-        raise
-    try:
-        controller = RigController.open(controller_port, clock=clock, watchdog=watchdog)
-    except BaseException:
-        axes.close()
+        controller.close()
         raise
     return Devices(rig=rig, axes=axes, controller=controller, camera=camera, clock=clock)
 
