@@ -64,6 +64,9 @@ def run(args) -> int:
     from gonio.errors import ConfigError, ControllerError, EmergencyStop
     from gonio.rig.controller import RigController
 
+    if not 50 <= args.baud <= 4_000_000:  # the UART rates of USB-serial bridges; 0 (B0) hangs a real port up
+        raise ConfigError.field("--baud", "baud", args.baud, f"must be a serial baud rate in 50..4000000 "
+                                f"(the controller's default is {DEFAULT_BAUD})")
     if "://" not in args.port and not os.path.exists(args.port):
         raise ConfigError.field("--port", "port", args.port, "no such serial device")
     if args.controller_command == "light":
@@ -72,7 +75,7 @@ def run(args) -> int:
         if not (math.isfinite(args.seconds) and 0.0 <= args.seconds <= 3600.0):
             raise ConfigError.field("--seconds", "seconds", args.seconds, "must be in [0, 3600]")
         if not (math.isfinite(args.every) and args.every > 0.0):
-            raise ConfigError.field("--every", "every", args.every, "must be > 0")
+            raise ConfigError.field("--every", "every", args.every, "must be a finite number of seconds > 0")
     with RigController.open(args.port, baudrate=args.baud) as ctl:  # close() switches the light off
         info = ctl.info
         if args.controller_command == "status":

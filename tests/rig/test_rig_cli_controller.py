@@ -109,3 +109,13 @@ def test_light_stops_in_one_line_when_the_e_stop_is_pressed_while_it_is_on(bench
     assert code == 3 and "E-stop pressed" in err and "\n" not in err, (code, err)
     assert len(captured.out.splitlines()) < 15  # it stopped, not after --seconds
     assert not bench.light_on
+
+
+@pytest.mark.parametrize("baud", ["0", "-5", "123456789012"])
+def test_a_baud_rate_out_of_range_is_one_line_before_the_port_is_opened(bench, capsys, baud):
+    """--baud 123456789012 was an OverflowError traceback from termios and --baud 0 (B0: hang up on a real
+    serial port) was accepted (found by QA, qa-lab)."""
+    assert main(["controller", "status", "--port", bench.path, "--baud", baud]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"gonio controller: error: --baud: baud = {baud}") and "\n" not in err, err
+    assert bench.bytes_in == 0
