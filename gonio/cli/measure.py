@@ -354,7 +354,13 @@ def _manifest_timing(manifest):
 
 
 def _run_session(store, plan, devices, calibration, layout, *, before_pose, quiet: bool, resume_cmd: str) -> int:
+    from gonio.rig.dynamixel import describe_hardware_error
     from gonio.session.runner import RunnerSettings, SessionRunner, format_lab_time
+
+    for joint, bits in (getattr(devices.axes, "cleared_alarms", None) or {}).items():  # said even with --quiet
+        print(f"gonio: servo {joint}: hardware error found at start ({describe_hardware_error(bits)}, Hardware Error "
+              f"Status 0x{bits:02X}) cleared by a reboot; if its cause is not known, stop (Ctrl-C) and check the arm",
+              file=sys.stderr)
 
     settings = RunnerSettings(timing=_manifest_timing(store.manifest))
     if "geocal" in store.manifest:  # a geometric calibration session (gonio calibrate rig)
