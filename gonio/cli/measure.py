@@ -385,6 +385,10 @@ def _run_session(store, plan, devices, calibration, layout, *, before_pose, quie
                                resume_command=resume_cmd, stream=None if quiet else sys.stderr)
         result = runner.run()
     total = store.sample_count
+    resets = getattr(devices.controller, "resets_seen", 0)
+    if resets:  # recovered (re-handshake, light restored), but a board that browns out needs looking at
+        print(f"gonio: the rig controller reset {resets} time{'s' if resets > 1 else ''} during this run (recovered: "
+              "handshake and light restored); check its power supply and USB cable", file=sys.stderr)
     print(f"{result.measured} poses, {result.samples} samples measured in this run "
           f"({len(store.done_poses())}/{len(plan)} poses, {total} samples in {store.directory})")
     print(f"lab time {format_lab_time(result.lab_time)} ({'simulated' if devices.clock.simulated else 'real'}), "
