@@ -539,7 +539,8 @@ class SessionRunner:
         if self._interrupts > 1:
             raise KeyboardInterrupt  # second Ctrl-C: stop now (the store holds every finished pose)
         self._stop.set()
-        self._say("\ninterrupt: finishing the pose in flight (Ctrl-C again to stop at once)")
+        what = "terminated" if signum == signal.SIGTERM else "interrupt"
+        self._say(f"\n{what}: finishing the pose in flight (Ctrl-C again to stop at once)")
 
     def request_stop(self) -> None:
         """Stop after the pose in flight (what SIGINT does)."""
@@ -560,9 +561,12 @@ class SessionRunner:
         brackets: dict[str, int] = {}
         if self._board_prev is None:
             self._board_prev = self._board_entry(getattr(self.store, "last_meta", None), confirm=True)
-        old_handler = None
+        old_handler = old_term = None
         if threading.current_thread() is threading.main_thread():
             old_handler = signal.signal(signal.SIGINT, self._on_sigint)
+            # SIGTERM (kill, timeout, a service manager) stops the same clean way: the pose in flight
+            # finished, the light switched off, the run recorded as interrupted with its resume command
+            old_term = signal.signal(signal.SIGTERM, self._on_sigint)
         try:
             try:
                 self.check_devices()
@@ -622,6 +626,8 @@ class SessionRunner:
             progress.close()
             if old_handler is not None:
                 signal.signal(signal.SIGINT, old_handler)
+            if old_term is not None:
+                signal.signal(signal.SIGTERM, old_term)
             result.lab_time = self.clock.now() - lab0
             result.wall_time = time.perf_counter() - wall0
             result.exposure = {"mode": "fixed" if self.bracket is not None else "auto",

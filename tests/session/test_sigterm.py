@@ -1,0 +1,41 @@
+"""SIGTERM (kill, timeout(1), a service manager) stops a session the way Ctrl-C does: the pose in flight
+is finished, the light switched off, the run recorded as interrupted with its resume command. Before, the
+default SIGTERM killed the process: no 'interrupted' in the manifest ('none (still running, or killed)'),
+no resume line, and on the lab bench the light stayed on until the controller's watchdog (found by QA,
+qa-lab)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_sigterm_finishes_the_pose_in_flight_and_records_an_interrupted_run(tmp_path):
+    d = tmp_path / "s"
+    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    proc = subprocess.Popen([sys.executable, "-m", "gonio.cli.main", "measure", "--sim", "--plan", "grid",
+                             "--theta-step", "10", "--phi-step", "30", "--out", str(d)], cwd=REPO, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    while proc.poll() is None and time.monotonic() < deadline:
+        try:
+            if (d / "samples.jsonl").read_bytes().count(b"\n") >= 2:
+                break
+        except FileNotFoundError:
+            pass
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=60)
+    err = err.decode()
+    assert proc.returncode == 130, err
+    assert f"gonio resume {d}" in err and "Traceback" not in err, err
+    manifest = json.loads((d / "manifest.json").read_text())
+    assert manifest["exit_status"] == "interrupted"
+    assert 2 <= manifest["pose_count"] < len(manifest["plan"]["poses"])
