@@ -258,6 +258,8 @@ def open_hardware(args, rig, manifest: dict, *, before_open=None):
     calibration = description.calibration
     manifest["hardware"] = {"servo_port": args.servo_port, "controller_port": args.controller_port,
                             "camera": args.camera}
+    if description.noise_defaults:  # said when the session starts (_say_noise_defaults), recorded here
+        manifest["hardware"]["noise_defaults"] = list(description.noise_defaults)
     manifest["calibration"] = description.to_dict()
     if before_open is not None:
         before_open(calibration)
@@ -683,8 +685,22 @@ def run_measure(args) -> int:
     except BaseException:
         devices.close()
         raise
+    _say_noise_defaults(store.manifest, args.calibration)
     _say_plan(plan, store, args.quiet, rig)
     return _hw_session(store, plan, store.manifest, rig, calibration, args.quiet, devices=devices)
+
+
+def _say_noise_defaults(manifest, source) -> None:
+    """One warning line when the camera file left out noise-model fields every sample's σ rests on (even with
+    --quiet: the uncertainties are not this camera's)."""
+    missing = (manifest.get("hardware") or {}).get("noise_defaults") or []
+    if missing:
+        from gonio.pipeline.target import NoiseModel
+
+        given = ", ".join(f"{k} = {getattr(NoiseModel(), k):g}" for k in missing)
+        print(f"gonio: warning: {source}: [noise] does not give {' or '.join(missing)}: the samples' uncertainties "
+              f"use gonio's defaults ({given}), not this camera's; measure them (EMVA 1288's photon-transfer "
+              "curve) and write them under [noise]", file=sys.stderr)
 
 
 def _say_plan(plan, store, quiet: bool, rig) -> None:

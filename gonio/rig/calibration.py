@@ -334,6 +334,8 @@ class CameraDescription:
     source: str | None = None
     #: ``aperture_diameter_m``, or ``f_number`` + ``focal_length_m``, as given (validated).
     lens: Mapping[str, float] = field(default_factory=dict)
+    #: the noise-model fields every σ rests on that the file did not give (gonio's defaults stand in for them)
+    noise_defaults: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
         c = self.calibration
@@ -422,7 +424,9 @@ def load_camera_calibration(path, *, for_session: bool = True) -> CameraDescript
     if unknown:
         raise ConfigError.field(src, unknown[0], data[unknown[0]], f"unknown key (known: {', '.join(sorted(_TOP_KEYS))})")
     width, height = _positive_int(data, "width", src), _positive_int(data, "height", src)
-    noise = NoiseModel(**_noise_fields(data.get("noise", {}), src))
+    noise_fields = _noise_fields(data.get("noise", {}), src)
+    noise = NoiseModel(**noise_fields)
+    noise_defaults = tuple(k for k in ("dn_per_electron", "read_noise_e") if k not in noise_fields)
     kw: dict = {"noise": noise, "radiometric_scale": _radiometric(data, src)}
     if "dist" in data:
         v = data["dist"]
@@ -452,7 +456,8 @@ def load_camera_calibration(path, *, for_session: bool = True) -> CameraDescript
     settings = _settings(_camera_fields(cam, src, base=Path(path).parent), src)
     if for_session:
         settings.check_session(src)
-    return CameraDescription(calibration=calib, camera=settings, source=src, lens=_lens_fields(data, src))
+    return CameraDescription(calibration=calib, camera=settings, source=src, lens=_lens_fields(data, src),
+                             noise_defaults=noise_defaults)
 
 
 class LinearizedCamera:

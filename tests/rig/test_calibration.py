@@ -139,3 +139,22 @@ def test_a_resumed_hardware_session_gets_the_whole_recorded_calibration(tmp_path
     back = _calibration_from_dict(d.to_dict(), "manifest")
     assert back.radiometric_scale is not None and list(back.radiometric_scale) == [1.5, 1.25, 1.0]
     assert np.array_equal(back.dist, d.calibration.dist) and np.array_equal(back.K, d.calibration.K)
+
+
+@pytest.mark.parametrize("noise, missing", [("", ("dn_per_electron", "read_noise_e")),
+                                            ("[noise]\nread_noise_e = 2.5\n", ("dn_per_electron",)),
+                                            ("[noise]\nread_noise_e = 2.5\ndn_per_electron = 0.4\n", ())])
+def test_noise_fields_left_to_defaults_are_known_and_said_when_a_session_starts(tmp_path, capsys, noise, missing):
+    """A CAMERA.toml without [noise] gave every sample's σ from gonio's default sensor, silently (found by QA,
+    qa-lab); the session now says so in one line and records which fields were defaults."""
+    from gonio.cli.measure import _say_noise_defaults
+
+    d = load_camera_calibration(_write(tmp_path, LINEAR + noise))
+    assert d.noise_defaults == missing
+    _say_noise_defaults({"hardware": {"noise_defaults": list(missing)}}, "camera.toml")
+    err = capsys.readouterr().err
+    if missing:
+        assert err.count("\n") == 1 and err.startswith("gonio: warning: camera.toml: [noise] does not give")
+        assert all(k in err for k in missing) and "not this camera's" in err
+    else:
+        assert err == ""
