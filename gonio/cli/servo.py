@@ -31,6 +31,13 @@ def register(sub) -> None:
     m.add_argument("--deg", type=float, required=True, help="raw angle, 0-360 deg")
     m.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for arrival")
     m.add_argument("--tolerance", type=int, default=3, help="arrived when within this many ticks")
+    m.add_argument("--controller-port", help="the rig controller: nothing is sent to the servo while the E-stop is "
+                                             "pressed or the enclosure open, and the move stops if either happens")
+    m.add_argument("--rig", help="the rig file or name the servo is mounted on: the move must keep its joint within "
+                                 "the rig's limits and the arms clear of each other (from where the other joints are)")
+    m.add_argument("--unmounted", action="store_true",
+                   help="a servo on the bench, not on a rig: no E-stop, limit or collision check (otherwise "
+                        "--controller-port and --rig are required)")
 
 
 def _parse_ids(text: str | None):
@@ -78,6 +85,75 @@ def _check_numbers(args) -> None:
         raise ConfigError.field("--timeout", "timeout", args.timeout, "must be in (0, 3600] seconds")
     if not 0 <= args.tolerance <= 4095:
         raise ConfigError.field("--tolerance", "tolerance", args.tolerance, "must be in 0..4095 ticks")
+    if not args.unmounted and not (args.controller_port and args.rig):
+        raise ConfigError.field(None, "servo move", f"--id {args.id}",
+                                "a servo on a rig moves only with --controller-port (the E-stop is checked first) "
+                                "and --rig (joint limits and collisions); for a servo on the bench say --unmounted")
+
+
+def _open_guard(args):
+    """The rig controller (E-stop and interlock clear, else :class:`EmergencyStop`: nothing is sent to the servo)
+    and the rig of a mounted servo's move; ``(None, None)`` with ``--unmounted``."""
+    from gonio.rig.controller import RigController
+    from gonio.rig.kinematics import load_rig
+
+    if args.unmounted:
+        return None, None
+    rig = load_rig(args.rig)
+    ctl = RigController.open(args.controller_port)
+    try:
+        _clear(ctl)
+    except BaseException:
+        ctl.close()
+        raise
+    return ctl, rig
+
+
+def _clear(ctl) -> None:
+    from gonio.errors import EmergencyStop
+
+    st = ctl.status()
+    if st.estop or st.interlock_open:
+        raise EmergencyStop(f"{ctl.device}: {'E-stop is pressed' if st.estop else 'enclosure interlock is open'}: "
+                            "nothing was sent to the servo", device=ctl.device)
+
+
+def _check_move(bus, rig, servo_id: int, table, goal: int) -> None:
+    """A mounted servo's move to raw ``goal`` keeps its joint within the rig's limits and the arms clear of each
+    other and of the light's beam (:meth:`gonio.rig.kinematics.Rig.check_directions`) at every point of the way,
+    the other joints where they are now (read from their servos). ConfigError naming the joint otherwise."""
+    import numpy as np
+
+    from gonio.errors import ConfigError
+    from gonio.rig.control_table import table_for_model_number
+    from gonio.rig.dynamixel import AxisConfig
+    from gonio.rig.kinematics import REASONS
+
+    names = [j.name for j in rig.joints]
+    mine = next((k for k, j in enumerate(rig.joints) if j.servo_id == servo_id), None)
+    if mine is None:
+        raise ConfigError.field("--id", "id", servo_id, f"is not a servo of rig {rig.name!r} "
+                                f"(its servos: {', '.join(f'{j.name} {j.servo_id}' for j in rig.joints)})")
+    axis = AxisConfig.from_joint(rig.joints[mine])
+    now = np.empty(len(names))
+    for k, j in enumerate(rig.joints):
+        t = table if k == mine else (table_for_model_number(bus.ping(j.servo_id)) or table)
+        now[k] = AxisConfig.from_joint(j).angle_of(bus.read(j.servo_id, t, "present_position", alarm_ok=True),
+                                                   t.ticks_per_rev)
+    target = axis.angle_of(goal, table.ticks_per_rev)
+    where = f"joint {names[mine]} would go to {np.degrees(target):.2f} deg"
+    if not axis.lower - 1e-9 <= target <= axis.upper + 1e-9:
+        raise ConfigError.field(None, "--deg", round(goal * 360.0 / table.ticks_per_rev, 2),
+                                f"{where}, outside the rig's limits [{np.degrees(axis.lower):g}, "
+                                f"{np.degrees(axis.upper):g}] deg")
+    path = np.repeat(now[None, :], 65, axis=0)
+    path[:, mine] = np.linspace(now[mine], target, 65)
+    hit = np.flatnonzero(rig.check_directions(*rig.directions(path)) == REASONS.index("collision"))
+    if hit.size:  # a shadow (the camera in the light's beam) spoils a measurement, not the rig: allowed here
+        raise ConfigError.field(None, "--deg", round(goal * 360.0 / table.ticks_per_rev, 2),
+                                f"{where}: the arms would collide at {np.degrees(path[hit[0], mine]):.1f} deg "
+                                f"(closer than {np.degrees(rig.min_separation):g} deg, the other joints where they "
+                                "are); move the other arm first")
 
 
 def _model_name(number: int) -> str:
@@ -90,15 +166,26 @@ def _model_name(number: int) -> str:
 def run(args) -> int:
     import os
 
-    from gonio.errors import ConfigError, HardwareTimeout
-    from gonio.rig.clock import RealClock
-    from gonio.rig.control_table import load_control_table, table_for_model_number
-    from gonio.rig.dynamixel import DynamixelBus
+    from gonio.errors import ConfigError
 
     _check_numbers(args)  # every value first: a wrong one is named even when the port is wrong too
     ids = _parse_ids(getattr(args, "ids", None))
     if not os.path.exists(args.port):
         raise ConfigError.field("--port", "port", args.port, "no such serial device")
+    ctl, rig = _open_guard(args) if args.servo_command == "move" else (None, None)
+    try:
+        return _run_bus(args, ids, ctl, rig)
+    finally:
+        if ctl is not None:
+            ctl.close()
+
+
+def _run_bus(args, ids, ctl, rig) -> int:
+    from gonio.errors import ConfigError, HardwareTimeout
+    from gonio.rig.clock import RealClock
+    from gonio.rig.control_table import load_control_table, table_for_model_number
+    from gonio.rig.dynamixel import DynamixelBus
+
     with DynamixelBus(args.port, args.baud, latency_timer_ms=args.latency_ms) as bus:
         if args.servo_command in ("scan", "read"):
             found = bus.scan(ids, attempts=3)  # a lost ping is not a missing servo
@@ -125,6 +212,9 @@ def run(args) -> int:
         if table is None:
             raise ConfigError.field("--id", "id", args.id, f"servo reports model number {model}, which has no control table")
         goal = min(int(round(args.deg / 360.0 * table.ticks_per_rev)), table.position_max)
+        if rig is not None:
+            _check_move(bus, rig, args.id, table, goal)
+            _clear(ctl)  # once more, right before the first byte that makes the servo move
         if bus.read(args.id, table, "hardware_error_status", alarm_ok=True):
             bus.raise_alarm(args.id)
         if not bus.read(args.id, table, "torque_enable"):
@@ -140,6 +230,8 @@ def run(args) -> int:
                 bus.raise_alarm(args.id)
             if not state["moving"] and abs(state["present_position"] - goal) <= args.tolerance:
                 break
+            if ctl is not None:
+                _clear(ctl)  # the E-stop pressed mid-move (it cuts the servos' power): not one more byte to them
             if clock.now() > deadline:
                 raise HardwareTimeout(f"{args.port}: servo {args.id} did not arrive within {args.timeout:g} s "
                                       f"(at {state['present_position']} ticks, goal {goal})", device=args.port)

@@ -454,6 +454,16 @@ class AxisConfig:
     homing_offset_ticks: int = 0
     approach: float = 0.0
 
+    def ticks_of(self, angle: float, ticks_per_rev: int) -> int:
+        """Raw position (ticks) of joint ``angle`` (rad): ``zero_offset/360·tpr + direction·gear_ratio·θ·tpr/2π``."""
+        return int(round(self.zero_offset_deg / 360.0 * ticks_per_rev
+                         + self.direction * self.gear_ratio * angle * ticks_per_rev / (2.0 * math.pi)))
+
+    def angle_of(self, ticks: float, ticks_per_rev: int) -> float:
+        """Joint angle (rad) of raw position ``ticks``: the inverse of :meth:`ticks_of`."""
+        return ((ticks - self.zero_offset_deg / 360.0 * ticks_per_rev) * 2.0 * math.pi / ticks_per_rev
+                / (self.direction * self.gear_ratio))
+
     @classmethod
     def from_joint(cls, joint, *, approach: float = 0.0) -> "AxisConfig":
         """From a :class:`gonio.rig.kinematics.Joint`."""
@@ -521,13 +531,10 @@ class DynamixelAxes:
 
     # -- units ----------------------------------------------------------------------------------
     def to_ticks(self, name: str, angle: float) -> int:
-        a, t = self.axes[name], self._tables[name]
-        return int(round(a.zero_offset_deg / 360.0 * t.ticks_per_rev
-                         + a.direction * a.gear_ratio * angle * t.ticks_per_rev / (2.0 * math.pi)))
+        return self.axes[name].ticks_of(angle, self._tables[name].ticks_per_rev)
 
     def to_angle(self, name: str, ticks: float) -> float:
-        a, t = self.axes[name], self._tables[name]
-        return (ticks - a.zero_offset_deg / 360.0 * t.ticks_per_rev) * 2.0 * math.pi / t.ticks_per_rev / (a.direction * a.gear_ratio)
+        return self.axes[name].angle_of(ticks, self._tables[name].ticks_per_rev)
 
     # -- configuration --------------------------------------------------------------------------
     def configure(self) -> None:

@@ -28,7 +28,7 @@ def test_read_prints_raw_angles(bench, capsys):
 
 
 def test_move_waits_until_the_servo_arrives(bench, capsys):
-    assert main(["servo", "move", "--port", bench.path, "--id", "2", "--deg", "200"]) == 0
+    assert main(["servo", "move", "--port", bench.path, "--id", "2", "--deg", "200", "--unmounted"]) == 0
     out = capsys.readouterr().out
     assert "servo 2: at 2276 ticks = 200.04 deg (goal 2276)" in out
     assert bench.servo(2).peek("present_position") == 2276 and bench.servo(2).peek("moving") == 0
@@ -42,8 +42,8 @@ def test_one_line_errors(bench, capsys):
     err = capsys.readouterr().err.strip()
     assert err.startswith("gonio servo: error: ") and "no servo answered" in err and "\n" not in err
     bench.servo(2).trip(HW_OVERLOAD)
-    assert main(["servo", "move", "--port", bench.path, "--id", "2", "--deg", "90"]) == 3
+    assert main(["servo", "move", "--port", bench.path, "--id", "2", "--deg", "90", "--unmounted"]) == 3
     err = capsys.readouterr().err.strip()
     assert "servo 2: hardware error: overload" in err and "\n" not in err
-    assert main(["servo", "move", "--port", bench.path, "--id", "1", "--deg", "400"]) == 2
+    assert main(["servo", "move", "--port", bench.path, "--id", "1", "--deg", "400", "--unmounted"]) == 2
     assert "raw angle must be in [0, 360]" in capsys.readouterr().err
