@@ -191,7 +191,9 @@ def _run_bus(args, ids, ctl, rig) -> int:
             found = bus.scan(ids, attempts=3)  # a lost ping is not a missing servo
             if not found:
                 raise HardwareTimeout(f"{args.port}: no servo answered at {args.baud} baud"
-                                      + (f" (IDs {getattr(args, 'ids')})" if ids else ""), device=args.port)
+                                      + (f" (IDs {getattr(args, 'ids')})" if ids else "")
+                                      + "; a servo answers only at the rate it was set to: try --baud with the rig "
+                                      "file's [bus] baud (the shipped rigs: 1000000)", device=args.port)
             if args.servo_command == "scan":
                 print(f"{'id':>3}  {'model':<12} model_number")
                 for i, model in found.items():
