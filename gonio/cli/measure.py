@@ -357,9 +357,9 @@ def _manifest_timing(manifest):
 
 def _run_session(store, plan, devices, calibration, layout, *, before_pose, quiet: bool, resume_cmd: str) -> int:
     from gonio.rig.dynamixel import describe_hardware_error
-    from gonio.session.runner import RunnerSettings, SessionRunner, format_lab_time
+    from gonio.session.runner import RunnerSettings, SessionRunner, format_lab_time, recovered_faults
 
-    for joint, bits in (getattr(devices.axes, "cleared_alarms", None) or {}).items():  # said even with --quiet
+    for joint, bits in recovered_faults(devices).get("servo_alarms_cleared", {}).items():  # said even with --quiet
         print(f"gonio: servo {joint}: hardware error found at start ({describe_hardware_error(bits)}, Hardware Error "
               f"Status 0x{bits:02X}) cleared by a reboot; if its cause is not known, stop (Ctrl-C) and check the arm",
               file=sys.stderr)
@@ -387,7 +387,7 @@ def _run_session(store, plan, devices, calibration, layout, *, before_pose, quie
                                resume_command=resume_cmd, stream=None if quiet else sys.stderr)
         result = runner.run()
     total = store.sample_count
-    resets = getattr(devices.controller, "resets_seen", 0)
+    resets = recovered_faults(devices).get("controller_resets", 0)
     if resets:  # recovered (re-handshake, light restored), but a board that browns out needs looking at
         print(f"gonio: the rig controller reset {resets} time{'s' if resets > 1 else ''} during this run (recovered: "
               "handshake and light restored); check its power supply and USB cable", file=sys.stderr)

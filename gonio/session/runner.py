@@ -158,6 +158,21 @@ def format_lab_time(seconds: float) -> str:
     return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
 
 
+def recovered_faults(devices) -> dict:
+    """Hardware faults the devices recovered from in this run, as the manifest records them (``last_run``):
+    ``servo_alarms_cleared`` (``{joint: Hardware Error Status}``, cleared by the start-up reboot) and
+    ``controller_resets`` (re-handshakes after the rig controller reset); empty when there were none. A session
+    whose rig needed them is not the same evidence as one whose rig did not."""
+    out: dict = {}
+    alarms = getattr(devices.axes, "cleared_alarms", None) or {}
+    if alarms:
+        out["servo_alarms_cleared"] = {str(k): int(v) for k, v in alarms.items()}
+    resets = int(getattr(devices.controller, "resets_seen", 0) or 0)
+    if resets:
+        out["controller_resets"] = resets
+    return out
+
+
 @dataclass
 class RunResult:
     """How a run ended and what it did."""
@@ -176,6 +191,7 @@ class RunResult:
     error: GonioError | None = None
     estimated_lab_time: float | None = None  #: the cost model's estimate of this run, before it started
     exposure: dict = field(default_factory=dict)  #: mode and poses per bracket used
+    recovered_faults: dict = field(default_factory=dict)  #: :func:`recovered_faults` of this run
 
     def summary(self) -> dict:
         """JSON-able summary for the manifest."""
@@ -183,7 +199,8 @@ class RunResult:
                 "lab_time_s": self.lab_time, "wall_time_s": self.wall_time,
                 "estimated_lab_time_s": self.estimated_lab_time, "exposure": self.exposure,
                 "skipped": [{"pose": k, "reason": r} for k, r in self.skipped],
-                "failed": [{"pose": k, "reason": r} for k, r in self.failed]}
+                "failed": [{"pose": k, "reason": r} for k, r in self.failed],
+                "recovered_faults": dict(self.recovered_faults)}
 
     @property
     def ok(self) -> bool:
@@ -630,6 +647,7 @@ class SessionRunner:
                 signal.signal(signal.SIGTERM, old_term)
             result.lab_time = self.clock.now() - lab0
             result.wall_time = time.perf_counter() - wall0
+            result.recovered_faults = recovered_faults(self.dev)
             result.exposure = {"mode": "fixed" if self.bracket is not None else "auto",
                                "dark_exposures_s": list(self.dark_exposures), "poses_per_bracket": brackets}
             self.store.finish(result.status, last_run=result.summary())

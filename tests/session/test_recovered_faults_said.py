@@ -3,9 +3,12 @@
 A servo found with a hardware error (overload, overheating, ...) when a session starts is rebooted so the
 session can run (DynamixelAxes.configure, clear_alarms); the person running it must be told, since an
 overload means something blocked the arm. Before, the reboot was silent: nothing on the terminal, nothing
-anywhere (DynamixelAxes.cleared_alarms was filled and never read; found by QA, qa-lab)."""
+anywhere (DynamixelAxes.cleared_alarms was filled and never read; found by QA, qa-lab). The manifest's
+``last_run.recovered_faults`` records them too."""
 
 from __future__ import annotations
+
+import json
 
 from gonio.cli.main import main
 from sim.rig import SimRig
@@ -26,6 +29,8 @@ def test_a_servo_alarm_cleared_at_start_is_said(tmp_path, monkeypatch, capfd):
     err = capfd.readouterr().err
     lines = [line for line in err.splitlines() if "light_el" in line]
     assert len(lines) == 1 and "overload" in lines[0] and "0x20" in lines[0] and "reboot" in lines[0], err
+    run = json.loads((tmp_path / "s" / "manifest.json").read_text())["last_run"]
+    assert run["recovered_faults"] == {"servo_alarms_cleared": {"light_el": 0x20}}  # the record says it too
 
 
 def test_a_controller_reset_during_the_session_is_said(tmp_path, monkeypatch, capfd):
@@ -45,3 +50,9 @@ def test_a_controller_reset_during_the_session_is_said(tmp_path, monkeypatch, ca
     err = capfd.readouterr().err
     lines = [line for line in err.splitlines() if "reset" in line]
     assert len(lines) == 1 and "rig controller" in lines[0] and "1 time" in lines[0], err
+    run = json.loads((tmp_path / "s" / "manifest.json").read_text())["last_run"]
+    assert run["recovered_faults"] == {"controller_resets": 1}
+
+
+def test_a_run_without_faults_records_none(measured):
+    assert json.loads((measured / "manifest.json").read_text())["last_run"]["recovered_faults"] == {}
