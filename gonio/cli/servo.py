@@ -9,7 +9,7 @@ DEFAULT_BAUD = 57600  # the factory default of X-series servos (Baud Rate(8) = 1
 
 
 def register(sub) -> None:
-    p = sub.add_parser("servo", help="scan, read and move Dynamixel servos on a bus",
+    p = sub.add_parser("servo", help="scan, read, reboot and move Dynamixel servos on a bus",
                        description="Lab-bench tools for Dynamixel (Protocol 2.0) servos.")
     ssub = p.add_subparsers(dest="servo_command", metavar="ACTION", required=True)
 
@@ -25,6 +25,10 @@ def register(sub) -> None:
     r = ssub.add_parser("read", help="print the raw angle of every servo (or --ids)")
     common(r)
     r.add_argument("--ids", help="IDs to read (default: broadcast ping to find them)")
+    rb = ssub.add_parser("reboot", help="reboot one servo: clears its hardware error (overload, overheating, ...); "
+                                       "it does not move, and its torque stays off")
+    common(rb)
+    rb.add_argument("--id", type=int, required=True, help="servo ID")
     m = ssub.add_parser("move", help="move one servo to a raw angle and wait until it arrives")
     common(m)
     m.add_argument("--id", type=int, required=True, help="servo ID")
@@ -75,10 +79,10 @@ def _check_numbers(args) -> None:
                                 f"not a Dynamixel baud rate; use one of {', '.join(map(str, BAUD_RATES))}")
     if not (math.isfinite(args.latency_ms) and 0 < args.latency_ms <= 1000):
         raise ConfigError.field("--latency-ms", "latency_ms", args.latency_ms, "must be in (0, 1000] ms")
+    if args.servo_command in ("move", "reboot") and not 0 <= args.id <= MAX_ID:
+        raise ConfigError.field("--id", "id", args.id, f"servo IDs are 0..{MAX_ID} (253-255 are reserved/broadcast)")
     if args.servo_command != "move":
         return
-    if not 0 <= args.id <= MAX_ID:
-        raise ConfigError.field("--id", "id", args.id, f"servo IDs are 0..{MAX_ID} (253-255 are reserved/broadcast)")
     if not (math.isfinite(args.deg) and 0.0 <= args.deg <= 360.0):
         raise ConfigError.field("--deg", "deg", args.deg, "raw angle must be in [0, 360]")
     if not (math.isfinite(args.timeout) and 0 < args.timeout <= 3600):
@@ -156,6 +160,36 @@ def _check_move(bus, rig, servo_id: int, table, goal: int) -> None:
                                 "are); move the other arm first")
 
 
+def _reboot(bus, servo_id: int, port: str) -> int:
+    """Reboot ``servo_id`` (Protocol 2.0 REBOOT), wait until it answers again and say what its Hardware Error
+    Status was and is: the reboot clears the alarm, not its cause."""
+    from gonio.errors import HardwareTimeout
+    from gonio.rig.clock import RealClock
+    from gonio.rig.control_table import load_control_table, table_for_model_number
+    from gonio.rig.dynamixel import describe_hardware_error
+
+    table = table_for_model_number(bus.ping(servo_id)) or load_control_table("XM430-W350")
+    before = bus.read(servo_id, table, "hardware_error_status", alarm_ok=True)
+    bus.reboot(servo_id)
+    clock = RealClock()
+    deadline = clock.now() + 3.0  # a Dynamixel answers again within ~1 s of a reboot
+    while True:
+        try:
+            bus.ping(servo_id)
+            break
+        except HardwareTimeout:
+            if clock.now() > deadline:
+                raise
+            clock.sleep(0.1)
+    after = bus.read(servo_id, table, "hardware_error_status", alarm_ok=True)
+    was = f"hardware error 0x{before:02X} ({describe_hardware_error(before)})" if before else "no hardware error"
+    now = (f"still 0x{after:02X} ({describe_hardware_error(after)}): its cause is still there" if after else
+           "now clear")
+    print(f"servo {servo_id}: rebooted ({port}); it had {was}, {now}; torque off"
+          + ("; remove the cause (load, heat, supply) before moving it" if before else ""))
+    return 0 if not after else 3
+
+
 def _model_name(number: int) -> str:
     from gonio.rig.control_table import table_for_model_number
 
@@ -208,6 +242,8 @@ def _run_bus(args, ids, ctl, rig) -> int:
                 print(f"{i:>3}  {_model_name(model):<12} {ticks:>6} {ticks * 360.0 / table.ticks_per_rev:>8.2f}  "
                       f"{'on' if torque else 'off':<6}  {'0x%02X' % err if err else '-'}")
             return 0
+        if args.servo_command == "reboot":
+            return _reboot(bus, args.id, args.port)
         # move
         model = bus.ping(args.id)
         table = table_for_model_number(model)

@@ -317,7 +317,8 @@ class DynamixelBus:
             bits, _, _ = self.transact("read Hardware Error Status", dxl_id,
                                        lambda: self._ph.read1ByteTxRx(self._port, dxl_id, 70), alarm_ok=True)
         raise ServoAlarm(f"{self._who(dxl_id)}: hardware error: {describe_hardware_error(bits)} "
-                         f"(Hardware Error Status 0x{bits:02X}); torque is off until reboot",
+                         f"(Hardware Error Status 0x{bits:02X}); torque is off until reboot (remove the cause, then "
+                         f"`gonio servo reboot --id {dxl_id}`, or start the session: it reboots alarmed servos)",
                          device=f"dynamixel:{dxl_id}", code=bits)
 
     # -- instructions ---------------------------------------------------------------------------

@@ -47,3 +47,15 @@ def test_one_line_errors(bench, capsys):
     assert "servo 2: hardware error: overload" in err and "\n" not in err
     assert main(["servo", "move", "--port", bench.path, "--id", "1", "--deg", "400", "--unmounted"]) == 2
     assert "raw angle must be in [0, 360]" in capsys.readouterr().err
+
+
+def test_reboot_clears_an_alarm_and_says_what_it_was(bench, capsys):
+    """A servo in alarm ("torque is off until reboot") had no gonio command to reboot it; only starting a session
+    did, silently (found by QA, qa-lab)."""
+    bench.servo(2).trip(HW_OVERLOAD)
+    assert main(["servo", "reboot", "--port", bench.path, "--id", "2"]) == 0
+    out = capsys.readouterr().out.strip()
+    assert out.startswith("servo 2: rebooted") and "hardware error 0x20 (overload" in out and "now clear" in out
+    assert "remove the cause" in out and bench.servo(2).peek("hardware_error_status") == 0
+    assert bench.servo(2).peek("torque_enable") == 0  # a reboot never moves it
+    assert main(["servo", "reboot", "--port", bench.path, "--id", "300"]) == 2  # refused before a byte
