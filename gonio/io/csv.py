@@ -59,6 +59,7 @@ def read_csv(path) -> SampleSet:
         raise DataError(f"{path}: bad CSV row ({str(exc).splitlines()[0]})") from None
     if data.size == 0:
         data = np.zeros((0, len(COLUMNS)))
+    _check_integer_columns(path, data)
     t = np.radians(data[:, :4])
     return SampleSet.from_dict(
         {**dict(zip(("wi", "wo"), _dirs(t))), "f": data[:, 4:7], "sigma": data[:, 7:10],
@@ -66,6 +67,23 @@ def read_csv(path) -> SampleSet:
          "pose": data[:, 12].astype(np.int64)},
         source=str(path),
     )
+
+
+#: The integer columns (index into COLUMNS) and their ranges: a flag bit mask, pixels averaged, the plan pose
+#: (−1: none; :data:`gonio.session.records.MAX_POSE` the largest a record holds)
+_INTEGER_COLUMNS = ((10, 0, 2**31 - 1), (11, 0, 10**9), (12, -1, 10**7))
+
+
+def _check_integer_columns(path, data) -> None:
+    """``flags``, ``n_pixels`` and ``pose`` hold integers within their ranges; else a DataError naming the file,
+    the line and the value (``flags`` 1.5 was read as 1, 1e30 as INT64_MIN, a negative pixel count as given)."""
+    for col, lo, hi in _INTEGER_COLUMNS:
+        v = data[:, col]
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(~((v == np.round(v)) & (v >= lo) & (v <= hi)))
+        if bad.size:
+            k = int(bad[0])
+            raise DataError(f"{path}: line {k + 2}: {COLUMNS[col]} = {v[k]!r}: must be an integer in [{lo}, {hi}]")
 
 
 def _dirs(t):

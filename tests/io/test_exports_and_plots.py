@@ -63,6 +63,21 @@ def test_csv_round_trip_and_header(tmp_path):
         read_csv(tmp_path / "bad.csv")
 
 
+@pytest.mark.parametrize("column, value", [("flags", "1.5"), ("flags", "1e30"), ("flags", "-1"),
+                                           ("n_pixels", "-4"), ("pose", "-2"), ("pose", "nan"), ("pose", "2.5")])
+def test_an_integer_column_that_is_not_an_integer_in_range_is_one_line_naming_the_line(tmp_path, column, value):
+    """flags 1.5 was read as 1, 1e30 as INT64_MIN, negative pixel counts and poses as given (found by QA,
+    qa-hostile)."""
+    s = session_samples()
+    lines = write_csv(tmp_path / "s.csv", s).read_text().splitlines()
+    row = lines[3].split(",")
+    row[COLUMNS.index(column)] = value
+    lines[3] = ",".join(row)
+    (tmp_path / "bad.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataError, match=rf"bad.csv: line 4: {column} = .*: must be an integer in"):
+        read_csv(tmp_path / "bad.csv")
+
+
 def test_npz_round_trip_without_pickle(tmp_path):
     s = session_samples()
     meta = build_metadata(MANIFEST, note="x")
