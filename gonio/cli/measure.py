@@ -725,15 +725,12 @@ def _say_plan(plan, store, quiet: bool, rig) -> None:
     print(f"session {store.directory}: plan {plan.generator}, {len(plan)} poses{dropped}{eta}", file=sys.stderr)
 
 
-def _nothing_to_resume(d) -> bool:
-    """If every pose of the session in ``d`` is stored (and an adaptive session has stopped adapting), say
-    so and return True without counting a resume (a session not marked completed is marked so)."""
-    from gonio.plan.plan import Plan
-    from gonio.session.store import MANIFEST, SessionStore, _read_manifest, _samples_path, scan_samples
+def _nothing_to_resume(d, manifest, plan, scan) -> bool:
+    """If every pose of the session in ``d`` (its ``manifest``, ``plan`` and samples ``scan``) is stored (and an
+    adaptive session has stopped adapting), say so and return True without counting a resume (a session not
+    marked completed is marked so)."""
+    from gonio.session.store import SessionStore
 
-    manifest = _read_manifest(d)
-    plan = Plan.from_dict(manifest.get("plan"), source=str(d / MANIFEST))
-    scan = scan_samples(_samples_path(d, manifest))
     adapting = isinstance(manifest.get("adaptive"), dict) and manifest["adaptive"].get("stop") is None
     if adapting or scan.torn is not None or scan.damaged or any(k not in scan.records for k in range(len(plan))):
         return False
@@ -773,7 +770,7 @@ def _check_servo_models(rig) -> None:
             raise ConfigError(f"{rig.source}: joint {j.name}: {exc}") from None
 
 
-def _check_plan_against_records(d) -> None:
+def _check_plan_against_records(d, manifest, plan, scan) -> None:
     """Refuse a plan that no longer describes the stored poses: every record names the plan pose it measured
     (``pose``) and the angles it was measured at (``meta.pose_rad``, [θi, φi, θo, φo] rad, written from the
     plan); a manifest whose plan was edited, reordered or replaced since would make a resume measure the poses
@@ -783,14 +780,10 @@ def _check_plan_against_records(d) -> None:
     import numpy as np
 
     from gonio.errors import DataError
-    from gonio.plan.plan import Plan
-    from gonio.session.store import MANIFEST, SAMPLES, _read_manifest, scan_samples
+    from gonio.session.store import MANIFEST, SAMPLES
 
-    manifest = _read_manifest(d)
     if "adaptive" in manifest:  # an adaptive session's plan is rebuilt from its rounds as it grows
         return
-    plan = Plan.from_dict(manifest.get("plan"), source=str(d / MANIFEST))
-    scan = scan_samples(d / SAMPLES)
     for pose in sorted(scan.records):
         got = scan.records[pose][1].get("pose_rad")
         if got is None:
@@ -813,21 +806,22 @@ def run_resume(args) -> int:
 
     from gonio.errors import ConfigError, DataError
     from gonio.plan.plan import Plan
-    from gonio.session.store import MANIFEST, SessionStore
+    from gonio.session.store import MANIFEST, SessionStore, _read_manifest, _samples_path, scan_samples
 
     d = Path(args.dir)
     if not (d / MANIFEST).is_file():
         raise ConfigError.field(None, "session directory", args.dir, "is not a gonio session (no manifest.json)")
-    if _nothing_to_resume(d):
-        from gonio.session.store import _read_manifest
-
-        manifest = _read_manifest(d)
+    # read once for both checks below (read-only: the store reads the file again under its lock)
+    manifest = _read_manifest(d)
+    plan = Plan.from_dict(manifest.get("plan"), source=str(d / MANIFEST))
+    scan = scan_samples(_samples_path(d, manifest))
+    if _nothing_to_resume(d, manifest, plan, scan):
         if "geocal" in manifest:  # every pose measured: the calibration's estimate may still be missing
             from gonio.cli.calibrate import finish_from_directory
 
-            return finish_from_directory(d, manifest, rig_file=args.rig)
+            return finish_from_directory(d, _read_manifest(d), rig_file=args.rig)  # as marked completed just now
         return 0
-    _check_plan_against_records(d)  # before the store marks the session as resumed
+    _check_plan_against_records(d, manifest, plan, scan)  # before the store marks the session as resumed
     store = SessionStore.open(d)
     if store.repaired is not None:
         q = store.repaired["quarantined"]
@@ -836,8 +830,7 @@ def run_resume(args) -> int:
               "measured again", file=sys.stderr)
     manifest = store.manifest
     try:
-        plan = Plan.from_dict(manifest.get("plan"), source=str(d / MANIFEST))
-        remaining = store.remaining(plan)
+        remaining = store.remaining(plan)  # the plan read above: opening the store does not change it
         adapting = isinstance(manifest.get("adaptive"), dict) and manifest["adaptive"].get("stop") is None
         if not args.quiet:
             print(f"resuming {d}: {len(remaining)} of {len(plan)} poses remaining"
