@@ -116,16 +116,16 @@ def _open_guard(args):
 def _clear(ctl) -> None:
     from gonio.errors import EmergencyStop
 
-    st = ctl.status()
-    if st.estop or st.interlock_open:
-        raise EmergencyStop(f"{ctl.device}: {'E-stop is pressed' if st.estop else 'enclosure interlock is open'}: "
-                            "nothing was sent to the servo", device=ctl.device)
+    what = ctl.status().stop_reason
+    if what:
+        raise EmergencyStop(f"{ctl.device}: {what}: nothing was sent to the servo", device=ctl.device)
 
 
 def _check_move(bus, rig, servo_id: int, table, goal: int) -> None:
     """A mounted servo's move to raw ``goal`` keeps its joint within the rig's limits and the arms clear of each
-    other and of the light's beam (:meth:`gonio.rig.kinematics.Rig.check_directions`) at every point of the way,
-    the other joints where they are now (read from their servos). ConfigError naming the joint otherwise."""
+    other (:meth:`gonio.rig.kinematics.Rig.check_directions`' collision test; a shadow is allowed) at every point
+    of the way, the other joints where they are now (read from their servos). ConfigError naming the joint
+    otherwise."""
     import numpy as np
 
     from gonio.errors import ConfigError

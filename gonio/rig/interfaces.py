@@ -130,6 +130,14 @@ class ControllerStatus:
     uptime_s: float
     flags: int = 0
 
+    @property
+    def stop_reason(self) -> str | None:
+        """Why nothing may move and the light is off: ``"E-stop is pressed"``, ``"enclosure interlock is open"``,
+        or None when both are clear."""
+        if self.estop:
+            return "E-stop is pressed"
+        return "enclosure interlock is open" if self.interlock_open else None
+
 
 @runtime_checkable
 class RigController(Protocol):

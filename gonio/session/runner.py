@@ -117,9 +117,8 @@ def open_devices(rig, servo_port: str, controller_port: str, camera, clock, *, l
     # (configuring them writes EEPROM, reboots an alarmed one and switches torque on)
     controller = RigController.open(controller_port, clock=clock, watchdog=watchdog)
     try:
-        st = controller.status()
-        if st.estop or st.interlock_open:
-            what = "E-stop is pressed" if st.estop else "enclosure interlock is open"
+        what = controller.status().stop_reason
+        if what:
             raise EmergencyStop(f"rig controller: {what}: release it and run the command again (nothing was sent "
                                 "to the servos)", device="rig controller")
         bus = DynamixelBus(servo_port, rig.baud, latency_timer_ms=latency_timer_ms).open()
@@ -328,9 +327,8 @@ class SessionRunner:
     # -- device checks and warm-up --------------------------------------------------------------
     def check_devices(self) -> None:
         """E-stop and interlock must be clear (:class:`EmergencyStop` otherwise)."""
-        st = self.dev.controller.status()
-        if st.estop or st.interlock_open:
-            what = "E-stop is pressed" if st.estop else "enclosure interlock is open"
+        what = self.dev.controller.status().stop_reason
+        if what:
             raise EmergencyStop(f"rig controller: {what}: release it, then resume", device="rig controller")
 
     def safety_check(self) -> None:
