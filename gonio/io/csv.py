@@ -69,15 +69,18 @@ def read_csv(path) -> SampleSet:
     )
 
 
-#: The integer columns (index into COLUMNS) and their ranges: a flag bit mask, pixels averaged, the plan pose
-#: (−1: none; :data:`gonio.session.records.MAX_POSE` the largest a record holds)
-_INTEGER_COLUMNS = ((10, 0, 2**31 - 1), (11, 0, 10**9), (12, -1, 10**7))
+def _integer_columns():
+    """The integer columns (index into COLUMNS) and their ranges: a flag bit mask, pixels averaged, the plan pose
+    (−1: none; up to :data:`gonio.session.records.MAX_POSE`, the largest a record holds)."""
+    from gonio.session.records import MAX_POSE
+
+    return ((10, 0, 2**31 - 1), (11, 0, 10**9), (12, -1, MAX_POSE))
 
 
 def _check_integer_columns(path, data) -> None:
     """``flags``, ``n_pixels`` and ``pose`` hold integers within their ranges; else a DataError naming the file,
     the line and the value (``flags`` 1.5 was read as 1, 1e30 as INT64_MIN, a negative pixel count as given)."""
-    for col, lo, hi in _INTEGER_COLUMNS:
+    for col, lo, hi in _integer_columns():
         v = data[:, col]
         with np.errstate(invalid="ignore"):
             bad = np.flatnonzero(~((v == np.round(v)) & (v >= lo) & (v <= hi)))
