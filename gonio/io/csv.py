@@ -86,7 +86,7 @@ def _check_integer_columns(path, data) -> None:
             bad = np.flatnonzero(~((v == np.round(v)) & (v >= lo) & (v <= hi)))
         if bad.size:
             k = int(bad[0])
-            raise DataError(f"{path}: line {k + 2}: {COLUMNS[col]} = {v[k]!r}: must be an integer in [{lo}, {hi}]")
+            raise DataError(f"{path}: line {k + 2}: {COLUMNS[col]} = {float(v[k])!r}: must be an integer in [{lo}, {hi}]")
 
 
 def _dirs(t):
