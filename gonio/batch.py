@@ -18,7 +18,21 @@ from typing import Any, Callable, Sequence
 from gonio.errors import ConfigError, GonioError
 from gonio.progress import progress
 
-__all__ = ["expand_sources", "default_jobs", "run_batch", "write_summary_csv", "format_table"]
+__all__ = ["expand_sources", "default_jobs", "run_batch", "write_summary_csv", "format_table", "unique_names",
+           "BatchInterrupted", "INTERRUPTED"]
+
+#: The status of a source an interrupted batch did not finish (not started, or cancelled).
+INTERRUPTED = "interrupted"
+
+
+class BatchInterrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM during :func:`run_batch`: :attr:`rows` holds the row of every source that finished
+    and an ``"interrupted"`` row for each other one, in the order of the sources, so the caller can still
+    write the summary of what was done."""
+
+    def __init__(self, rows: list[dict]):
+        super().__init__("interrupted")
+        self.rows = rows
 
 #: File name endings that are read as data sources when a directory of them is given.
 DATA_SUFFIXES = (".binary", ".npz", ".csv", ".bsdf")
@@ -55,6 +69,39 @@ def expand_sources(specs: Sequence[str]) -> list[Path]:
             seen.add(key)
             unique.append(p)
     return unique
+
+
+def unique_names(sources: Sequence[Path | str], name_of: Callable[[str], str]) -> tuple[list[str], list[int]]:
+    """The output file name of each source, ``name_of(str(source))``, made unique within the batch: sources
+    whose names clash (``A/S`` and ``B/S`` both give ``S.json``; compared without case, as a case-insensitive
+    file system would) are named as if their parent directories were part of their name, one level more
+    until they differ (``A-S.json``, ``B-S.json``), and numbered (``S-2.json``) if even their full paths do
+    not separate them. Returns the names and the indices of the renamed sources (for the caller to say)."""
+    paths = [Path(os.path.abspath(s)) for s in sources]
+    base = [name_of(str(s)) for s in sources]
+    names, depth = list(base), [0] * len(base)
+    while True:
+        groups: dict[str, list[int]] = {}
+        for k, n in enumerate(names):
+            groups.setdefault(n.casefold(), []).append(k)
+        clashing = [k for g in groups.values() if len(g) > 1 for k in g]
+        if not clashing:
+            break
+        grew = False
+        for k in clashing:
+            parents = paths[k].parent.parts[1:]  # without the root
+            if depth[k] < len(parents):
+                depth[k] += 1
+                grew = True
+                prefix = "-".join(parents[len(parents) - depth[k]:])
+                names[k] = name_of(str(paths[k].parent / f"{prefix}-{paths[k].name}"))
+        if not grew:  # the full paths do not separate them (e.g. only their case differs): numbered
+            for g in groups.values():
+                for j, k in enumerate(g[1:], start=2):
+                    stem, dot, ext = names[k].partition(".")
+                    names[k] = f"{stem}-{j}{dot}{ext}"
+            break
+    return names, [k for k in range(len(names)) if names[k] != base[k]]
 
 
 def default_jobs() -> int:
@@ -116,28 +163,78 @@ def run_batch(fn: Callable[[str, dict], dict], sources: Sequence[Path | str], op
     ``scheduler`` (``tcp://host:port``) runs them on a Dask distributed cluster (``pip install
     'gonio[dask]'``); else ``jobs`` worker processes on this machine (default: every core; 1 runs in
     this process).
+
+    Ctrl-C or SIGTERM: no further source starts, the running ones finish, and :class:`BatchInterrupted`
+    carries the rows (finished ones, and ``"interrupted"`` for the others).
     """
     names = [str(s) for s in sources]
-    if scheduler:
-        return _run_dask(fn, names, options, scheduler, desc)
-    jobs = default_jobs() if jobs is None else jobs
-    if jobs < 1:
-        raise ConfigError.field("--jobs", "jobs", jobs, "must be at least 1")
-    jobs = min(jobs, len(names))
-    if jobs <= 1:
-        return [_guarded(fn, s, options) for s in progress(names, total=len(names), desc=desc, unit="source")]
-    rows: list[dict | None] = [None] * len(names)
-    with _one_thread_workers(), ProcessPoolExecutor(max_workers=jobs, mp_context=_spawn()) as pool:
-        futures = {pool.submit(_guarded, fn, s, options): k for k, s in enumerate(names)}
-        try:
-            for fut in progress(as_completed(futures), total=len(futures), desc=desc, unit="source"):
-                rows[futures[fut]] = fut.result()
-        except BaseException:
-            # Ctrl-C (or any error here): no source not yet started is started; the ones running finish
-            # (their outputs are written atomically) before this returns, so no worker writes afterwards.
-            pool.shutdown(wait=True, cancel_futures=True)
-            raise
-    return rows  # type: ignore[return-value]
+    with _stop_on_sigterm():
+        if scheduler:
+            return _run_dask(fn, names, options, scheduler, desc)
+        jobs = default_jobs() if jobs is None else jobs
+        if jobs < 1:
+            raise ConfigError.field("--jobs", "jobs", jobs, "must be at least 1")
+        jobs = min(jobs, len(names))
+        rows: list[dict | None] = [None] * len(names)
+        if jobs <= 1:
+            try:
+                for k, s in enumerate(progress(names, total=len(names), desc=desc, unit="source")):
+                    rows[k] = _guarded(fn, s, options)
+            except KeyboardInterrupt:
+                raise BatchInterrupted(_with_interrupted(rows, names)) from None
+            return rows  # type: ignore[return-value]
+        with _one_thread_workers(), ProcessPoolExecutor(max_workers=jobs, mp_context=_spawn(),
+                                                        initializer=_worker_ignores_sigint) as pool:
+            futures = {pool.submit(_guarded, fn, s, options): k for k, s in enumerate(names)}
+            try:
+                for fut in progress(as_completed(futures), total=len(futures), desc=desc, unit="source"):
+                    rows[futures[fut]] = fut.result()
+            except BaseException as exc:
+                # Ctrl-C, SIGTERM (or any error here): no source not yet started is started; the ones running
+                # finish (their outputs are written atomically) before this returns, so no worker writes afterwards
+                pool.shutdown(wait=True, cancel_futures=True)
+                if not isinstance(exc, KeyboardInterrupt):
+                    raise
+                for fut, k in futures.items():  # what finished, also while shutting down, is in the summary
+                    if rows[k] is None and fut.done() and not fut.cancelled() and fut.exception() is None:
+                        rows[k] = fut.result()
+                raise BatchInterrupted(_with_interrupted(rows, names)) from None
+        return rows  # type: ignore[return-value]
+
+
+def _with_interrupted(rows: list[dict | None], names: list[str]) -> list[dict]:
+    """``rows`` with an :data:`INTERRUPTED` row for each source that has none."""
+    return [r if r is not None else {"source": s, "status": INTERRUPTED} for r, s in zip(rows, names)]
+
+
+def _worker_ignores_sigint() -> None:
+    """A worker process ignores SIGINT: Ctrl-C at a terminal reaches the whole process group, and the parent,
+    not each worker, decides (the running sources finish, the queued ones are cancelled)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+class _stop_on_sigterm:
+    """While a batch runs in the main thread, SIGTERM (``kill``, a scheduler's time limit, a service manager)
+    stops it as Ctrl-C does, so the summary of the finished sources is still written; the previous handler
+    is restored afterwards."""
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        self._old = None
+        if threading.current_thread() is threading.main_thread():
+            self._old = signal.signal(signal.SIGTERM, signal.default_int_handler)
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+
+        if self._old is not None:
+            signal.signal(signal.SIGTERM, self._old)
+        return False
 
 
 def _run_dask(fn, names: list[str], options: dict, scheduler: str, desc: str) -> list[dict]:
@@ -158,8 +255,12 @@ def _run_dask(fn, names: list[str], options: dict, scheduler: str, desc: str) ->
                    for k, s in enumerate(names)]
         index = {f.key: k for k, f in enumerate(futures)}
         rows: list[dict | None] = [None] * len(names)
-        for fut in progress(dask_completed(futures), total=len(futures), desc=desc, unit="source"):
-            rows[index[fut.key]] = fut.result()
+        try:
+            for fut in progress(dask_completed(futures), total=len(futures), desc=desc, unit="source"):
+                rows[index[fut.key]] = fut.result()
+        except KeyboardInterrupt:
+            client.cancel([f for f in futures if not f.done()])
+            raise BatchInterrupted(_with_interrupted(rows, names)) from None
         return rows  # type: ignore[return-value]
     finally:
         client.close()

@@ -3,6 +3,8 @@ session directory or a MERL ``.binary`` and print a table."""
 
 from __future__ import annotations
 
+from functools import partial
+
 from gonio.cli import many
 
 
@@ -95,20 +97,21 @@ def fit_one(source: str, opts: dict):
     return api.fit(source, opts["model"], fixed=opts["fixed"], **kw), None
 
 
-def fit_row(source: str, opts: dict) -> dict:
-    """One summary row of a batch fit; writes ``json_dir/NAME.json`` when asked."""
+def _json_name(source: str) -> str:
+    """The file name of a source's fit result in a batch's ``--json`` directory."""
     from pathlib import Path
 
-    target = None
-    if opts.get("json_dir"):  # checked before the fit: e.g. never over a MERL table's sidecar
-        from gonio.io.outputs import check_output
+    return f"{Path(source).name}.json"
 
-        target = check_output(Path(opts["json_dir"]) / f"{Path(source).name}.json", option="--json",
-                              force=opts["force"], inputs=[source])
+
+def fit_row(source: str, opts: dict) -> dict:
+    """One summary row of a batch fit; writes its JSON (``opts["outputs"][source]``, checked and made unique
+    within the batch before it ran: :func:`gonio.cli.many.output_targets`) when asked."""
+    target = (opts.get("outputs") or {}).get(source)
     result, sel = fit_one(source, opts)
     if target is not None:
         (sel or result).to_json(target, force=opts["force"])
-    return {"model": result.model_name, "n_used": result.n_used, "rms_rel": result.rms_rel,
+    return {**({"output": target} if target else {}), "model": result.model_name, "n_used": result.n_used, "rms_rel": result.rms_rel,
             "chi2_red": result.chi2_red, "seconds": round(result.seconds, 3),
             "params": "; ".join(f"{k}={v}" for k, v in result.params.items()),
             "at_bound": "; ".join(f"{k} ({', '.join(f'{c} {w}' for c, w in b.items())})"
@@ -125,11 +128,13 @@ def run(args) -> int:
                 from gonio.errors import ConfigError
 
                 raise ConfigError.field(option, option.lstrip("-"), value, "takes one source (fit each one alone)")
-        summary = many.summary_path("fit", args, paths)  # both refused before anything is created
-        opts["json_dir"] = str(many.output_dir("--json", args.json, required=False) or "") or None
+        summary = many.summary_path("fit", args, paths)  # all refused before anything is created
+        json_dir = many.output_dir("--json", args.json, required=False)
+        if json_dir is not None:
+            opts["outputs"] = many.output_targets("--json", json_dir, paths, _json_name, args.force, summary)
         return many.run("fit", args, fit_row, paths, opts,
                         ["source", "status", "model", "n_used", "rms_rel", "chi2_red", "seconds", "params", "at_bound",
-                         "error"],
+                         "error"] + (["output"] if json_dir is not None else []),
                         summary=summary)
     args.source = str(paths[0])
     return run_one(args)
@@ -147,28 +152,62 @@ def run_one(args) -> int:
     for option, value in (("--json", args.json), ("--mitsuba", args.mitsuba)):
         if value:  # refused before minutes of fitting, not after
             check_output(value, option=option, force=args.force, inputs=[args.source])
+    _refuse_shared_outputs((o, getattr(args, o.lstrip("-"))) for o, _ in _OUTPUTS)
     result, sel = fit_one(args.source, opts)
     if sel is not None:
         print("\n".join(sel.table_lines()))
         print()
     print("\n".join(result.summary_lines()))
-    # the result is written before any optional export that can refuse the model
-    if args.json:
-        (sel or result).to_json(args.json, force=args.force)
-        print(f"wrote {args.json}")
-    if args.mitsuba:
-        from gonio.io.mitsuba import write_mitsuba
-        from gonio.io.outputs import check_output
+    from gonio.cli.each_output import write_each
 
-        ex = write_mitsuba(result.model, check_output(args.mitsuba, option="--mitsuba", force=args.force,
-                                                      suffixes=(".xml", ".json")), approx=args.approx)
-        print(f"wrote {args.mitsuba} ({ex.describe()})")
-    for option, value, _ in renderers:
-        if value:
-            from gonio.io.gltf import write_gltf
-            from gonio.io.pbrt import write_pbrt
+    # every output stands alone: one a renderer refuses is one line, the others are still written
+    return write_each("fit", [(option, partial(write, args, result, sel)) for option, write in _OUTPUTS
+                              if getattr(args, option.lstrip("-"))])
 
-            write = write_pbrt if option == "--pbrt" else write_gltf
-            ex = write(result.model, value, approx=args.approx, option=option)
-            print(f"wrote {value} ({ex.describe()})")
-    return 0
+
+def _refuse_shared_outputs(named) -> None:
+    """A one-line ConfigError before any work when two options name the same file: the second output would
+    replace the first (with --force) or be refused on a file this very command wrote."""
+    import os
+
+    from gonio.errors import ConfigError
+
+    seen: dict[str, str] = {}
+    for option, value in named:
+        if not value:
+            continue
+        key = os.path.realpath(os.path.expanduser(value))
+        if key in seen:
+            raise ConfigError.field(None, option, value, f"is also {seen[key]}'s output: name a file for each output")
+        seen[key] = option
+
+
+def _write_json(args, result, sel) -> str:
+    (sel or result).to_json(args.json, force=args.force)
+    return f"wrote {args.json}"
+
+
+def _write_mitsuba(args, result, sel) -> str:
+    from gonio.io.mitsuba import write_mitsuba
+    from gonio.io.outputs import check_output
+
+    ex = write_mitsuba(result.model, check_output(args.mitsuba, option="--mitsuba", force=args.force,
+                                                  suffixes=(".xml", ".json")), approx=args.approx)
+    return f"wrote {args.mitsuba} ({ex.describe()})"
+
+
+def _write_pbrt(args, result, sel) -> str:
+    from gonio.io.pbrt import write_pbrt
+
+    return f"wrote {args.pbrt} ({write_pbrt(result.model, args.pbrt, approx=args.approx, option='--pbrt').describe()})"
+
+
+def _write_gltf(args, result, sel) -> str:
+    from gonio.io.gltf import write_gltf
+
+    return f"wrote {args.gltf} ({write_gltf(result.model, args.gltf, approx=args.approx, option='--gltf').describe()})"
+
+
+#: The outputs of one fit, in the order they are written: the result first (never lost to a renderer that
+#: refuses the model), then each renderer's material.
+_OUTPUTS = (("--json", _write_json), ("--mitsuba", _write_mitsuba), ("--pbrt", _write_pbrt), ("--gltf", _write_gltf))

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from functools import partial
 from pathlib import Path
@@ -65,55 +66,84 @@ def summary_path(command: str, args, paths) -> Path:
     return check_output(name, option="--summary", inputs=paths)
 
 
+def output_targets(flag: str, out_dir: Path, paths, name_of, force: bool, summary: Path | None = None) -> dict[str, str]:
+    """Where each source's output goes in ``out_dir``: names from ``name_of(source)`` made unique within the
+    batch (:func:`gonio.batch.unique_names`: sources whose names clash are named with their parent
+    directories, and this says so), each checked before anything runs (:func:`gonio.io.outputs.check_output`:
+    an existing file only with ``force``, never one of the batch's sources, never the summary)."""
+    from gonio.batch import unique_names
+    from gonio.errors import ConfigError
+    from gonio.io.outputs import check_output
+
+    names, renamed = unique_names(paths, name_of)
+    targets = {str(p): str(out_dir / n) for p, n in zip(paths, names)}
+    if renamed:
+        print(f"note: {len(renamed)} sources would share an output name in {out_dir}; each is named with its parent "
+              "directories: " + ", ".join(f"{paths[k]} -> {names[k]}" for k in renamed))
+    for p in paths:
+        target = check_output(targets[str(p)], option=flag, force=force, inputs=paths)
+        if summary is not None and os.path.realpath(target) == os.path.realpath(summary):
+            raise ConfigError.field(None, flag, str(target), "is also the summary (--summary): name another one")
+    return targets
+
+
 def run(command: str, args, fn, paths, options: dict, columns=None, summary: Path | None = None) -> int:
     """Run ``fn`` over ``paths`` (:func:`gonio.batch.run_batch`), print the summary table, write its
-    CSV (``summary``, else :func:`summary_path`); exit code 1 if any source failed, else 0."""
-    from gonio.batch import format_table, run_batch, write_summary_csv
+    CSV (``summary``, else :func:`summary_path`); exit code 1 if any source failed, else 0. Interrupted
+    (Ctrl-C, SIGTERM): the summary of the sources that finished is still written (the others say
+    ``interrupted``), then the command stops as interrupted (exit code 130)."""
+    from gonio.batch import INTERRUPTED, BatchInterrupted, format_table, run_batch, write_summary_csv
 
     if summary is None:
         summary = summary_path(command, args, paths)  # refused before the batch runs, not after
-    rows = run_batch(fn, paths, options, jobs=args.jobs, scheduler=args.scheduler, desc=f"gonio {command}")
+    interrupted = False
+    try:
+        rows = run_batch(fn, paths, options, jobs=args.jobs, scheduler=args.scheduler, desc=f"gonio {command}")
+    except BatchInterrupted as exc:
+        rows, interrupted = exc.rows, True
     print("\n".join(format_table(rows, columns)))
     write_summary_csv(summary, rows)
     failed = sum(r.get("status") == "failed" for r in rows)
-    print(f"{len(rows)} sources, {len(rows) - failed} ok, {failed} failed; summary written to {summary}")
+    stopped = sum(r.get("status") == INTERRUPTED for r in rows)
+    done = len(rows) - failed - stopped
+    print(f"{len(rows)} sources, {done} ok, {failed} failed" + (f", {stopped} not run (interrupted)" if stopped else "")
+          + f"; summary written to {summary}")
+    if interrupted:
+        raise KeyboardInterrupt
     return 1 if failed else 0
 
 
 def run_each(command: str, args, run_one, output_name) -> int:
     """A command with one output per source (``gonio export``, ``gonio plot``): one source runs
-    ``run_one(args)``; several write ``output_name(source, opts)`` each into the directory ``-o``
-    names (:func:`output_row`) and print the summary (:func:`run`)."""
+    ``run_one(args)``; several write ``output_name(source, opts)`` each (made unique within the batch:
+    :func:`output_targets`) into the directory ``-o`` names (:func:`output_row`) and print the summary
+    (:func:`run`)."""
     paths = sources(args)
     if not is_batch(args, paths):
         args.source = str(paths[0])
         return run_one(args)
     opts = {k: v for k, v in vars(args).items() if k not in ("func", "source", "output")}
-    seen: dict[str, Path] = {}
-    for p in paths:  # two sources, one output name: the second would replace the first's output
-        name = output_name(str(p), opts)
-        if name in seen:
-            from gonio.errors import ConfigError
-
-            raise ConfigError.field(None, "SOURCE", str(p), f"has the same output name {name} as {seen[name]}; "
-                                    "export them in separate runs (or rename one)")
-        seen[name] = p
-    summary = summary_path(command, args, paths)  # both refused before anything is created
+    summary = summary_path(command, args, paths)  # all refused before anything is created
     out_dir = output_dir("-o", args.output)
-    opts["out_dir"] = str(out_dir)
-    return run(command, args, partial(output_row, run_one, output_name), paths, opts,
+    opts["outputs"] = output_targets("-o", out_dir, paths, partial(_call_name, output_name, opts),
+                                     getattr(args, "force", False), summary)
+    return run(command, args, partial(output_row, run_one), paths, opts,
                ["source", "status", "output", "error"], summary=summary)
 
 
-def output_row(run_one, output_name, source: str, opts: dict) -> dict:
-    """One source of a batch: ``run_one`` with its output in ``opts["out_dir"]`` (its own printing
+def _call_name(output_name, opts: dict, source: str) -> str:
+    return output_name(source, opts)
+
+
+def output_row(run_one, source: str, opts: dict) -> dict:
+    """One source of a batch: ``run_one`` with its output ``opts["outputs"][source]`` (its own printing
     suppressed: the summary speaks for it); its summary row."""
     import argparse
     import contextlib
     import io
 
-    out = Path(opts["out_dir"]) / output_name(source, opts)
-    ns = argparse.Namespace(**{k: v for k, v in opts.items() if k != "out_dir"}, source=source, output=str(out))
+    out = opts["outputs"][source]
+    ns = argparse.Namespace(**{k: v for k, v in opts.items() if k != "outputs"}, source=source, output=out)
     with contextlib.redirect_stdout(io.StringIO()):
         run_one(ns)
-    return {"output": str(out)}
+    return {"output": out}

@@ -267,7 +267,8 @@ def test_fit_writes_renderer_materials_only_when_exact_or_approx(plastic_csv, tm
     js = tmp_path / "fit.json"
     code = main(["fit", str(plastic_csv), "--model", "lambert+ggx", "--json", str(js), "--gltf", str(tmp_path / "m.gltf")])
     err = capsys.readouterr().err
-    assert code == 2 and "cannot represent the model exactly" in err and "--approx" in err and err.count("\n") == 1
+    assert code == 2 and "cannot represent the model exactly" in err and "--approx" in err and err.count("\n") == 2
+    assert err.splitlines()[1] == "gonio fit: 1 of 2 outputs not written (--gltf); 1 written"
     assert js.exists() and not (tmp_path / "m.gltf").exists()  # the fit is never lost
     assert main(["fit", str(plastic_csv), "--model", "lambert+ggx", "--approx", "--gltf", str(tmp_path / "m.gltf"),
                  "--pbrt", str(tmp_path / "m.pbrt")]) == 0
