@@ -8,7 +8,8 @@ Fresnel term of ``KHR_materials_specular`` (its "Implementation" section) and th
 
     α = roughness²
     D = α² / (π ((n·h)² (α² − 1) + 1)²)                                   (Trowbridge-Reitz / GGX)
-    V = G1(l) G1(v) / (4 |n·l| |n·v|),  G1(x) = 2 (n·x) / ((n·x) + sqrt(α² + (1 − α²)(n·x)²))
+    V = 1 / (2 (|n·v| sqrt(α² + (1 − α²)(n·l)²) + |n·l| sqrt(α² + (1 − α²)(n·v)²)))
+                                       (the height-correlated Smith G / (4 |n·l| |n·v|), Appendix B "Specular BRDF")
     w = (1 − v·h)⁵
     F_d = F0_d + (specular − F0_d) w,   F0_d = min(((ior − 1)/(ior + 1))² · specularColor, 1) · specular
     F_m = baseColor + (1 − baseColor) w
@@ -18,12 +19,15 @@ Fresnel term of ``KHR_materials_specular`` (its "Implementation" section) and th
 "Implementation": the diffuse base is weighted by 1 − max_value(dielectric_fresnel), one number for the three
 channels, not by (1 − F) per channel as in the extension's first draft).
 
-gonio's GGX lobe ``ks·D·G·F_schlick(f0)/(4 cosθi cosθo)`` (separable Smith G, the same G1) is this
-material exactly when there is no diffuse term and ks is grey (metallic 0, baseColor 0, specular = ks,
-F0 = ks·f0 through ior and specularColor), or ks = 1 (metallic 1, baseColor = f0); a lambert alone is
-metallic 0, specular 0. A diffuse term beside a lobe is weighted by (1 − F) in glTF and not in gonio,
-one lobe only, GGX only: those are approximations (:mod:`gonio.io.approx`), the closest under the
-mapping (the base colour by least squares), with the error printed.
+A lambert alone is this material exactly (metallic 0, specular 0). gonio's GGX lobe
+``ks·D·G·F_schlick(f0)/(4 cosθi cosθo)`` maps onto it with the same D and Fresnel form when ks is grey
+(metallic 0, baseColor 0, specular = ks, F0 = ks·f0 through ior and specularColor), or ks = 1 (metallic 1,
+baseColor = f0), but its G is the *separable* Smith G1(l) G1(v), glTF's the height-correlated one (larger
+towards grazing): an approximation whose error grows with α (below the tolerance for α ≲ 0.05). A diffuse
+term beside a lobe is weighted by (1 − F) in glTF and not in gonio, one lobe only, GGX only: those are
+approximations too (:mod:`gonio.io.approx`), the closest under the mapping (the base colour by least
+squares), with the error printed — the error of the specification's BRDF (tests/io/test_renderer_exports.py
+evaluates it from the exported document by the specification's formulas, independently of this module).
 """
 
 from __future__ import annotations
@@ -55,11 +59,8 @@ def gltf_eval(mat: dict, wi, wo) -> np.ndarray:
     a2 = a * a
     d = a2 / (np.pi * (n_h * n_h * (a2 - 1.0) + 1.0) ** 2)
 
-    def g1(x):
-        return 2.0 * x / (x + np.sqrt(a2 + (1.0 - a2) * x * x))
-
-    with np.errstate(invalid="ignore", divide="ignore"):
-        v = g1(n_l) * g1(n_v) / (4.0 * np.abs(n_l) * np.abs(n_v))
+    with np.errstate(invalid="ignore", divide="ignore"):  # the height-correlated visibility ν
+        v = 0.5 / (np.abs(n_v) * np.sqrt(a2 + (1.0 - a2) * n_l * n_l) + np.abs(n_l) * np.sqrt(a2 + (1.0 - a2) * n_v * n_v))
     base = np.asarray(mat["baseColor"], dtype=np.float64)
     m = float(mat["metallic"])
     ior = float(mat["ior"])
@@ -95,6 +96,7 @@ def gltf_material(model, approx: bool = False) -> tuple[dict, list[str]]:
             reasons.append("baseColor clipped to 1")
         return {"baseColor": np.clip(d, 0, 1), "metallic": 0.0, "roughness": 1.0, "ior": 1.5, "specular": 0.0,
                 "specularColor": np.ones(3)}, reasons
+    reasons.append("glTF's visibility is the height-correlated Smith G, gonio's lobe the separable one")
     order = sorted(range(len(dec.lobes)), key=lambda k: -float(np.mean(dec.lobes[k].ks)))
     lobe = dec.lobes[order[0]]
     if len(dec.lobes) > 1:

@@ -45,10 +45,14 @@ def gltf_reference(doc: dict, wi, wo) -> np.ndarray:
         L, V = wi[n], wo[n]
         H = (L + V) / np.linalg.norm(L + V)
         NdotL, NdotV, NdotH, VdotH = L[2], V[2], H[2], V @ H
-        D = alpha ** 2 / (np.pi * (NdotH ** 2 * (alpha ** 2 - 1) + 1) ** 2)
-        G1L = 2 * NdotL / (NdotL + np.sqrt(alpha ** 2 + (1 - alpha ** 2) * NdotL ** 2))
-        G1V = 2 * NdotV / (NdotV + np.sqrt(alpha ** 2 + (1 - alpha ** 2) * NdotV ** 2))
-        Vis = G1L * G1V / (4 * abs(NdotL) * abs(NdotV))
+        LdotH = L @ H
+        D = alpha ** 2 * (NdotH > 0) / (np.pi * (NdotH ** 2 * (alpha ** 2 - 1) + 1) ** 2)
+        # glTF 2.0 Appendix B "Specular BRDF": the height-correlated Smith joint masking-shadowing function G
+        # and MicrofacetBRDF = G D / (4 |N·L| |N·V|)
+        G = (2 * abs(NdotL) * abs(NdotV) * (LdotH > 0) * (VdotH > 0)
+             / (abs(NdotV) * np.sqrt(alpha ** 2 + (1 - alpha ** 2) * NdotL ** 2)
+                + abs(NdotL) * np.sqrt(alpha ** 2 + (1 - alpha ** 2) * NdotV ** 2)))
+        Vis = G / (4 * abs(NdotL) * abs(NdotV))
         ior_f0 = 1.0 if ior == 0 else ((ior - 1) / (ior + 1)) ** 2
         # KHR_materials_specular (ratified text, "Implementation"): dielectric_f0 = min(f0_ior * specularColor, 1)
         # * specular, dielectric_f90 = specular; dielectric_brdf = dielectric_fresnel * specular_brdf
@@ -84,22 +88,35 @@ def test_gltf_diffuse_is_weighted_by_the_largest_fresnel_channel():
     np.testing.assert_allclose(gltf_eval(mat, wi, wo), gltf_reference(doc, wi, wo), rtol=1e-12)
 
 
-GLTF_EXACT = [
+GLTF_CASES = [
     ("lambert", {"albedo": [0.6, 0.3, 0.1]}),
     ("microfacet", {"kd": 0.0, "ks": 0.7, "alpha": 0.2, "f0": [0.9, 0.6, 0.3], "distribution": "ggx"}),
     ("microfacet", {"kd": 0.0, "ks": 1.0, "alpha": 0.4, "f0": [0.95, 0.64, 0.54], "distribution": "ggx"}),
     ("lambert+ggx", {"diffuse.albedo": 0.0, "lobe1.ks": 0.5, "lobe1.alpha": 0.1, "lobe1.f0": 0.04}),
+    ("microfacet", {"kd": [0.3, 0.12, 0.06], "ks": 0.8, "alpha": 0.25, "f0": 0.04, "distribution": "ggx"}),
 ]
 
 
-@pytest.mark.parametrize("name, params", GLTF_EXACT, ids=[f"{m[0]}-{i}" for i, m in enumerate(GLTF_EXACT)])
-def test_gltf_exact_where_it_says_exact(name, params):
+@pytest.mark.parametrize("name, params", GLTF_CASES, ids=[f"{m[0]}-{i}" for i, m in enumerate(GLTF_CASES)])
+def test_gltf_printed_error_is_the_specifications(name, params):
+    """The printed error is what the glTF specification's BRDF gives: the exported document evaluated here by
+    the specification's formulas (gltf_reference: a loop over the pairs, reading the JSON), the same
+    cosine-weighted relative RMS over the same pairs. gonio printed 0.84 % for the default red plastic where
+    the specification's BRDF is further off (its G is height-correlated, gonio's export evaluated it separable;
+    found by an independent evaluation). Exact only for a lambert: a GGX lobe's separable G is not glTF's."""
+    from gonio.io.approx import direction_pairs, relative_error
+
     model = make(name, **params)
-    ex = to_gltf(model)
-    assert ex.exact, ex.describe()
+    ex = to_gltf(model, approx=True)
     doc = json.loads(ex.text)
-    wi, wo = pairs(400)
-    np.testing.assert_allclose(gltf_reference(doc, wi, wo), model.eval(wi, wo), rtol=1e-9, atol=1e-12)
+    wi, wo = direction_pairs()
+    spec = gltf_reference(doc, wi, wo)
+    assert relative_error(spec, model.eval(wi, wo)) == pytest.approx(ex.error, rel=1e-6, abs=1e-12)
+    assert ex.exact == (name == "lambert")
+    if not ex.exact:
+        assert "height-correlated" in ex.describe() and ex.error < 0.05
+    if name == "microfacet" and params["kd"] != 0.0:  # the default red plastic
+        assert 0.01 < ex.error < 0.012
 
 
 def test_gltf_approximation_error_is_the_true_error():
