@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from gonio.errors import ConfigError, DataError, GonioError
+from gonio.fit.bounds import NEAR_BOUND, ON_BOUND, bound_flags, bound_report, ratio_flags
 from gonio.fit.data import DEFAULT_MAX_THETA_DEG, FitData, prepare
 from gonio.fit.kernels import jacobian_for, profile_for
 from gonio.fit.layout import (CHANNELS, Basis, Layout, SubSpace, auto_tied, make_basis, model_class, resolve_fixed,
@@ -357,13 +358,14 @@ def _uncertainty(prob: _Problem, p: np.ndarray, cost: float, notes: list[str], A
     |ρ| → 1 means the data cannot tell the terms apart.
     """
     L = prob.L
-    lo, hi = L.bounds()
     labels = L.labels()
     P = p.size
     m = 3 * len(prob.d)
     err = np.full(P, np.nan)
-    span = np.where(np.isfinite(hi - lo), hi - lo, np.maximum(np.abs(p), 1.0))
-    on_bound = (p - lo <= 1e-7 * span) | (hi - p <= 1e-7 * span)
+    lower, upper = bound_flags(L, p, ON_BOUND)  # each parameter on its own scale (gonio.fit.bounds)
+    on_bound = lower | upper
+    for j in ratio_flags(L, L.unpack(p)[1], ON_BOUND):  # a repeated lobe's width on the width-ratio bound
+        on_bound[3 * L.K + j] = True
     A = prob.jtj(p) if A is None else A
     free = ~on_bound
     ident = free.copy()
@@ -403,7 +405,7 @@ def _uncertainty(prob: _Problem, p: np.ndarray, cost: float, notes: list[str], A
     if unident.any():
         names = sorted({labels[j].split(".")[0] for j in np.flatnonzero(unident)})
         notes.append(f"not identifiable from these data: {', '.join(names)}")
-    bound_names = sorted({labels[j].split(".")[0] for j in np.flatnonzero(on_bound)})
+    bound_names = sorted({labels[j] if j >= 3 * L.K else labels[j].rsplit(".", 1)[0] for j in np.flatnonzero(on_bound)})
     if bound_names:
         notes.append(f"at a bound (no uncertainty): {', '.join(bound_names)}")
     return err, not unident.any(), redundancy
@@ -476,7 +478,7 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
     r = _fit_layout(d, L, lossobj, **kw)
     weak = [t for t in L.tied if not r.uncertainty[t] <= TIED_MAX_SE]  # inf, or too wide; nan = on a bound
     # f0 multiplies ks: with ks pinned at a bound, f0 looks determined only because the bound fixes the product
-    hit = bound_report(cls, r.params, r.uncertainty)
+    hit = r.at_bound
     weak += [t for t in L.tied if t not in weak and _partner(t, "ks") in hit]
     if weak:
         L2 = Layout(cls, {**fixed, **{t: 1.0 for t in weak}}, [t for t in tied if t not in weak])
@@ -499,7 +501,6 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
         r2.n_evals += r.n_evals
         r2.identifiable = False
         r = r2
-    r.at_bound = bound_report(cls, r.params, r.uncertainty)
     if r.at_bound:
         r.notes.append("at or near a bound of its range: " + "; ".join(
             f"{k} ({', '.join(f'{c} {w}' for c, w in v.items())})" for k, v in r.at_bound.items()))
@@ -512,43 +513,6 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
 def _partner(name: str, other: str) -> str:
     """The parameter ``other`` of the same term as ``name`` (``lobe1.f0`` -> ``lobe1.ks``, ``f0`` -> ``ks``)."""
     return f"{name.rsplit('.', 1)[0]}.{other}" if "." in name else other
-
-
-#: A value within this fraction of its range (or, for ranges searched in log space, within this factor
-#: of its lower bound) of a bound is reported as at the bound.
-NEAR_BOUND = 1e-3
-
-
-def bound_report(cls, params: dict, uncertainty: dict) -> dict:
-    """Fitted parameters at or near a bound: name -> {channel ("r", "g", "b") or "value": "lower 0"}.
-
-    A shape parameter searched in log space (:meth:`gonio.fit.layout.Layout.search_space`: a range wider
-    than 100×) is at its lower bound within a factor 1 + 10·:data:`NEAR_BOUND` of the lower end of that
-    search (for a range starting at 0, :func:`gonio.fit.layout.log_floor`), not within a fraction of the
-    whole range (a Blinn-Phong exponent of 500 in [0, 10⁶] is a well-determined width, not a value at 0)."""
-    from gonio.fit.layout import log_floor
-
-    out: dict = {}
-    for name, unc in uncertainty.items():
-        spec = cls.PARAMS.get(name)
-        if spec is None or spec.kind == "choice":
-            continue
-        vals = np.atleast_1d(np.asarray(params[name], dtype=np.float64))
-        lo, hi = float(spec.lo), float(spec.hi)
-        span = hi - lo if np.isfinite(hi) else max(abs(lo), 1.0)
-        logscale = spec.kind == "scalar" and lo >= 0 and np.isfinite(hi) and hi / max(lo, 1e-300) >= 100
-        floor = (lo if lo > 0 else log_floor(hi)) if logscale else lo
-        hits = {}
-        for j, v in enumerate(vals):
-            key = CHANNELS[j] if vals.size == 3 else "value"
-            near_lo = (v <= floor * (1 + 10 * NEAR_BOUND)) if logscale else (v - lo <= NEAR_BOUND * span)
-            if near_lo:
-                hits[key] = f"lower {floor:g}"
-            elif np.isfinite(hi) and hi - v <= NEAR_BOUND * span:
-                hits[key] = f"upper {hi:g}"
-        if hits:
-            out[name] = hits
-    return out
 
 
 def add_report(r: FitResult, d: FitData) -> None:
@@ -654,8 +618,8 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
         model_name=L.name, params=params, uncertainty=unc, loss=lossobj.name, cost=float(cost), rms_rel=rms_rel,
         n_used=len(d), n_params=L.n_params, chi2_red=chi2_red, identifiable=ident, method=method,
         n_evals=prob.n_evals, seconds=time.perf_counter() - t0, notes=notes, heuristics=heur,
-        dropped=dict(d.dropped), redundancy=redundancy,
+        dropped=dict(d.dropped), redundancy=redundancy, at_bound=bound_report(L, params, unc),
     )
 
 
-__all__ = ["fit", "resolve_loss", "heuristics", "METHODS", "CHANNELS"]
+__all__ = ["fit", "resolve_loss", "heuristics", "bound_report", "NEAR_BOUND", "METHODS", "CHANNELS"]

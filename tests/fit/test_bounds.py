@@ -1,0 +1,46 @@
+"""A parameter is at a bound when it is, on its own scale, and every bound reached is reported (issue 29)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gonio.fit.bounds import bound_flags, bound_report
+from gonio.fit.fit import fit
+from gonio.fit.layout import LOBE_RATIO_MIN, Layout, model_class
+
+from .conftest import synth
+
+
+def test_a_log_scaled_parameter_is_judged_in_log_space():
+    cls = model_class("abc")  # B in [1e-2, 1e8]: 1e-7 of the linear range is 10, of the log range 2e-6 decades
+    assert bound_report(cls, {"B": 9.23, "C": 1.0, "eta": 1.5}) == {}
+    assert bound_report(cls, {"B": 0.01, "C": 1.0, "eta": 1.5}) == {"B": {"value": "lower 0.01"}}
+    assert bound_report(cls, {"B": 1e8 * 0.999, "C": 1.0, "eta": 1.5}) == {"B": {"value": "upper 1e+08"}}
+    L = Layout("abc")
+    p = L.pack(np.full((2, 3), 0.5), np.array([9.23, 1.0, 1.5]))
+    lower, upper = bound_flags(L, p, 1e-7)
+    assert not lower.any() and not upper.any()
+
+
+def test_abc_b_of_9_has_an_uncertainty_and_is_not_at_a_bound():
+    s = synth("abc", {"kd": [0.05, 0.04, 0.03], "A": [1.0, 0.8, 0.5], "B": 9.23, "C": 1.5, "eta": 1.6}, n=600)
+    r = fit(s, "abc", report=False, n_starts=1)
+    assert r.params["B"] == pytest.approx(9.23, rel=0.05)
+    assert math.isfinite(r.uncertainty["B"]) and 0 < r.uncertainty["B"] < 1.0
+    assert r.at_bound == {} and not any("bound" in n for n in r.notes)
+
+
+def test_every_parameter_without_an_uncertainty_for_a_bound_is_named_in_at_bound():
+    # equal-width lobes of two colours: the width ratio of lambert+2ggx's lobes ends on LOBE_RATIO_MIN
+    t = {"diffuse.albedo": [0.1, 0.1, 0.1], "lobe1.ks": [0.5, 0.05, 0.05], "lobe1.alpha": 0.15,
+         "lobe2.ks": [0.05, 0.05, 0.5], "lobe2.alpha": 0.25}
+    r = fit(synth("lambert+2ggx", t, n=600), "lambert+2ggx", report=False, n_starts=1)
+    assert r.params["lobe2.alpha"] / r.params["lobe1.alpha"] == pytest.approx(LOBE_RATIO_MIN, rel=1e-6)
+    assert r.at_bound["lobe2.alpha"] == {"value": f"lower ratio {LOBE_RATIO_MIN:g} to lobe1.alpha"}
+    assert math.isnan(r.uncertainty["lobe2.alpha"])
+    for name, u in r.uncertainty.items():  # no sigma is withheld for a bound that at_bound does not name
+        if np.any(np.isnan(np.asarray(u, dtype=float))):
+            assert name in r.at_bound, name
