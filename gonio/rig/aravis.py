@@ -21,8 +21,11 @@ Triggering: without a hardware trigger each capture is a software trigger (``Tri
 Software``), so the frame is exposed after the exposure was set; with ``trigger`` (the rig
 controller's ``trigger_camera``) the camera waits on ``trigger_line`` (default ``Line0``) and the
 controller fires the exposure. A frame that does not arrive within the timeout is a
-:class:`~gonio.errors.HardwareTimeout`; an incomplete frame (lost packets) is retried by the caller
-like any other hardware fault.
+:class:`~gonio.errors.HardwareTimeout`. Every frame is validated (payload status and type, pixel format,
+width and height against those configured, buffer length): an incomplete frame (lost packets) or one that
+fails a check (a zero-size frame, a region changed mid-session) is exposed again up to ``retries`` times,
+then a :class:`~gonio.errors.HardwareError` naming the camera and the field, which the session retries or
+reports like any other hardware fault.
 
 Sensor temperature: a camera with the SFNC feature ``DeviceTemperature`` (°C; with
 ``DeviceTemperatureSelector`` set to ``Sensor`` where the camera has several thermometers) is read
@@ -202,6 +205,9 @@ class AravisCamera:
             if not (0 < w <= sw and 0 < h <= sh):
                 raise ConfigError.field(None, "camera.width/height", f"{w}x{h}", f"must fit the sensor ({sw}x{sh})")
             self._cam.set_region(0, 0, w, h)
+            #: The frame size every frame must have (the region as the camera reads it back).
+            self.width, self.height = (int(v) for v in self._cam.get_region()[2:])
+            self._format_code = int(self._cam.get_pixel_format())
             self._cam.set_acquisition_mode(Aravis.AcquisitionMode.CONTINUOUS)
             if trigger is not None:
                 self._cam.set_trigger(trigger_line)
@@ -384,6 +390,8 @@ class AravisCamera:
                 break
             self.incomplete += 1
         else:
+            if status.startswith("frame "):  # a frame that arrived but is not the one configured
+                raise HardwareError(f"camera {self.device!r}: {status}, {self.retries + 1} times", device=self.device)
             raise HardwareError(f"camera {self.device!r}: incomplete frame ({status}) {self.retries + 1} times "
                                 "(lost packets: check the link, the NIC's MTU and receive buffers)", device=self.device)
         temp = self.sensor_temperature()
@@ -411,19 +419,40 @@ class AravisCamera:
         try:
             if buf.get_status() != self._aravis.BufferStatus.SUCCESS:
                 return None, buf.get_status().value_nick
+            fault = self._frame_fault(buf)
+            if fault:
+                return None, fault
             return self._pixels(buf), ""
         finally:
             self._stream.push_buffer(buf)
 
-    def _pixels(self, buf) -> np.ndarray:
-        """The frame as an (H, W) or (H, W, 3) array, checked against the size the format implies."""
-        w, h = buf.get_image_width(), buf.get_image_height()
+    def _frame_fault(self, buf) -> str:
+        """What is wrong with a frame the stream delivered as complete, naming the field (``frame width = 0:
+        expected 640``), or ``""``: its payload type (an image), pixel format, width and height (those
+        configured: a camera whose Width/Height changed mid-session, or a zero-size frame) and buffer length
+        (what the format and size need). Every frame is checked: the frame is device input."""
+        Aravis = self._aravis
+        kind = buf.get_payload_type()
+        if kind not in (Aravis.BufferPayloadType.IMAGE, Aravis.BufferPayloadType.CHUNK_DATA,
+                        Aravis.BufferPayloadType.EXTENDED_CHUNK_DATA):
+            return f"frame payload type = {kind.value_nick}: expected an image"
+        fmt = int(buf.get_image_pixel_format())
+        if fmt != self._format_code:
+            return f"frame pixel format = 0x{fmt:08x}: expected {self.pixel_format} (0x{self._format_code:08x})"
+        for field, got, want in (("width", buf.get_image_width(), self.width), ("height", buf.get_image_height(), self.height)):
+            if got != want:
+                return f"frame {field} = {got}: expected {want} (the camera's region changed, or a zero-size frame)"
         data = buf.get_data()
-        itemsize = np.dtype(self._dtype).itemsize
-        need = w * h * self._channels * itemsize
-        if len(data) < need:
-            raise HardwareError(f"camera {self.device!r}: frame of {len(data)} bytes, {self.pixel_format} "
-                                f"{w}x{h} needs {need}", device=self.device)
+        need = self.width * self.height * self._channels * np.dtype(self._dtype).itemsize
+        if data is None or len(data) < need:
+            return (f"frame buffer length = {0 if data is None else len(data)} bytes: {self.pixel_format} "
+                    f"{self.width}x{self.height} needs {need}")
+        return ""
+
+    def _pixels(self, buf) -> np.ndarray:
+        """The frame as an (H, W) or (H, W, 3) array of the format's dtype (:meth:`_frame_fault` checked it)."""
+        w, h = self.width, self.height
+        data = buf.get_data()
         arr = np.frombuffer(data, dtype=np.dtype(self._dtype).newbyteorder("<"), count=w * h * self._channels)
         arr = arr.reshape((h, w, 3) if self._channels == 3 else (h, w)).astype(self._dtype, copy=True)
         if self._bayer is not None:
