@@ -17,6 +17,10 @@ import tty
 from sim.faults import LinkFaults
 
 
+#: Linux ``TCGETS2`` ioctl (asm-generic/ioctls.h: ``_IOR('T', 0x2A, struct termios2)``, 44 bytes), as pyserial uses.
+_TCGETS2 = 0x802C542A
+
+
 class PtyServer:
     """Base class of the emulators: a reader thread passes incoming bytes to :meth:`on_bytes`;
     replies go out through :meth:`send`, which applies the link's :class:`LinkFaults`; the replies
@@ -81,6 +85,20 @@ class PtyServer:
                     time.sleep(0.2)
             except KeyboardInterrupt:
                 pass
+
+    def line_baud(self) -> int | None:
+        """The rate (bits/s) the host set on its end of the line, from the pty's termios (``TCGETS2``: the
+        kernel keeps the rate pyserial set, standard or custom, e.g. 4,500,000); None where it cannot be read.
+        A pty does not pace bytes by it (FIELD-NOTES.md); an emulator uses it to decide who hears a packet."""
+        import array
+        import fcntl
+
+        buf = array.array("I", [0] * 16)  # struct termios2: 4 flags, c_line + c_cc[19], c_ispeed, c_ospeed
+        try:
+            fcntl.ioctl(self._slave, _TCGETS2, buf)
+        except OSError:
+            return None
+        return int(buf[10]) or None
 
     # -- I/O ----------------------------------------------------------------------------------
     def _loop(self) -> None:

@@ -3,7 +3,8 @@
 :class:`SimRig` wires the emulators other modules provide, without changing them:
 
 * one :class:`sim.clock.SimClock` shared by the host code and every emulator;
-* :class:`sim.servo_bus.ServoBus` (one servo per joint of the rig TOML, IDs and models from it) on a
+* :class:`sim.servo_bus.ServoBus` (one servo per joint of the rig TOML, IDs and models from it, provisioned
+  to its ``[bus] baud``: they answer at that rate only) on a
   pty — the host drives it through the real ``dynamixel-sdk`` (:attr:`SimRig.servo_port`);
 * :class:`sim.controller.ControllerEmulator` on another pty — the host drives it through pyserial and
   ``firmware_protocol`` (:attr:`SimRig.controller_port`);
@@ -272,7 +273,7 @@ class SimRig:
         park = {j.servo_id: self._ticks(j, math.radians(PARK_DEG[j.name])) for j in self.rig.joints}
         self.servo_bus = RecordingServoBus({j.servo_id: j.model for j in self.rig.joints}, self.clock, seed=cfg.seed,
                                            noise_ticks=cfg.servo_noise_ticks, backlash_ticks=cfg.backlash_ticks,
-                                           faults=servo_faults, positions=park)
+                                           faults=servo_faults, positions=park, baud=self.rig.baud)
         self.controller = controller_class(cfg.controller)(
                                              self.clock, faults=controller_faults, seed=cfg.seed + 1,
                                              warmup_depth=cfg.warmup_depth, warmup_tau=cfg.warmup_tau,

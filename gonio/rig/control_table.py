@@ -13,7 +13,7 @@ acceleration unit is 214.577 rev/min².
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 from importlib import resources
 from typing import Mapping
@@ -21,9 +21,10 @@ from typing import Mapping
 from gonio.config import parse_toml
 from gonio.errors import ConfigError
 
-#: Baud rates the SDK's PortHandler accepts.
+#: Baud rates a port can be opened at: the SDK's PortHandler whitelist, plus 4,500,000 (X series Baud Rate(8) = 7),
+#: which the SDK refuses and :class:`gonio.rig.dynamixel.PortHandler` sets as a custom rate (pyserial, termios2).
 BAUD_RATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600, 1000000, 1152000,
-              2000000, 2500000, 3000000, 3500000, 4000000)
+              2000000, 2500000, 3000000, 3500000, 4000000, 4500000)
 
 
 __all__ = ["Field", "ControlTable", "load_control_table", "model_names", "table_for_model_number"]
@@ -72,6 +73,16 @@ class ControlTable:
     position_max: int = 4095
     velocity_unit_rpm: float = 0.229
     acceleration_unit_rpm2: float = 214.577
+    #: Baud Rate(8) register value → bits per second (the table's ``[baud_rates]``); empty if not given
+    baud_rates: Mapping[int, int] = field(default_factory=dict)
+
+    def baud_code(self, baud: int) -> int:
+        """The Baud Rate(8) value that selects ``baud`` (ConfigError listing the rates this model supports)."""
+        for code, rate in self.baud_rates.items():
+            if rate == baud:
+                return code
+        raise ConfigError.field(self.model, "baud_rate", baud, "not a baud rate of this model; it supports "
+                                + ", ".join(str(r) for r in sorted(self.baud_rates.values())))
 
     def __getitem__(self, name: str) -> Field:
         try:
@@ -134,7 +145,13 @@ def _parse(model: str, text: str, source: str) -> ControlTable:
     for key in ("model_number",):
         if key not in data:
             raise ConfigError.field(source, key, None, "missing")
+    bauds = data.get("baud_rates", {})
+    try:
+        baud_rates = {int(k): int(v) for k, v in bauds.items()}
+    except (AttributeError, TypeError, ValueError):
+        raise ConfigError.field(source, "baud_rates", bauds, "must map register values to baud rates") from None
     return ControlTable(model=str(data.get("model", model)), model_number=int(data["model_number"]), fields=fields,
+                        baud_rates=baud_rates,
                         ticks_per_rev=int(data.get("ticks_per_rev", 4096)),
                         position_max=int(data.get("position_max", 4095)),
                         velocity_unit_rpm=float(data.get("velocity_unit_rpm", 0.229)),

@@ -157,6 +157,10 @@ class PortHandler(sdk.PortHandler):
         super().__init__(name)
         self.latency_timer_ms = float(latency_timer_ms)
 
+    def getCFlagBaud(self, baudrate):  # noqa: N802 - SDK name
+        """The SDK's whitelist plus 4,500,000 (X series Baud Rate(8) = 7), set as a custom rate by pyserial."""
+        return baudrate if baudrate in BAUD_RATES else -1
+
     def setPacketTimeout(self, packet_length):  # noqa: N802 - SDK name
         self.packet_start_time = self.getCurrentTime()
         self.packet_timeout = self.tx_time_per_byte * packet_length + self.latency_timer_ms * 2.0 + 2.0
@@ -367,6 +371,60 @@ class DynamixelBus:
         if faults is not None:
             faults.update({i: last[i] for i in pending})
         return found
+
+    def broadcast_ping(self, max_id: int = MAX_ID) -> tuple[dict[int, int], int]:
+        """``({id: model number}, corrupted)`` of a broadcast ping, waiting as long as servos with IDs up to
+        ``max_id`` need to answer: ``14 × max_id`` status bytes of transfer plus 3 ms per ID plus 16 ms (the SDK's
+        own window, ``broadcastPing``, which always waits for all 252 IDs: ~0.8 s at 1 Mbps, ~4.5 s at 9600).
+        ``corrupted`` counts the status packets that failed their CRC or were cut: replies that collided (two
+        servos with one ID at this rate) or a noisy line. Protocol 2.0 e-manual, "Ping": every servo answers a
+        broadcast ping in turn."""
+        if not 0 <= max_id <= MAX_ID:
+            raise ConfigError.field("--max-id", "max_id", max_id, f"servo IDs are 0..{MAX_ID}")
+        try:
+            with self._lock:
+                self._flush_stale()
+                return self._broadcast_window(max_id)
+        except OSError as exc:
+            raise self._link_lost("broadcast ping", None, exc) from None
+
+    def _broadcast_window(self, max_id: int) -> tuple[dict[int, int], int]:
+        port, ph = self._port, self._ph
+        tx = [0] * 10
+        tx[sdk.PKT_ID], tx[sdk.PKT_LENGTH_L], tx[sdk.PKT_LENGTH_H], tx[sdk.PKT_INSTRUCTION] = 0xFE, 3, 0, sdk.INST_PING
+        if ph.txPacket(port, tx) != sdk.COMM_SUCCESS:
+            port.is_using = False
+            raise HardwareError(f"{self.port_name}: broadcast ping: cannot send", device=self.port_name)
+        wait = 14 * (max_id + 1)
+        port.setPacketTimeoutMillis(wait * port.tx_time_per_byte + 3.0 * (max_id + 1) + self._port.latency_timer_ms)
+        rx = bytearray()
+        while not port.isPacketTimeout():
+            rx += bytes(port.readPort(wait - len(rx)))
+        port.is_using = False
+        self.stats["transactions"] += 1
+        found: dict[int, int] = {}
+        corrupted = 0
+        k = rx.find(b"\xff\xff\xfd")
+        while k >= 0:
+            pkt = rx[k:k + 14]
+            crc = ph.updateCRC(0, list(pkt[:12]), 12) if len(pkt) == 14 else -1
+            if len(pkt) == 14 and crc == pkt[12] | (pkt[13] << 8) and pkt[7] == _INST_STATUS:
+                found[pkt[4]] = pkt[9] | (pkt[10] << 8)
+                k = rx.find(b"\xff\xff\xfd", k + 14)
+            else:
+                corrupted += 1
+                k = rx.find(b"\xff\xff\xfd", k + 3)
+        return dict(sorted(found.items())), corrupted
+
+    def write_unacknowledged(self, dxl_id: int, table: ControlTable, name: str, value: int) -> None:
+        """Write ``name`` without waiting for the status packet (``write*ByteTxOnly``): for the ID, whose change
+        makes the status come back under the new ID, which the SDK's reply matching (by the request's ID) would
+        wait for in vain. The caller reads the result back."""
+        f = table[name]
+        if not f.writable:
+            raise ConfigError.field(table.model, name, value, "read-only field")
+        fn = {1: self._ph.write1ByteTxOnly, 2: self._ph.write2ByteTxOnly, 4: self._ph.write4ByteTxOnly}[f.size]
+        self.transact(f"write {name} = {value}", dxl_id, lambda: fn(self._port, dxl_id, f.address, f.to_unsigned(value)))
 
     def _broadcast(self):
         data, result = self._ph.broadcastPing(self._port)
