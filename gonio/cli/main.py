@@ -12,7 +12,7 @@ from gonio import __version__
 from gonio.errors import GonioError
 
 #: Subcommand modules under gonio.cli, in the order ``--help`` lists them.
-COMMANDS = ["models", "servo", "controller", "camera", "measure", "calibrate", "fit", "tabulate", "export", "plot", "plan", "status", "repair", "report", "bench"]
+COMMANDS = ["models", "servo", "controller", "camera", "measure", "calibrate", "fit", "tabulate", "export", "plot", "plan", "prior", "reconstruct", "status", "repair", "report", "bench"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -9,6 +9,8 @@ ADAPTIVE_CANDIDATES = "isotropic"
 ADAPTIVE_CANDIDATE_PARAMS = {"theta_step": 10.0, "phi_step": 30.0, "theta_max": 70.0}
 ADAPTIVE_MODEL = "microfacet"
 ADAPTIVE_TARGET = 0.02
+#: Poses of a sparse plan when --n is not given (benchmarks sparse: the issue's twenty).
+SPARSE_N = 20
 _ADAPTIVE_OPTS = ("candidates", "model", "select", "target_error", "lab_budget", "batch", "coarse", "max_rounds")
 
 
@@ -20,7 +22,7 @@ def add_plan_options(p, *, default_plan: str | None = None) -> None:
 
     if default_plan is not None:
         p.add_argument("--plan", default=default_plan, metavar="NAME",
-                       help=f"plan generator (default {default_plan}): {', '.join(GENERATORS)}, or adaptive; its "
+                       help=f"plan generator (default {default_plan}): {', '.join(GENERATORS)}, adaptive or sparse; its "
                             "parameters as options below, angles in degrees")
     g = p.add_argument_group("plan parameters (each plan takes some; angles in degrees)")
     seen = set()
@@ -55,6 +57,13 @@ def add_plan_options(p, *, default_plan: str | None = None) -> None:
     a.add_argument("--batch", type=int, default=None, metavar="N", help="poses added per round (default 16)")
     a.add_argument("--coarse", type=int, default=None, metavar="N", help="poses of the coarse first round (default 24)")
     a.add_argument("--max-rounds", type=int, default=None, metavar="N", help="rounds at most (default 20)")
+    sp = p.add_argument_group("sparse plan (plan sparse: N poses chosen under a BRDF prior to minimise the expected "
+                              "error of the reconstructed table; then gonio reconstruct)")
+    sp.add_argument("--n", dest="sparse_n", type=int, default=None, metavar="N",
+                    help=f"poses of a sparse plan (default {SPARSE_N})")
+    from gonio.cli.prior import add_prior_option
+
+    add_prior_option(sp)
 
 
 def _capture(args):
@@ -99,9 +108,16 @@ def plan_from_args(args, name: str, rig, *, where: str, source: str, defaults=No
         candidates, settings, spec = adaptive_from_args(args, rig, source=source)
         planner = AdaptivePlanner(candidates, spec.callable(), motion=MotionModel.from_rig(rig), settings=settings)
         return planner.plan([planner.first_round()], extra={"fit": spec.to_dict()})
+    sparse_given = [o for o in ("sparse_n", "prior") if getattr(args, o, None) is not None]
+    if name == "sparse":
+        return sparse_from_args(args, rig, source=source, time_budget=time_budget)
+    if sparse_given:
+        o = sparse_given[0]
+        raise ConfigError.field("--n" if o == "sparse_n" else "--prior", "option", getattr(args, o),
+                                "only for plan sparse")
     gen = GENERATORS.get(name)
     if gen is None:
-        raise ConfigError.field(where, "plan", name, f"unknown plan; known: {', '.join(GENERATORS)}, adaptive")
+        raise ConfigError.field(where, "plan", name, f"unknown plan; known: {', '.join(GENERATORS)}, adaptive, sparse")
     given_adaptive = [o for o in _ADAPTIVE_OPTS if getattr(args, o, None) is not None]
     if given_adaptive and where != "--candidates":
         o = given_adaptive[0]
@@ -117,6 +133,26 @@ def plan_from_args(args, name: str, rig, *, where: str, source: str, defaults=No
     params = {k: (math.radians(v) if gen.params[k].kind == "angle" else v) for k, v in given.items()}
     return make_plan(name, rig=rig, capture=_capture(args), order=args.order, seed=args.seed,
                      time_budget=time_budget, source=source, **params)
+
+
+def sparse_from_args(args, rig, *, source, time_budget=None):
+    """The sparse plan (:func:`gonio.prior.design.sparse_plan`) the options describe: ``--n`` poses under
+    ``--prior`` (default: the shipped prior), with the capture settings and order of any plan."""
+    from gonio.cli.prior import load_prior_arg
+    from gonio.errors import ConfigError
+    from gonio.prior.design import sparse_plan
+
+    given = [k for k, v in vars(args).items() if k.startswith("plan_") and k != "plan_file" and v is not None]
+    if given:
+        k = given[0][5:]
+        raise ConfigError.field(f"--{k.replace('_', '-')}", "plan parameter", getattr(args, given[0]),
+                                "not a parameter of plan 'sparse' (it takes --n and --prior)")
+    n = SPARSE_N if getattr(args, "sparse_n", None) is None else args.sparse_n
+    if not 1 <= n <= 1000:
+        raise ConfigError.field("--n", "n", n, "must be in [1, 1000]")
+    prior, name = load_prior_arg(getattr(args, "prior", None))
+    return sparse_plan(n, prior, rig=rig, capture=_capture(args), order=args.order, seed=args.seed,
+                       time_budget=time_budget, prior_name=name, source=source)
 
 
 def adaptive_from_args(args, rig, *, source: str):
@@ -173,8 +209,9 @@ def register(sub) -> None:
     p = sub.add_parser("plan", help="generate a measurement plan and estimate its lab time",
                        description="Generate a plan (poses the rig can reach, ordered for lab time). "
                                    "Plans: " + "; ".join(f"{g.name}: {g.doc}" for g in GENERATORS.values()))
-    p.add_argument("name", metavar="NAME", help=f"plan generator: {', '.join(GENERATORS)}, or adaptive (a coarse "
-                   "first round; later rounds are chosen while measuring)")
+    p.add_argument("name", metavar="NAME", help=f"plan generator: {', '.join(GENERATORS)}, adaptive (a coarse "
+                   "first round; later rounds are chosen while measuring), or sparse (--n poses chosen under a "
+                   "BRDF prior; gonio reconstruct then gives the whole table)")
     add_plan_options(p)
     p.add_argument("--rig", default=None, metavar="RIG.toml", help="rig description (default: the shipped rig)")
     p.add_argument("--seed", type=int, default=0, help="seed of the ordering heuristic")
@@ -203,12 +240,20 @@ def run(args) -> int:
     plan = plan_from_args(args, args.name, rig, where="NAME", source=None, time_budget=args.time_budget)
     if args.name == "adaptive":
         return _print_adaptive(args, plan, rig)
-    gen = GENERATORS[args.name]
-
-    shown = ", ".join(f"{k} = {math.degrees(v):g} deg" if gen.params[k].kind == "angle" else f"{k} = {v:g}"
-                      for k, v in plan.params.items() if k in gen.params)
-    print(f"plan {plan.generator} ({shown}) on rig {rig.name!r}: {len(plan)} poses, {plan.order} order")
-    if plan.n_dropped:
+    if args.name == "sparse":
+        p = plan.params
+        print(f"plan sparse (n = {p['n']}, prior {p['prior']}) on rig {rig.name!r}: {len(plan)} poses chosen among "
+              f"the reachable candidates, {plan.order} order")
+        print(f"expected reconstruction error: {p['expected_error']:.3g} RMS in the log domain (~relative error of f; "
+              f"the prior alone: {p['expected_error_prior']:.3g}; cube-root error about a third of it)")
+    else:
+        gen = GENERATORS[args.name]
+        shown = ", ".join(f"{k} = {math.degrees(v):g} deg" if gen.params[k].kind == "angle" else f"{k} = {v:g}"
+                          for k, v in plan.params.items() if k in gen.params)
+        print(f"plan {plan.generator} ({shown}) on rig {rig.name!r}: {len(plan)} poses, {plan.order} order")
+    if plan.n_dropped and args.name == "sparse":
+        print(f"candidates the rig cannot reach (never planned): {plan.n_dropped}: {plan.dropped_summary()}")
+    elif plan.n_dropped:
         why = plan.dropped_summary()
         print(f"dropped {plan.n_dropped} poses: {why}")
     cap = plan.capture

@@ -1,0 +1,142 @@
+"""The prior's grid: nodes in Rusinkiewicz half/difference angles and trilinear interpolation between them.
+
+A prior's basis lives on a grid much coarser than MERL's 90 × 90 × 180 cells (the shipped prior must fit in a
+few megabytes). The grid has ``n_h × n_d × n_p`` nodes (node values, not cell averages):
+
+* ``θh_i = (i / (n_h − 1))² · π/2`` — the square-root spacing of MERL's θh axis (Matusik et al. 2003), dense
+  near the specular peak;
+* ``θd_j = j / (n_d − 1) · π/2``;
+* ``φd_k = k / (n_p − 1) · π`` — φd folded to [0, π] by reciprocity, f(φd) = f(φd + π), as MERL folds it.
+  Isotropic materials are also bilaterally symmetric, f(φd) = f(π − φd) (Romeiro, Vasilyev & Zickler, ECCV
+  2008), which would halve the grid, but measured tables are not exactly so: folding the 63 real materials
+  to [0, π/2] cost 0.015–0.026 in cube-root error (docs/prior.md), more than the whole grid's interpolation.
+
+A direction pair (wi, wo) maps to continuous coordinates ``x_h = √(θh/(π/2))·(n_h−1)``,
+``x_d = θd/(π/2)·(n_d−1)``, ``x_p = (φd mod π)/π·(n_p−1)`` and takes the trilinear combination of its 8
+surrounding nodes (:meth:`PriorGrid.weights`, a sparse ``(n, G)`` matrix). The grid's :attr:`PriorGrid.grid_id`
+names it in prior files: a prior is only ever used with the grid it was built on.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["PriorGrid", "DEFAULT_GRID", "merl_cell_angles"]
+
+
+def merl_cell_angles(theta_h_rows=slice(None)):
+    """``(θh, θd, φd, above)`` of the MERL cell centres (:func:`gonio.io.merl.cell_centres`) of the θh rows
+    ``theta_h_rows``, each of shape ``(rows, 90, 180)``; ``above``: both directions above the horizon
+    (cos θi,o = cos θd cos θh ∓ sin θd cos φd sin θh > 0, Rusinkiewicz 1998 at φh = 0)."""
+    from gonio.io.merl import cell_centres
+
+    th, td, pd = cell_centres()
+    TH, TD, PD = np.meshgrid(th[theta_h_rows], td, pd, indexing="ij")
+    a, b = np.cos(TD) * np.cos(TH), np.sin(TD) * np.cos(PD) * np.sin(TH)
+    return TH, TD, PD, (a - b > 0) & (a + b > 0)
+
+
+@dataclass(frozen=True)
+class PriorGrid:
+    """Node counts along θh (square-root spaced), θd and folded φd (module docstring)."""
+
+    n_h: int = 56
+    n_d: int = 24
+    n_p: int = 20
+
+    def __post_init__(self):
+        for name in ("n_h", "n_d", "n_p"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or not 2 <= v <= 512:
+                raise ValueError(f"PriorGrid.{name} = {v!r}: must be an integer in [2, 512]")
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return (self.n_h, self.n_d, self.n_p)
+
+    @property
+    def size(self) -> int:
+        """Number of nodes G."""
+        return self.n_h * self.n_d * self.n_p
+
+    @property
+    def grid_id(self) -> str:
+        """The grid's name in prior files, e.g. ``hd-sqrt-56x24x20-pi``."""
+        return f"hd-sqrt-{self.n_h}x{self.n_d}x{self.n_p}-pi"
+
+    @classmethod
+    def from_id(cls, grid_id: str) -> "PriorGrid":
+        """Inverse of :attr:`grid_id`; ``ValueError`` for a grid this gonio does not know."""
+        parts = str(grid_id).split("-")
+        if len(parts) != 4 or parts[:2] != ["hd", "sqrt"] or parts[3] != "pi":
+            raise ValueError(f"unknown prior grid {grid_id!r} (this gonio reads hd-sqrt-HxDxP-pi)")
+        try:
+            n_h, n_d, n_p = (int(x) for x in parts[2].split("x"))
+        except ValueError:
+            raise ValueError(f"unknown prior grid {grid_id!r} (this gonio reads hd-sqrt-HxDxP-pi)") from None
+        return cls(n_h, n_d, n_p)
+
+    def node_angles(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(θh, θd, φd)`` of every node, each of shape ``(G,)`` in C order over ``(n_h, n_d, n_p)``."""
+        th = (np.arange(self.n_h) / (self.n_h - 1)) ** 2 * (math.pi / 2)
+        td = np.arange(self.n_d) / (self.n_d - 1) * (math.pi / 2)
+        pd = np.arange(self.n_p) / (self.n_p - 1) * math.pi
+        TH, TD, PD = np.meshgrid(th, td, pd, indexing="ij")
+        return TH.ravel(), TD.ravel(), PD.ravel()
+
+    def node_directions(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(wi, wo)`` of every node at φh = 0, each ``(G, 3)`` (:func:`gonio.geometry.dirs_from_half_diff`)."""
+        from gonio.geometry import dirs_from_half_diff
+
+        th, td, pd = self.node_angles()
+        return dirs_from_half_diff(th, np.zeros_like(th), td, pd)
+
+    def coords(self, theta_h, theta_d, phi_d) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Continuous node coordinates of half/difference angles (radians), clamped to the grid."""
+        th = np.clip(np.asarray(theta_h, dtype=np.float64), 0.0, math.pi / 2)
+        td = np.clip(np.nan_to_num(np.asarray(theta_d, dtype=np.float64), nan=0.0), 0.0, math.pi / 2)
+        p = np.mod(np.nan_to_num(np.asarray(phi_d, dtype=np.float64), nan=0.0), math.pi)
+        x_h = np.sqrt(th / (math.pi / 2)) * (self.n_h - 1)
+        x_d = td / (math.pi / 2) * (self.n_d - 1)
+        x_p = p / math.pi * (self.n_p - 1)
+        return x_h, x_d, x_p
+
+    def weights_angles(self, theta_h, theta_d, phi_d):
+        """Sparse ``(n, G)`` CSR matrix of trilinear weights (8 per row, summing to 1) at the given angles."""
+        from scipy.sparse import csr_matrix
+
+        xs = self.coords(np.ravel(theta_h), np.ravel(theta_d), np.ravel(phi_d))
+        idx, frac = [], []
+        for x, n in zip(xs, self.shape):
+            i0 = np.minimum(np.floor(x).astype(np.intp), n - 2)
+            idx.append(i0)
+            frac.append(np.clip(x - i0, 0.0, 1.0))
+        n = xs[0].shape[0]
+        cols = np.empty((n, 8), dtype=np.intp)
+        vals = np.empty((n, 8), dtype=np.float64)
+        k = 0
+        for a in (0, 1):
+            wa = frac[0] if a else 1.0 - frac[0]
+            for b in (0, 1):
+                wb = frac[1] if b else 1.0 - frac[1]
+                for c in (0, 1):
+                    wc = frac[2] if c else 1.0 - frac[2]
+                    cols[:, k] = ((idx[0] + a) * self.n_d + idx[1] + b) * self.n_p + idx[2] + c
+                    vals[:, k] = wa * wb * wc
+                    k += 1
+        indptr = np.arange(0, 8 * n + 1, 8)
+        return csr_matrix((vals.ravel(), cols.ravel(), indptr), shape=(n, self.size))
+
+    def weights(self, wi, wo):
+        """Trilinear weights (sparse ``(n, G)``) of direction pairs ``wi``, ``wo`` (``(n, 3)``)."""
+        from gonio.geometry import half_diff_from_dirs
+
+        th, _, td, pd = half_diff_from_dirs(np.reshape(wi, (-1, 3)), np.reshape(wo, (-1, 3)))
+        return self.weights_angles(th, td, pd)
+
+
+#: The grid of the shipped prior (56 × 24 × 20 = 26,880 nodes; docs/prior.md measures what it costs).
+DEFAULT_GRID = PriorGrid(56, 24, 20)

@@ -1,0 +1,123 @@
+"""gonio.prior: the prior's file format, reconstruction inside its span, σ calibration, out-of-span verdicts."""
+
+import numpy as np
+import pytest
+
+from gonio.errors import DataError
+from gonio.prior import Posterior, PriorGrid, build_prior, load_prior, save_prior
+from gonio.prior.mapping import from_mapped, sigma_from_mapped, sigma_to_mapped, to_mapped
+from tests.prior.conftest import GRID, node_values_of, synthetic_materials
+
+
+def _directions(n, seed):
+    """Random direction pairs above the horizon (θ ≤ 75°)."""
+    rng = np.random.default_rng(seed)
+    ti, to = np.arccos(rng.uniform(np.cos(np.radians(75)), 1, (2, n)))
+    po = rng.uniform(0, 2 * np.pi, n)
+    wi = np.column_stack([np.sin(ti), np.zeros(n), np.cos(ti)])
+    wo = np.column_stack([np.sin(to) * np.cos(po), np.sin(to) * np.sin(po), np.cos(to)])
+    return wi, wo
+
+
+def _in_span(prior, coef, wi, wo):
+    """BRDF values of the in-span material μ + B·coef (3 channels) at the directions, exactly as the model
+    interpolates it."""
+    h = prior.grid.weights(wi, wo)
+    u = h @ prior.node_mapped(coef).T
+    return from_mapped(u, h @ prior.f_ref, prior.eps)
+
+
+def test_mapping_round_trips_and_delta_method():
+    f = np.array([[0.0, 0.01, 5.0]])
+    u = to_mapped(f, np.array([0.1]))
+    assert np.allclose(from_mapped(u, np.array([0.1])), f, rtol=1e-12, atol=1e-15)
+    s = sigma_to_mapped(f, 0.01 * f + 1e-4)
+    assert np.allclose(sigma_from_mapped(f, s), 0.01 * f + 1e-4)
+
+
+def test_material_inside_the_span_is_reconstructed_to_rounding(synthetic_prior):
+    pr = synthetic_prior
+    rng = np.random.default_rng(3)
+    coef = rng.normal(size=(3, pr.n_components)) * np.sqrt(pr.variance)
+    wi, wo = _directions(60, 1)
+    f = _in_span(pr, coef, wi, wo)
+    post = Posterior.start(pr).update(wi, wo, f, 1e-9 * (f + 1e-3))
+    mean, _ = post.node_mapped()
+    assert np.max(np.abs(mean - pr.node_mapped(coef))) < 1e-6
+    wt, wt_o = _directions(200, 2)
+    fp, _ = post.predict(wt, wt_o)
+    assert np.allclose(fp, _in_span(pr, coef, wt, wt_o), rtol=1e-6, atol=1e-9)
+    assert not post.quality().out_of_span
+
+
+def test_posterior_sigma_is_calibrated_on_noisy_synthetic_data(synthetic_prior):
+    """Coefficients drawn from the prior, 5 % noise: the truth falls within 2σ at ~95 % of held-out directions."""
+    pr = synthetic_prior
+    rng = np.random.default_rng(5)
+    hits = []
+    for trial in range(10):
+        coef = rng.normal(size=(3, pr.n_components)) * np.sqrt(pr.variance)
+        wi, wo = _directions(12, 10 + trial)
+        f = _in_span(pr, coef, wi, wo)
+        sigma = 0.05 * (f + 1e-3)
+        noisy = f + rng.normal(size=f.shape) * sigma
+        post = Posterior.start(pr).update(wi, wo, noisy, sigma)
+        wt, wt_o = _directions(300, 100 + trial)
+        fp, sp = post.predict(wt, wt_o)
+        truth = _in_span(pr, coef, wt, wt_o)
+        hits.append(np.abs(fp - truth) <= 2 * sp)
+    cover = float(np.mean(hits))
+    assert 0.9 <= cover <= 1.0, cover
+
+
+def test_a_material_unlike_the_prior_is_said_to_be_outside_its_span(synthetic_prior):
+    from gonio.brdf import make
+
+    mirror = make("microfacet", kd=[0.0, 0.0, 0.0], ks=[1, 1, 1], alpha=0.03, f0=[0.9] * 3)
+    wi, wo = _directions(80, 7)
+    f = mirror.eval(wi, wo)
+    q = Posterior.start(synthetic_prior).update(wi, wo, f, 0.01 * f + 1e-5).quality()
+    assert q.out_of_span and "OUTSIDE" in q.line()
+
+
+@pytest.mark.parametrize("bad, what", [("nan_f", "not finite"), ("zero_sigma", "sigma"), ("neg_sigma", "sigma"),
+                                       ("nan_sigma", "sigma")])
+def test_bad_samples_are_refused_naming_the_sample(synthetic_prior, bad, what):
+    wi, wo = _directions(5, 1)
+    f = np.full((5, 3), 0.1)
+    s = np.full((5, 3), 0.01)
+    {"nan_f": f, "zero_sigma": s, "neg_sigma": s, "nan_sigma": s}[bad][3, 1] = {
+        "nan_f": np.nan, "zero_sigma": 0.0, "neg_sigma": -1.0, "nan_sigma": np.nan}[bad]
+    with pytest.raises(DataError, match=f"sample 3: .*{what}"):
+        Posterior.start(synthetic_prior).update(wi, wo, f, s)
+
+
+def test_prior_file_round_trip_and_refusals(tmp_path, synthetic_prior):
+    p = save_prior(synthetic_prior, tmp_path / "p.npz")
+    back = load_prior(p)
+    assert back.grid == GRID and back.materials == synthetic_prior.materials
+    assert np.allclose(back.basis, synthetic_prior.basis, atol=2e-3 * np.abs(synthetic_prior.basis).max())
+    assert np.allclose(back.variance, synthetic_prior.variance)
+    with np.load(p) as z:
+        arrays = dict(z)
+    for key, value, msg in (("version", np.array(2), "format version 2"),
+                            ("grid_id", np.array("healpix-64"), "unknown prior grid"),
+                            ("format", np.array("other"), "not a gonio prior")):
+        bad = tmp_path / f"bad-{key}.npz"
+        np.savez(bad, **{**arrays, key: value})
+        with pytest.raises(DataError, match=msg) as e:
+            load_prior(bad)
+        assert "\n" not in str(e.value) and str(bad) in str(e.value)
+    wrong = tmp_path / "wrong-shape.npz"
+    np.savez(wrong, **{**arrays, "grid_id": np.array(PriorGrid(15, 10, 8).grid_id)})
+    with pytest.raises(DataError, match="shape"):
+        load_prior(wrong)
+
+
+def test_leave_one_out_calibration_widens_the_variances():
+    mats = synthetic_materials(10, seed=4)
+    v = node_values_of(mats)
+    w = np.full(GRID.size, 1.0 / GRID.size)
+    cal = build_prior(v, [n for n, _ in mats], GRID, weight=w, n_components=5)
+    raw = build_prior(v, [n for n, _ in mats], GRID, weight=w, n_components=5, calibrate=False)
+    assert np.all(cal.variance >= raw.variance) and np.sum(cal.residual) > np.sum(raw.residual)
