@@ -9,6 +9,9 @@ The Python API (see the README's "Python API" section and ``docs/``)::
     result.model.eval(wi, wo)                   # the fitted BRDF, evaluable (1/sr, RGB)
     gonio.render_sphere(result.model, [gonio.light_from_angles(35)])   # a lit sphere (shows in a notebook)
 
+    with gonio.open_rig(sim=True) as rig:        # the simulated rig, or a rig's files and ports
+        run = gonio.measure(rig, "half_diff", "session-dir", on_pose=print)
+
 Subpackages: :mod:`gonio.geometry`, :mod:`gonio.lights` and :mod:`gonio.brdf` are the pure physics
 core; :mod:`gonio.rig` talks to hardware; :mod:`gonio.pipeline`, :mod:`gonio.plan` and
 :mod:`gonio.session` acquire; :mod:`gonio.io`, :mod:`gonio.tabulate` and :mod:`gonio.fit` handle data.
@@ -26,6 +29,11 @@ _API = {
     "Measured": "gonio.io.source", "SampleSet": "gonio.samples", "FitResult": "gonio.fit.result",
     "Selection": "gonio.fit.select", "make": "gonio.brdf", "MODELS": "gonio.brdf",
     "render_sphere": "gonio.render", "light_from_angles": "gonio.render",
+    # the instrument: open a rig, measure a plan, resume a session (gonio.session.api)
+    "open_rig": "gonio.session.rigs", "measure": "gonio.session.api", "resume": "gonio.session.api",
+    "SessionResult": "gonio.session.api", "PoseEvent": "gonio.session.runner",
+    "SimOptions": "gonio.session.options", "HardwareOptions": "gonio.session.options",
+    "TimingOptions": "gonio.session.options",
 }
 
 __all__ = ["fit", *_API]

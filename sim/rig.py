@@ -15,7 +15,7 @@
   the photodiode sees the same output). :class:`RigCamera` does that per frame and implements
   :class:`gonio.rig.interfaces.Camera`.
 
-Configuration boundary: ``gonio`` never imports ``sim``; only ``gonio/cli/measure.py`` imports this
+Configuration boundary: ``gonio`` never imports ``sim``; only ``gonio/session/rigs.py`` finds this
 module, lazily, for ``--sim``. The host code learns it is simulated only through the device paths and
 the :class:`SimClock` it is given.
 

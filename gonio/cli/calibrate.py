@@ -100,30 +100,27 @@ def print_result(res, refused=()) -> None:
         print(f"  {len(refused)} poses without a highlight or a board pose, e.g. pose {refused[0][0]}: {refused[0][1]}")
 
 
-def run_calibration_session(store, plan, devices, calibration, layout, *, before_pose, quiet: bool,
-                            resume_cmd: str) -> int:
-    """Run (or resume) the calibration session in ``store``; when every pose is done, estimate and write the
-    calibrated rig file the manifest names (``geocal.out``). Called by ``gonio measure``'s session code."""
-    from gonio.session.geocal_session import CalibrationRunner
+def print_calibration_outcome(result) -> int:
+    """Print how a calibration session's run ended (:class:`gonio.session.api.SessionResult`); when every pose is
+    done, estimate and write the calibrated rig file the manifest names (``geocal.out``), or report the check."""
     from gonio.session.runner import format_lab_time
 
-    runner = CalibrationRunner(plan, store, devices, calibration, layout, before_pose=before_pose,
-                               resume_command=resume_cmd, stream=None if quiet else sys.stderr)
-    result = runner.run()
-    print(f"calibration session {store.directory}: {len(store.done_poses())}/{len(plan)} poses, lab time "
-          f"{format_lab_time(result.lab_time)} in this run ({'simulated' if devices.clock.simulated else 'real'}; "
-          f"estimated {format_lab_time(result.estimated_lab_time or 0.0)}), wall time {result.wall_time:.1f} s")
-    if result.skipped:
-        print(f"{len(result.skipped)} poses skipped: " + "; ".join(f"pose {k}: {r}" for k, r in result.skipped[:3]))
+    run = result.run
+    resume_cmd = f"gonio resume {result.directory}"
+    print(f"calibration session {result.directory}: {result.poses_done}/{result.poses_total} poses, lab time "
+          f"{format_lab_time(run.lab_time)} in this run ({'simulated' if result.simulated else 'real'}; "
+          f"estimated {format_lab_time(run.estimated_lab_time or 0.0)}), wall time {run.wall_time:.1f} s")
+    if run.skipped:
+        print(f"{len(run.skipped)} poses skipped: " + "; ".join(f"pose {k}: {r}" for k, r in run.skipped[:3]))
     if not result.ok:
         print(f"gonio: calibration session ended: {result.status}; resume with `{resume_cmd}`", file=sys.stderr)
         if result.status == "interrupted":
             return 130
-        return result.error.exit_code if result.error is not None else 3
-    g = store.manifest["geocal"]
+        return run.error.exit_code if run.error is not None else 3
+    g = result.manifest["geocal"]
     if "check" in g:
-        return report_check(store.directory, devices.rig, store.manifest)
-    return _write_calibrated(store.directory, devices.rig, store.manifest, g["out"])
+        return report_check(result.directory, result.rig, result.manifest)
+    return _write_calibrated(result.directory, result.rig, result.manifest, g["out"])
 
 
 def _write_calibrated(directory, rig, manifest, out) -> int:
@@ -191,26 +188,26 @@ def finish_from_directory(d, manifest, *, rig_file=None) -> int:
     stopped before its estimate was written): writes the calibrated rig file unless it exists."""
     from pathlib import Path
 
-    from gonio.cli.measure import _manifest_rig
+    from gonio.session.recording import manifest_rig
     from gonio.session.store import MANIFEST
 
     if "check" in manifest["geocal"]:
-        return report_check(d, _manifest_rig(manifest, str(Path(d) / MANIFEST), rig_file), manifest)
+        return report_check(d, manifest_rig(manifest, str(Path(d) / MANIFEST), rig_file), manifest)
     out = Path(manifest["geocal"]["out"])
     if out.exists():
         print(f"{d}: the calibrated rig file {out} is written; nothing to do")
         return 0
-    return _write_calibrated(d, _manifest_rig(manifest, str(Path(d) / MANIFEST), rig_file), manifest, out)
+    return _write_calibrated(d, manifest_rig(manifest, str(Path(d) / MANIFEST), rig_file), manifest, out)
 
 
 def _new_session(args, rig, text, src, plan, check: dict | None = None) -> int:
     from pathlib import Path
 
-    from gonio.cli.measure import (_calibration_dict, _check_out, _hw_session, _material, _rig_record, _sim_session,
-                                   open_hardware)
     from gonio.errors import ConfigError
+    from gonio.session.api import measure
     from gonio.session.geocal_observe import calibration_layout
-    from gonio.session.store import SessionStore
+    from gonio.session.options import HardwareOptions, check_session_dir, default_material
+    from gonio.session.rigs import open_hardware_rig, open_sim_config
 
     if check is None:
         from gonio.io.outputs import check_output
@@ -226,33 +223,26 @@ def _new_session(args, rig, text, src, plan, check: dict | None = None) -> int:
 
         session = args.session or time.strftime("calibrate-check-%Y%m%d-%H%M%S")
         geocal = {"check": check, "note": f"rig file checked: {src}"}
-    _check_out(session, option="--session")
-    manifest = {
-        "mode": "sim" if args.sim else "hardware",
-        "command": ["gonio", *sys.argv[1:]] if sys.argv and sys.argv[0].endswith(("gonio", "main.py")) else None,
-        "seed": args.seed, "plan": plan, "rig": _rig_record(rig, src, text),
-        "material": {"label": "calibration tile"}, "target": calibration_layout().to_dict(),
-        "geocal": geocal,
-    }
+    check_session_dir(session, option="--session")
     if args.sim:
         from gonio.plugins import plugin
 
         simrig = plugin("sim.rig")
         as_built = simrig.parse_as_built(rig, args.sim_as_built)
         config = simrig.SimRigConfig(seed=args.seed, as_built=as_built.to_dict(), tile={})
-        manifest["material"] = _material(None).to_dict()  # what the simulator renders off the tile (nothing)
-        manifest["sim"] = config.to_dict()
-        manifest["calibration"] = _calibration_dict(config.calibration())
-        manifest["geocal"]["note"] += f"; simulated as-built rig ({as_built.source})"
-        store = SessionStore.create(session, manifest)
-        return _sim_session(store, plan, store.manifest, args.quiet)
-    calibration, devices = open_hardware(args, rig, manifest)
-    try:
-        store = SessionStore.create(session, manifest)
-    except BaseException:
-        devices.close()
-        raise
-    return _hw_session(store, plan, store.manifest, rig, calibration, args.quiet, devices=devices)
+        geocal["note"] += f"; simulated as-built rig ({as_built.source})"
+        # the simulator renders the default material off the tile (nothing): recorded as what it renders
+        opened = open_sim_config(rig, text, src, config, default_material(), calibration_layout(), hold=True,
+                                 detector=False)
+    else:
+        hw = HardwareOptions(servo_port=args.servo_port, controller_port=args.controller_port, camera=args.camera,
+                             calibration=args.calibration)
+        opened = open_hardware_rig(rig, text, src, hw, material={"label": "calibration tile"},
+                                   target=calibration_layout(), hold=True, detector=False)
+    with opened:
+        result = measure(opened, plan, session, seed=args.seed, geocal=geocal, out_option="--session",
+                         progress=None if args.quiet else sys.stderr)
+    return print_calibration_outcome(result)
 
 
 def _hardware_needs(args, action: str) -> None:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import sys
 
-from gonio.cli.measure import DEFAULT_SIM_RESOLUTION
+from gonio.session.options import DEFAULT_SIM_RESOLUTION
 
 
 def register(sub) -> None:
@@ -88,7 +88,7 @@ def _open(args):
 
 def _sim_camera(args):
     from gonio.brdf import make
-    from gonio.cli.measure import _resolution
+    from gonio.session.options import parse_resolution as _resolution
     from gonio.errors import ConfigError
     from gonio.pipeline.target import CameraCalibration, TargetLayout
     from gonio.plugins import plugin

@@ -60,14 +60,14 @@ def load_source(path_text: str):
 
 def _options(args) -> dict:
     """What every source's fit needs, as plain data (sent to worker processes)."""
-    from gonio.cli.models import _parse_param
+    from gonio.cli.models import parse_param
     from gonio.errors import ConfigError
 
     if not args.all_angles and not 0.0 < args.max_theta <= 90.0:
         raise ConfigError.field("--max-theta", "max_theta", args.max_theta, "must be in (0, 90] degrees")
     if args.select and args.fix:
         raise ConfigError.field("--fix", "fix", args.fix, "not supported with --select")
-    fixed = dict(_parse_param(t, "--fix") for t in args.fix) if args.fix else {}
+    fixed = dict(parse_param(t, "--fix") for t in args.fix) if args.fix else {}
     if fixed:  # checked before any source is read (names as `gonio fit` prints them, gonio.fit.layout.resolve_fixed)
         from gonio.fit.layout import model_class, resolve_fixed
 

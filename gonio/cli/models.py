@@ -14,7 +14,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _parse_param(text: str, option: str = "--param"):
+def parse_param(text: str, option: str = "--param"):
     from gonio.errors import ConfigError
 
     name, sep, value = text.partition("=")
@@ -45,7 +45,7 @@ def run(args) -> int:
         print(f"\nSums of lobes: any name like 'lambert+2ggx' (a digit repeats a term); terms: {', '.join(TERMS)}.")
         print("Lafortune: lobe2.*, lobe3.* ... add lobes (or lobes=N).")
         return 0
-    params = dict(_parse_param(p) for p in args.param)
+    params = dict(parse_param(p) for p in args.param)
     model = make(args.eval, source="--param", **params)
     wi = from_spherical(np.radians(args.theta_i), 0.0)
     theta_o = np.radians(np.arange(-85, 86, 5.0))

@@ -60,7 +60,23 @@ from gonio.plan.labtime import SessionTiming, dark_exposures, session_lab_time
 from gonio.rig.interfaces import Frame
 from gonio.session.records import MAX_POSE
 
-__all__ = ["RunnerSettings", "Devices", "RunResult", "SessionRunner", "open_devices", "format_lab_time"]
+__all__ = ["RunnerSettings", "Devices", "RunResult", "SessionRunner", "PoseEvent", "open_devices", "format_lab_time"]
+
+
+@dataclass(frozen=True)
+class PoseEvent:
+    """One pose measured and stored (what :attr:`SessionRunner.on_pose` subscribers receive): its plan index,
+    how many of the plan's poses are done, the samples appended (:class:`gonio.samples.SampleSet`), the pose's
+    record meta (joints, exposures, photodiode, ...), the session's lab time so far and the cost model's
+    estimate of the lab time left (s)."""
+
+    index: int
+    done: int
+    total: int
+    samples: object
+    meta: dict
+    lab_time: float
+    eta: float
 
 
 @dataclass(frozen=True)
@@ -317,6 +333,10 @@ class SessionRunner:
         #: the board pose of the last stored pose and where its camera was (:meth:`_board_entry`), and whether it
         #: must be confirmed (it comes from an earlier run): reused while the camera stays put (:meth:`_measure`)
         self._board_prev: tuple[bytes, object, bool, int | None] | None = None
+        #: called with a :class:`PoseEvent` after each pose is stored (a notebook's live plot, a progress bar);
+        #: returning False stops the session after that pose (as Ctrl-C does: ``interrupted``, resumable); an
+        #: exception it raises is said in one line and does not stop the session
+        self.on_pose: Callable[[PoseEvent], None] | None = None
 
     # -- messages -------------------------------------------------------------------------------
     def _say(self, msg: str) -> None:
@@ -621,6 +641,8 @@ class SessionRunner:
                     # ETA: the cost model's remaining time from this pose on (gonio.plan.labtime)
                     eta = float(ends[-1] - ends[min(n_todo, len(ends)) - 1]) if len(ends) else 0.0
                     progress.update(len(done), self.lab_offset + self.clock.now() - lab0, eta)
+                    self._notify(PoseEvent(k, len(done), total, samples, meta,
+                                           self.lab_offset + self.clock.now() - lab0, eta))
                 else:
                     if self._stop.is_set():
                         result.status = "interrupted"
@@ -653,6 +675,16 @@ class SessionRunner:
             self._say(f"session {result.status.split(':')[0]}: {result.measured} poses measured in this run; "
                       f"resume with:\n  {self.resume_command}")
         return result
+
+    def _notify(self, event: PoseEvent) -> None:
+        if self.on_pose is None:
+            return
+        try:
+            if self.on_pose(event) is False:
+                self.request_stop()
+        except Exception as exc:  # noqa: BLE001 - a subscriber's bug must not stop a measurement
+            print(f"gonio: warning: pose {event.index}: the on_pose callback failed ({type(exc).__name__}: "
+                  f"{str(exc)[:120]}); the pose is stored", file=self.stream or sys.stderr, flush=True)
 
     def _predict(self, todo) -> np.ndarray:
         """Cost-model lab time at the end of each pose of ``todo`` from the start of this run (start-up

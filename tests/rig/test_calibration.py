@@ -132,7 +132,7 @@ def test_black_level_above_full_scale_and_non_npz_response_are_refused(tmp_path)
 
 
 def test_a_resumed_hardware_session_gets_the_whole_recorded_calibration(tmp_path):
-    from gonio.cli.measure import _calibration_from_dict
+    from gonio.session.recording import calibration_from_record as _calibration_from_dict
 
     text = LINEAR.replace("[camera]", "radiometric_scale = [1.5, 1.25, 1.0]\ndist = [0.1, -0.02, 0.0, 0.0]\n[camera]")
     d = load_camera_calibration(_write(tmp_path, text))

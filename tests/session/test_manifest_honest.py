@@ -34,7 +34,7 @@ def test_sim_manifest_records_rig_text_calibration_and_detector(tmp_path, capsys
 
 
 def test_resume_uses_the_manifest_rig_not_the_file(tmp_path, capsys):
-    from gonio.cli.measure import _manifest_rig
+    from gonio.session.recording import manifest_rig as _manifest_rig
 
     text, _ = read_rig_text("default")
     changed = text.replace("camera_arm_radius_m = 0.40", "camera_arm_radius_m = 0.35")

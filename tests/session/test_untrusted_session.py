@@ -169,7 +169,7 @@ def test_crafted_sim_settings_are_one_line(session, capsys, sim, message):
 def test_a_manifest_edit_cannot_widen_the_joint_limits(session, capsys):
     import hashlib
 
-    from gonio.cli.measure import _manifest_rig
+    from gonio.session.recording import manifest_rig as _manifest_rig
     from gonio.rig.kinematics import load_rig
 
     m = json.loads((session / "manifest.json").read_text())

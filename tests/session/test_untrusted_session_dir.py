@@ -154,7 +154,7 @@ def test_deeply_nested_manifest_is_one_line(session, capsys):
 def test_a_manifest_edit_cannot_widen_the_joint_limits(session, tmp_path):
     import hashlib
 
-    from gonio.cli.measure import _manifest_rig
+    from gonio.session.recording import manifest_rig as _manifest_rig
     from gonio.rig.kinematics import load_rig
 
     m = json.loads((session / "manifest.json").read_text())
