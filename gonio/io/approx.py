@@ -23,7 +23,7 @@ import numpy as np
 from gonio.errors import ConfigError
 
 __all__ = ["Lobe", "Decomposed", "decompose", "direction_pairs", "relative_error", "Exported", "closest_lobes",
-           "EXACT", "TOLERANCE", "N_PAIRS"]
+           "EXACT", "TOLERANCE", "N_PAIRS", "single_dielectric"]
 
 #: Relative error below which an export counts as exact (float64 round-off of the formulas).
 EXACT = 1e-9
@@ -89,6 +89,20 @@ def decompose(model, target: str, approx: bool = False, reasons: list | None = N
                                     "lobes and their sums; pass --approx for the closest (a lambert+ggx fitted to "
                                     "it, its error printed)")
     return Decomposed(diffuse, tuple(lobes))
+
+
+def single_dielectric(model, target: str, f0_max: float) -> Decomposed | None:
+    """``model`` decomposed (:func:`decompose`) when it is a diffuse term under exactly one lobe with a grey
+    f0 in (0, ``f0_max``) — a dielectric coating: plastics, paints' clear coats, which renderers have a layered
+    material for — else None."""
+    try:
+        dec = decompose(model, target)
+    except ConfigError:
+        return None
+    if len(dec.lobes) != 1:
+        return None
+    f0 = dec.lobes[0].f0
+    return dec if np.ptp(f0) <= 1e-9 and 0.0 < f0[0] < f0_max else None
 
 
 def direction_pairs(n: int = N_PAIRS, seed: int = 12345) -> tuple[np.ndarray, np.ndarray]:

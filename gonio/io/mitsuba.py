@@ -248,18 +248,13 @@ def mitsuba_export(model, path=None, *, approx: bool = False, option: str = "--m
 def _roughplastic_candidate(model, wi, wo):
     """``(roughplastic dict, reasons)`` for a diffuse term plus one lobe of grey f0 < 1 (a dielectric: plastics,
     paints' clear coats), else None (:mod:`gonio.io.mitsuba_plastic`)."""
-    from gonio.io.approx import decompose
+    from gonio.io.approx import single_dielectric
     from gonio.io.mitsuba_plastic import roughplastic_dict
 
-    try:
-        dec = decompose(model, "Mitsuba 3")
-    except ConfigError:
-        return None
-    if len(dec.lobes) != 1:
+    dec = single_dielectric(model, "Mitsuba 3", 1.0 - F0_TOLERANCE)
+    if dec is None:
         return None
     lobe = dec.lobes[0]
-    if np.ptp(lobe.f0) > 1e-9 or lobe.f0[0] >= 1.0 - F0_TOLERANCE or lobe.f0[0] <= 0:
-        return None
     return roughplastic_dict(dec.diffuse, lobe.ks, float(lobe.f0[0]), lobe.alpha, lobe.distribution, wi, wo)
 
 

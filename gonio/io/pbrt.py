@@ -1,5 +1,6 @@
 """Export a fitted model as a pbrt-v4 scene-file material (``MakeNamedMaterial`` blocks: ``diffuse``,
-``conductor``, ``mix``), with the approximation error printed where pbrt cannot reproduce the model.
+``conductor``, ``mix``, or ``coateddiffuse`` for plastics: :mod:`gonio.io.pbrt_coated`), with the
+approximation error printed where pbrt cannot reproduce the model.
 
 pbrt-v4's materials (Pharr, Jakob, Humphreys, *Physically Based Rendering*, 4th ed., 2023, ch. 9;
 pbrt-v4 ``materials.h``/``bxdfs.h``):
@@ -157,11 +158,44 @@ def _text(terms, name: str) -> str:
 
 
 def to_pbrt(model, name: str = "gonio", approx: bool = False) -> Exported:
-    """The pbrt-v4 material text, with its error against ``model``."""
+    """The pbrt-v4 material text, with its error against ``model``: the mix of diffuse and conductors
+    (:func:`pbrt_terms`), or, for a diffuse term under one dielectric lobe (a plastic, a clear coat: grey
+    f0 < 1), pbrt-v4's ``coateddiffuse`` fitted to it (:mod:`gonio.io.pbrt_coated`, evaluated by pbrt-v4's own
+    layered walk's expectation) when that is closer; the other's error is said beside it."""
     terms, reasons = pbrt_terms(model, approx)
     wi, wo = direction_pairs()
-    err = relative_error(pbrt_eval(terms, wi, wo), model.eval(wi, wo))
+    want = model.eval(wi, wo)
+    err = relative_error(pbrt_eval(terms, wi, wo), want)
+    coated = _coated_candidate(model, err)
+    if coated is not None:
+        from gonio.io.pbrt_coated import coated_eval, coated_text
+
+        params, notes = coated
+        cerr = relative_error(coated_eval(params, wi, wo), want)
+        if cerr < err:
+            header = f'# pbrt-v4 material written by gonio: use it with  NamedMaterial "{name}"'
+            why = ["pbrt-v4 coateddiffuse (a rough dielectric over a Lambertian base: exact dielectric Fresnel, "
+                   "height-correlated G, the base seen through the coating) fitted to the model", *notes,
+                   f"closer than diffuse + conductor ({100 * err:.2f} %)"]
+            return Exported("pbrt-v4", f"{header}\n{coated_text(params, name)}\n", cerr, why)
+        reasons.append(f"closer than coateddiffuse ({100 * cerr:.2f} %)")
     return Exported("pbrt-v4", _text(terms, name), err, reasons)
+
+
+def _coated_candidate(model, err: float):
+    """``fit_coated``'s parameters and notes for a diffuse term under one lobe with a grey f0 < 1 (a dielectric)
+    that the mix does not reproduce, else None."""
+    from gonio.io.approx import TOLERANCE, single_dielectric
+
+    dec = single_dielectric(model, "pbrt", 0.999) if err >= TOLERANCE else None
+    if dec is None or dec.lobes[0].alpha < SMOOTH_ALPHA:
+        return None
+    lobe = dec.lobes[0]
+    f0 = float(lobe.f0[0])
+    from gonio.io.pbrt_coated import fit_coated
+
+    eta = (1.0 + np.sqrt(f0)) / (1.0 - np.sqrt(f0))
+    return fit_coated(model, lobe.alpha, float(eta))
 
 
 def write_pbrt(model, path, *, approx: bool = False, option: str = "--pbrt") -> Exported:
