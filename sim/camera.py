@@ -282,6 +282,10 @@ class SimScene:
     #: a glossy black tile or mirror in place of the sample (:class:`sim.mirror_tile.CalibrationTile`): the
     #: geometric calibration's view of the light's reflection; None: the sample patch
     tile: object = None
+    #: a sphere coated with the material (:class:`gonio.sphere.Sphere`) in place of the flat patch: rendered with
+    #: ``sphere_supersample``² rays per pixel (the pixel's footprint of normals), its shadow on the board
+    sphere: object = None
+    sphere_supersample: int = 4
 
 
 class SceneLight:
@@ -533,6 +537,10 @@ class SimCamera:
             from sim.mirror_tile import shade_tile
 
             shade_tile(self, rate, C)
+        elif s.sphere is not None:
+            from sim.sphere import shade_sphere
+
+            shade_sphere(self, rate, px, py, hit)
         else:
             self._shade_sample(rate, C)
         return rate

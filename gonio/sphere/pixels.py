@@ -1,0 +1,147 @@
+"""One merged (HDR) frame of a sphere → one BRDF sample per pixel that sees it, in the white reference's units.
+
+Radiometry (lecture notes 004, "point light" and "the BRDF"; the flat pipeline's, :mod:`gonio.pipeline.reflectance`):
+a point source of intensity I at S gives a surface point X with unit normal n the irradiance
+``E = I (n·wi) / |S − X|²``, and the camera sees the radiance ``L = f(wi, wo) E``. The frame's rate image is
+``k L`` (k the camera's responsivity, per channel). The Lambertian white reference (albedo ρ, normal +z, on the
+board) seen in the same frame gives ``k I = π rate_w |S − X_w|³ / (ρ S_z')`` per white pixel (S_z' the light's
+height above it); their inverse-variance mean is the frame's ``kI``. Per sphere pixel then
+
+    f = rate |S − X|² / (kI · (n·wi)),      σ_f² = σ²_rate / (kI (n·wi)/|S − X|²)² + f² (σ_kI / kI)²
+
+(GUM, JCGM 100:2008, eq. 10, independent inputs). Pixels are rejected, and counted, where the BRDF sample would
+not be what the formula says: ``silhouette`` (θo above ``grazing_deg``: the pixel's footprint spans many normals
+and the background), ``terminator`` (θi above ``grazing_deg``), ``saturated`` (no exposure left unsaturated),
+``dark`` (SNR below ``min_snr``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gonio.errors import DataError
+from gonio.sphere.geometry import Sphere, sphere_hits
+
+__all__ = ["SphereFrameSamples", "sphere_frame_samples", "white_scale", "pixel_rays_world", "sphere_box"]
+
+
+@dataclass
+class SphereFrameSamples:
+    """A frame's per-pixel samples (the used pixels): angles about each pixel's normal, f and σ (n, 3), the
+    pixels' (row, col), and the counts of every rejection."""
+
+    theta_h: np.ndarray
+    theta_d: np.ndarray
+    phi_d: np.ndarray
+    f: np.ndarray
+    sigma: np.ndarray
+    pixels: np.ndarray
+    wi: np.ndarray
+    wo: np.ndarray
+    counts: dict = field(default_factory=dict)
+
+
+def pixel_rays_world(calib, pose, rows: slice, cols: slice) -> tuple[np.ndarray, np.ndarray]:
+    """Unit world-frame rays (h, w, 3) of the pixel centres in the box and their (row, col) grid."""
+    v, u = np.mgrid[rows, cols].astype(np.float64)
+    d_cam = calib.rays(u, v)
+    d = d_cam @ pose.R  # world = Rᵀ camera (CameraPose: x_cam = R x_world + t)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    return d, np.stack([v, u], axis=-1).astype(np.int64)
+
+
+def sphere_box(calib, pose, sphere: Sphere, pad: int = 2) -> tuple[slice, slice] | None:
+    """Pixel box (rows, cols) holding the sphere's projection (its bounding cube's corners), padded; None if
+    it is not in view."""
+    r = sphere.radius
+    corners = sphere.P + r * np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], dtype=float)
+    pc = corners @ pose.R.T + pose.t
+    if (pc[:, 2] <= 0).any():
+        return None
+    uv = pose.project(corners, calib)
+    c0, r0 = np.floor(uv.min(axis=0)).astype(int) - pad
+    c1, r1 = np.ceil(uv.max(axis=0)).astype(int) + pad + 1
+    rows = slice(max(int(r0), 0), min(int(r1), calib.height))
+    cols = slice(max(int(c0), 0), min(int(c1), calib.width))
+    if rows.stop <= rows.start or cols.stop <= cols.start:
+        return None
+    return rows, cols
+
+
+def white_scale(rate, var, calib, pose, layout, light_position) -> tuple[np.ndarray, np.ndarray]:
+    """``(kI, σ_kI)`` per channel from the white reference's pixels in the frame (see the module docstring);
+    one line naming the reason when no white pixel is usable."""
+    S = np.asarray(light_position, dtype=np.float64)
+    corners = layout.white.corners()
+    pc = corners @ pose.R.T + pose.t
+    if (pc[:, 2] <= 0).any():
+        raise DataError("sphere frame: the white reference is behind the camera")
+    uv = pose.project(corners, calib)
+    c0, r0 = np.ceil(uv.min(axis=0)).astype(int)
+    c1, r1 = np.floor(uv.max(axis=0)).astype(int) + 1
+    rows = slice(max(int(r0), 0), min(int(r1), calib.height))
+    cols = slice(max(int(c0), 0), min(int(c1), calib.width))
+    if rows.stop <= rows.start or cols.stop <= cols.start:
+        raise DataError("sphere frame: the white reference is not in view")
+    d, _ = pixel_rays_world(calib, pose, rows, cols)
+    C = pose.centre
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -C[2] / d[..., 2]
+    p = C + t[..., None] * d
+    inside = (t > 0) & layout.white.contains(p[..., 0], p[..., 1])
+    # stay clear of the patch's edges (a pixel straddling the edge mixes board and white)
+    inside &= layout.white.contains(p[..., 0] + 1e-3, p[..., 1] + 1e-3) & layout.white.contains(
+        p[..., 0] - 1e-3, p[..., 1] - 1e-3)
+    r_w = rate[rows, cols][inside]
+    v_w = var[rows, cols][inside]
+    ok = np.all(np.isfinite(r_w) & np.isfinite(v_w) & (v_w > 0), axis=1)
+    if ok.sum() < 4:
+        raise DataError("sphere frame: fewer than 4 usable white-reference pixels (saturated or out of view)")
+    pw = p[inside][ok]
+    to_s = S - pw
+    dist = np.linalg.norm(to_s, axis=1)
+    geo = to_s[:, 2] / dist ** 3  # cos θ / r² of a point source over the plane z = 0
+    rho = np.asarray(layout.white_albedo, dtype=np.float64)
+    k = np.pi * r_w[ok] / (rho * geo[:, None])
+    kv = v_w[ok] * (np.pi / (rho * geo[:, None])) ** 2
+    w = 1.0 / kv
+    kI = (w * k).sum(axis=0) / w.sum(axis=0)
+    return kI, np.sqrt(1.0 / w.sum(axis=0))
+
+
+def sphere_frame_samples(rate, var, calib, pose, sphere: Sphere, light_position, layout, *,
+                         grazing_deg: float = 80.0, min_snr: float = 5.0) -> SphereFrameSamples:
+    """Per-pixel BRDF samples of ``sphere`` in one merged frame (``rate``/``var`` (H, W, 3), NaN where saturated
+    in every exposure), with the camera ``pose`` and the light at ``light_position`` (sample frame, metres)."""
+    rate = np.asarray(rate, dtype=np.float64)
+    var = np.asarray(var, dtype=np.float64)
+    box = sphere_box(calib, pose, sphere)
+    counts = {"hit": 0, "silhouette": 0, "terminator": 0, "saturated": 0, "dark": 0, "used": 0}
+    empty = np.zeros(0)
+    if box is None:
+        return SphereFrameSamples(empty, empty, empty, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 2), int),
+                                  np.zeros((0, 3)), np.zeros((0, 3)), counts)
+    kI, skI = white_scale(rate, var, calib, pose, layout, light_position)
+    d, rc = pixel_rays_world(calib, pose, *box)
+    hits, hit = sphere_hits(pose.centre, d, sphere, light_position)
+    px = rc[hit]
+    r_px = rate[px[:, 0], px[:, 1]]
+    v_px = var[px[:, 0], px[:, 1]]
+    cos_lim = math.cos(math.radians(grazing_deg))
+    sil = hits.cos_o < cos_lim
+    term = ~sil & (hits.cos_i < cos_lim)
+    sat = ~sil & ~term & ~np.all(np.isfinite(r_px), axis=1)
+    E = np.clip(hits.cos_i, 0.0, None) / hits.r2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = r_px / (kI * E[:, None])
+        sf = np.sqrt(v_px / (kI * E[:, None]) ** 2 + (f * skI / kI) ** 2)
+        snr = np.min(np.abs(f) / sf, axis=1)
+    dark = ~sil & ~term & ~sat & ~(snr >= min_snr)
+    use = ~(sil | term | sat | dark)
+    counts.update(hit=int(hit.sum()), silhouette=int(sil.sum()), terminator=int(term.sum()), saturated=int(sat.sum()),
+                  dark=int(dark.sum()), used=int(use.sum()))
+    return SphereFrameSamples(hits.theta_h[use], hits.theta_d[use], hits.phi_d[use], f[use], sf[use], px[use],
+                              hits.wi[use], hits.wo[use], counts)
