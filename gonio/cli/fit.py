@@ -19,8 +19,7 @@ def register(sub) -> None:
     g.add_argument("--model", default="microfacet", help="model to fit (see `gonio models`; sums such as "
                                                           "lambert+2ggx); default microfacet")
     g.add_argument("--select", action="store_true", help="fit the candidates and choose one")
-    p.add_argument("--candidates", default=None, help="comma-separated candidates for --select "
-                                                      "(default lambert,blinn-phong,microfacet,lambert+2ggx)")
+    p.add_argument("--candidates", default=None, help=_candidates_help())
     p.add_argument("--criterion", default="auto", help="selection criterion: auto, bic, aic, cv")
     p.add_argument("--equivalence", type=float, default=None, metavar="REL",
                    help="--select keeps the simplest candidate whose predictions are within REL (relative) of the "
@@ -56,6 +55,15 @@ def load_source(path_text: str):
     from gonio.api import as_samples
 
     return as_samples(path_text)
+
+
+def _candidates_help() -> str:
+    """The --candidates help, from the lists :func:`gonio.fit.select.select` uses (not a copy of them)."""
+    from gonio.fit.select import DEFAULT_CANDIDATES, LARGE_TABLE_CANDIDATES, SELECT_N, WIDEN_CANDIDATES
+
+    return (f"comma-separated candidates for --select (default {','.join(DEFAULT_CANDIDATES)}; above "
+            f"{2 * SELECT_N} samples, e.g. a MERL table, also {','.join(LARGE_TABLE_CANDIDATES)}; when none of them "
+            f"fits the data, {','.join(WIDEN_CANDIDATES)} are added)")
 
 
 def _options(args) -> dict:
@@ -111,7 +119,8 @@ def fit_row(source: str, opts: dict) -> dict:
     result, sel = fit_one(source, opts)
     if target is not None:
         (sel or result).to_json(target, force=opts["force"])
-    return {**({"output": target} if target else {}), "model": result.model_name, "n_used": result.n_used, "rms_rel": result.rms_rel,
+    status = {"status": sel.status} if sel is not None else ({"status": "misfit"} if not result.goodness.get("fits", True) else {})
+    return {**status, **({"output": target} if target else {}), "model": result.model_name, "n_used": result.n_used, "rms_rel": result.rms_rel,
             "chi2_red": result.chi2_red, "seconds": round(result.seconds, 3),
             "params": "; ".join(f"{k}={v}" for k, v in result.params.items()),
             "at_bound": "; ".join(f"{k} ({', '.join(f'{c} {w}' for c, w in b.items())})"

@@ -516,12 +516,16 @@ def _partner(name: str, other: str) -> str:
 
 
 def add_report(r: FitResult, d: FitData) -> None:
-    """Fill ``r.metrics`` (:mod:`gonio.fit.metrics`) and ``r.energy`` (:mod:`gonio.fit.energy`); a note
-    when the fitted parameters do not conserve energy."""
+    """Fill ``r.metrics`` (:mod:`gonio.fit.metrics`), ``r.goodness`` (:mod:`gonio.fit.gof`) and ``r.energy``
+    (:mod:`gonio.fit.energy`); a note when the model does not fit or the fitted parameters do not conserve
+    energy."""
     from gonio.fit.energy import albedo_check
+    from gonio.fit.gof import goodness_of_fit
     from gonio.fit.metrics import metrics
 
-    r.metrics = metrics(r.model, d)
+    m = np.asarray(r.model.eval(d.wi, d.wo), dtype=np.float64)
+    r.metrics = metrics(r.model, d, values=m)
+    r.goodness = goodness_of_fit(m, d, LOSSES[r.loss], r.n_params)
     r.energy = albedo_check(r.model)
     if not r.energy["ok"]:
         r.notes.append(f"not energy conserving: directional albedo {r.energy['albedo_max']:.3g} > 1 at "

@@ -75,6 +75,9 @@ class FitResult:
     at_bound: dict = field(default_factory=dict)
     #: Error measures users compare fits with (:mod:`gonio.fit.metrics`): ``cbrt_rel``, ``image_rel``.
     metrics: dict = field(default_factory=dict)
+    #: Goodness of fit (:func:`gonio.fit.gof.goodness_of_fit`): ``fits``, ``ratio``, ``test``, χ² and residual
+    #: structure; empty when not computed (``report=False``).
+    goodness: dict = field(default_factory=dict)
     #: Directional-albedo check (:func:`gonio.fit.energy.albedo_check`): ``albedo_max``, ``theta_deg``, ``ok``.
     energy: dict = field(default_factory=dict)
 
@@ -168,6 +171,10 @@ class FitResult:
                          + "  (cube-root cosine-weighted, Ngan et al. 2005; rendered spheres"
                          + ("; n/a: the data are too sparse to render them" if None in self.metrics.values() else "")
                          + ")")
+        if self.goodness:
+            from gonio.fit.gof import describe
+
+            lines.append(f"  fit: {describe(self.goodness)}")
         if self.energy:
             e = self.energy
             lines.append(f"  energy: max directional albedo {e['albedo_max']:.4g} at theta_i {e['theta_deg']:g} deg"
@@ -195,6 +202,7 @@ class FitResult:
             "redundancy": list(self.redundancy) if self.redundancy else None,
             "at_bound": self.at_bound,
             "metrics": self.metrics,
+            "goodness_of_fit": self.goodness,
             "energy": self.energy,
         })
 

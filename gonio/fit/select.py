@@ -66,6 +66,7 @@ import numpy as np
 from gonio.errors import ConfigError, GonioError
 from gonio.fit.data import DEFAULT_MAX_THETA_DEG, prepare
 from gonio.fit.fit import fit, resolve_loss
+from gonio.fit.gof import goodness_of_fit
 from gonio.fit.result import FitResult, _clean
 
 #: Default candidates, simple to complex: diffuse; diffuse + Blinn-Phong; diffuse + one GGX lobe;
@@ -94,10 +95,19 @@ class Selection:
     adjustment: str = ""
     #: How the selection ran (anisotropic candidates added, subset fits), also the winner's first notes.
     notes: list[str] = field(default_factory=list)
+    #: Empty when the winner fits the data (:mod:`gonio.fit.gof`); else how far the best candidate misses.
+    misfit: str = ""
+
+    @property
+    def status(self) -> str:
+        """``ok`` when the chosen model fits the data to within their noise, ``misfit`` when no candidate does."""
+        return "misfit" if self.misfit else "ok"
 
     def to_dict(self) -> dict[str, Any]:
         out = self.winner.to_dict()
         out["criterion"] = self.criterion
+        out["status"] = self.status
+        out["misfit"] = self.misfit
         out["adjustment"] = self.adjustment
         out["candidates"] = _clean(self.candidates)
         return out
@@ -134,6 +144,8 @@ class Selection:
                 c2 = "-" if r.get("chi2_red") is None else f"{r['chi2_red']:.4g}"
                 lines.append(f"{r['model']:<16} {r['n_params']:>3} {r['score']:>12.6g} {r['rms_rel']:>9.4f} {c2:>9}  "
                              f"{r['status']:<9} {r['reason']}")
+        if self.misfit:
+            lines.append(f"NO CANDIDATE FITS: {self.misfit.split(': ', 1)[1]}")
         return lines
 
     def __repr__(self) -> str:
@@ -199,6 +211,9 @@ def _cv_score(d, model, loss, k, seed, fit_kw, bar=None, start=None) -> tuple[fl
 LARGE_TABLE_CANDIDATES = ("gtr", "abc-smooth")
 #: Width parameters of the terms of a sum: one on a bound means the term has no shape the data determine.
 _WIDTHS = ("alpha", "roughness", "exponent", "alpha_x", "alpha_y", "sigma")
+#: Candidates added when no candidate fits the data (:mod:`gonio.fit.gof`): a rough diffuse surface (Oren &
+#: Nayar 1994, alone and under a GGX lobe) and an anisotropic lobe (Ward 1992).
+WIDEN_CANDIDATES = ("oren-nayar", "oren-nayar+ggx", "ward")
 #: Candidates added when the data are anisotropic (:func:`gonio.tabulate.check_isotropy`) and none of
 #: the requested ones is.
 ANISOTROPIC_CANDIDATES = ("ward",)
@@ -307,7 +322,8 @@ def _practically_equivalent(win: dict, eligible: list, ok: list, fits: dict, d, 
 
 def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "auto", loss: str = "auto",
            folds: int = 5, seed: int = 0, max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG,
-           progress: bool = False, equivalence: float = EQUIVALENCE, **fit_kw) -> Selection:
+           progress: bool = False, equivalence: float = EQUIVALENCE, widen: bool = True, _done: dict | None = None,
+           **fit_kw) -> Selection:
     """Fit every candidate model and choose one (criteria in the module docstring).
 
     ``candidates`` default to :data:`DEFAULT_CANDIDATES` (plus :data:`LARGE_TABLE_CANDIDATES` on large tables).
@@ -357,8 +373,15 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
     rows, fits, first_error = [], {}, None
     from gonio.fit.energy import albedo_check
 
+    done = {} if _done is None else _done
     for name in candidates:
         bar.set_postfix_str(name)
+        if name in done:  # fitted before widening (the same subsets and seed): not fitted again
+            row, r = dict(done[name][0]), done[name][1]
+            rows.append(row)
+            fits[name] = r
+            bar.update(1 + (folds if criterion == "cv" and not big else 0))
+            continue
         try:
             r = fit(d, name, loss=lossobj.name, seed=seed, **fit_kw)
         except GonioError as exc:
@@ -385,6 +408,8 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
                           if "value" in v and "." in k and k.rsplit(".", 1)[1] in _WIDTHS)
         if unident:
             row["unidentified"] = f"parameters not identified by the data: {', '.join(unident)}"
+        g = goodness_of_fit(r.model.eval(d.wi, d.wo), d, lossobj, r.n_params, seed=seed)
+        row["fits"], row["fit_ratio"] = g["fits"], g["ratio"]
         energy = albedo_check(r.model)
         row["albedo_max"] = energy["albedo_max"]
         if not energy["ok"]:
@@ -392,6 +417,7 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
                                  f"theta_i = {energy['theta_deg']:g} deg")
         rows.append(row)
         fits[name] = r
+        done[name] = (dict(row), r)
     adjustment = ""
     ok = [r for r in rows if "score" in r]
     if criterion in ("aic", "bic") and lossobj.name == "chi2" and ok:
@@ -452,6 +478,26 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
             for r in ok:
                 r["reason"] += f"; {adjustment}" if r is win else ""
     win = _practically_equivalent(win, eligible, ok, fits, d, equivalence, criterion)
+    if not win["fits"]:
+        fitting = [r for r in eligible if r["fits"]]
+        if fitting:  # the criterion chose a model that does not fit while another does: the best that fits
+            new = min(fitting, key=lambda r: r["score"])
+            new["reason"] = (f"the best-scoring candidate that fits the data ({criterion.upper()} {new['score']:.6g}); "
+                             f"{win['model']} does not (residuals {win['fit_ratio']:.3g}x the noise)")
+            win["reason"] = f"{win['reason']}; but it does not fit the data (residuals {win['fit_ratio']:.3g}x the noise)"
+            win = new
+        elif widen:
+            extra = tuple(c for c in WIDEN_CANDIDATES if c not in candidates)
+            if extra:
+                bar.close()
+                why = (f"no candidate fits the data (the best, {win['model']}, leaves residuals "
+                       f"{win['fit_ratio']:.3g}x the noise): added {', '.join(extra)}")
+                sel = select(data, candidates + extra, criterion=criterion, loss=loss, folds=folds, seed=seed,
+                             max_theta_deg=max_theta_deg, progress=progress, equivalence=equivalence, widen=False,
+                             _done=done, **{k: v for k, v in fit_kw.items() if k != "report"})
+                sel.notes.insert(0, why)
+                sel.winner.notes.insert(0, why)
+                return sel
     if "redundant" in win:
         win["reason"] += f"; chosen although {win['redundant']} (no other candidate remains)"
     if "unphysical" in win:
@@ -477,6 +523,10 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
     bar.update(1)
     bar.close()
     sel = Selection(fits[win["model"]], criterion, rows, fits, adjustment)
+    if not win["fits"]:
+        sel.misfit = (f"no candidate fits the data: the best, {win['model']}, leaves residuals {win['fit_ratio']:.3g}x "
+                      f"the noise (tried {', '.join(r['model'] for r in ok)})")
+        notes.append(sel.misfit)
     sel.notes = notes
     sel.winner.notes[:0] = notes
     return sel
