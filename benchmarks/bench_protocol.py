@@ -8,6 +8,7 @@ from __future__ import annotations
 import shutil
 import statistics
 import subprocess
+from gonio import childproc  # children die with this process
 import tempfile
 import time
 from pathlib import Path
@@ -35,9 +36,9 @@ def _c_frames_per_s(n: int) -> tuple[float, float] | None:
         return None
     with tempfile.TemporaryDirectory() as tmp:
         exe = Path(tmp) / "fp_test"
-        subprocess.run([cc, "-std=c99", "-O2", "-o", str(exe), str(C_DIR / "fp_codec.c"), str(C_DIR / "fp_test.c")],
+        childproc.run([cc, "-std=c99", "-O2", "-o", str(exe), str(C_DIR / "fp_codec.c"), str(C_DIR / "fp_test.c")],
                        check=True, capture_output=True, timeout=120)
-        out = subprocess.run([str(exe), "bench", str(n)], check=True, capture_output=True, text=True, timeout=120)
+        out = childproc.run([str(exe), "bench", str(n)], check=True, capture_output=True, text=True, timeout=120)
     kv = dict(x.split("=") for x in out.stdout.split())
     secs = float(kv["seconds"])
     return int(kv["frames"]) / secs, int(kv["bytes"]) / secs

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+from gonio import childproc  # children die with this process
 import sys
 import tempfile
 import time
@@ -168,7 +169,7 @@ def merl_tables(src: Path, names) -> dict[str, Path]:
     cache.mkdir(parents=True, exist_ok=True)
     missing = [n for n in names if not (cache / f"{n}.binary").is_file()]
     if missing:
-        subprocess.run([sys.executable, str(src / "nbrdf_to_merl.py"), *missing, "-o", str(cache)], check=True,
+        childproc.run([sys.executable, str(src / "nbrdf_to_merl.py"), *missing, "-o", str(cache)], check=True,
                        stdout=subprocess.DEVNULL)
     return {n: cache / f"{n}.binary" for n in names}
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+from gonio import childproc  # children die with this process
 import sys
 import tempfile
 from pathlib import Path
@@ -97,9 +98,9 @@ def _tree(rev: str, into: Path) -> Path | None:
     """The files of revision ``rev`` of this repository extracted into ``into`` (None without git or the rev)."""
     try:
         into.mkdir(parents=True, exist_ok=True)
-        archive = subprocess.run(["git", "-C", str(_ROOT), "archive", "--format=tar", rev], capture_output=True,
+        archive = childproc.run(["git", "-C", str(_ROOT), "archive", "--format=tar", rev], capture_output=True,
                                  check=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True, capture_output=True)
+        childproc.run(["tar", "-x", "-C", str(into)], input=archive, check=True, capture_output=True)
     except (OSError, subprocess.CalledProcessError):
         return None
     return into
@@ -108,7 +109,7 @@ def _tree(rev: str, into: Path) -> Path | None:
 def _run(tree: Path, gen: str, params: dict, out: Path) -> dict:
     env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
            "MKL_NUM_THREADS": "1"}
-    r = subprocess.run([sys.executable, "-c", _CHILD, gen, json.dumps(params), str(out)], cwd=str(tree), env=env,
+    r = childproc.run([sys.executable, "-c", _CHILD, gen, json.dumps(params), str(out)], cwd=str(tree), env=env,
                        capture_output=True, text=True)
     if r.returncode:
         raise RuntimeError(f"session in {tree} failed: {(r.stderr or r.stdout).strip().splitlines()[-1:]}")

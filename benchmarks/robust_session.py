@@ -26,6 +26,7 @@ import random
 import shutil
 import signal
 import subprocess
+from gonio import childproc  # children die with this process
 import sys
 import tempfile
 import time
@@ -51,7 +52,7 @@ def _env():
 
 
 def _gonio(*args, **kw):
-    return subprocess.Popen([sys.executable, "-m", "gonio.cli.main", *args], cwd=REPO, env=_env(),
+    return childproc.popen([sys.executable, "-m", "gonio.cli.main", *args], cwd=REPO, env=_env(),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kw)
 
 

@@ -16,6 +16,7 @@ import ctypes
 import random
 import shutil
 import subprocess
+from gonio import childproc  # children die with this process
 import tempfile
 import time
 from pathlib import Path
@@ -122,10 +123,10 @@ def _c_fuzz(n: int, seed: int) -> dict:
         return row
     with tempfile.TemporaryDirectory() as tmp:
         exe = Path(tmp) / "fp_test"
-        subprocess.run([cc, "-std=c99", "-O2", "-o", str(exe), str(C_DIR / "fp_codec.c"), str(C_DIR / "fp_test.c")],
+        childproc.run([cc, "-std=c99", "-O2", "-o", str(exe), str(C_DIR / "fp_codec.c"), str(C_DIR / "fp_test.c")],
                        check=True, capture_output=True, timeout=120)
         t0 = time.perf_counter()
-        r = subprocess.run([str(exe), "fuzz", str(seed), str(n)], capture_output=True, text=True, timeout=1800)
+        r = childproc.run([str(exe), "fuzz", str(seed), str(n)], capture_output=True, text=True, timeout=1800)
         row["seconds"] = time.perf_counter() - t0
     last = [x for x in r.stdout.splitlines() if x.startswith("fuzz iterations=")]
     if r.returncode < 0 or not last:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from typing import Mapping
 
 PROTOCOL_MAJOR = 2
-PROTOCOL_MINOR = 1
+PROTOCOL_MINOR = 2
 
 MAX_PAYLOAD = 64
 HEADER = 3  # TYPE SEQ LEN
@@ -72,6 +72,23 @@ ERR_NOT_READY = 0x05
 ERR_BUSY = 0x06
 ERR_VERSION = 0x07
 ERR_OVERTEMP = 0x08
+# -- reset causes (STATUS reply, since 2.2; SPEC.md §4.5) ------------------------------------------
+RESET_UNKNOWN = 0
+RESET_POWER_ON = 1
+RESET_EXTERNAL = 2
+RESET_BROWN_OUT = 3
+RESET_WATCHDOG = 4
+RESET_CAUSES = {RESET_UNKNOWN: "unknown", RESET_POWER_ON: "power-on", RESET_EXTERNAL: "external reset",
+                RESET_BROWN_OUT: "brown-out", RESET_WATCHDOG: "hardware watchdog"}
+
+#: Status flags that mean the light must be off and nothing may go on (SPEC.md §4.2 "unsafe"): the host stops a
+#: session on any of them. WATCHDOG_TRIPPED is unsafe once the host has switched the light on in this session.
+UNSAFE_FLAGS = FLAG_ESTOP | FLAG_INTERLOCK_OPEN | FLAG_OVERTEMP | FLAG_WATCHDOG_TRIPPED
+
+#: Requests that are not idempotent: a retry of one (same TYPE, SEQ, payload) is answered from the duplicate
+#: cache, never executed again (SPEC.md §5). Every other request is executed on each arrival.
+NON_IDEMPOTENT = frozenset({TRIGGER})
+
 ERROR_NAMES = {
     ERR_UNKNOWN_TYPE: "UNKNOWN_TYPE", ERR_BAD_LENGTH: "BAD_LENGTH", ERR_BAD_VALUE: "BAD_VALUE",
     ERR_ESTOP: "ESTOP", ERR_NOT_READY: "NOT_READY", ERR_BUSY: "BUSY", ERR_VERSION: "VERSION",
@@ -363,7 +380,7 @@ MESSAGES: dict[int, MessageSpec] = {m.code: m for m in (
     MessageSpec(TRIGGER | REPLY_BIT, "TRIGGER_REPLY", (_f("exposure_us", "I", unit="us"), _f("count", "I"))),
     MessageSpec(STATUS | REPLY_BIT, "STATUS_REPLY", (
         _f("flags", "H"), _f("level", "H", unit="1/65535"), _f("temperature", "h", unit="0.01 degC"),
-        _f("uptime_ms", "I", unit="ms"), _f("watchdog_ms", "I", unit="ms"))),
+        _f("uptime_ms", "I", unit="ms"), _f("watchdog_ms", "I", unit="ms"), _f("reset_cause", "B", since=2))),
     MessageSpec(SET_WATCHDOG | REPLY_BIT, "SET_WATCHDOG_REPLY", (_f("period_ms", "I", unit="ms"),)),
     MessageSpec(ERROR, "ERROR", (_f("code", "B"), _f("request", "B"))),
 )}

@@ -34,6 +34,56 @@ def _wire_of_encoded(enc: bytes) -> bytes:
     return b"\x00" + c.segment_of(enc) + b"\x00"
 
 
+def _send(name: str, seq: int, **values) -> dict:
+    return {"send": c.encode_message(name, seq, **values).hex(), "request": name, "seq": seq, **(
+        {"values": values} if values else {})}
+
+
+def _reply(name: str, seq: int, **values) -> dict:
+    """An exact expected reply (its bytes)."""
+    return {"expect": c.encode_message(name, seq, **values).hex(), "reply": name, "values": values}
+
+
+def _reply_fields(name: str, seq: int, **values) -> dict:
+    """An expected reply checked by name, seq and the listed fields only (the rest is the controller's own:
+    firmware version, uptime, temperature)."""
+    return {"expect_fields": {"name": name, "seq": seq, "values": values}}
+
+
+def exchanges() -> list:
+    """SPEC.md §4–§5 as request/reply exchanges with the controller's inputs between them (``input``:
+    ``estop`` / ``interlock`` true or false, ``heat_sink_c`` a temperature or null). A conforming controller
+    answers each ``send`` with exactly ``expect`` (or a reply whose fields match ``expect_fields``)."""
+    hello = [_send("HELLO", 1, major=c.PROTOCOL_MAJOR, minor=c.PROTOCOL_MINOR), _reply_fields("HELLO_REPLY", 1, major=2)]
+    on = dict(on=1, level=30000)
+    return [
+        {"description": "a retried switch-on after an E-stop cut is executed again: ERROR ESTOP, not the stored 'on'",
+         "steps": [*hello, _send("SET_LIGHT", 2, **on), _reply("SET_LIGHT_REPLY", 2, **on),
+                   {"input": {"estop": True}},
+                   _send("SET_LIGHT", 2, **on), _reply("ERROR", 2, code=c.ERR_ESTOP, request=c.SET_LIGHT),
+                   _send("STATUS", 3), _reply_fields("STATUS_REPLY", 3, flags=c.FLAG_ESTOP, level=0)]},
+        {"description": "a retried STATUS describes the present, not the first attempt's answer",
+         "steps": [*hello, _send("SET_LIGHT", 2, **on), _reply("SET_LIGHT_REPLY", 2, **on),
+                   _send("STATUS", 3), _reply_fields("STATUS_REPLY", 3, flags=c.FLAG_LIGHT_ON, level=30000),
+                   {"input": {"interlock": True}},
+                   _send("STATUS", 3), _reply_fields("STATUS_REPLY", 3, flags=c.FLAG_INTERLOCK_OPEN, level=0)]},
+        {"description": "a retried TRIGGER is answered from the duplicate cache: one pulse",
+         "steps": [*hello, _send("TRIGGER", 2, exposure_us=500_000), _reply("TRIGGER_REPLY", 2, exposure_us=500_000, count=1),
+                   _send("TRIGGER", 2, exposure_us=500_000), _reply("TRIGGER_REPLY", 2, exposure_us=500_000, count=1)]},
+        {"description": "over the temperature limit the controller cuts the light and refuses switch-on until it is "
+                        "below the limit less the hysteresis",
+         "steps": [*hello, _send("SET_LIGHT", 2, **on), _reply("SET_LIGHT_REPLY", 2, **on),
+                   {"input": {"heat_sink_c": 90.0}},
+                   _send("STATUS", 3), _reply_fields("STATUS_REPLY", 3, flags=c.FLAG_OVERTEMP, level=0),
+                   _send("SET_LIGHT", 4, **on), _reply("ERROR", 4, code=c.ERR_OVERTEMP, request=c.SET_LIGHT),
+                   {"input": {"heat_sink_c": 67.0}},
+                   _send("SET_LIGHT", 5, **on), _reply("ERROR", 5, code=c.ERR_OVERTEMP, request=c.SET_LIGHT),
+                   {"input": {"heat_sink_c": 60.0}},
+                   _send("STATUS", 6), _reply_fields("STATUS_REPLY", 6, flags=0, level=0),
+                   _send("SET_LIGHT", 7, **on), _reply("SET_LIGHT_REPLY", 7, **on)]},
+    ]
+
+
 def build() -> dict:
     msgs = [
         ("HELLO", 0, {"major": 1, "minor": 0}),
@@ -52,8 +102,12 @@ def build() -> dict:
         ("TRIGGER_REPLY", 5, {"exposure_us": 20000, "count": 1}),
         ("STATUS", 6, {}),
         ("STATUS_REPLY", 6, {"flags": 0x0004, "level": 32768, "temperature": 2537, "uptime_ms": 123456,
-                             "watchdog_ms": 10000}),
-        ("STATUS_REPLY", 7, {"flags": 0x0009, "level": 0, "temperature": -500, "uptime_ms": 0, "watchdog_ms": 100}),
+                             "watchdog_ms": 10000, "reset_cause": 1}),
+        ("STATUS_REPLY", 6, {"flags": 0x0004, "level": 32768, "temperature": 2537, "uptime_ms": 123456,
+                             "watchdog_ms": 10000}, 1),  # a 2.1 session: no reset cause
+        ("ERROR", 9, {"code": c.ERR_OVERTEMP, "request": c.SET_LIGHT}),
+        ("STATUS_REPLY", 7, {"flags": 0x0009, "level": 0, "temperature": -500, "uptime_ms": 0, "watchdog_ms": 100,
+                             "reset_cause": 4}),
         ("SET_WATCHDOG", 8, {"period_ms": 2000}),
         ("SET_WATCHDOG_REPLY", 8, {"period_ms": 2000}),
         ("ERROR", 9, {"code": c.ERR_ESTOP, "request": c.SET_LIGHT}),
@@ -119,6 +173,7 @@ def build() -> dict:
     ]
     return {
         "protocol": {"major": c.PROTOCOL_MAJOR, "minor": c.PROTOCOL_MINOR},
+        "exchanges": exchanges(),
         "crc": [{"data": b"123456789".hex(), "crc": 0xE3069283}, {"data": "", "crc": 0x00000000},
                 {"data": "00" * 32, "crc": 0x8A9136AA}, {"data": "ff" * 32, "crc": 0x62A8AB43},
                 {"data": "04060106", "crc": c.crc32c(b"\x04\x06\x01\x06")}],

@@ -15,6 +15,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from gonio.childproc import worker_init
 from gonio.errors import ConfigError, GonioError
 from gonio.progress import progress
 
@@ -209,9 +210,11 @@ def _with_interrupted(rows: list[dict | None], names: list[str]) -> list[dict]:
 
 def _worker_ignores_sigint() -> None:
     """A worker process ignores SIGINT: Ctrl-C at a terminal reaches the whole process group, and the parent,
-    not each worker, decides (the running sources finish, the queued ones are cancelled)."""
+    not each worker, decides (the running sources finish, the queued ones are cancelled). And it dies with the
+    parent, however that dies (kill -9 included: :func:`gonio.childproc.worker_init`)."""
     import signal
 
+    worker_init()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 

@@ -57,8 +57,11 @@ class ControllerError(HardwareError):
 
 
 class SafetyStop(HardwareError):
-    """A condition under which nothing may move: the session stops at once (no retry), and is resumed by
-    a person once the cause is gone."""
+    """A condition under which nothing may move or light up (E-stop, interlock, the light source over its
+    temperature limit, a watchdog trip, a servo's hardware alarm): the session stops at once (no retry), with
+    its own status (``safety stop: ...``) and exit code, and is resumed by a person once the cause is gone."""
+
+    exit_code = 7
 
 
 class EmergencyStop(SafetyStop):

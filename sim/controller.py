@@ -10,7 +10,10 @@ host client), so a host/emulator agreement is evidence that both follow the spec
   drift as the photodiode.
 * **Photodiode**: each sample is ``g · I(t) + ε``, ``ε ~ N(0, σ²)`` from a seeded generator; the reply
   carries the mean of ``n`` samples and its standard uncertainty ``s/√n`` (``σ`` itself when n = 1).
-* **Temperature**: ``T = T_amb + ΔT · L · (1 − exp(−(t − t_on)/τ_th))`` while on, ``T_amb`` when off.
+* **Temperature**: ``T = T_amb + ΔT · L · (1 − exp(−(t − t_on)/τ_th))`` while on, ``T_amb`` when off;
+  :meth:`ControllerEmulator.set_heat_sink` pins it (a failed fan, a hot lab). Above ``OVERTEMP_C`` the
+  light is cut and OVERTEMP latches until the temperature is below the limit by ``OVERTEMP_HYSTERESIS_C``
+  (SPEC.md §4.2), as the firmware does.
 * **Watchdog** (SPEC.md §6): silence is measured on the emulator's :class:`Clock` (the SimClock shared
   with the host). Every valid frame feeds it; before handling each frame, on every idle tick (≈50 ms
   real time) and in :meth:`light_output`, the emulator checks ``now − last_valid_frame > period`` and
@@ -36,6 +39,7 @@ from sim.pty import PtyServer
 ALL_CAPABILITIES = fp.CAP_DIMMING | fp.CAP_PHOTODIODE | fp.CAP_TRIGGER | fp.CAP_TEMPERATURE | fp.CAP_INTERLOCK
 FIRMWARE_VERSION = 0x0100
 OVERTEMP_C = 70.0
+OVERTEMP_HYSTERESIS_C = 5.0  #: OVERTEMP clears below OVERTEMP_C minus this (the firmware's FW_OVERTEMP_HYSTERESIS_CENTI)
 
 
 class ControllerEmulator(PtyServer):
@@ -80,6 +84,8 @@ class ControllerEmulator(PtyServer):
         self.resets = 0
         self.trigger_times: list[float] = []  #: clock times of the trigger pulses since creation
         self._reset_pending = False
+        self.heat_sink_c: float | None = None  #: temperature pinned by :meth:`set_heat_sink` (None: the model)
+        self._reset_cause = fp.RESET_POWER_ON
         self._power_on()
 
     # -- state --------------------------------------------------------------------------------
@@ -94,6 +100,7 @@ class ControllerEmulator(PtyServer):
         self._watchdog_ms = fp.DEFAULT_WATCHDOG_MS
         self._last_rx = now
         self._tripped = False
+        self._overtemp = False
         self._trigger_end = -math.inf
         self._trigger_count = 0
         self._cache: tuple[int, int, bytes, bytes] | None = None  # (type, seq, payload, reply bytes)
@@ -103,7 +110,15 @@ class ControllerEmulator(PtyServer):
         """Reset now, forgetting all state (light off, default watchdog, no handshake, empty cache)."""
         with self._lock:
             self.resets += 1
+            self._reset_cause = fp.RESET_EXTERNAL
             self._power_on()
+
+    def set_heat_sink(self, celsius: float | None) -> None:
+        """Pin the light source's temperature at ``celsius`` (None: back to the thermal model); the controller
+        acts on it at its next check (a tick, a request), as it would on its sensor."""
+        with self._lock:
+            self.heat_sink_c = None if celsius is None else float(celsius)
+            self._check_watchdog(self.clock.now())
 
     def reseed(self, seed) -> None:
         """Restart the photodiode noise generator from ``seed`` (anything ``numpy.random.default_rng``
@@ -133,9 +148,17 @@ class ControllerEmulator(PtyServer):
 
     # -- models -------------------------------------------------------------------------------
     def _check_watchdog(self, now: float) -> None:
+        """The controller's periodic checks: host silence (watchdog) and over-temperature (SPEC.md §4.2, §6)."""
         if self._light_on and now - self._last_rx > self._watchdog_ms / 1000.0:
             self._light_on = False
             self._tripped = True
+        t = self._temperature(now)
+        if t > OVERTEMP_C:
+            self._overtemp = True
+        elif t < OVERTEMP_C - OVERTEMP_HYSTERESIS_C:
+            self._overtemp = False
+        if self._overtemp:
+            self._light_on = False
 
     def _output(self, now: float) -> float:
         if not self._light_on:
@@ -144,6 +167,8 @@ class ControllerEmulator(PtyServer):
         return lvl * (1.0 - self.warmup_depth * math.exp(-(now - self._on_since) / self.warmup_tau))
 
     def _temperature(self, now: float) -> float:
+        if self.heat_sink_c is not None:
+            return self.heat_sink_c
         if not self._light_on:
             return self.ambient_c
         lvl = self._level / fp.LEVEL_FULL_SCALE
@@ -186,6 +211,7 @@ class ControllerEmulator(PtyServer):
             if self._reset_pending:
                 self._reset_pending = False
                 self.resets += 1
+                self._reset_cause = fp.RESET_BROWN_OUT
                 self._power_on()
             now = self.clock.now()
             self._check_watchdog(now)
@@ -193,7 +219,10 @@ class ControllerEmulator(PtyServer):
             if frame.type & fp.REPLY_BIT:
                 return None  # replies are never answered
             c = self._cache
-            if c is not None and (c[0], c[1], c[2]) == (frame.type, frame.seq, frame.payload):
+            # only a non-idempotent request is answered from the cache; any other is executed again, so its
+            # reply says what holds now (a retried SET_LIGHT after an E-stop cut gets ESTOP) (SPEC.md §5)
+            if (c is not None and frame.type in fp.NON_IDEMPOTENT
+                    and (c[0], c[1], c[2]) == (frame.type, frame.seq, frame.payload)):
                 self.duplicates += 1
                 return c[3]
             reply = self._execute(frame, now)
@@ -231,7 +260,7 @@ class ControllerEmulator(PtyServer):
             if v["on"]:
                 if self._estop or self._interlock_open:
                     return self._error(frame, fp.ERR_ESTOP)
-                if self._temperature(now) > OVERTEMP_C:
+                if self._overtemp:  # evaluated by _check_watchdog just before this frame
                     return self._error(frame, fp.ERR_OVERTEMP)
                 if not self._light_on:
                     self._on_since = now
@@ -256,7 +285,8 @@ class ControllerEmulator(PtyServer):
         elif frame.type == fp.STATUS:
             out = dict(flags=self._flags(now), level=self._level if self._light_on else 0,
                        temperature=int(round(self._temperature(now) * 100)),
-                       uptime_ms=_u32((now - self._boot) * 1000), watchdog_ms=self._watchdog_ms)
+                       uptime_ms=_u32((now - self._boot) * 1000), watchdog_ms=self._watchdog_ms,
+                       reset_cause=self._reset_cause)
         elif frame.type == fp.SET_WATCHDOG:
             self._watchdog_ms = v["period_ms"]
             out = dict(period_ms=self._watchdog_ms)
@@ -270,7 +300,7 @@ class ControllerEmulator(PtyServer):
         for cond, bit in ((self._estop, fp.FLAG_ESTOP), (self._interlock_open, fp.FLAG_INTERLOCK_OPEN),
                           (self._light_on, fp.FLAG_LIGHT_ON), (self._tripped, fp.FLAG_WATCHDOG_TRIPPED),
                           (not self._configured, fp.FLAG_NOT_CONFIGURED),
-                          (self._temperature(now) > OVERTEMP_C, fp.FLAG_OVERTEMP),
+                          (self._overtemp, fp.FLAG_OVERTEMP),
                           (now < self._trigger_end, fp.FLAG_TRIGGER_ACTIVE)):
             if cond:
                 flags |= bit

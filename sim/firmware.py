@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import ctypes
 import math
-import subprocess
 import threading
 from collections import Counter
 from pathlib import Path
 
 
 from firmware_protocol import codec as fp
+from gonio import childproc
 from sim.controller import ALL_CAPABILITIES, OVERTEMP_C, ControllerEmulator
 from sim.faults import LinkFaults
 
@@ -58,7 +58,7 @@ def build_library() -> Path:
 
 def _make_if_stale(srcs) -> None:
     if not LIBRARY.exists() or LIBRARY.stat().st_mtime < max(p.stat().st_mtime for p in srcs):
-        r = subprocess.run(["make", "-s", "-C", str(FIRMWARE_DIR), "host"], capture_output=True, text=True)
+        r = childproc.run(["make", "-s", "-C", str(FIRMWARE_DIR), "host"], capture_output=True, text=True)
         if r.returncode:
             raise RuntimeError(f"building {LIBRARY} failed: {r.stderr.strip() or r.stdout.strip()}")
 
@@ -144,7 +144,7 @@ class FirmwareController(ControllerEmulator):
         return max(0, int(round(t * 1e6)))
 
     def _state(self) -> list[int]:
-        s = (ctypes.c_uint64 * 15)()
+        s = (ctypes.c_uint64 * 17)()
         self._lib.fwhost_state(self._h, s)
         return list(s)
 
@@ -162,6 +162,8 @@ class FirmwareController(ControllerEmulator):
             1.0 - self.warmup_depth * math.exp(-(now - on_since_us * 1e-6) / self.warmup_tau))
 
     def _temperature(self, now: float) -> float:
+        if getattr(self, "heat_sink_c", None) is not None:
+            return self.heat_sink_c
         if self._h is None:
             return self.ambient_c
         duty, on_since_us = (lambda s: (s[0], s[10]))(self._state())
@@ -187,6 +189,11 @@ class FirmwareController(ControllerEmulator):
             self._lib.fwhost_reset(self._h)
         self._lib.fwhost_set_inputs(self._h, int(self._estop_in), int(self._interlock_in))
         self._known_triggers = 0
+
+    def set_heat_sink(self, celsius: float | None) -> None:
+        with self._lock:
+            self.heat_sink_c = None if celsius is None else float(celsius)
+            self._tick()  # the firmware reads its sensor every 10 ms of its time, and at every STATUS and switch-on
 
     def inject_reset(self) -> None:
         with self._lock:

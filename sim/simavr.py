@@ -20,6 +20,7 @@ import subprocess
 import threading
 import time
 
+from gonio import childproc
 from sim.firmware import FIRMWARE_DIR
 
 BRIDGE = FIRMWARE_DIR / "build" / "fw_simavr"
@@ -54,7 +55,7 @@ def build() -> str:
     (FIRMWARE_DIR / "build").mkdir(exist_ok=True)
     with open(FIRMWARE_DIR / "build" / ".lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        r = subprocess.run(["make", "-C", str(FIRMWARE_DIR), "simavr"], capture_output=True, text=True)
+        r = childproc.run(["make", "-C", str(FIRMWARE_DIR), "simavr"], capture_output=True, text=True)
     if r.returncode:
         raise RuntimeError(f"make simavr failed: {(r.stderr or r.stdout).strip()[-500:]}")
     return r.stdout
@@ -65,7 +66,7 @@ def avr_size() -> tuple[int, int]:
     import re
 
     build()
-    r = subprocess.run(["make", "-s", "-C", str(FIRMWARE_DIR), "size"], capture_output=True, text=True)
+    r = childproc.run(["make", "-s", "-C", str(FIRMWARE_DIR), "size"], capture_output=True, text=True)
     m = re.search(r"flash (\d+) / \d+ bytes, RAM (\d+) /", r.stdout)
     if r.returncode or not m:
         raise RuntimeError(f"make size: {(r.stderr or r.stdout).strip()}")
@@ -91,7 +92,8 @@ class SimavrController:
 
     def start(self, timeout: float = 10.0) -> "SimavrController":
         build()
-        self.proc = subprocess.Popen([str(BRIDGE), str(ELF)], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+        # the bridge dies with this process, however it dies (kill -9 included: gonio.childproc)
+        self.proc = childproc.popen([str(BRIDGE), str(ELF)], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
         fd, out = self.proc.stdout.fileno(), b""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:

@@ -25,7 +25,7 @@ def test_fault_scenarios_complete_or_stop_in_one_line_with_the_resume_hint():
         if row["scenario"].startswith("short"):
             assert row["status"] == "completed" and row["poses_stored"] == 4, row
         else:
-            assert row["status"] == "error" and row["resume_hint"], row
+            assert row["status"] == "safety stop" and row["resume_hint"], row  # servo alarm, E-stop: exit 7
     # an alarm after pose 1 was reached: pose 1 is captured where it stands, no move to pose 2
     assert "overload" in rows[1]["ended"] and rows[1]["poses_stored"] == 2
     # an E-stop during pose 1: nothing of pose 1 is kept (its frames may be of a dark sample)

@@ -15,7 +15,8 @@
 #include <stdint.h>
 
 #define FP_PROTOCOL_MAJOR 2u
-#define FP_PROTOCOL_MINOR 1u /* 2.1: READ_PHOTODIODE_REPLY carries time_ms, span_us */
+#define FP_PROTOCOL_MINOR 2u /* 2.1: READ_PHOTODIODE_REPLY carries time_ms, span_us; 2.2: STATUS_REPLY reset_cause,
+                                only TRIGGER answered from the duplicate cache, OVERTEMP cuts the light */
 
 #define FP_MAX_PAYLOAD 64u
 #define FP_MIN_FRAME 3u                                /* body: TYPE SEQ LEN */
@@ -50,6 +51,16 @@
 #define FP_FLAG_NOT_CONFIGURED 0x0010u
 #define FP_FLAG_OVERTEMP 0x0020u
 #define FP_FLAG_TRIGGER_ACTIVE 0x0040u
+
+/* reset causes (STATUS reply reset_cause, since 2.2) */
+#define FP_RESET_UNKNOWN 0u
+#define FP_RESET_POWER_ON 1u
+#define FP_RESET_EXTERNAL 2u
+#define FP_RESET_BROWN_OUT 3u
+#define FP_RESET_WATCHDOG 4u
+
+/* status flags that mean "unsafe": the light is off and stays off; a host stops its session (SPEC 4.2) */
+#define FP_UNSAFE_FLAGS (FP_FLAG_ESTOP | FP_FLAG_INTERLOCK_OPEN | FP_FLAG_OVERTEMP | FP_FLAG_WATCHDOG_TRIPPED)
 
 /* error codes (ERROR reply) */
 #define FP_ERR_UNKNOWN_TYPE 0x01u

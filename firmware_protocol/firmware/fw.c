@@ -1,6 +1,6 @@
 /*
  * fw.c - reference firmware of the gonio rig controller: the whole of ../SPEC.md (handshake, message
- * catalogue, duplicate rule, watchdog, E-stop) over the codec in ../c and the HAL in hal.h.
+ * catalogue, duplicate rule, watchdog, E-stop, over-temperature cut) over the codec in ../c and the HAL in hal.h.
  * C99, no malloc, no floating point except the photodiode statistics (one reading at a time).
  */
 #include "fw.h"
@@ -29,7 +29,7 @@ static void light_cut(fw_t *fw)
     hal_light_set(fw->hal, 0);
 }
 
-void fw_init(fw_t *fw, fw_hal *hal, const fw_config *cfg)
+void fw_init(fw_t *fw, fw_hal *hal, const fw_config *cfg, uint8_t reset_cause)
 {
     uint8_t i;
     fw->hal = hal;
@@ -38,11 +38,14 @@ void fw_init(fw_t *fw, fw_hal *hal, const fw_config *cfg)
     fw->configured = 0;
     fw->session_minor = 0;
     fw->tripped = 0;
+    fw->overtemp = 0;
+    fw->reset_cause = reset_cause;
     fw->level = 0;
     light_cut(fw);
     fw->boot_ms = hal_millis(hal);
     fw->on_since_ms = fw->boot_ms;
     fw->last_rx_ms = fw->boot_ms;
+    fw->temp_checked_ms = fw->boot_ms - FW_TEMP_PERIOD_MS; /* the first poll reads the temperature */
     fw->watchdog_ms = 10000ul;
     fw->trigger_count = 0;
     fw->pd_time_ms = 0;
@@ -98,17 +101,37 @@ static void soft_start(fw_t *fw, uint32_t now)
     }
 }
 
+static int16_t temperature(fw_t *fw)
+{
+    return hal_temperature_centi(fw->hal);
+}
+
+/* Over-temperature (SPEC.md section 4.2): OVERTEMP sets when the light source's temperature exceeds the
+ * limit and clears only once it is below the limit minus the hysteresis; while it is set the light is cut
+ * (and stays off, like after an E-stop, until the host switches it on again) and switch-on is refused. */
+static void check_overtemp(fw_t *fw, uint32_t now)
+{
+    int16_t t = temperature(fw);
+    fw->temp_checked_ms = now;
+    if (t > fw->cfg.overtemp_centi) {
+        fw->overtemp = 1;
+    } else if ((int32_t)t < (int32_t)fw->cfg.overtemp_centi - FW_OVERTEMP_HYSTERESIS_CENTI) {
+        fw->overtemp = 0;
+    }
+    if (fw->overtemp && (fw->light_on || fw->applied)) {
+        light_cut(fw);
+    }
+}
+
 void fw_poll(fw_t *fw)
 {
     uint32_t now = hal_millis(fw->hal);
     fw_estop_event(fw);
     check_watchdog(fw, now);
+    if ((uint32_t)(now - fw->temp_checked_ms) >= FW_TEMP_PERIOD_MS) {
+        check_overtemp(fw, now);
+    }
     soft_start(fw, now);
-}
-
-static int16_t temperature(fw_t *fw)
-{
-    return hal_temperature_centi(fw->hal);
 }
 
 static uint16_t flags(fw_t *fw, uint32_t now)
@@ -120,7 +143,7 @@ static uint16_t flags(fw_t *fw, uint32_t now)
     if (fw->light_on) f |= FP_FLAG_LIGHT_ON;
     if (fw->tripped) f |= FP_FLAG_WATCHDOG_TRIPPED;
     if (!fw->configured) f |= FP_FLAG_NOT_CONFIGURED;
-    if (temperature(fw) > fw->cfg.overtemp_centi) f |= FP_FLAG_OVERTEMP;
+    if (fw->overtemp) f |= FP_FLAG_OVERTEMP;
     if (hal_trigger_active(fw->hal)) f |= FP_FLAG_TRIGGER_ACTIVE;
     return f;
 }
@@ -231,7 +254,8 @@ static uint8_t execute(fw_t *fw, const fp_frame *f, uint32_t now)
                 fw->executed[f->type]--;
                 return error(fw, f, FP_ERR_ESTOP);
             }
-            if (temperature(fw) > fw->cfg.overtemp_centi) {
+            check_overtemp(fw, now);
+            if (fw->overtemp) {
                 fw->executed[f->type]--;
                 return error(fw, f, FP_ERR_OVERTEMP);
             }
@@ -272,12 +296,17 @@ static uint8_t execute(fw_t *fw, const fp_frame *f, uint32_t now)
         fp_put_u32(&p[4], fw->trigger_count);
         return reply(fw, f, FP_TRIGGER | FP_REPLY_BIT, p, 8);
     case FP_STATUS:
+        check_overtemp(fw, now);
         fp_put_u16(&p[0], flags(fw, now));
         fp_put_u16(&p[2], fw->light_on ? fw->level : 0u);
         fp_put_u16(&p[4], (uint16_t)temperature(fw));
         fp_put_u32(&p[6], now - fw->boot_ms);
         fp_put_u32(&p[10], fw->watchdog_ms);
-        return reply(fw, f, FP_STATUS | FP_REPLY_BIT, p, 14);
+        if (fw->session_minor < 2u) {
+            return reply(fw, f, FP_STATUS | FP_REPLY_BIT, p, 14); /* a 2.0/2.1 host: no reset cause */
+        }
+        p[14] = fw->reset_cause;
+        return reply(fw, f, FP_STATUS | FP_REPLY_BIT, p, 15);
     default: /* FP_SET_WATCHDOG */
         fw->watchdog_ms = fp_get_u32(a);
         fp_put_u32(&p[0], fw->watchdog_ms);
@@ -306,7 +335,7 @@ static void handle(fw_t *fw, const fp_frame *f)
 #ifdef FW_HOST
     if (hal_host_brownout(fw->hal)) {
         fw_config c = fw->cfg;
-        fw_init(fw, fw->hal, &c);
+        fw_init(fw, fw->hal, &c, FP_RESET_BROWN_OUT);
     }
 #endif
     now = hal_millis(fw->hal);
@@ -316,7 +345,9 @@ static void handle(fw_t *fw, const fp_frame *f)
     if (f->type & FP_REPLY_BIT) {
         return; /* replies are never answered */
     }
-    if (fw->cache_valid && same_request(f, &fw->cache_req)) {
+    /* the duplicate rule (SPEC.md section 5): only a non-idempotent request (TRIGGER) is answered from the
+     * cache; every other one is executed again, so its reply says what holds now, not what held then */
+    if (fw->cache_valid && f->type == FP_TRIGGER && same_request(f, &fw->cache_req)) {
         fw->duplicates++;
         hal_uart_write(fw->hal, fw->cache_reply, fw->cache_reply_len);
         return;

@@ -12,10 +12,18 @@
  * Timers: Timer0 1 kHz millisecond tick; Timer1 light PWM; Timer2 the one-shot trigger pulse, counted in
  * 0.5 us ticks (prescaler 8), the ISR latency compensated: the pulse lasts exposure_us to +-0.5 us
  * (pulses under ~3 us are ~3 us).
+ * Hardware watchdog: enabled at boot (250 ms, reset mode) and fed by the main loop only (wdr once per
+ * pass; the loop wakes at least every 1 ms on the Timer0 tick, and its longest step, a 255-sample
+ * photodiode reading, takes ~35 ms): a hung main loop resets the chip, which leaves every pin an input
+ * (the light's enable low: off). The cause of the last reset (MCUSR: watchdog, brown-out, external,
+ * power-on) is kept for STATUS (SPEC.md section 4.5). With the optiboot boot loader MCUSR is cleared
+ * before the application runs (optiboot passes it in r2; older boot loaders lose it): the cause then
+ * reads "unknown" unless the boot loader hands it over.
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
 #include <avr/sleep.h>
+#include <avr/wdt.h>
 #include <util/atomic.h>
 
 #include "fw.h"
@@ -29,6 +37,27 @@ static volatile uint8_t cut_latch; /* set by the E-stop interrupt after it cut t
 #define RX_SIZE 128u
 static volatile uint8_t rx_buf[RX_SIZE];
 static volatile uint8_t rx_head, rx_tail;
+static volatile uint16_t rx_errors; /* bytes received with a framing error or after an overrun, or dropped */
+
+/* MCUSR as it was at reset, saved before anything else runs (avr-libc's <avr/wdt.h> recipe): after a
+ * watchdog reset the watchdog stays enabled with its shortest period, so it is switched off at once. */
+static uint8_t mcusr_at_reset __attribute__((section(".noinit")));
+void save_mcusr(void) __attribute__((naked, used, section(".init3")));
+void save_mcusr(void)
+{
+    mcusr_at_reset = MCUSR;
+    MCUSR = 0;
+    wdt_disable();
+}
+
+static uint8_t reset_cause(void)
+{
+    if (mcusr_at_reset & _BV(WDRF)) return FP_RESET_WATCHDOG;
+    if (mcusr_at_reset & _BV(BORF)) return FP_RESET_BROWN_OUT;
+    if (mcusr_at_reset & _BV(EXTRF)) return FP_RESET_EXTERNAL;
+    if (mcusr_at_reset & _BV(PORF)) return FP_RESET_POWER_ON;
+    return FP_RESET_UNKNOWN;
+}
 
 static int estop_pin(void) { return (PIND & _BV(PD2)) != 0; }
 static int interlock_pin(void) { return (PIND & _BV(PD3)) != 0; }
@@ -71,13 +100,22 @@ ISR(TIMER2_COMPA_vect)
     }
 }
 
+/* One received byte. The error flags belong to the byte in UDR0 and must be read before it (datasheet
+ * 20.7.4): a framing error or an overrun (bytes lost before this one) is counted; the byte is still passed
+ * on, and the frame it belongs to fails its CRC check (SPEC.md section 2.4), so the decoder resynchronizes. */
 ISR(USART_RX_vect)
 {
+    uint8_t st = UCSR0A;
     uint8_t b = UDR0;
     uint8_t next = (uint8_t)((rx_head + 1u) % RX_SIZE);
-    if (next != rx_tail) { /* full: the byte is lost and the frame fails its check */
+    if (st & (_BV(FE0) | _BV(DOR0))) {
+        rx_errors++;
+    }
+    if (next != rx_tail) {
         rx_buf[rx_head] = b;
         rx_head = next;
+    } else {
+        rx_errors++; /* ring full: the byte is lost and the frame fails its check */
     }
 }
 
@@ -214,8 +252,10 @@ int main(void)
     fw_default_config(&cfg);
     set_sleep_mode(SLEEP_MODE_IDLE);
     sei();
-    fw_init(&fw, (fw_hal *)0, &cfg);
+    fw_init(&fw, (fw_hal *)0, &cfg, reset_cause());
+    wdt_enable(WDTO_250MS);
     for (;;) {
+        wdt_reset(); /* the only place the hardware watchdog is fed: a hung main loop resets the chip */
         while (rx_tail != rx_head) {
             b = rx_buf[rx_tail];
             rx_tail = (uint8_t)((rx_tail + 1u) % RX_SIZE);

@@ -82,7 +82,7 @@ fwhost *fwhost_new(const fw_config *cfg, uint64_t now_us, adc_fn adc, temp_fn te
     x->hal.adc = adc;
     x->hal.temp = temp;
     x->hal.ctx = ctx;
-    fw_init(&x->fw, &x->hal, cfg);
+    fw_init(&x->fw, &x->hal, cfg, FP_RESET_POWER_ON);
     return x;
 }
 
@@ -102,7 +102,7 @@ void fwhost_reset(fwhost *x)
 {
     fw_config c = x->fw.cfg;
     x->hal.trigger_end_us = 0;
-    fw_init(&x->fw, &x->hal, &c);
+    fw_init(&x->fw, &x->hal, &c, FP_RESET_EXTERNAL);
 }
 
 void fwhost_brownout(fwhost *x) { x->hal.brownout = 1; }
@@ -134,7 +134,8 @@ size_t fwhost_take_tx(fwhost *x, uint8_t *out, size_t cap)
 }
 
 /* Observables: [duty, light_on, level, tripped, configured, trigger_count, executed, duplicates,
- * watchdog_ms, pd_time_ms, on_since_us(hal), trigger_start_us, trigger_end_us, pd_span_us, session_minor] */
+ * watchdog_ms, pd_time_ms, on_since_us(hal), trigger_start_us, trigger_end_us, pd_span_us, session_minor,
+ * overtemp, reset_cause] */
 void fwhost_state(fwhost *x, uint64_t *s)
 {
     s[0] = x->hal.duty;
@@ -152,6 +153,8 @@ void fwhost_state(fwhost *x, uint64_t *s)
     s[12] = x->hal.trigger_end_us;
     s[13] = x->fw.pd_span_us;
     s[14] = x->fw.session_minor;
+    s[15] = x->fw.overtemp;
+    s[16] = x->fw.reset_cause;
 }
 
 uint32_t fwhost_executed(fwhost *x, uint8_t type) { return type < 8u ? x->fw.executed[type] : 0u; }

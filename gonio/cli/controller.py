@@ -55,6 +55,10 @@ def _print_status(st) -> None:
     if st.flags & fp.FLAG_WATCHDOG_TRIPPED:  # SPEC.md §4.2: cleared by the next successful switch-on
         print("watchdog    TRIPPED (it switched the light off: the host stopped talking while the light was on)")
     print(f"uptime      {st.uptime_s:.1f} s")
+    if st.reset_cause is not None:  # protocol 2.2 (SPEC.md §4.5)
+        print(f"last reset  {st.reset_cause}" + ("  (the controller's main loop hung and its hardware watchdog reset "
+                                                 "it, switching the light off)" if st.reset_cause == "hardware watchdog"
+                                                 else ""))
 
 
 def run(args) -> int:

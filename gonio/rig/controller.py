@@ -6,14 +6,18 @@ with ``write``, ``read``, ``in_waiting``, ``reset_input_buffer``, ``timeout`` an
 
 Reliability rules (SPEC.md §5):
 
-* every request carries a sequence number; a retry re-sends the *same* bytes (same seq), and the
-  controller answers a duplicate from its cache, so a retried command is executed once;
+* every request carries a sequence number; a retry re-sends the *same* bytes (same seq); the controller
+  executes a retried idempotent request again (its reply says what holds now) and answers a retried TRIGGER
+  from its cache, so a trigger fires once (protocol 2.2; a 2.1 controller answers every duplicate from its
+  cache, so a SET_LIGHT that needed a retry is confirmed with a STATUS);
 * a reply is accepted only if its type answers the request and its seq matches; anything else (a late
   reply to an earlier, timed-out request) is discarded;
 * after a failed attempt (timeout or corrupted reply) the client waits briefly and flushes its input
   (port buffer and decoder), then retries, at most ``retries`` times; then it raises
   :class:`~gonio.errors.HardwareTimeout` or :class:`~gonio.errors.ChecksumError`;
-* ERROR replies become :class:`~gonio.errors.EmergencyStop` (code ESTOP) or
+* before the HELLO the input is flushed (bytes an earlier host session left on the port are no reply);
+* ERROR replies become :class:`~gonio.errors.EmergencyStop` (code ESTOP), :class:`~gonio.errors.SafetyStop`
+  (code OVERTEMP) or
   :class:`~gonio.errors.ControllerError` with the controller's ``code``; NOT_READY means the controller
   reset: the client re-handshakes, restores the watchdog period and the light it last commanded
   (the light then warms up again; the photodiode reports that drift) and retries once.
@@ -37,7 +41,8 @@ import time
 from dataclasses import dataclass
 
 from firmware_protocol import codec as fp
-from gonio.errors import ChecksumError, ConfigError, ControllerError, EmergencyStop, HardwareError, HardwareTimeout
+from gonio.errors import (ChecksumError, ConfigError, ControllerError, EmergencyStop, HardwareError, HardwareTimeout,
+                          SafetyStop)
 from gonio.rig.clock import RealClock
 from gonio.rig.interfaces import ControllerStatus, PhotodiodeReading
 
@@ -139,6 +144,7 @@ class RigController:
         """HELLO (protocol version and capability check), then set the watchdog period."""
         with self._lock:
             self.session_minor = None  # the HELLO reply's size is the same in every minor version
+            self._needs_flush = True  # whatever an earlier session left on the port is no reply to this one
             r = self._transact("HELLO", major=fp.PROTOCOL_MAJOR, minor=fp.PROTOCOL_MINOR)
             if r["major"] != fp.PROTOCOL_MAJOR:
                 raise ControllerError(f"{self.device}: controller speaks protocol {r['major']}.{r['minor']}, "
@@ -162,8 +168,18 @@ class RigController:
             raise ConfigError.field(self.device, "light level", level, "must be a number in [0, 1]")
         lvl = int(round(level * fp.LEVEL_FULL_SCALE))
         with self._lock:
+            self._light = (False, 0) if not on else self._light  # off is remembered even if the reply is lost
             self._transact("SET_LIGHT", on=int(bool(on)), level=lvl)
             self._light = (bool(on), lvl)
+            if on and self._exchange_times[3] > 1 and (self.session_minor or 0) < 2:
+                # a 2.1 controller answers a retry from its duplicate cache: the reply may describe the first
+                # attempt, not now (an E-stop may have cut the light in between); STATUS says what holds now
+                st = self.status()
+                if not st.light_on:
+                    self._light = (False, 0)
+                    raise SafetyStop(f"{self.device}: light off after a retried switch-on: "
+                                     f"{st.unsafe_reason(True) or 'the controller switched it off'}",
+                                     device=self.device)
 
     def read_photodiode(self, samples: int = 1) -> PhotodiodeReading:
         """Mean of ``samples`` (1..255) photodiode readings and its standard uncertainty (relative units).
@@ -207,12 +223,15 @@ class RigController:
             self._pulse_end = self.clock.now() + us * fp.MICRO
 
     def status(self) -> ControllerStatus:
-        """E-stop, interlock, light, temperature, uptime; ``flags`` holds all SPEC.md status bits."""
+        """E-stop, interlock, light, temperature, uptime; ``flags`` holds all SPEC.md status bits; the cause of the
+        controller's last reset (protocol ≥ 2.2, else None)."""
         r = self._transact("STATUS")
         f = r["flags"]
+        cause = r.values.get("reset_cause")
         return ControllerStatus(estop=bool(f & fp.FLAG_ESTOP), interlock_open=bool(f & fp.FLAG_INTERLOCK_OPEN),
                                 light_on=bool(f & fp.FLAG_LIGHT_ON), light_level=r["level"] / fp.LEVEL_FULL_SCALE,
-                                temperature_c=r["temperature"] / 100.0, uptime_s=r["uptime_ms"] / 1000.0, flags=f)
+                                temperature_c=r["temperature"] / 100.0, uptime_s=r["uptime_ms"] / 1000.0, flags=f,
+                                reset_cause=None if cause is None else fp.RESET_CAUSES.get(cause, f"code {cause}"))
 
     def heartbeat(self) -> None:
         """Feed the controller's watchdog."""
@@ -277,6 +296,9 @@ class RigController:
                 if err == fp.ERR_ESTOP:  # say what a person must do, not the wire's error name
                     raise EmergencyStop(f"{self.device}: E-stop pressed or enclosure interlock open ({name} refused)",
                                         device=self.device, code=err)
+                if err == fp.ERR_OVERTEMP:
+                    raise SafetyStop(f"{self.device}: light source over its temperature limit ({name} refused): "
+                                     "let it cool", device=self.device, code=err)
                 raise ControllerError(f"{self.device}: {name} refused: {what} (code {err})", device=self.device,
                                       code=err)
             raise ControllerError(f"{self.device}: {name} refused: NOT_READY again after re-handshake",

@@ -129,6 +129,8 @@ class ControllerStatus:
     temperature_c: float
     uptime_s: float
     flags: int = 0
+    #: why the controller last reset ("power-on", "hardware watchdog", ...; protocol ≥ 2.2), None if not said
+    reset_cause: str | None = None
 
     @property
     def stop_reason(self) -> str | None:
@@ -137,6 +139,25 @@ class ControllerStatus:
         if self.estop:
             return "E-stop is pressed"
         return "enclosure interlock is open" if self.interlock_open else None
+
+    def unsafe_reason(self, light_was_on: bool) -> str | None:
+        """The first *unsafe* status flag in words and what a person does about it (firmware_protocol/SPEC.md
+        §4.2, §4.6), or None: E-stop,
+        interlock, over-temperature (with the temperature), and — when ``light_was_on`` (the host switched the
+        light on in this session) — a watchdog trip (the light went off behind the host's back). Bits that
+        are not unsafe (LIGHT_ON, NOT_CONFIGURED, TRIGGER_ACTIVE) and reserved bits are ignored."""
+        from firmware_protocol import codec as fp
+
+        what = self.stop_reason
+        if what:
+            return what
+        if self.flags & fp.FLAG_OVERTEMP:
+            return (f"light source over its temperature limit ({self.temperature_c:.1f} °C), the controller "
+                    "switched the light off: let it cool (check its fan and heat sink)")
+        if light_was_on and self.flags & fp.FLAG_WATCHDOG_TRIPPED:
+            return ("the controller's watchdog switched the light off (it heard nothing from this host for too "
+                    "long): check the host (suspended? overloaded? cable?)")
+        return None
 
 
 @runtime_checkable

@@ -31,7 +31,12 @@ estimate recorded with the run come from that model.
 
 Faults: a hardware error during a pose is recovered from (servo alarm: reboot; controller reset or
 watchdog trip: light back on and warmed up) and the pose retried, at most ``pose_retries`` times; then
-the session ends cleanly with the error in the manifest's exit status. A pose whose camera frames stay
+the session ends cleanly with the error in the manifest's exit status. An *unsafe* controller status
+(firmware_protocol/SPEC.md §4.6: E-stop, interlock, the light source over its temperature limit, a watchdog
+trip after the light was switched on) is acted on before every move and after every capture
+(:meth:`SessionRunner.check_devices`, :meth:`SessionRunner._stop_unsafe`): the light is commanded off, the pose
+in flight is not kept, and the session stops with status ``safety stop: <cause>`` (exit code 7) and the
+resume command; so does a servo's hardware alarm. A pose whose camera frames stay
 bad (black, stale, all-saturated, wrong size: :mod:`gonio.pipeline.signal`) after the pipeline's retakes
 and the pose retries is flagged, not stored (``RunResult.failed``), and the session goes on; it then ends
 ``incomplete`` (never ``completed``), and ``max_failed_in_a_row`` such poses stop it (a dead camera). A pose is appended only once,
@@ -60,7 +65,12 @@ from gonio.plan.labtime import SessionTiming, dark_exposures, session_lab_time
 from gonio.rig.interfaces import Frame
 from gonio.session.records import MAX_POSE
 
-__all__ = ["RunnerSettings", "Devices", "RunResult", "SessionRunner", "PoseEvent", "open_devices", "format_lab_time"]
+__all__ = ["RunnerSettings", "Devices", "RunResult", "SessionRunner", "PoseEvent", "open_devices", "format_lab_time",
+           "SAFETY_STOP"]
+
+#: The manifest's exit status of a session stopped for safety (``"safety stop: <cause>"``; exit code 7,
+#: :class:`gonio.errors.SafetyStop`): an unsafe controller status or a servo alarm, a person must act
+SAFETY_STOP = "safety stop"
 
 
 @dataclass(frozen=True)
@@ -337,6 +347,7 @@ class SessionRunner:
         #: returning False stops the session after that pose (as Ctrl-C does: ``interrupted``, resumable); an
         #: exception it raises is said in one line and does not stop the session
         self.on_pose: Callable[[PoseEvent], None] | None = None
+        self._light_used = False  #: this run switched the light on (a watchdog trip is then unsafe)
 
     # -- messages -------------------------------------------------------------------------------
     def _say(self, msg: str) -> None:
@@ -346,10 +357,28 @@ class SessionRunner:
 
     # -- device checks and warm-up --------------------------------------------------------------
     def check_devices(self) -> None:
-        """E-stop and interlock must be clear (:class:`EmergencyStop` otherwise)."""
-        what = self.dev.controller.status().stop_reason
+        """No unsafe controller status (firmware_protocol/SPEC.md §4.6): E-stop and interlock clear
+        (:class:`EmergencyStop` otherwise), the light source under its temperature limit, and — once this run
+        switched the light on — no watchdog trip (:class:`SafetyStop`). A trip left by an earlier host session
+        is history: the next switch-on clears it."""
+        st = self.dev.controller.status()
+        what = st.stop_reason
         if what:
             raise EmergencyStop(f"rig controller: {what}: release it, then resume", device="rig controller")
+        what = st.unsafe_reason(self._light_used)
+        if what:
+            raise SafetyStop(f"rig controller: {what}, then resume", device="rig controller")
+
+    def _stop_unsafe(self, exc: SafetyStop, result: "RunResult") -> None:
+        """Act on an unsafe status or a safety stop (SPEC.md §4.6): the light commanded off (the controller has
+        cut it; the host's record becomes "off" so nothing switches it back on), and the run's status
+        ``safety stop: <cause>`` naming the actual cause; the caller keeps nothing of the pose in flight."""
+        exc = self._precise(exc)
+        try:
+            self.dev.controller.set_light(False, 0.0)
+        except Exception:  # noqa: BLE001 - the stop stands whatever the controller does; closing retries it
+            pass
+        result.status, result.error = f"{SAFETY_STOP}: {exc}", exc
 
     def safety_check(self) -> None:
         """Before every move: the controller's E-stop and interlock (first: after an E-stop not one byte
@@ -371,7 +400,7 @@ class SessionRunner:
             return exc
         try:
             self.check_devices()
-        except EmergencyStop as precise:
+        except SafetyStop as precise:
             return precise
         except HardwareError:
             pass
@@ -387,6 +416,7 @@ class SessionRunner:
         st, ctl = self.settings, self.dev.controller
         t0 = self.clock.now()
         ctl.set_light(True, st.light_level)
+        self._light_used = True  # from now on a watchdog trip is this run's: unsafe (SPEC.md §4.6)
         if st.timing.warmup == "corrected":
             p, u = ctl.read_photodiode(st.warmup_samples)
             if p <= 4 * u:
@@ -564,6 +594,7 @@ class SessionRunner:
         ctl = self.dev.controller
         if isinstance(exc, ServoAlarm) or "torque is off" in str(exc):
             self.dev.axes.recover()
+        self.check_devices()  # an unsafe status is never recovered from behind a person's back (SafetyStop)
         status = ctl.status()  # re-handshakes if the controller reset (NOT_READY)
         if not status.light_on:
             self.warm_up()
@@ -650,8 +681,7 @@ class SessionRunner:
                         result.status = (f"incomplete: {len(result.failed)} poses not measured (bad camera frames: "
                                          f"{result.failed[0][1]})")
             except SafetyStop as exc:
-                exc = self._precise(exc)
-                result.status, result.error = f"error: {exc}", exc
+                self._stop_unsafe(exc, result)
             except HardwareError as exc:
                 result.status, result.error = f"error: {exc}", exc
             except KeyboardInterrupt:

@@ -69,10 +69,13 @@ def test_message_vectors(vectors, i):
 
 
 def test_vectors_cover_every_message_and_both_photodiode_reply_versions(vectors):
-    assert len(vectors["messages"]) == 20 and vectors["protocol"] == {"major": 2, "minor": 1}
+    assert len(vectors["messages"]) == 22 and vectors["protocol"] == {"major": 2, "minor": 2}
     pd = [(v["session_minor"], len(bytes.fromhex(v["frame"]["payload"]))) for v in vectors["messages"]
           if v["name"] == "READ_PHOTODIODE_REPLY"]
-    assert sorted(pd) == [(0, 9), (1, 17)]
+    assert sorted(pd) == [(0, 9), (2, 17)]
+    st = [(v["session_minor"], len(bytes.fromhex(v["frame"]["payload"]))) for v in vectors["messages"]
+          if v["name"] == "STATUS_REPLY"]
+    assert sorted(st) == [(1, 14), (2, 15), (2, 15)]  # 2.2 appends reset_cause
 
 
 def test_minor_versions_only_append_and_sizes_are_checked_per_session():

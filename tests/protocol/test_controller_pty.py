@@ -25,7 +25,7 @@ def rig(Emulator):
 
 def test_connect_reports_version_capabilities_and_watchdog(rig):
     emu, ctl, clock = rig
-    assert (ctl.info.major, ctl.info.minor, ctl.info.watchdog_s) == (2, 1, 10.0) and ctl.session_minor == 1
+    assert (ctl.info.major, ctl.info.minor, ctl.info.watchdog_s) == (2, 2, 10.0) and ctl.session_minor == 2
     st = ctl.status()
     assert not st.flags & fp.FLAG_NOT_CONFIGURED and not st.light_on and st.temperature_c == 25.0
 
@@ -261,7 +261,7 @@ def test_a_2_0_controller_and_a_2_0_host_still_talk(Emulator):
         r = Raw(emu.path)
         try:
             [m] = r.ask(fp.encode_message("HELLO", 1, major=2, minor=0))
-            assert (m["minor"], emu.session_minor) == (1, 0)  # the controller is 2.1, the session 2.0
+            assert (m["minor"], emu.session_minor) == (2, 0)  # the controller is 2.2, the session 2.0
             [m] = r.ask(fp.encode_message("READ_PHOTODIODE", 2, samples=4))
             assert set(m.values) == {"samples", "mean", "sem"}  # the 9-byte reply of 2.0
         finally:

@@ -5,9 +5,10 @@ import time
 
 import pytest
 
-from gonio.errors import ConfigError, ControllerError, EmergencyStop, HardwareTimeout
+from gonio.errors import ConfigError, ControllerError, EmergencyStop, HardwareTimeout, SafetyStop
 from gonio.rig.controller import RigController
 from gonio.rig.interfaces import RigController as RigControllerProtocol
+from firmware_protocol import codec as fp
 from sim.clock import SimClock
 
 
@@ -60,8 +61,9 @@ class ScriptedPort:
         assert self.used == len(self.pairs), f"only {self.used} of {len(self.pairs)} exchanges happened"
 
 
-HELLO = h("00 06 01 01 02 02 01 CA 9F 9B 8A 84 00")  # HELLO 2.1
-HELLO_REPLY = h("00 07 81 01 0B 02 01 1F 06 01 02 40 10 27 01 01 98 AD CD 98 80 00")  # v2.1, firmware 0x0201
+HELLO = h("00 06 01 01 02 02 02 BE F8 D8 90 85 00")  # HELLO 2.2
+HELLO_REPLY = h("00 07 81 01 0B 02 02 1F 06 02 02 40 10 27 01 01 DE B3 83 98 8E 00")  # v2.2, firmware 0x0202
+HELLO_REPLY_21 = h("00 07 81 01 0B 02 01 1F 06 01 02 40 10 27 01 01 98 AD CD 98 80 00")  # a 2.1 controller
 HELLO_REPLY_20 = h("00 05 81 01 0B 02 02 1F 01 05 01 40 10 27 01 01 8B BB F5 F8 8F 00")  # a 2.0 controller
 SET_WATCHDOG_10S = h("00 06 07 02 04 10 27 01 01 E7 A2 E1 A3 88 00")
 SET_WATCHDOG_REPLY = h("00 06 87 02 04 10 27 01 01 93 BF D9 88 87 00")
@@ -79,8 +81,9 @@ def test_session_reads_like_the_spec():
     ctl, port = connected([
         # SET_LIGHT seq 3: on=1, level=32768 (0.5)      -> SET_LIGHT_REPLY echoes it
         (h("00 05 03 03 03 01 02 80 8B D1 8B C4 86 00"), h("00 05 83 03 03 01 02 80 DD BE A9 A4 87 00")),
-        # STATUS seq 4                                   -> flags LIGHT_ON, level 32768, 25.37 °C, 123.456 s
-        (h("00 03 06 04 01 B6 AC D7 B8 84 00"), h("00 05 86 04 0E 04 01 07 80 E9 09 40 E2 01 03 10 27 01 01 9D DD DA C9 82 00")),
+        # STATUS seq 4                 -> flags LIGHT_ON, level 32768, 25.37 °C, 123.456 s, reset cause power-on
+        (h("00 03 06 04 01 B6 AC D7 B8 84 00"),
+         h("00 05 86 04 0F 04 01 07 80 E9 09 40 E2 01 03 10 27 01 02 01 DF E6 D3 DA 84 00")),
         # TRIGGER seq 5: 20000 µs                        -> TRIGGER_REPLY count 1
         (h("00 06 05 05 04 20 4E 01 01 9A 8D 9E BA 85 00"), h("00 06 85 05 08 20 4E 01 02 01 01 01 01 C7 CD F3 84 8B 00")),
         # READ_PHOTODIODE seq 6: 16 samples  -> mean 0.987654, sem 0.0005, at uptime 123.457 s, over 1560 us
@@ -95,6 +98,7 @@ def test_session_reads_like_the_spec():
     st = ctl.status()
     assert (st.light_on, st.estop, st.interlock_open) == (True, False, False)
     assert st.light_level == pytest.approx(32768 / 65535) and st.temperature_c == 25.37 and st.uptime_s == 123.456
+    assert st.reset_cause == "power-on"
     ctl.trigger_camera(0.02)
     port.clock, port.latency = ctl.clock, 0.005  # the exchange takes 5 ms of the host's clock
     sent = ctl.clock.now()
@@ -104,7 +108,46 @@ def test_session_reads_like_the_spec():
     assert pd.time == pytest.approx(sent + 0.005 - 0.00078)  # the reply's arrival less half the span
     ctl.heartbeat()
     port.assert_all_used()
-    assert ctl.retry_count == 0 and ctl.stale_replies == 0 and ctl.session_minor == 1
+    assert ctl.retry_count == 0 and ctl.stale_replies == 0 and ctl.session_minor == 2
+
+
+SET_LIGHT_ON = h("00 05 03 03 03 01 02 80 8B D1 8B C4 86 00")  # SET_LIGHT seq 3: on, 32768
+SET_LIGHT_REPLY_ON = h("00 05 83 03 03 01 02 80 DD BE A9 A4 87 00")
+ERROR_ESTOP = h("00 06 FF 03 02 04 03 81 99 B3 F5 8E 00")  # ERROR ESTOP for SET_LIGHT, seq 3
+STATUS_4 = h("00 03 06 04 01 B6 AC D7 B8 84 00")
+
+
+def test_retried_switch_on_after_an_estop_cut_is_refused_not_answered_from_a_cache():
+    """SPEC.md §5 (2.2): the first SET_LIGHT switched the light on but its reply was lost; the E-stop cut the
+    light; the retry (same bytes) is executed again: ERROR ESTOP, never the stored 'on'."""
+    ctl, port = connected([(SET_LIGHT_ON, b""), (SET_LIGHT_ON, ERROR_ESTOP)], retries=1)
+    with pytest.raises(EmergencyStop, match="SET_LIGHT refused"):
+        ctl.set_light(True, 0.5)
+    port.assert_all_used()
+    assert ctl._light == (False, 0)  # a controller reset will not switch it back on
+
+
+def test_a_2_1_controller_answers_the_retry_from_its_cache_so_the_host_asks_status():
+    """SPEC.md §5: a 2.1 controller re-sends the stored 'on' for the retried switch-on; a 2.2 host does not
+    believe a retried switch-on from it: STATUS (the 2.1 size: 14 bytes) says the light is off, E-stop pressed."""
+    status_estop_21 = fp.encode_message("STATUS_REPLY", 4, session_minor=1, flags=fp.FLAG_ESTOP, level=0,
+                                        temperature=2537, uptime_ms=123456, watchdog_ms=10000)
+    port = ScriptedPort([(HELLO, HELLO_REPLY_21), (SET_WATCHDOG_10S, SET_WATCHDOG_REPLY),
+                         (SET_LIGHT_ON, b""), (SET_LIGHT_ON, SET_LIGHT_REPLY_ON), (STATUS_4, status_estop_21)])
+    ctl = RigController(port, clock=SimClock(), timeout=0.05, retries=1)
+    assert ctl.connect().minor == 1 and ctl.session_minor == 1
+    with pytest.raises(SafetyStop, match="light off after a retried switch-on: E-stop is pressed"):
+        ctl.set_light(True, 0.5)
+    port.assert_all_used()
+
+
+def test_bytes_left_on_the_port_by_an_earlier_session_are_flushed_before_hello():
+    """A HELLO_REPLY seq 1 left by an earlier host session is not taken as the answer to this one's HELLO."""
+    port = ScriptedPort(HANDSHAKE)
+    port._rx += HELLO_REPLY_21  # stale: an earlier session's HELLO_REPLY with the same seq
+    ctl = RigController(port, clock=SimClock(), timeout=0.05)
+    assert ctl.connect().minor == 2 and port.flushes == 1
+    port.assert_all_used()
 
 
 def test_a_2_0_controller_gives_readings_without_timestamp():
@@ -147,7 +190,7 @@ def test_late_reply_with_old_seq_is_discarded():
     ], retries=1)
     ctl.heartbeat()
     port.assert_all_used()
-    assert ctl.retry_count == 1 and ctl.stale_replies == 1 and port.flushes == 1
+    assert ctl.retry_count == 1 and ctl.stale_replies == 1 and port.flushes == 2  # at HELLO, then at the retry
 
 
 def test_no_reply_raises_timeout_after_bounded_retries():

@@ -38,7 +38,7 @@ def test_gonio_controller_status_through_simavr(avr):
     r = subprocess.run([sys.executable, "-m", "gonio.cli.main", "controller", "status", "--port", avr.path],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
-    assert "protocol 2.1, firmware 0x00000201" in r.stdout and "E-stop      released" in r.stdout
+    assert "protocol 2.2, firmware 0x00000202" in r.stdout and "E-stop      released" in r.stdout
 
 
 def test_error_codes_duplicates_busy_and_silent_drops(avr):
@@ -47,7 +47,7 @@ def test_error_codes_duplicates_busy_and_silent_drops(avr):
         [m] = r.ask(fp.encode_message("HEARTBEAT", 1))
         assert err(m) == ("ERROR", fp.ERR_NOT_READY, fp.HEARTBEAT)
         [m] = r.ask(fp.encode_message("HELLO", 2, major=2, minor=0))  # a 2.0 host
-        assert (m.name, m["capabilities"], m["firmware"], m["watchdog_ms"]) == ("HELLO_REPLY", 0x1F, 0x0201, 10_000)
+        assert (m.name, m["capabilities"], m["firmware"], m["watchdog_ms"]) == ("HELLO_REPLY", 0x1F, 0x0202, 10_000)
         [m] = r.ask(fp.encode_message("READ_PHOTODIODE", 10, samples=2))
         assert set(m.values) == {"samples", "mean", "sem"}  # the 2.0 reply, without the 2.1 timestamp
         [m] = r.ask(fp.encode_frame(0x42, 3, b"\x01"))

@@ -13,6 +13,7 @@ import fcntl
 import json
 import shutil
 import subprocess
+from gonio import childproc  # children die with this process
 import time
 
 import numpy as np
@@ -46,7 +47,7 @@ def fake_camera(aravis):
     """Aravis's fake GigE Vision camera on 127.0.0.1, started and stopped here."""
     require("Aravis's fake GigE Vision camera", "aravis-tools")
     with gige_lock():
-        proc = subprocess.Popen([shutil.which("arv-fake-gv-camera-0.8"), "-i", "127.0.0.1", "-s", "GONIOTEST"], stdout=subprocess.DEVNULL,
+        proc = childproc.popen([shutil.which("arv-fake-gv-camera-0.8"), "-i", "127.0.0.1", "-s", "GONIOTEST"], stdout=subprocess.DEVNULL,
                                 stderr=subprocess.DEVNULL)
         try:
             from gonio.rig.aravis import list_devices

@@ -21,6 +21,10 @@ def test_status_reports_protocol_capabilities_and_inputs(bench, capsys):
     assert out[0].startswith(f"{bench.path}: protocol 2.") and "watchdog 10 s" in out[0]
     assert out[1] == "capabilities dimming, photodiode, trigger, temperature, interlock"
     assert out[2].split() == ["E-stop", "released"] and out[4].split()[:2] == ["light", "off"]
+    assert out[-1].split() == ["last", "reset", "power-on"]  # protocol 2.2: the cause of the last reset
+    bench.inject_reset()  # a brown-out at the next request
+    assert main(["controller", "status", "--port", bench.path]) == 0
+    assert "last reset  brown-out" in capsys.readouterr().out
     bench.set_estop(True)
     assert main(["controller", "status", "--port", bench.path]) == 0
     assert "E-stop      PRESSED" in capsys.readouterr().out
@@ -60,9 +64,10 @@ def test_one_line_errors(bench, capsys):
 
 def test_python_m_sim_controller_serves_a_pty_for_the_bench_tools(capsys):
     import subprocess
+    from gonio import childproc  # children die with this process
     import sys
 
-    proc = subprocess.Popen([sys.executable, "-m", "sim.controller", "--seconds", "20", "--estop"],
+    proc = childproc.popen([sys.executable, "-m", "sim.controller", "--seconds", "20", "--estop"],
                             stdout=subprocess.PIPE, text=True)
     try:
         path = proc.stdout.readline().strip()
@@ -106,7 +111,7 @@ def test_light_stops_in_one_line_when_the_e_stop_is_pressed_while_it_is_on(bench
         timer.cancel()
     captured = capsys.readouterr()
     err = captured.err.strip()
-    assert code == 3 and "E-stop pressed" in err and "\n" not in err, (code, err)
+    assert code == 7 and "E-stop pressed" in err and "\n" not in err, (code, err)  # SafetyStop: exit 7
     assert len(captured.out.splitlines()) < 15  # it stopped, not after --seconds
     assert not bench.light_on
 

@@ -45,7 +45,7 @@ def test_a_mounted_servo_needs_the_controller_and_the_rig_or_unmounted(rig, caps
 def test_nothing_goes_to_the_servo_while_the_e_stop_is_pressed(rig, capsys):
     bus, ctl = rig
     ctl.set_estop(True)
-    assert move(bus, ctl, 150) == 3
+    assert move(bus, ctl, 150) == 7  # a safety stop (gonio.errors.SafetyStop)
     assert "E-stop is pressed: nothing was sent to the servo" in one_line(capsys)
     assert bus.bytes_in == 0
 

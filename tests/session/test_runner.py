@@ -145,7 +145,7 @@ def test_estop_ends_the_session_cleanly_before_anything_moves(tmp_path, session_
     s = session_factory(tmp_path / "s")
     s.sim.controller.set_estop(True)
     result = s.run()
-    assert result.status.startswith("error:") and "E-stop" in result.status
+    assert result.status.startswith("safety stop:") and "E-stop" in result.status
     manifest, samples = load_session(tmp_path / "s")
     assert manifest["exit_status"] == result.status and len(samples) == 0
     assert len(s.sim.servo_bus.goal_log) == 0
@@ -164,9 +164,9 @@ def test_servo_that_cannot_reach_its_target_ends_the_session_with_the_joint_name
 
     s = session_factory(tmp_path / "s", hooks={2: block})
     result = s.run()
-    assert result.status.startswith("error:")
+    assert result.status.startswith("safety stop:")
     manifest, samples = load_session(tmp_path / "s")
-    assert manifest["exit_status"].startswith("error:")
+    assert manifest["exit_status"].startswith("safety stop:")
     assert sorted(set(samples.pose.tolist())) == [0, 1, 2]  # nothing measured was lost (pose 2 finished first)
 
 

@@ -30,7 +30,7 @@ def test_estop_or_interlock_between_poses_stops_the_session_before_the_next_move
     s = session_factory(tmp_path / "s")
     _press_after_storing(s, 2, what)
     result = s.run()
-    assert result.status.startswith("error: ") and cause in result.status and "\n" not in result.status
+    assert result.status.startswith("safety stop: ") and cause in result.status and "\n" not in result.status
     assert len(s.sim.servo_bus.goal_log) == s.pressed_at  # no goal packet after the press
     assert s.sim.servo_bus.bytes_in == s.bytes_at  # not one byte to a servo
     assert sorted(scan_samples(tmp_path / "s" / "samples.jsonl").records) == [0, 1, 2]
