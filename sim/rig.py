@@ -33,6 +33,7 @@ sensor's self-heating (lab time since power-on: the dark level) —
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -238,7 +239,9 @@ class SimRig:
     Parameters
     ----------
     rig : Rig, path or shipped rig name (default ``"default"``)
-    material : BRDF or ``{"model": ..., "params": {...}}`` (default :data:`DEFAULT_MATERIAL`)
+    material : BRDF, ``{"model": ..., "params": {...}}`` (default :data:`DEFAULT_MATERIAL`), or a material file
+        (TOML, MERL ``.binary``, RGL ``.bsdf``, gonio NPZ, fit JSON: :func:`gonio.io.material_file.open_material`)
+        or a manifest's record of one
     config : SimRigConfig
     layout : TargetLayout (board, sample and white patches)
     servo_faults, controller_faults : LinkFaults on the two links (none by default)
@@ -264,7 +267,12 @@ class SimRig:
         self.rig = rig if isinstance(rig, Rig) else load_rig(rig)
         #: the geometry the simulator renders with: the declared rig, or its as-built version (sim/as_built.py)
         self.geometry = self.rig if cfg.as_built is None else AsBuilt.from_dict(self.rig, cfg.as_built)
-        if material is None or isinstance(material, dict):
+        if isinstance(material, (str, os.PathLike)) or (isinstance(material, dict) and "file" in material):
+            from gonio.io.material_file import material_from_record, open_material
+
+            material = (material_from_record(material, "sim material") if isinstance(material, dict)
+                        else open_material(material)).brdf()
+        elif material is None or isinstance(material, dict):
             m = material or DEFAULT_MATERIAL
             material = make(m["model"], source="sim material", **m.get("params", {}))
         self.material = material

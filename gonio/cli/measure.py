@@ -48,8 +48,9 @@ def register(sub) -> None:
     p.add_argument("--camera", help="camera index or path for OpenCV (hardware)")
     p.add_argument("--calibration", metavar="CAMERA.toml",
                    help="camera intrinsics and noise (hardware): width, height, focal_px, [dist], [noise]")
-    p.add_argument("--material", metavar="FILE.toml", help="material of the simulated sample (model + [params]); "
-                   "on hardware only its label is recorded")
+    p.add_argument("--material", metavar="FILE", help="material of the simulated sample: a TOML (model + [params]), "
+                   "or a measured one (MERL .binary, RGL .bsdf, gonio NPZ) or a fit JSON, recorded with its "
+                   "SHA-256; on hardware only its label is recorded")
     p.add_argument("--target", metavar="TARGET.toml", help="target layout (default: the standard board, flat "
                    "sample): sample/white rectangles, white_albedo, [charuco], [mount] tilt_x_deg, tilt_y_deg, "
                    "height (or matrix) of a tilted or raised sample; recorded in the manifest")
@@ -153,8 +154,9 @@ def run_measure(args) -> int:
     rig_text, rig_where = read_rig_text(rig_src)
     rig = load_rig(text=rig_text, source=rig_where)
     material = load_material_file(args.material) if (args.sim or args.material) else None
-    if material is not None and material.defaulted:
-        print(material.defaults_note())
+    for note in (material.defaults_note(), getattr(material, "note", "")) if material is not None else ():
+        if note:
+            print(note)
     plan, adaptive = _plan(args, rig)
     check_session_dir(out)
     timing = TimingOptions(accurate=args.accurate, warmup_wait=args.warmup_wait, darks=args.darks).as_dict()

@@ -133,6 +133,100 @@ class FitResult:
             _write_new(path, text, force)
         return text
 
+    def eval(self, wi, wo):
+        """The fitted model at direction pairs (1/sr, RGB): ``self.model.eval(wi, wo)``, so a result (and
+        what :func:`gonio.load` reads from a fit JSON) evaluates like a model."""
+        return self.model.eval(wi, wo)
+
+    @classmethod
+    def from_dict(cls, report, source: str = "fit result") -> "FitResult":
+        """The result a :meth:`to_dict` report (``gonio fit --json``, also ``--select``'s: its winner is at
+        the top level) describes; ``from_dict(r.to_dict()).to_dict() == r.to_dict()``. The model is built
+        at once, so a bad name or parameter is one :class:`gonio.errors.DataError` line naming ``source``.
+        Not recorded in the JSON: ``n_evals``, ``seconds`` (0); non-finite numbers come back as NaN."""
+        from gonio.errors import ConfigError, DataError
+
+        if isinstance(report, dict) and "model" not in report and isinstance(report.get("winner"), dict):
+            report = report["winner"]
+        if not isinstance(report, dict) or not isinstance(report.get("model"), str) \
+                or not isinstance(report.get("params", {}), dict):
+            raise DataError(f"{source}: not a fit result: expected a JSON object with \"model\" (a name) and "
+                            "\"params\" (an object)")
+        err = report.get("error") if isinstance(report.get("error"), dict) else {}
+
+        def num(v, default=math.nan):
+            if v is None or isinstance(v, bool):
+                return default
+            if isinstance(v, list):
+                return [num(x) for x in v]
+            if isinstance(v, (int, float)):
+                return float(v)
+            raise DataError(f"{source}: not a fit result: {v!r} where a number is expected")
+
+        def count(key):
+            v = report.get(key, 0)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 0:
+                raise DataError(f"{source}: {key} = {v!r}: must be a count (integer >= 0)")
+            return v
+
+        def table(key, kind=dict):
+            v = report.get(key)
+            if v is None:
+                return kind()
+            if not isinstance(v, kind):
+                raise DataError(f"{source}: {key} = {str(v)[:40]!r}: must be a JSON {'object' if kind is dict else 'list'}")
+            return v
+
+        unc = table("uncertainty")
+        metric_keys = ("cost", "rms_rel", "chi2_red", "aic", "bic")
+        metrics = table("metrics") or {k: v for k, v in err.items() if k not in metric_keys}
+        chi2 = err.get("chi2_red")
+        red = report.get("redundancy")
+        result = cls(
+            model_name=report["model"], params=dict(report.get("params", {})),
+            uncertainty={k: num(v) for k, v in unc.items()}, loss=str(report.get("loss", "")),
+            cost=num(err.get("cost")), rms_rel=num(err.get("rms_rel")), n_used=count("n_used"),
+            n_params=count("n_params"), chi2_red=None if chi2 is None else num(chi2),
+            identifiable=bool(report.get("identifiable", True)), method=str(report.get("method", "")),
+            notes=[str(n) for n in table("notes", list)], heuristics=table("heuristics"),
+            dropped=table("dropped"), redundancy=tuple(red) if isinstance(red, list) else None,
+            at_bound=table("at_bound"), metrics=metrics, energy=table("energy"))
+        from gonio.brdf import make
+
+        try:  # built once here, naming the file in a refusal; :attr:`model` keeps it
+            built = make(result.model_name, source=source, **result.params)
+        except ConfigError as exc:
+            raise DataError(str(exc)) from None
+        except TypeError as exc:  # a parameter of the wrong JSON type
+            raise DataError(f"{source}: params: {exc}") from None
+        result.__dict__["_built"] = ((result.model_name, repr(result.params)), built)
+        return result
+
+    @classmethod
+    def from_json(cls, source) -> "FitResult":
+        """Read a fit report: ``source`` is a path to ``gonio fit --json``'s file or the JSON text itself
+        (:meth:`from_dict`); a file that is not JSON is one :class:`gonio.errors.DataError` line."""
+        import json
+        from pathlib import Path
+
+        from gonio.errors import DataError
+
+        if isinstance(source, str) and source.lstrip().startswith("{"):
+            text, where = source, "fit JSON"
+        else:
+            where = str(source)
+            try:
+                text = Path(source).read_text(encoding="utf-8")
+            except OSError as exc:
+                raise DataError(f"{where}: cannot read ({exc.strerror or exc})") from None
+            except UnicodeDecodeError:  # a table or an archive (gonio.load names which)
+                raise DataError(f"{where}: not a fit result (gonio fit --json FIT.json): not a text file") from None
+        try:
+            report = json.loads(text)
+        except ValueError as exc:
+            raise DataError(f"{where}: not valid JSON ({exc})") from None
+        return cls.from_dict(report, where)
+
     def to_mitsuba(self, path=None, *, approx: bool = False):
         """The fitted model as a Mitsuba 3 BSDF dict (``mitsuba.load_dict``); also written to ``path``
         (``.xml`` or ``.json``) when given. Refused with a one-line reason where Mitsuba's plugins cannot

@@ -153,6 +153,15 @@ class MerlTable:
         """A table with no measured cell."""
         return cls(np.full(SHAPE + (3,), np.nan))
 
+    @classmethod
+    def from_brdf(cls, brdf, phi_h: float = 0.0) -> "MerlTable":
+        """``brdf.eval`` at every cell centre above the horizon (:func:`cell_directions` at ``phi_h``;
+        NaN below it, as a MERL file marks those cells): a model or an isotropic material tabulated."""
+        wi, wo, above = cell_directions(phi_h)
+        values = np.full(SHAPE + (3,), np.nan)
+        values[above] = brdf.eval(wi[above], wo[above])
+        return cls(values)
+
     @property
     def measured(self) -> np.ndarray:
         """(90, 90, 180) bool: cells with a value in every channel."""

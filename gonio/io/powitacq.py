@@ -289,15 +289,12 @@ class PowitacqBRDF:
 
     def to_table(self):
         """The material on the MERL grid (cell centres, φh = 0); isotropic materials only."""
-        from gonio.io.merl import MerlTable, cell_directions
+        from gonio.io.merl import MerlTable
 
         if not self.isotropic:
             raise DataError(f"{self.path}: anisotropic material: a MERL table holds isotropic BRDFs only "
                             "(evaluate it with eval(), or fit its samples)")
-        wi, wo, above = cell_directions(0.0)
-        values = np.full(above.shape + (3,), np.nan)
-        values[above] = self.eval(wi[above], wo[above])
-        return MerlTable(values)
+        return MerlTable.from_brdf(self)
 
 
 def read_bsdf(path) -> PowitacqBRDF:

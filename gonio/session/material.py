@@ -1,6 +1,6 @@
 """Material files: which BRDF the simulated sample carries (and the label a session records).
 
-A material file is TOML::
+A material file is TOML (a measured material or a fitted model is a data file: :mod:`gonio.io.material_file`)::
 
     label = "red plastic"            # optional, free text
     model = "microfacet"             # a gonio.brdf model name (gonio models lists them)
@@ -146,6 +146,9 @@ def describe_material(m) -> str:
     """A manifest's material for people: ``label (model: name = value, ...)``."""
     if not isinstance(m, dict) or not m:
         return "unknown"
+    if isinstance(m.get("file"), str):  # a measured material or a fitted model (gonio/io/material_file.py)
+        digest = f", sha256 {m['sha256'][:12]}…" if isinstance(m.get("sha256"), str) else ""
+        return f"{m.get('label') or m['file']} ({m.get('kind') or 'file'} {m['file']}{digest})"
     label, model = m.get("label") or "", m.get("model")
     params = m.get("params") if isinstance(m.get("params"), dict) else {}
 

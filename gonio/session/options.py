@@ -185,7 +185,8 @@ def default_material():
 
 
 def load_material_file(path: str | None):
-    """The material of ``--material FILE`` (:func:`gonio.session.material.load_material`), or the default."""
-    from gonio.session.material import load_material
+    """The material of ``--material FILE`` — a material TOML (:func:`gonio.session.material.load_material`) or a
+    measured material or fit JSON (:func:`gonio.io.material_file.open_material`) — or the default."""
+    from gonio.io.material_file import open_material
 
-    return default_material() if path is None else load_material(path)
+    return default_material() if path is None else open_material(path)

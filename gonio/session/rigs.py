@@ -110,7 +110,8 @@ def open_rig(rig="default", *, sim: SimOptions | bool | None = None, hardware: H
     sim : :class:`SimOptions` (or True for the defaults): the simulated rig — emulators on pseudo-terminals
         driven through the real dynamixel-sdk and pyserial, a rendering camera, a simulated clock.
     hardware : :class:`HardwareOptions`: a real rig's ports, camera and CAMERA.toml.
-    material : the simulated sample's material file (TOML), or a loaded :class:`gonio.session.material.Material`;
+    material : the simulated sample's material file (a TOML, or a measured one: MERL, RGL .bsdf, gonio NPZ, fit JSON,
+        :mod:`gonio.io.material_file`), or a loaded :class:`gonio.session.material.Material`;
         on a rig only its label is recorded.
     target : TARGET.toml (default: the standard board, flat sample).
     camera, calibration, clock : a mixed rig: real ports (``hardware.servo_port``/``controller_port``) with a
@@ -322,7 +323,7 @@ def open_rig_from_manifest(manifest: dict, directory, *, rig_file: str | None = 
     configuration and seed, or the hardware ports (``manifest["hardware"]``, overrides already applied) and
     the camera file it recorded. Every field is checked (one line naming it)."""
     from gonio.rig.clock import RealClock
-    from gonio.session.material import material_from_dict
+    from gonio.io.material_file import material_from_record
 
     where = f"{directory}/manifest.json"
     mode = manifest.get("mode")
@@ -330,8 +331,9 @@ def open_rig_from_manifest(manifest: dict, directory, *, rig_file: str | None = 
         m = manifest.get("material")
         if not isinstance(m, dict):
             raise DataError(f"{where}: material = {str(m)[:40]!r}: must be an object (model, params, label)")
-        material = material_from_dict({k: v for k, v in m.items() if k in ("model", "params", "label")},
-                                      source="manifest material", complete=False)
+        material = material_from_record({k: v for k, v in m.items() if k in ("model", "params", "label", "file", "kind",
+                                                                        "sha256")},
+                                        source="manifest material", complete=False)
         config = _sim_plugin().SimRigConfig.from_dict(checked_sim(manifest.get("sim"), where))
         rig = manifest_rig(manifest, where, rig_file)
         opened = _start_sim(manifest, rig, material_brdf=material.brdf(), config=config, hold=hold)
