@@ -296,7 +296,8 @@ class SimRig:
             from sim.mirror_tile import CalibrationTile
 
             tile = CalibrationTile(rect=self.layout.sample, **cfg.tile)
-        scene = SimScene(self.layout, self.material, light_intensity=cfg.light_intensity, tile=tile)
+        scene = SimScene(self.layout, self.material, light_intensity=cfg.light_intensity, tile=tile,
+                         sphere=self.layout.sphere)
         self.sim_camera = SimCamera(self.calibration, self.sensor, scene, seed=cfg.seed, clock=self.clock,
                                     light_output=self.controller.light_output)
         self.camera = RigCamera(self)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gonio import samples as S
-from gonio.errors import ConfigError, HardwareError
+from gonio.errors import ConfigError, DataError, HardwareError
 from gonio.pipeline.dark import DarkCache
 from gonio.pipeline.exposure import CapturePlan, ExposureSettings, plan_bracket
 from gonio.pipeline.hdr import BadFrame, SATURATION_MARGIN, average_frames, check_frame, merge_linear
@@ -94,6 +94,8 @@ class PoseResult:
     #: (passed, but this pose's detection disagreed and was used), ``"unverified"`` (passed and kept, the board
     #: found in this frame neither way), or ``None`` (no board: the kinematic pose)
     board_source: str | None = None
+    #: a sphere's pose: its pixels used and rejected (:func:`gonio.sphere.pixels.sphere_frame_samples`); else None
+    sphere_counts: dict | None = None
 
 
 class Pipeline:
@@ -262,6 +264,9 @@ class Pipeline:
                                 "camera pose given", device="camera")
         if board is None:
             flags |= S.NO_BOARD
+        if self.layout.sphere is not None:  # image-based: one sample per pixel of the sphere (gonio.sphere)
+            return self._measure_sphere(frame, px, level, gain, plan, cam_pose, board, source, flags, light_position,
+                                        pose_index)
         roi = build_roi(cam_pose, self.calib, self.layout, light_position, margin_px=st.margin_px,
                         max_bin_deg=st.max_bin_deg, max_bins=st.max_bins, nominal=nominal)
         if roi.empty:
@@ -271,8 +276,20 @@ class Pipeline:
         # is per pixel, so they get the values a merge of the whole box gives them; the samples come from these alone
         used = _used_index(roi, (roi.label >= 0) | roi.white, self.calib.width)
         if plan is None:
-            plan = self._meter(frame, px, level, roi, used, gain)
-        # 2. capture the bracket, darks, merge
+            n_min = max(1, int(np.bincount(roi.label[roi.label >= 0], minlength=roi.n_tiles).min()))
+            plan = self._meter(frame, px, level, used, gain, n_min)
+        hdr, lights, times, flags = self._capture_merge(plan, used, flags)
+        perturb = board.perturbed() if (board is not None and st.pose_uncertainty) else []
+        samples = used_pixel_samples(hdr, roi, cam_pose, light_position, self.layout, absolute_scale=self.absolute_scale,
+                                     min_snr=st.min_snr, pose_index=pose_index, flags=flags,
+                                     pose_perturbations=perturb, light_sigma=st.light_position_sigma)
+        self._next_exposure = plan.exposures[0]
+        return PoseResult(samples, plan, board, cam_pose, lights, times, source)
+
+    def _capture_merge(self, plan: CapturePlan, used: np.ndarray, flags: int):
+        """Capture ``plan``'s bracket, subtract darks and merge the ``used`` pixels (flat indices): ``(hdr as an
+        (n, 1, C) image, photodiode readings, their times, flags + DRIFT)``; a light that reads off raises."""
+        st = self.settings
         stacks, darks, lights, times = [], [], [], []
         for t_k, n_k in zip(plan.exposures, plan.frames):
             cached = self.darks.cached(t_k, plan.gain)  # the runner measures the dark set before the poses
@@ -295,18 +312,50 @@ class Pipeline:
             flags |= S.DRIFT
         if lv.size and not (lv.min() > 0):
             raise HardwareError(f"light: photodiode reads {lv.min():g}: the light is off or failed", device="light")
-        perturb = board.perturbed() if (board is not None and st.pose_uncertainty) else []
-        samples = used_pixel_samples(hdr, roi, cam_pose, light_position, self.layout, absolute_scale=self.absolute_scale,
-                                     min_snr=st.min_snr, pose_index=pose_index, flags=flags,
-                                     pose_perturbations=perturb, light_sigma=st.light_position_sigma)
-        self._next_exposure = plan.exposures[0]
-        return PoseResult(samples, plan, board, cam_pose, lights, times, source)
+        return hdr, lights, times, flags
 
-    def _meter(self, frame: Frame, px: np.ndarray, level: float, roi, used: np.ndarray, gain: float) -> CapturePlan:
+    def _measure_sphere(self, frame, px, level, gain, plan, cam_pose, board, source, flags, light_position,
+                        pose_index) -> PoseResult:
+        """One pose of a sphere (image-based acquisition, :mod:`gonio.sphere`): the sphere's and the white
+        reference's pixels metered and merged as a flat sample's are, then one sample per sphere pixel
+        (:func:`gonio.sphere.pixels.sphere_frame_samples`), wi and wo in each pixel's normal frame; the pose's
+        pixel counts (used, silhouette, terminator, saturated, dark) in :attr:`PoseResult.sphere_counts`."""
+        from gonio.sphere.pixels import sphere_box, sphere_frame_samples, white_box
+
+        c = self.calib
+        sph = self.layout.sphere
+        box, wbox = sphere_box(c, cam_pose, sph), white_box(c, cam_pose, self.layout)
+        if box is None or wbox is None:
+            raise BoardNotFound("camera frame: the sphere or the white patch is outside the image at this pose",
+                                device="camera")
+        mask = np.zeros((c.height, c.width), dtype=bool)
+        mask[box] = True
+        mask[wbox] = True
+        used = np.flatnonzero(mask)
+        if plan is None:
+            plan = self._meter(frame, px, level, used, gain, 1)
+        hdr, lights, times, flags = self._capture_merge(plan, used, flags)
+        C = hdr.rate.shape[-1]
+        rate = np.full((c.height * c.width, C), np.nan)
+        var = np.full((c.height * c.width, C), np.nan)
+        rate[used], var[used] = hdr.rate[:, 0], hdr.var[:, 0]
+        try:
+            fs = sphere_frame_samples(rate.reshape(c.height, c.width, C), var.reshape(c.height, c.width, C), c,
+                                      cam_pose, sph, light_position, self.layout, min_snr=self.settings.min_snr)
+        except DataError as exc:  # the white reference unusable at this pose: no sample, the pose is skipped
+            raise BoardNotFound(f"camera frame: {exc}", device="camera") from None
+        n = len(fs.f)
+        samples = SampleSet(fs.wi_local, fs.wo_local, fs.f, fs.sigma, n_pixels=np.ones(n), flags=np.full(n, flags),
+                            pose=np.full(n, pose_index))
+        self._next_exposure = plan.exposures[0]
+        return PoseResult(samples, plan, board, cam_pose, lights, times, source, sphere_counts=fs.counts)
+
+    def _meter(self, frame: Frame, px: np.ndarray, level: float, used: np.ndarray, gain: float,
+               n_min: int) -> CapturePlan:
         """Find signal rates of the sample and white pixels (``used``: their :func:`_used_index`); re-meter
-        (bounded) when saturated or dark."""
+        (bounded) when saturated or dark. ``n_min``: the fewest pixels a sample averages (the bracket's SNR
+        target is per sample)."""
         st, es = self.settings, self.settings.exposure
-        n_min = max(1, int(np.bincount(roi.label[roi.label >= 0], minlength=roi.n_tiles).min()))
         t = frame.exposure
         for _ in range(st.meter_tries):
             limit = self._limit(frame)

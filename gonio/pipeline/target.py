@@ -266,6 +266,9 @@ class TargetLayout:
     white: Rect = field(default_factory=lambda: Rect(-0.105, -0.02, -0.065, 0.02))
     white_albedo: tuple[float, float, float] = (0.99, 0.99, 0.99)
     mount: SampleMount = field(default_factory=SampleMount)
+    #: a sphere coated with the material (:class:`gonio.sphere.Sphere`, sample frame) measured instead of the flat
+    #: patch, one sample per pixel (image-based acquisition, :mod:`gonio.sphere`); None: the flat sample
+    sphere: object = None
 
     def __post_init__(self):
         w, h = self.charuco.size
@@ -280,6 +283,18 @@ class TargetLayout:
             raise ConfigError.field(None, "white_albedo", self.white_albedo, "needs 3 values in (0, 1]")
         if not isinstance(self.mount, SampleMount):
             raise ConfigError.field(None, "mount", self.mount, "needs a SampleMount")
+        if self.sphere is not None:
+            sp = self.sphere
+            x, y, z = sp.centre
+            if not board.contains(x - sp.radius, y - sp.radius) or not board.contains(x + sp.radius, y + sp.radius):
+                raise ConfigError.field(None, "sphere.centre", list(sp.centre), "the sphere must stand on the board")
+            if z < sp.radius - 1e-9:
+                raise ConfigError.field(None, "sphere.centre", list(sp.centre),
+                                        f"z below the radius {sp.radius:g} m: the sphere would cut the board")
+            wx = min(max(x, self.white.x0), self.white.x1)
+            wy = min(max(y, self.white.y0), self.white.y1)
+            if (wx - x) ** 2 + (wy - y) ** 2 < sp.radius ** 2:
+                raise ConfigError.field(None, "sphere.centre", list(sp.centre), "the sphere stands on the white patch")
 
     def sample_corners(self) -> np.ndarray:
         """The sample patch's 4 corners in the sample (board-centred) frame, through the mount (4, 3)."""
@@ -293,14 +308,16 @@ class TargetLayout:
                             "marker_length": c.marker_length, "dictionary": c.dictionary},
                 "sample": [self.sample.x0, self.sample.y0, self.sample.x1, self.sample.y1],
                 "white": [self.white.x0, self.white.y0, self.white.x1, self.white.y1],
-                "white_albedo": [float(a) for a in self.white_albedo], "mount": self.mount.to_dict()}
+                "white_albedo": [float(a) for a in self.white_albedo], "mount": self.mount.to_dict(),
+                **({"sphere": {"radius": self.sphere.radius, "centre": list(self.sphere.centre)}}
+                   if self.sphere is not None else {})}
 
     @classmethod
     def from_dict(cls, d, source: str | None = None) -> "TargetLayout":
         """Inverse of :meth:`to_dict`; missing keys take the defaults; errors name ``source`` and the field."""
         if not isinstance(d, dict):
             raise ConfigError.field(source, "target", d, "needs a table")
-        unknown = set(d) - {"charuco", "sample", "white", "white_albedo", "mount"}
+        unknown = set(d) - {"charuco", "sample", "white", "white_albedo", "mount", "sphere"}
         if unknown:
             k = sorted(unknown)[0]
             raise ConfigError.field(source, f"target.{k}", d[k], "unknown key")
@@ -315,6 +332,8 @@ class TargetLayout:
                 kw["white_albedo"] = _albedo(d["white_albedo"])
             if "mount" in d:
                 kw["mount"] = SampleMount.from_dict(d["mount"])
+            if "sphere" in d:
+                kw["sphere"] = _sphere(d["sphere"])
             return cls(**kw)
         except ConfigError as exc:
             raise ConfigError(f"{source}: {exc}" if source else str(exc)) from None
@@ -351,6 +370,27 @@ def _albedo(v) -> tuple[float, float, float]:
 
 
 _CHARUCO_KEYS = ("squares", "square_length", "marker_length", "dictionary")
+
+
+def _sphere(v):
+    """The ``[sphere]`` table: ``radius`` (metres) and ``centre`` ([x, y, z] metres in the sample frame; default
+    ``[0, 0, radius]``, resting on the board's centre); errors name ``sphere.<key>`` and the value."""
+    from gonio.sphere.geometry import Sphere
+
+    if not isinstance(v, dict):
+        raise ConfigError.field(None, "sphere", v, "needs a table: radius (m), centre = [x, y, z] (m)")
+    unknown = sorted(set(v) - {"radius", "centre"})
+    if unknown:
+        raise ConfigError.field(None, f"sphere.{unknown[0]}", v[unknown[0]], "unknown key (radius, centre)")
+    if "radius" not in v:
+        raise ConfigError.field(None, "sphere.radius", None, "is required (metres)")
+    r = _number("sphere.radius", v["radius"])
+    c = v.get("centre", [0.0, 0.0, r])
+    if not (isinstance(c, (list, tuple)) and len(c) == 3):
+        raise ConfigError.field(None, "sphere.centre", c, "needs [x, y, z] in metres")
+    centre = tuple(_number(f"sphere.centre.{k}", x) for k, x in zip("xyz", c))
+    return Sphere(centre, r)
+
 
 
 def _charuco(v) -> CharucoSpec:

@@ -94,6 +94,8 @@ class SphereHits:
     theta_h: np.ndarray
     theta_d: np.ndarray
     phi_d: np.ndarray
+    wi_local: np.ndarray = None  #: wi in the per-normal frame (t, b, n) of :func:`_local`
+    wo_local: np.ndarray = None
 
 
 def _local(n: np.ndarray) -> np.ndarray:
@@ -128,4 +130,4 @@ def sphere_hits(eye, dirs, sphere: Sphere, light) -> tuple[SphereHits, np.ndarra
     wo_l = np.einsum("nij,nj->ni", frame, wo)
     th, _, td, pd = half_diff_from_dirs(wi_l, wo_l)
     return SphereHits(x=x, n=n, wi=wi, wo=wo, cos_i=wi_l[:, 2], cos_o=wo_l[:, 2], r2=r2, theta_h=th,
-                      theta_d=td, phi_d=pd), hit
+                      theta_d=td, phi_d=pd, wi_local=wi_l, wo_local=wo_l), hit

@@ -25,7 +25,8 @@ import numpy as np
 from gonio.errors import DataError
 from gonio.sphere.geometry import Sphere, sphere_hits
 
-__all__ = ["SphereFrameSamples", "sphere_frame_samples", "white_scale", "pixel_rays_world", "sphere_box"]
+__all__ = ["SphereFrameSamples", "sphere_frame_samples", "white_scale", "white_box", "pixel_rays_world",
+           "sphere_box"]
 
 
 @dataclass
@@ -42,6 +43,8 @@ class SphereFrameSamples:
     wi: np.ndarray
     wo: np.ndarray
     counts: dict = field(default_factory=dict)
+    wi_local: np.ndarray = None  #: wi, wo in each pixel's per-normal frame (z = the normal)
+    wo_local: np.ndarray = None
 
 
 def pixel_rays_world(calib, pose, rows: slice, cols: slice) -> tuple[np.ndarray, np.ndarray]:
@@ -71,21 +74,32 @@ def sphere_box(calib, pose, sphere: Sphere, pad: int = 2) -> tuple[slice, slice]
     return rows, cols
 
 
-def white_scale(rate, var, calib, pose, layout, light_position) -> tuple[np.ndarray, np.ndarray]:
-    """``(kI, σ_kI)`` per channel from the white reference's pixels in the frame (see the module docstring);
-    one line naming the reason when no white pixel is usable."""
-    S = np.asarray(light_position, dtype=np.float64)
+def white_box(calib, pose, layout) -> tuple[slice, slice] | None:
+    """Pixel box (rows, cols) of the white reference's projection; None if it is not in view."""
     corners = layout.white.corners()
     pc = corners @ pose.R.T + pose.t
     if (pc[:, 2] <= 0).any():
-        raise DataError("sphere frame: the white reference is behind the camera")
+        return None
     uv = pose.project(corners, calib)
     c0, r0 = np.ceil(uv.min(axis=0)).astype(int)
     c1, r1 = np.floor(uv.max(axis=0)).astype(int) + 1
     rows = slice(max(int(r0), 0), min(int(r1), calib.height))
     cols = slice(max(int(c0), 0), min(int(c1), calib.width))
     if rows.stop <= rows.start or cols.stop <= cols.start:
+        return None
+    return rows, cols
+
+
+def white_scale(rate, var, calib, pose, layout, light_position, sphere: Sphere | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """``(kI, σ_kI)`` per channel from the white reference's pixels in the frame (see the module docstring);
+    one line naming the reason when no white pixel is usable. With ``sphere``, white pixels the sphere hides from
+    the camera, or whose point lies in its shadow, are left out."""
+    S = np.asarray(light_position, dtype=np.float64)
+    box = white_box(calib, pose, layout)
+    if box is None:
         raise DataError("sphere frame: the white reference is not in view")
+    rows, cols = box
     d, _ = pixel_rays_world(calib, pose, rows, cols)
     C = pose.centre
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -95,6 +109,25 @@ def white_scale(rate, var, calib, pose, layout, light_position) -> tuple[np.ndar
     # stay clear of the patch's edges (a pixel straddling the edge mixes board and white)
     inside &= layout.white.contains(p[..., 0] + 1e-3, p[..., 1] + 1e-3) & layout.white.contains(
         p[..., 0] - 1e-3, p[..., 1] - 1e-3)
+    if sphere is not None:
+        from gonio.sphere.geometry import ray_sphere
+
+        # grown by 3 pixel footprints at the sphere's distance: a pixel straddling its silhouette or its shadow's
+        # edge mixes the sphere (or the shade) into the white
+        grow = 3.0 * float(np.linalg.norm(C - sphere.P)) / float(calib.K[0, 0])
+        sphere = Sphere(sphere.centre, sphere.radius + grow)
+        _, hidden = ray_sphere(C, d, sphere)  # the camera sees the sphere, not the white, through these pixels
+        inside &= ~hidden
+        to_s = S - p
+        dist = np.linalg.norm(to_s, axis=-1)
+        oc = p - sphere.P
+        dd = to_s / np.maximum(dist, 1e-12)[..., None]
+        b = np.einsum("...i,...i->...", dd, oc)
+        cc = np.einsum("...i,...i->...", oc, oc) - sphere.radius ** 2
+        disc = b * b - cc
+        with np.errstate(invalid="ignore"):
+            t_s = -b - np.sqrt(np.where(disc >= 0, disc, np.nan))
+        inside &= ~((disc >= 0) & (t_s > 0) & (t_s < dist))  # in the sphere's shadow
     r_w = rate[rows, cols][inside]
     v_w = var[rows, cols][inside]
     ok = np.all(np.isfinite(r_w) & np.isfinite(v_w) & (v_w > 0), axis=1)
@@ -122,9 +155,9 @@ def sphere_frame_samples(rate, var, calib, pose, sphere: Sphere, light_position,
     counts = {"hit": 0, "silhouette": 0, "terminator": 0, "saturated": 0, "dark": 0, "used": 0}
     empty = np.zeros(0)
     if box is None:
-        return SphereFrameSamples(empty, empty, empty, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 2), int),
-                                  np.zeros((0, 3)), np.zeros((0, 3)), counts)
-    kI, skI = white_scale(rate, var, calib, pose, layout, light_position)
+        z3 = np.zeros((0, 3))
+        return SphereFrameSamples(empty, empty, empty, z3, z3, np.zeros((0, 2), int), z3, z3, counts, z3, z3)
+    kI, skI = white_scale(rate, var, calib, pose, layout, light_position, sphere)
     d, rc = pixel_rays_world(calib, pose, *box)
     hits, hit = sphere_hits(pose.centre, d, sphere, light_position)
     px = rc[hit]
@@ -144,4 +177,4 @@ def sphere_frame_samples(rate, var, calib, pose, sphere: Sphere, light_position,
     counts.update(hit=int(hit.sum()), silhouette=int(sil.sum()), terminator=int(term.sum()), saturated=int(sat.sum()),
                   dark=int(dark.sum()), used=int(use.sum()))
     return SphereFrameSamples(hits.theta_h[use], hits.theta_d[use], hits.phi_d[use], f[use], sf[use], px[use],
-                              hits.wi[use], hits.wo[use], counts)
+                              hits.wi[use], hits.wo[use], counts, hits.wi_local[use], hits.wo_local[use])

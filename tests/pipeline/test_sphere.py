@@ -139,3 +139,43 @@ def test_a_sphere_out_of_view_gives_no_sample():
     rate = cam.electron_rate().astype(np.float64)
     out = sphere_frame_samples(rate, rate * 1e-6 + 1e-9, calib, cam._pose, sph, cam._light_pos, TargetLayout())
     assert out.counts["used"] == 0 and len(out.f) == 0
+
+
+@pytest.mark.parametrize("table, field", [
+    ({"radius": "big"}, "sphere.radius"), ({"centre": [0, 0, 0.02]}, "sphere.radius"),
+    ({"radius": 0.02, "centre": [0, 0]}, "sphere.centre"), ({"radius": 0.02, "center": [0, 0, 0.02]}, "sphere.center"),
+    ({"radius": 0.02, "centre": [0, 0, 0.01]}, "sphere.centre"), ({"radius": 0.02, "centre": [-0.085, 0, 0.02]},
+                                                                   "sphere.centre"),
+    ({"radius": 0.02, "centre": [0.5, 0, 0.02]}, "sphere.centre"), ("0.02", "sphere")])
+def test_a_malformed_sphere_in_the_target_file_is_refused_in_one_line(tmp_path, table, field):
+    from gonio.pipeline.target import TargetLayout, load_target
+
+    with pytest.raises(ConfigError) as e:
+        TargetLayout.from_dict({"sphere": table}, source="T.toml")
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith("T.toml") and field in msg, msg
+    p = tmp_path / "t.toml"
+    p.write_text("[sphere]\nradius = 0.02\n")
+    lay = load_target(p)
+    assert lay.sphere.centre == (0.0, 0.0, 0.02)  # resting on the board's centre by default
+    assert TargetLayout.from_dict(lay.to_dict()).sphere == lay.sphere  # the manifest round-trips it
+
+
+def test_a_sphere_session_on_the_simulated_rig_gives_per_pixel_samples_of_the_material(tmp_path):
+    """The whole chain: the simulated rig renders the sphere, the host's pipeline finds the board, merges the
+    bracket and gives one sample per sphere pixel; they match the simulated material and resume is a no-op."""
+    from gonio.cli.main import main
+    from gonio.session.store import load_session
+
+    target = tmp_path / "sphere.toml"
+    target.write_text("[sphere]\nradius = 0.02\n")
+    d = tmp_path / "s"
+    assert main(["measure", "--sim", "--target", str(target), "--plan", "in_plane", "--theta-i", "30",
+                 "--theta-o-step", "40", "--out", str(d), "--quiet"]) == 0
+    manifest, s = load_session(d)
+    assert manifest["target"]["sphere"]["radius"] == 0.02
+    poses = len(manifest["plan"]["poses"])
+    assert len(s.f) > 300 * poses  # hundreds of samples per frame (a flat sample gives a few tiles)
+    m = make("microfacet", kd=[0.3, 0.12, 0.06], ks=0.8, alpha=0.25, f0=0.04, distribution="ggx")
+    rel = np.abs(s.f / m.eval(s.wi, s.wo) - 1)
+    assert np.median(rel) < 0.01 and np.percentile(rel, 95) < 0.05
