@@ -193,6 +193,9 @@ class SensorModel:
     dsnu : float
         Dark signal non-uniformity: each pixel's dark current is ``1 + dsnu · z`` (z standard normal,
         clipped at 0) times the mean, a fixed pattern of the sensor (EMVA 1288 §"DSNU").
+    prnu : float
+        Photo response non-uniformity: each pixel's responsivity is ``1 + prnu · z`` (z standard normal, a
+        fixed pattern from its own constant seed) times the mean (EMVA 1288 §"PRNU"); 0: uniform.
     ambient_c, heating_c, thermal_tau : float
         Sensor temperature ``T(t) = ambient + heating · (1 − exp(−t/τ))`` after power-on (first-order
         self-heating of the camera housing, Newton's law of cooling); 0 heating: constant ``ambient``.
@@ -218,6 +221,7 @@ class SensorModel:
     dark_doubling_c: float = 6.5
     dark_ref_c: float = 25.0
     dsnu: float = 0.0
+    prnu: float = 0.0
     ambient_c: float = 25.0
     heating_c: float = 0.0
     thermal_tau: float = 1200.0
@@ -286,6 +290,10 @@ class SimScene:
     #: ``sphere_supersample``² rays per pixel (the pixel's footprint of normals), its shadow on the board
     sphere: object = None
     sphere_supersample: int = 4
+    #: electrons per second per pixel (every channel) of a uniform irradiance over the whole sensor at light
+    #: output 1 — EMVA 1288's set-up (a diffuse, uniform light source; R4.0 §6): the board, sample and light
+    #: position play no part. None: the rendered scene
+    flat_field: float | None = None
 
 
 class SceneLight:
@@ -367,6 +375,7 @@ class SimCamera:
         self._closed = False
         self._t_power = clock.now() if clock is not None else 0.0  #: power-on: the sensor starts at ambient
         self._dsnu: np.ndarray | None = None
+        self._prnu: np.ndarray | None = None
 
     @property
     def scene(self) -> SimScene:
@@ -458,8 +467,27 @@ class SimCamera:
             self._texture = (s.board_black + (s.board_white - s.board_black) * (img / 255.0)).astype(np.float32)
         return self._texture
 
+    def _prnu_pattern(self, shape) -> np.ndarray | None:
+        """Relative responsivity of every pixel (PRNU), a fixed pattern of the sensor drawn from a constant seed;
+        None without PRNU."""
+        if self.sensor.prnu <= 0.0:
+            return None
+        if self._prnu is None or self._prnu.shape != tuple(shape):
+            z = np.random.default_rng(0x9E5A).standard_normal(shape)
+            self._prnu = np.maximum(1.0 + self.sensor.prnu * z, 0.0).astype(np.float32)
+        return self._prnu
+
     def electron_rate(self) -> np.ndarray:
         """Noiseless electrons per second per pixel at light output 1, shape (H, W, 3), float32 (cached)."""
+        flat = self.scene.flat_field
+        if flat is not None:  # a uniform irradiance (SimScene.flat_field), through the sensor's PRNU
+            c = self.calibration
+            if self._rate is None or self._cache_key != ("flat", flat):
+                rate = np.full((c.height, c.width, 3), flat, dtype=np.float32)
+                prnu = self._prnu_pattern((c.height, c.width))
+                self._rate = rate if prnu is None else rate * prnu[..., None]
+                self._cache_key = ("flat", flat)
+            return self._rate
         key = self._pose.R.tobytes() + self._pose.t.tobytes() + self._light_pos.tobytes()
         if key != self._cache_key:
             self._rate = self._render()

@@ -106,13 +106,34 @@ class SimRigConfig:
     #: (:class:`sim.mirror_tile.CalibrationTile`'s other fields: ``f0``, ``diffuse``, ``light_radius``):
     #: the geometric calibration's stage. ``None``: the sample.
     tile: dict | None = None
+    #: The camera as built, which the host does not know (``gonio camera calibrate`` measures it): its principal
+    #: point's offset from the image centre (px) and its lens distortion (OpenCV's k1, k2, p1, p2, k3). The frames
+    #: are rendered through it; :meth:`calibration` (what the host is given) stays the ideal pinhole.
+    principal_offset_px: tuple[float, float] | None = None
+    distortion: tuple[float, ...] | None = None
 
     def to_dict(self) -> dict:
         d = dict(self.__dict__)
-        for k in ("as_built", "tile"):  # a plain rig's manifest stays what it was before these existed
+        # a plain rig's manifest stays what it was before these existed
+        for k in ("as_built", "tile", "principal_offset_px", "distortion"):
             if d[k] is None:
                 del d[k]
         return d
+
+    def true_calibration(self) -> CameraCalibration:
+        """The calibration the frames are rendered with: :meth:`calibration` with the principal point offset and
+        the distortion of the camera as built (the same when neither is set)."""
+        c = self.calibration()
+        if self.principal_offset_px is None and self.distortion is None:
+            return c
+        K = c.K.copy()
+        if self.principal_offset_px is not None:
+            K[0, 2] += float(self.principal_offset_px[0])
+            K[1, 2] += float(self.principal_offset_px[1])
+        dist = np.zeros(5)
+        if self.distortion is not None:
+            dist[:len(self.distortion)] = np.asarray(self.distortion, dtype=np.float64)[:5]
+        return CameraCalibration(K=K, width=c.width, height=c.height, dist=dist, noise=c.noise)
 
     def calibration(self) -> CameraCalibration:
         """The simulated camera's exact calibration (ideal pinhole, no distortion, the sensor's noise
@@ -298,7 +319,7 @@ class SimRig:
             tile = CalibrationTile(rect=self.layout.sample, **cfg.tile)
         scene = SimScene(self.layout, self.material, light_intensity=cfg.light_intensity, tile=tile,
                          sphere=self.layout.sphere)
-        self.sim_camera = SimCamera(self.calibration, self.sensor, scene, seed=cfg.seed, clock=self.clock,
+        self.sim_camera = SimCamera(cfg.true_calibration(), self.sensor, scene, seed=cfg.seed, clock=self.clock,
                                     light_output=self.controller.light_output)
         self.camera = RigCamera(self)
         self._started = False

@@ -19,7 +19,8 @@ from gonio.session.options import DEFAULT_SIM_RESOLUTION
 
 
 def register(sub) -> None:
-    p = sub.add_parser("camera", help="inspect a camera, capture a raw frame, calibrate an 8-bit response",
+    p = sub.add_parser("camera", help="inspect a camera, capture a raw frame, calibrate an 8-bit response, "
+                                      "calibrate intrinsics, measure noise (EMVA 1288)",
                        description="Lab-bench tools for the camera (OpenCV VideoCapture; --sim: the rendering "
                                    "camera).")
     csub = p.add_subparsers(dest="camera_command", metavar="ACTION", required=True)
@@ -62,6 +63,9 @@ def register(sub) -> None:
     r.add_argument("--samples", type=int, default=100, help="pixels sampled by the Debevec solver")
     r.add_argument("-o", "--output", required=True, metavar="RESPONSE.npz")
     r.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    from gonio.cli.camera_char import register_actions
+
+    register_actions(csub, common)  # calibrate, noise: the first day in the lab
 
 
 def _open(args):

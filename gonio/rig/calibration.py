@@ -56,7 +56,11 @@ BACKENDS = {"any": 0, "v4l2": 200, "gstreamer": 1800, "ffmpeg": 1900, "aravis": 
 LINEARIZED_BIT_DEPTH = 16
 #: Lens aperture (for the detector solid angle, gonio.session.detector): a diameter, or f-number + focal length.
 _LENS_KEYS = {"aperture_diameter_m", "f_number", "focal_length_m"}
-_TOP_KEYS = {"width", "height", "focal_px", "K", "dist", "noise", "camera", "radiometric_scale"} | _LENS_KEYS
+#: What `gonio camera calibrate` / `gonio camera noise` measured (informational records: the intrinsics' σ,
+#: residuals and coverage; EMVA 1288's dark current, DSNU, PRNU, linearity): numbers, strings, lists of them.
+_RECORD_TABLES = ("intrinsics", "emva1288")
+_TOP_KEYS = {"width", "height", "focal_px", "K", "dist", "noise", "camera", "radiometric_scale",
+             *_RECORD_TABLES} | _LENS_KEYS
 _NOISE_KEYS = {"dn_per_electron", "read_noise_e", "full_well_e"}
 _CAMERA_KEYS = {"linear", "bit_depth", "black_level", "response", "trigger", "exposure_unit", "backend",
                 "pixel_format", "gain_unit"}
@@ -336,6 +340,18 @@ class CameraDescription:
     lens: Mapping[str, float] = field(default_factory=dict)
     #: the noise-model fields every σ rests on that the file did not give (gonio's defaults stand in for them)
     noise_defaults: tuple[str, ...] = ()
+    #: ``[intrinsics]`` and ``[emva1288]`` as measured (``gonio camera calibrate`` / ``noise``), if given
+    records: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+
+    @property
+    def intrinsics_sigma(self) -> dict | None:
+        """Standard uncertainties of ``fx, fy, cx, cy`` (px) and ``dist`` (list) as `gonio camera calibrate`
+        measured them (``[intrinsics]``), or None for a description typed by hand."""
+        rec = self.records.get("intrinsics") or {}
+        keys = ("sigma_fx", "sigma_fy", "sigma_cx", "sigma_cy")
+        if not all(k in rec for k in keys):
+            return None
+        return {k[6:]: float(rec[k]) for k in keys} | {"dist": list(rec.get("sigma_dist", []))}
 
     def to_dict(self) -> dict:
         c = self.calibration
@@ -343,6 +359,7 @@ class CameraDescription:
              "noise": dict(c.noise.__dict__), "camera": self.camera.to_dict(), **dict(self.lens)}
         if c.radiometric_scale is not None:
             d["radiometric_scale"] = list(c.radiometric_scale)
+        d.update({k: dict(v) for k, v in self.records.items()})
         return d
 
     @classmethod
@@ -357,7 +374,7 @@ class CameraDescription:
         except KeyError as exc:
             raise ConfigError.field(source, f"calibration.{exc.args[0]}", None, "missing") from None
         return cls(calibration=calib, camera=CameraSettings.from_dict(d.get("camera", {}), source), source=source,
-                   lens=_lens_fields(d, source))
+                   lens=_lens_fields(d, source), records=_records(d, source))
 
 
 def _lens_fields(d, source: str | None) -> dict:
@@ -370,6 +387,28 @@ def _lens_fields(d, source: str | None) -> dict:
         missing = "f_number" if "f_number" not in lens else "focal_length_m"
         raise ConfigError.field(source, missing, None, "missing (f_number and focal_length_m go together)")
     return {k: float(v) for k, v in lens.items()}
+
+
+def _records(d, source: str | None) -> dict:
+    """The ``[intrinsics]`` / ``[emva1288]`` tables present in ``d``: tables of numbers, strings, booleans and
+    lists of them (nothing else: they are records, read by people and by the uncertainty budget)."""
+    def ok(v) -> bool:
+        if isinstance(v, (list, tuple)):
+            return len(v) <= 64 and all(ok(x) for x in v)
+        return isinstance(v, (str, bool)) or _is_number(v)
+
+    out = {}
+    for name in _RECORD_TABLES:
+        if name not in d:
+            continue
+        table = d[name]
+        if not isinstance(table, Mapping):
+            raise ConfigError.field(source, name, table, "must be a table")
+        for k, v in table.items():
+            if not ok(v):
+                raise ConfigError.field(source, f"{name}.{k}", v, "must be a number, string or a list of them")
+        out[name] = dict(table)
+    return out
 
 
 def _noise_fields(d, source: str | None) -> dict:
@@ -457,7 +496,7 @@ def load_camera_calibration(path, *, for_session: bool = True) -> CameraDescript
     if for_session:
         settings.check_session(src)
     return CameraDescription(calibration=calib, camera=settings, source=src, lens=_lens_fields(data, src),
-                             noise_defaults=noise_defaults)
+                             noise_defaults=noise_defaults, records=_records(data, src))
 
 
 class LinearizedCamera:

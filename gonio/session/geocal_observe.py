@@ -16,7 +16,7 @@ import numpy as np
 
 from gonio.rig.geocal import CameraObservation, HighlightObservation, rotvec
 
-__all__ = ["board_observation", "observe_pose", "calibration_layout", "BOARD_EXPOSURE", "TILE"]
+__all__ = ["board_observation", "observe_pose", "metered_board_frame", "calibration_layout", "BOARD_EXPOSURE", "TILE"]
 
 #: First exposure (s) of the board frame (then metered: one retake if its 99th percentile is outside 30–85 %
 #: of the range).
@@ -48,6 +48,18 @@ def board_observation(board_pose, joints) -> CameraObservation:
     return CameraObservation(np.asarray(joints, dtype=np.float64), pose.centre, pose.R, cov)
 
 
+def metered_board_frame(camera, exposure: float = BOARD_EXPOSURE, gain: float = 1.0, min_exposure: float = 1e-5):
+    """A frame of the board at ``exposure``, retaken once at a metered exposure if its 99th percentile is outside
+    30–85 % of the range (the board's bright squares brought to ~60 %)."""
+    f = camera.capture(exposure, gain)
+    p99 = float(np.percentile(np.asarray(f.pixels)[::2, ::2], 99.0)) - f.black_level
+    full = (1 << f.bit_depth) - 1 - f.black_level
+    if not 0.3 * full <= p99 <= 0.85 * full:
+        t = float(np.clip(exposure * 0.6 * full / max(p99, 1.0), min_exposure, 0.25))
+        f = camera.capture(t, gain)
+    return f
+
+
 def observe_pose(camera, calibration, layout, joints, *, highlight: bool, tile=None, board_exposure: float = BOARD_EXPOSURE,
                  gain: float = 1.0, bit_depth: int | None = None, min_exposure: float = 1e-5):
     """``(CameraObservation | None, HighlightObservation | None, reason)`` at the rig's current pose
@@ -56,12 +68,7 @@ def observe_pose(camera, calibration, layout, joints, *, highlight: bool, tile=N
     from gonio.pipeline.highlight import clear_of_edges, find_highlight
     from gonio.pipeline.markers import detect_board_pose, to_gray8
 
-    f = camera.capture(board_exposure, gain)
-    p99 = float(np.percentile(np.asarray(f.pixels)[::2, ::2], 99.0)) - f.black_level
-    full = (1 << f.bit_depth) - 1 - f.black_level
-    if not 0.3 * full <= p99 <= 0.85 * full:  # meter: bring the board's bright squares to ~60 % of the range
-        t = float(np.clip(board_exposure * 0.6 * full / max(p99, 1.0), min_exposure, 0.25))
-        f = camera.capture(t, gain)
+    f = metered_board_frame(camera, board_exposure, gain, min_exposure)
     bp = detect_board_pose(to_gray8(f.pixels, bit_depth or f.bit_depth, f.black_level), calibration, layout.charuco)
     if bp is None:
         return None, None, "ChArUco board not found"
