@@ -109,7 +109,7 @@ def test_guards_nothing_changes_without_the_e_stop_checked_or_a_confirmation(cap
         assert setup(emu, "--set-id", "3", "--yes") == 2  # mounted: needs the controller (or --unmounted)
         assert "--controller-port" in one_line(capsys) and emu.bytes_in == 0
         ctl.set_estop(True)
-        assert setup(emu, "--set-id", "3", "--yes", "--controller-port", ctl.path) == 3
+        assert setup(emu, "--set-id", "3", "--yes", "--controller-port", ctl.path) == 7  # a safety stop
         assert "E-stop" in one_line(capsys) and emu.bytes_in == 0
         ctl.set_estop(False)
         assert setup(emu, "--set-id", "3", "--controller-port", ctl.path) == 2  # stdin is no terminal: --yes
