@@ -3,7 +3,9 @@ coverage of the sampled directions, residuals after a fit. PNG through matplotli
 (headless; no pyplot, no global backend state). matplotlib is the optional extra ``plots`` and is
 imported inside the functions only.
 
-Every function returns a :class:`matplotlib.figure.Figure`; :func:`save` writes it.
+Every function returns a :class:`matplotlib.figure.Figure`; :func:`save` writes it. A ``title`` (a file
+or directory name, usually) is drawn as written: never parsed as mathtext (a ``$`` in a name is a dollar
+sign, not a formula that fails to draw); in an SVG, matplotlib's writer escapes it (XML text and comments).
 """
 
 from __future__ import annotations
@@ -81,6 +83,19 @@ def _relative_azimuth(samples: SampleSet) -> np.ndarray:
     return np.mod(po - pi_, 2 * np.pi)
 
 
+def in_plane(samples: SampleSet, theta_i_deg: float | None = None, tol_deg: float = 2.5):
+    """``(mask, signed θo in degrees)`` of the samples in the plane of incidence: φo − φi within
+    ``tol_deg`` of 0 or 180° (or θo within ``tol_deg`` of the normal, where φo means nothing) and, with
+    ``theta_i_deg``, θi within ``tol_deg`` of it. θo is positive on the specular side (φo − φi = 180°),
+    as in :func:`inplane_dirs`."""
+    ti, _, to, _ = samples.angles()
+    dphi = _relative_azimuth(samples)
+    mask = (np.abs(np.sin(dphi)) <= np.sin(np.radians(tol_deg))) | (to < np.radians(tol_deg))
+    if theta_i_deg is not None:
+        mask &= np.abs(np.degrees(ti) - theta_i_deg) <= tol_deg
+    return mask, np.degrees(to) * np.where(np.cos(dphi) < 0, 1.0, -1.0)
+
+
 def polar_slice(*, samples: SampleSet | None = None, table=None, theta_i_deg: float | None = None,
                 tol_deg: float = 2.5, title: str = ""):
     """2-D slice of the BRDF at fixed incidence (like the lecture notes' "PVC BRDF at 55° incidence",
@@ -105,12 +120,13 @@ def polar_slice(*, samples: SampleSet | None = None, table=None, theta_i_deg: fl
     else:
         raise ValueError("polar_slice needs samples or a table")
     _polar_axis_style(ax)
-    ax.set_title(f"{title + ': ' if title else ''}BRDF at {ti:.1f}° incidence (radius θo, angle φo − φi)")
+    ax.set_title(f"{title + ': ' if title else ''}BRDF at {ti:.1f}° incidence (radius θo, angle φo − φi)",
+                 parse_math=False)
     fig.colorbar(art, ax=ax, label="log10 BRDF (1/sr), mean of R,G,B", shrink=0.8)
     return fig
 
 
-def _inplane_dirs(theta_i_deg: float, signed_theta_o_deg: np.ndarray):
+def inplane_dirs(theta_i_deg: float, signed_theta_o_deg: np.ndarray):
     """wi at (θi, φ=0); wo in the incidence plane, positive θo on the specular side (φo = π)."""
     t = np.radians(signed_theta_o_deg)
     wo = from_spherical(np.abs(t), np.where(t >= 0, np.pi, 0.0))
@@ -125,23 +141,20 @@ def inplane(*, samples: SampleSet | None = None, table=None, model=None, theta_i
     ax = fig.add_subplot()
     if samples is not None:
         mask = _incidence(samples, theta_i_deg, tol_deg, title or "in-plane plot")
-        dphi = _relative_azimuth(samples)
-        to = samples.angles()[2]
-        in_plane = mask & ((np.abs(np.sin(dphi)) <= np.sin(np.radians(tol_deg))) | (to < np.radians(tol_deg)))
-        if not in_plane.any():
+        plane, signed = in_plane(samples, None, tol_deg)
+        if not (mask & plane).any():
             raise DataError(f"{title or 'in-plane plot'}: no samples in the plane of incidence "
                             f"(within {tol_deg:g} deg)")
-        s = samples.subset(in_plane)
+        s, x = samples.subset(mask & plane), signed[mask & plane]
         if theta_i_deg is None:
             theta_i_deg = float(np.round(np.degrees(np.median(s.angles()[0]))))
-        x = np.degrees(s.angles()[2]) * np.where(np.cos(_relative_azimuth(s)) < 0, 1.0, -1.0)
         order = np.argsort(x)
         for c, colour in enumerate(_RGB):
             ax.errorbar(x[order], s.f[order, c], yerr=s.sigma[order, c], fmt="o", ms=3, color=colour,
                         capsize=2, label=f"measured {'RGB'[c]}")
     theta_i_deg = 45.0 if theta_i_deg is None else theta_i_deg
     grid = np.linspace(-89, 89, 357)
-    wi, wo = _inplane_dirs(theta_i_deg, grid)
+    wi, wo = inplane_dirs(theta_i_deg, grid)
     if table is not None:
         v = table.lookup(wi, wo, "trilinear")
         if log:
@@ -159,7 +172,7 @@ def inplane(*, samples: SampleSet | None = None, table=None, model=None, theta_i
     ax.set_ylabel("BRDF (1/sr)")
     ax.set_xlim(-90, 90)
     ax.axvline(theta_i_deg, color="0.6", lw=0.8, ls=":")
-    ax.set_title(f"{title + ': ' if title else ''}plane of incidence, θi = {theta_i_deg:.1f}°")
+    ax.set_title(f"{title + ': ' if title else ''}plane of incidence, θi = {theta_i_deg:.1f}°", parse_math=False)
     ax.legend(fontsize=7, ncol=3)
     return fig
 
@@ -195,7 +208,7 @@ def coverage(*, samples: SampleSet | None = None, table=None, title: str = ""):
     else:
         raise ValueError("coverage needs samples or a table")
     if title:
-        fig.suptitle(title)
+        fig.suptitle(title, parse_math=False)
     return fig
 
 
@@ -217,7 +230,7 @@ def residual(*, samples: SampleSet, model, title: str = ""):
     ax.set_xlabel("θd (deg)")
     ax.set_ylabel("θh (deg)")
     rms = float(np.sqrt(np.mean(r[ok] ** 2)))
-    ax.set_title(f"residuals of {model.name}: RMS {rms:.3g} σ over {int(ok.sum())} samples")
+    ax.set_title(f"residuals of {model.name}: RMS {rms:.3g} σ over {int(ok.sum())} samples", parse_math=False)
     ax = fig.add_subplot(1, 2, 2)
     ax.hist(np.clip(r[ok], -4 * lim, 4 * lim), bins=60, density=True, color="0.5")
     x = np.linspace(-4 * lim, 4 * lim, 200)
@@ -226,5 +239,5 @@ def residual(*, samples: SampleSet, model, title: str = ""):
     ax.set_ylabel("probability density")
     ax.legend()
     if title:
-        fig.suptitle(title)
+        fig.suptitle(title, parse_math=False)
     return fig

@@ -9,14 +9,16 @@ uncertainties and the notes of the fit (parameters on a bound, not identified), 
 (:mod:`gonio.render`): the measured data and each model under the same lights, side by side, with a
 relative-error image. Several inputs give one comparison page.
 
-Figures are Plotly (https://plotly.com/python/), whose JavaScript is embedded once in the page, so the
-file opens without a network; sphere images are embedded PNGs. ``pip install 'gonio[report]'``.
+Figures are Plotly (https://plotly.com/python/, :mod:`gonio.report_figures`), whose JavaScript is
+embedded once in the page, so the file opens without a network; sphere images are embedded PNGs.
+``pip install 'gonio[report]'``. Every string from an input (names, manifest fields, notes, a fit JSON's
+labels, error messages) is escaped where it lands, and the page states a Content-Security-Policy that lets
+only its own scripts run (:mod:`gonio.page`).
 """
 
 from __future__ import annotations
 
 import base64
-import html
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,28 +27,21 @@ from typing import Sequence
 import numpy as np
 
 from gonio.errors import ConfigError
-from gonio.geometry import from_spherical
+from gonio.page import Page, text
 from gonio.render import png_bytes, white_point
+from gonio.report_figures import (coverage_figure, model_styles, plotly, residual_figure, slice_angles,
+                                  slice_figure)
 
-__all__ = ["Entry", "load_entries", "build_report", "sphere_panel", "slice_figure", "fit_table", "comparison_table",
-           "LIGHT_ANGLES_DEG"]
+__all__ = ["Entry", "load_entries", "build_report", "report_page", "sphere_panel", "slice_figure", "fit_table",
+           "comparison_table", "LIGHT_ANGLES_DEG", "SPHERE_SIZE"]
 
 #: Light polar angles (degrees from the view axis) of the sphere panels.
 LIGHT_ANGLES_DEG = (0.0, 35.0, 70.0)
 #: On-the-fly fits use at most this many samples (a random subset, seed 0): a preview in seconds, not
 #: minutes, for a full MERL table (1.46 M cells); ``gonio fit`` + ``--model FIT.json`` fits them all.
 MAX_PREVIEW_FIT_SAMPLES = 20000
-#: Incidence angles of the slices (degrees), for tables and for samples (nearest measured).
-SLICE_THETA_I_DEG = (15.0, 30.0, 45.0, 60.0)
-
-
-def _plotly():
-    try:
-        import plotly.graph_objects as go
-        import plotly.offline
-    except ImportError:
-        raise ConfigError("the report and the viewer need Plotly: pip install 'gonio[report]'") from None
-    return go, plotly.offline
+#: Side of the rendered spheres (pixels), in the report and the viewer.
+SPHERE_SIZE = 256
 
 
 @dataclass
@@ -144,99 +139,11 @@ def preview_samples(data, notes: list | None = None, limit: int = MAX_PREVIEW_FI
     return samples.subset(index)
 
 
-# -- figures ------------------------------------------------------------------------------------------
-def _inplane(theta_i_deg: float, n: int = 179):
-    t = np.linspace(-89.0, 89.0, n)
-    wo = from_spherical(np.radians(np.abs(t)), np.where(t >= 0, np.pi, 0.0))
-    wi = np.broadcast_to(from_spherical(np.radians(theta_i_deg), 0.0), wo.shape)
-    return t, wi, wo
-
-
-def _nearest_incidences(samples, k: int = 4) -> list[float]:
-    ti = np.round(np.degrees(samples.angles()[0]))
-    vals, counts = np.unique(ti, return_counts=True)
-    chosen: list[float] = []
-    for v in vals[np.argsort(-counts, kind="stable")]:  # most measured first, at least 5° apart
-        if all(abs(v - c) >= 5.0 for c in chosen):
-            chosen.append(float(v))
-        if len(chosen) == k:
-            break
-    return sorted(chosen)
-
-
-def slice_figure(entry: Entry, theta_i_deg: float, tol_deg: float = 2.5):
-    """The BRDF in the plane of incidence at θi: measured samples (±1σ), table, models; log scale."""
-    go, _ = _plotly()
-    fig = go.Figure()
-    colours = ("#d62728", "#2ca02c", "#1f77b4")
-    data = entry.data
-    if data.samples is not None and len(data.samples):
-        s = data.samples
-        ti, pi_, to, po = s.angles()
-        dphi = np.mod(po - pi_, 2 * np.pi)
-        sel = (np.abs(np.degrees(ti) - theta_i_deg) <= tol_deg) & (
-            (np.abs(np.sin(dphi)) <= np.sin(np.radians(tol_deg))) | (to < np.radians(tol_deg)))
-        x = np.degrees(to[sel]) * np.where(np.cos(dphi[sel]) < 0, 1.0, -1.0)
-        for c, name in enumerate("RGB"):
-            fig.add_trace(go.Scatter(x=x, y=s.f[sel, c], mode="markers", name=f"measured {name}",
-                                     marker=dict(color=colours[c], size=5),
-                                     error_y=dict(type="data", array=s.sigma[sel, c], visible=True)))
-    t, wi, wo = _inplane(theta_i_deg)
-    if data.table is not None:
-        v = data.table.lookup(wi, wo)
-        for c, name in enumerate("RGB"):
-            fig.add_trace(go.Scatter(x=t, y=v[:, c], mode="lines", name=f"table {name}",
-                                     line=dict(color=colours[c], width=1)))
-    for label, (model, _rep) in entry.fits.items():
-        v = model.eval(wi, wo)
-        for c, name in enumerate("RGB"):
-            fig.add_trace(go.Scatter(x=t, y=v[:, c], mode="lines", name=f"{label} {name}",
-                                     line=dict(color=colours[c], dash="dash")))
-    fig.update_layout(title=f"{entry.name}: plane of incidence, θi = {theta_i_deg:g}°", height=360,
-                      xaxis_title="θo (deg), positive on the specular side", yaxis_title="BRDF (1/sr)",
-                      yaxis_type="log", margin=dict(l=60, r=20, t=50, b=50))
-    return fig
-
-
-def coverage_figure(entry: Entry):
-    go, _ = _plotly()
-    s = entry.data.samples
-    fig = go.Figure()
-    if s is None or not len(s):
-        fig.update_layout(title=f"{entry.name}: a table (no samples to map)", height=300)
-        return fig
-    ti, pi_, to, po = s.angles()
-    fig.add_trace(go.Scatterpolar(r=np.degrees(ti), theta=np.degrees(pi_), mode="markers", name="wi (light)",
-                                  marker=dict(size=4, color="#ff7f0e")))
-    fig.add_trace(go.Scatterpolar(r=np.degrees(to), theta=np.degrees(po), mode="markers", name="wo (camera)",
-                                  marker=dict(size=4, color="#1f77b4")))
-    fig.update_layout(title=f"{entry.name}: {len(s)} samples (radius θ, angle φ, degrees)", height=380,
-                      polar=dict(radialaxis=dict(range=[0, 90], tickvals=[30, 60, 90])))
-    return fig
-
-
-def residual_figure(entry: Entry):
-    go, _ = _plotly()
-    s = entry.data.samples
-    fig = go.Figure()
-    if s is None or not len(s) or not entry.fits:
-        fig.update_layout(title=f"{entry.name}: no residuals (no samples or no model)", height=300)
-        return fig
-    for label, (model, _rep) in entry.fits.items():
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r = np.where(s.sigma > 0, (s.f - model.eval(s.wi, s.wo)) / s.sigma, np.nan).mean(axis=1)
-        r = r[np.isfinite(r)]
-        fig.add_trace(go.Histogram(x=np.clip(r, -20, 20), name=label, opacity=0.6, nbinsx=60, histnorm="probability density"))
-    fig.update_layout(title=f"{entry.name}: residuals (f − model)/σ, mean of R, G, B", barmode="overlay", height=320,
-                      xaxis_title="(f − model) / σ", yaxis_title="probability density")
-    return fig
-
-
 def _png(img: np.ndarray, mask: np.ndarray | None = None) -> str:
     return "data:image/png;base64," + base64.b64encode(png_bytes(img, mask)).decode("ascii")
 
 
-def sphere_images(brdf, theta_deg: float, phi_deg: float = 0.0, *, size: int = 96, white=None):
+def sphere_images(brdf, theta_deg: float, phi_deg: float = 0.0, *, size: int = SPHERE_SIZE, white=None):
     """(radiance, 8-bit image) of ``brdf`` on a sphere lit from (θ, φ) (degrees)."""
     from gonio.render import light_from_angles, render_sphere, tonemap
 
@@ -271,7 +178,7 @@ def sphere_sources(entry: Entry) -> list[tuple[str, object]]:
         [(label, model) for label, (model, _rep) in entry.fits.items()]
 
 
-def sphere_panel(entry: Entry, *, size: int = 96) -> str:
+def sphere_panel(entry: Entry, *, size: int = SPHERE_SIZE) -> str:
     """HTML table: one row per light angle; the measured data, each model, and |model − data| / data."""
     data = entry.data
     measured = data if renders_measured(data) else None
@@ -288,27 +195,29 @@ def sphere_panel(entry: Entry, *, size: int = 96) -> str:
                 cells.append(f'<img class="sphere" alt="measured, light at {theta:g} deg" src="{_png(img, r.mask)}">'
                              + (f"<br><small>{r.missing} px not measured</small>" if r.missing else ""))
             except Exception as exc:  # noqa: BLE001 - e.g. anisotropic samples that do not tabulate
-                cells.append(f"<small>{html.escape(str(exc))[:120]}</small>")
+                cells.append(f"<small>cannot render the measured data: {text(str(exc)[:200])}</small>")
                 ref = white = None
         errs = []
         for label, (model, _rep) in entry.fits.items():
             rad, img, rm = sphere_images(model, theta, size=size, white=white)
-            cells.append(f'<img class="sphere" alt="{html.escape(label)}, light at {theta:g} deg" src="{_png(img, rm.mask)}">')
+            cells.append(f'<img class="sphere" alt="{text(label)}, light at {theta:g} deg" src="{_png(img, rm.mask)}">')
             if ref is not None:
                 with np.errstate(divide="ignore", invalid="ignore"):
                     rel = np.where(ref > 0, np.abs(rad - ref) / ref, 0.0).mean(axis=-1)
                 err_img = error_image(rel)
-                errs.append(f'<img class="sphere" alt="error of {html.escape(label)}" src="{_png(err_img, rm.mask)}"><br>'
-                            f"<small>median {100 * float(np.median(rel[ref.sum(-1) > 0])) if np.any(ref.sum(-1) > 0) else 0:.1f} %</small>")
+                lit = ref.sum(-1) > 0
+                errs.append(f'<img class="sphere" alt="error of {text(label)}" src="{_png(err_img, rm.mask)}"><br>'
+                            f"<small>median {100 * float(np.median(rel[lit])) if np.any(lit) else 0:.1f} %</small>")
         cells += errs
         rows.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
     sparse = "" if measured is not None else (
         f"<p class='sparse'>{len(data.samples) if data.samples is not None else 0} samples are too few to render the "
         f"measured data on a sphere (more than {MIN_SAMPLES_FOR_SPHERE} needed: most pixels would have no "
         "measurement); the fitted models are shown.</p>")
-    return (sparse + '<table class="spheres"><tr>' + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"
-            + "".join(rows) + "</table><p><small>Error images: |model − measured| / measured, mean of R, G, B; colour map "
-            f"inferno: black 0 %, yellow {100 * ERROR_SCALE:g} % or more.</small></p>")
+    caption = ("<p><small>Error images: |model − measured| / measured, mean of R, G, B; colour map inferno: black "
+               f"0 %, yellow {100 * ERROR_SCALE:g} % or more.</small></p>") if measured is not None and entry.fits else ""
+    return (sparse + '<table class="spheres"><tr>' + "".join(f"<th>{text(h)}</th>" for h in head) + "</tr>"
+            + "".join(rows) + "</table>" + caption)
 
 
 def _bounds(model) -> dict:
@@ -342,13 +251,13 @@ def fit_table(entry: Entry) -> str:
                     flag = "on a bound" if _on_bound(v, *b) else ""
                 except (TypeError, ValueError):
                     flag = ""
-            lines.append(f"<tr><td>{html.escape(k)}</td><td>{html.escape(_fmt(v))}</td>"
-                         f"<td>{html.escape(_fmt(unc.get(k)))}</td>"
-                         f"<td>{html.escape('[' + _fmt(float(b[0])) + ', ' + _fmt(float(b[1])) + ']') if b else '–'}</td>"
+            lines.append(f"<tr><td>{text(k)}</td><td>{text(_fmt(v))}</td>"
+                         f"<td>{text(_fmt(unc.get(k)))}</td>"
+                         f"<td>{text('[' + _fmt(float(b[0])) + ', ' + _fmt(float(b[1])) + ']') if b else '–'}</td>"
                          f"<td class='flag'>{flag}</td></tr>")
-        notes = "".join(f"<li>{html.escape(str(n))}</li>" for n in rep.get("notes") or [])
-        rows.append(f"<h4>{html.escape(label)}</h4><p>relative RMS error {_fmt(err.get('rms_rel'))}, "
-                    f"χ²/dof {_fmt(err.get('chi2_red'))}</p><table class='params'><tr><th>parameter</th><th>value</th>"
+        notes = "".join(f"<li>{text(str(n))}</li>" for n in rep.get("notes") or [])
+        rows.append(f"<h4>{text(label)}</h4><p>relative RMS error {text(_fmt(err.get('rms_rel')))}, "
+                    f"χ²/dof {text(_fmt(err.get('chi2_red')))}</p><table class='params'><tr><th>parameter</th><th>value</th>"
                     f"<th>standard uncertainty</th><th>bounds</th><th></th></tr>{''.join(lines)}</table>"
                     + (f"<ul>{notes}</ul>" if notes else ""))
     return "".join(rows) or "<p>No model fitted.</p>"
@@ -360,8 +269,8 @@ def comparison_table(entries: Sequence[Entry]) -> str:
     for k, e in enumerate(entries):
         for label, (_model, rep) in e.fits.items() or [("–", (None, {}))]:
             err = rep.get("error") or {}
-            rows.append(f"<tr><td><a href='#entry-{k}'>{html.escape(e.name)}</a></td><td>{html.escape(str(e.data.kind))}</td>"
-                        f"<td>{html.escape(label)}</td><td>{_fmt(err.get('rms_rel'))}</td><td>{_fmt(err.get('chi2_red'))}</td></tr>")
+            rows.append(f"<tr><td><a href='#entry-{k}'>{text(e.name)}</a></td><td>{text(str(e.data.kind))}</td>"
+                        f"<td>{text(label)}</td><td>{text(_fmt(err.get('rms_rel')))}</td><td>{text(_fmt(err.get('chi2_red')))}</td></tr>")
     return ("<table class='comparison'><tr><th>input</th><th>kind</th><th>model</th><th>relative RMS error</th>"
             "<th>χ²/dof</th></tr>" + "".join(rows) + "</table>")
 
@@ -393,36 +302,58 @@ def summary_html(entry: Entry) -> str:
                   ("plan", f"{plan.get('generator', '–')}, {plan.get('n_poses', '–')} poses"),
                   ("lab time", f"{lab:.0f} s" if runs else "–"), ("exit status", str(m.get("exit_status")))]
     items += [("note", n) for n in entry.notes]
-    return "<table class='summary'>" + "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}</td></tr>"
+    return "<table class='summary'>" + "".join(f"<tr><th>{text(k)}</th><td>{text(str(v))}</td></tr>"
                                                for k, v in items) + "</table>"
-
-
-def slice_angles(entry: Entry) -> list[float]:
-    s = entry.data.samples
-    return _nearest_incidences(s) if s is not None and len(s) else list(SLICE_THETA_I_DEG)
 
 
 STYLE = """body{font-family:sans-serif;margin:1.5em;max-width:1400px}h2{border-bottom:1px solid #ccc}
 table{border-collapse:collapse}td,th{padding:3px 8px;text-align:left;vertical-align:top}
-table.spheres img.sphere{width:128px;height:128px;image-rendering:pixelated;background:#000}
-.figure{display:inline-block;width:48%;min-width:420px}"""
+img.sphere,img.live{width:256px;height:256px;background:#000}
+.figure{display:inline-block;width:48%;min-width:420px}.figure.wide{display:block;width:100%}
+.no-slice{color:#a00}section.live{border:1px solid #ccc;border-radius:6px;padding:0 1em 1em;margin-bottom:2em}
+section.live figure{display:inline-block;margin:0 1em 0 0}section.live .slider{display:inline-block;margin-right:2em}
+section.live input[type=range]{width:260px;vertical-align:middle}.live-slice{height:360px}
+.live-error{color:#a00}"""
+
+#: The one script that draws every figure of a page from its JSON data block (``script.plotly-figure``,
+#: ``data-target`` the element to draw in): fixed code, so its hash in the page's policy never changes.
+DRAW_FIGURES_JS = ("document.querySelectorAll('script.plotly-figure').forEach(function (s) {"
+                   "var f = JSON.parse(s.textContent);"
+                   "Plotly.newPlot(s.dataset.target, f.data, f.layout, {responsive: true, displaylogo: false});});")
 
 
-def build_report(entries: Sequence[Entry], *, title: str = "gonio report", extra_html: str = "") -> str:
-    """The whole page as one HTML string (Plotly's JavaScript inlined: no network needed)."""
-    go, offline = _plotly()
-    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
-             f"<style>{STYLE}</style><script type='text/javascript'>{offline.get_plotlyjs()}</script></head><body>",
-             f"<h1>{html.escape(title)}</h1>"]
+def _figure(page: Page, div_id: str, fig, css: str = "figure") -> None:
+    page.add(f"<div class='{css}' id='fig-{div_id}'><div id='plot-{div_id}'></div></div>")
+    page.data(f"data-{div_id}", fig, css_class="plotly-figure", data_target=f"plot-{div_id}")
+
+
+def report_page(entries: Sequence[Entry], *, title: str = "gonio report", lead_html: str = "",
+                same_origin: bool = False) -> Page:
+    """The report as a :class:`gonio.page.Page` (Plotly's JavaScript inlined: no network needed);
+    ``lead_html`` (escaped markup) comes first, under the title — the viewer's controls;
+    ``same_origin``: the page may load images and data from its own server (the viewer)."""
+    offline = plotly()
+    page = Page(title, STYLE, same_origin=same_origin).script(offline.get_plotlyjs(), head=True)
+    page.add(f"<h1>{text(title)}</h1>{lead_html}")
+    styles = model_styles(entries)
     if len(entries) > 1:
-        parts.append(f"<h2>Comparison</h2>{comparison_table(entries)}")
+        page.add(f"<h2>Comparison</h2>{comparison_table(entries)}")
     for k, e in enumerate(entries):
-        figs = [coverage_figure(e), *(slice_figure(e, t) for t in slice_angles(e)), residual_figure(e)]
-        parts.append(f"<section class='entry' id='entry-{k}'><h2>{html.escape(e.name)}</h2>{summary_html(e)}")
-        parts.append("<h3>Coverage, slices and residuals</h3>")
-        for j, fig in enumerate(figs):
-            parts.append(f"<div class='figure' id='fig-{k}-{j}'>"
-                         + fig.to_html(full_html=False, include_plotlyjs=False, div_id=f"plot-{k}-{j}") + "</div>")
-        parts.append(f"<h3>Fitted models</h3>{fit_table(e)}<h3>Rendered spheres</h3>{sphere_panel(e)}</section>")
-    parts.append(extra_html + "</body></html>")
-    return "".join(parts)
+        page.add(f"<section class='entry' id='entry-{k}'><h2>{text(e.name)}</h2>{summary_html(e)}"
+                 "<h3>Coverage and residuals</h3>")
+        _figure(page, f"{k}-0", coverage_figure(e))
+        _figure(page, f"{k}-1", residual_figure(e, styles))
+        angles = slice_angles(e)
+        page.add("<h3>Slices in the plane of incidence</h3>")
+        if not angles:
+            page.add("<p class='no-slice'>No measured samples lie in a plane of incidence (within ±2.5°): no "
+                     "slice to draw; the coverage map shows where the samples are.</p>")
+        for j, t in enumerate(angles):
+            _figure(page, f"{k}-{j + 2}", slice_figure(e, t, styles=styles), "figure wide")
+        page.add(f"<h3>Fitted models</h3>{fit_table(e)}<h3>Rendered spheres</h3>{sphere_panel(e)}</section>")
+    return page.script(DRAW_FIGURES_JS)
+
+
+def build_report(entries: Sequence[Entry], *, title: str = "gonio report") -> str:
+    """The whole page as one HTML string (:func:`report_page`)."""
+    return report_page(entries, title=title).render()

@@ -1,5 +1,5 @@
-"""``gonio report DIR|FILE… -o REPORT.html`` and ``gonio view DIR|FILE…``: a material on one page
-(:mod:`gonio.report`, :mod:`gonio.viewer`)."""
+"""``gonio report DIR|FILE… -o REPORT.html``: a material on one page (:mod:`gonio.report`); ``gonio view``
+(:mod:`gonio.cli.view`) shares its options."""
 
 from __future__ import annotations
 
@@ -20,16 +20,13 @@ def register(sub) -> None:
     r.add_argument("-o", "--output", required=True, metavar="REPORT.html")
     r.add_argument("--force", action="store_true", help="overwrite an existing output file")
     r.set_defaults(func=run_report)
-    v = sub.add_parser("view", help="the report, interactive, in the browser (served on 127.0.0.1)",
-                       description="Serve the report with sliders for the light direction and the incidence angle "
-                                   "on 127.0.0.1; Ctrl-C stops it. Reads only: nothing is written.")
-    _common(v)
-    v.add_argument("--port", type=int, default=0, help="port (default: a free one)")
-    v.add_argument("--no-browser", action="store_true", help="do not open the default browser")
-    v.set_defaults(func=run_view)
+    from gonio.cli import view
+
+    view.register(sub, _common)
 
 
-def _entries(args):
+def entries(args):
+    """The report's entries from the shared options (sources, --model, --fit, --max-theta)."""
     from gonio.errors import ConfigError
     from gonio.report import load_entries
 
@@ -53,7 +50,7 @@ def run_report(args) -> int:
 
     out = check_output(args.output, option="-o", force=args.force, suffixes=(".html", ".htm"),
                        inputs=[*args.source, *(args.model or [])])
-    page = build_report(_entries(args), title="gonio report: " + ", ".join(Path(s).name for s in args.source))
+    page = build_report(entries(args), title="gonio report: " + ", ".join(Path(s).name for s in args.source))
     from gonio.io.outputs import write_text_atomically
 
     try:
@@ -61,44 +58,4 @@ def run_report(args) -> int:
     except OSError as exc:
         raise ConfigError.field(None, "-o", str(out), f"cannot write ({exc.strerror or exc})") from None
     print(f"wrote {out} ({len(page) / 1e6:.1f} MB, self-contained)")
-    return 0
-
-
-def _arm_stop_signals() -> None:
-    """``gonio view`` says "Ctrl-C to stop", so Ctrl-C (SIGINT) stops it whatever it inherited: the default
-    handler, unblocked, even if the parent ignored or blocked SIGINT (a process started from a program
-    that does); SIGTERM (a service manager, ``kill``) stops it the same clean way."""
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        return
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
-
-
-def run_view(args) -> int:
-    import webbrowser
-
-    from gonio.errors import ConfigError
-    from gonio.viewer import make_server
-
-    if not 0 <= args.port <= 65535:
-        raise ConfigError.field("--port", "port", args.port, "must be in 0..65535")
-    try:
-        server = make_server(_entries(args), port=args.port)
-    except OSError as exc:
-        raise ConfigError.field("--port", "port", args.port, f"cannot listen ({exc.strerror or exc})") from None
-    url = f"http://127.0.0.1:{server.server_address[1]}/"
-    _arm_stop_signals()
-    print(f"gonio view: serving {url} (Ctrl-C to stop)", flush=True)
-    if not args.no_browser:
-        webbrowser.open(url)
-    try:
-        server.serve_forever()
-    except KeyboardInterrupt:
-        print("gonio view: stopped")
-    finally:
-        server.server_close()
     return 0

@@ -8,7 +8,6 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import urllib.request
 from pathlib import Path
 
@@ -20,6 +19,7 @@ from gonio.cli.main import main
 from gonio.io.merl import MerlTable
 from gonio.lights import DirectionalLight, PointLight, SpotLight
 from gonio.render import light_from_angles, render_sphere, sphere_points, tonemap
+from tests.report.browser import FIGURES_DRAWN, opened, serving, wait_until
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -70,21 +70,6 @@ def test_a_measured_table_renders_like_its_model_and_ambient_is_lambert_exact(ce
 
 
 # -- report and viewer in a real browser (shared fixtures: conftest.py) -----------------------------------
-def _open(browser, url, *, offline: bool):
-    ctx = browser.new_context(viewport={"width": 1300, "height": 1500})
-    if offline:  # networking off: anything but the file itself is refused
-        ctx.route("**/*", lambda route: route.continue_() if route.request.url.startswith("file:") else route.abort())
-    page = ctx.new_page()
-    errors = []
-    page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-    page.on("pageerror", lambda e: errors.append(str(e)))
-    page.goto(url)
-    page.wait_for_load_state("load")
-    return ctx, page, errors
-
-
-
-
 def test_report_is_self_contained_and_only_reads(report):
     assert "wrote" in report.stdout
     assert report.after == report.before  # the report only reads
@@ -97,26 +82,20 @@ def test_report_is_self_contained_and_only_reads(report):
 
 
 def test_report_opens_offline_and_every_figure_renders(browser, report, screenshots):
-    ctx, page, errors = _open(browser, report.path.as_uri(), offline=True)
-    try:
-        page.wait_for_function("Array.from(document.querySelectorAll('div.figure')).every("
-                               "f => f.querySelector('.main-svg') !== null)")
+    with opened(browser, report.path.as_uri(), offline=True) as p:
+        page = p.page
+        wait_until(page, FIGURES_DRAWN)
         n_fig = page.locator("div.figure").count()
-        assert n_fig >= 2 * 3  # per input: coverage, slices, residuals
-        for k in range(n_fig):
-            fig = page.locator("div.figure").nth(k)
-            assert fig.locator(".main-svg").count() > 0, f"figure {k} did not render"
+        assert n_fig >= 2 * 3  # per input: coverage, residuals, slices
         spheres = page.locator("img.sphere")
         assert spheres.count() >= 2 * 3
         widths = page.evaluate("Array.from(document.querySelectorAll('img.sphere')).map(i => i.naturalWidth)")
         assert min(widths) > 0
         assert page.locator("table.comparison tr").count() == 1 + 2  # two inputs: one comparison table
-        assert not errors, errors
+        assert not p.errors, p.errors  # nothing refused by the page's policy, no script error
         shot = screenshots / "report.png"
         page.screenshot(path=str(shot), full_page=True)
         print(f"report screenshot: {shot}")
-    finally:
-        ctx.close()
 
 
 def test_viewer_sliders_rerender_and_nothing_is_written(browser, inputs, fit_json, screenshots, digest):
@@ -126,33 +105,24 @@ def test_viewer_sliders_rerender_and_nothing_is_written(browser, inputs, fit_jso
     session, _table = inputs
     before = digest(session)
     server = make_server(load_entries([str(session)], [str(fit_json)]), port=0)  # the run's fit, not a new one
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    url = f"http://127.0.0.1:{server.server_address[1]}/"
-    try:
-        ctx, page, errors = _open(browser, url, offline=False)
-        try:
-            page.wait_for_function("document.getElementById('live-0-0').naturalWidth > 0")
-            assert page.locator("img.live").count() == 1  # sparse samples: no measured sphere, the model's
-            src0 = page.get_attribute("#live-0-0", "src")
-            png0 = urllib.request.urlopen(url.rstrip("/") + src0).read()
-            page.fill("#theta-0", "70")
-            page.dispatch_event("#theta-0", "input")
-            page.wait_for_function(f"document.getElementById('live-0-0').src.indexOf('theta=70') >= 0")
-            src1 = page.get_attribute("#live-0-0", "src")
-            png1 = urllib.request.urlopen(url.rstrip("/") + src1).read()
-            assert src1 != src0 and png1 != png0  # the rendered sphere changed with the light
-            page.fill("#ti-0", "50")
-            page.dispatch_event("#ti-0", "input")
-            page.wait_for_function("document.getElementById('live-slice-0').querySelector('.main-svg') !== null")
-            assert not errors, errors
-            page.screenshot(path=str(screenshots / "viewer.png"))
-            print(f"viewer screenshot: {screenshots / 'viewer.png'}")
-        finally:
-            ctx.close()
-    finally:
-        server.shutdown()
-        server.server_close()
+    with serving(server) as url, opened(browser, url + "/") as p:
+        page = p.page
+        wait_until(page, "document.getElementById('live-0-0').naturalWidth > 0")
+        assert page.locator("img.live").count() == 1  # sparse samples: no measured sphere, the model's
+        src0 = page.get_attribute("#live-0-0", "src")
+        png0 = urllib.request.urlopen(url + src0).read()
+        page.fill("#theta-0", "70")
+        page.dispatch_event("#theta-0", "input")
+        wait_until(page, "document.getElementById('live-0-0').src.indexOf('theta=70') >= 0")
+        src1 = page.get_attribute("#live-0-0", "src")
+        png1 = urllib.request.urlopen(url + src1).read()
+        assert src1 != src0 and png1 != png0  # the rendered sphere changed with the light
+        page.fill("#ti-0", "50")
+        page.dispatch_event("#ti-0", "input")
+        wait_until(page, "document.getElementById('live-slice-0').querySelector('.main-svg') !== null")
+        assert not p.errors, p.errors
+        page.screenshot(path=str(screenshots / "viewer.png"))
+        print(f"viewer screenshot: {screenshots / 'viewer.png'}")
     assert digest(session) == before
 
 
