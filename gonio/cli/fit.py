@@ -63,7 +63,7 @@ def _candidates_help() -> str:
 
     return (f"comma-separated candidates for --select (default {','.join(DEFAULT_CANDIDATES)}; above "
             f"{2 * SELECT_N} samples, e.g. a MERL table, also {','.join(LARGE_TABLE_CANDIDATES)}; when none of them "
-            f"fits the data, {','.join(WIDEN_CANDIDATES)} are added)")
+            f"fits the data and there are fewer, {','.join(WIDEN_CANDIDATES)} are added)")
 
 
 def _options(args) -> dict:

@@ -29,13 +29,15 @@ from gonio.errors import ConfigError, DataError, GonioError
 from gonio.fit.bounds import NEAR_BOUND, ON_BOUND, bound_flags, bound_report, ratio_flags
 from gonio.fit.data import DEFAULT_MAX_THETA_DEG, FitData, prepare
 from gonio.fit.kernels import jacobian_for, profile_for
-from gonio.fit.layout import (CHANNELS, Basis, Layout, SubSpace, auto_tied, make_basis, model_class, resolve_fixed,
-                              separated)
+from gonio.fit.layout import (CHANNELS, Basis, Layout, SubSpace, auto_tied, linked_lobes, make_basis, model_class,
+                              resolve_fixed, separated)
 from gonio.fit.losses import LOSSES, Loss, get_loss
 from gonio.fit.result import FitResult
 from gonio.fit.solve import Projection, ProfiledProjection, jtj_from_elements, shared_weights
 
 METHODS = ("auto", "varpro", "plain")
+#: How the lobes of a sum repeating a lobe get their colours (``chroma`` of :func:`fit`).
+CHROMA = ("auto", "shared", "free")
 
 
 def resolve_loss(loss: str, data: FitData) -> Loss:
@@ -414,7 +416,7 @@ def _uncertainty(prob: _Problem, p: np.ndarray, cost: float, notes: list[str], A
 def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = None,
         free: tuple[str, ...] = (), max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG, n_starts: int = 3, seed: int = 0,
         method: str = "auto", kernel: str | None = "auto", use_flagged: bool = False,
-        max_nfev: int | None = None, report: bool = True, start: dict | None = None) -> FitResult:
+        max_nfev: int | None = None, report: bool = True, start: dict | None = None, chroma: str = "auto") -> FitResult:
     """Fit the model ``model`` to ``data``.
 
     Parameters
@@ -434,7 +436,13 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
         :data:`gonio.fit.layout.AUTO_TIED`; e.g. ``("f0",)`` or ``("lobe1.f0",)``). A tied parameter
         the data cannot determine (standard uncertainty above :data:`TIED_MAX_SE`, e.g. only
         near-normal θd where Schlick's F ≈ f0 is indistinguishable from ks) is held at 1 instead — ks
-        is then the specular reflectance ks·F — and a note says so.
+        is then the specular reflectance ks·F — and a note says so. A later copy of a repeated lobe's ``ks``
+        (``lobe2.ks`` of ``lambert+2ggx``) is fitted as a ratio times the first copy's — one chromaticity for
+        the lobes (:func:`gonio.fit.layout.linked_lobes`) — unless named here.
+    chroma : {"auto", "shared", "free"}
+        For a sum repeating a lobe: ``shared`` fits the lobes with one chromaticity (the later copies' ``ks`` a
+        ratio times the first's, :func:`gonio.fit.layout.linked_lobes`), ``free`` each with its own colour,
+        ``auto`` both and keeps the shared one unless the data demand otherwise (:func:`_shared_or_free`).
     max_theta_deg : float or None
         Grazing cutoff for θi and θo (default 80°); None keeps all samples above the horizon.
     n_starts : int
@@ -469,26 +477,45 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
     cls = model_class(model) if isinstance(model, str) else model
     fixed = resolve_fixed(cls, dict(fixed or {}))
     tied = auto_tied(cls, fixed, free)
-    L = Layout(cls, fixed, tied)
+    if chroma not in CHROMA:
+        raise ConfigError.field("--chroma", "chroma", chroma, f"must be one of {', '.join(CHROMA)}")
+    links = tuple((dst, src) for dst, src in linked_lobes(cls) if dst not in free and chroma != "free")
     lossobj = resolve_loss(loss, d)
+    kw = dict(n_starts=n_starts, seed=seed, method=method, kernel=kernel, max_nfev=max_nfev, start=start)
+    r = _fit_tied(d, cls, fixed, tied, links, lossobj, kw)
+    if links and chroma == "auto":  # the lobes' own colours only where the data demand them
+        r = _shared_or_free(r, _fit_tied(d, cls, fixed, tied, (), lossobj, kw))
+    if r.at_bound:
+        r.notes.append("at or near a bound of its range: " + "; ".join(
+            f"{k} ({', '.join(f'{c} {w}' for c, w in v.items())})" for k, v in r.at_bound.items()))
+    if report:
+        add_report(r, d)
+    r.seconds = time.perf_counter() - t0
+    return r
+
+
+def _fit_tied(d: FitData, cls, fixed: dict, tied, linked, lossobj: Loss, kw: dict) -> FitResult:
+    """One fit of ``cls`` with ``tied`` parameters and ``linked`` colours; a tied f0 the data cannot determine
+    is held at 1 and the fit repeated (see :func:`fit`, ``free``)."""
+    L = Layout(cls, fixed, tied, linked)
     if 3 * len(d) <= L.n_params:
         raise DataError(f"{d.source}: {len(d)} usable samples ({3 * len(d)} values) cannot determine "
                         f"{L.n_params} parameters of {L.name}; need at least {L.n_params // 3 + 1} samples")
-    kw = dict(n_starts=n_starts, seed=seed, method=method, kernel=kernel, max_nfev=max_nfev, start=start)
     r = _fit_layout(d, L, lossobj, **kw)
     weak = [t for t in L.tied if not r.uncertainty[t] <= TIED_MAX_SE]  # inf, or too wide; nan = on a bound
     # f0 multiplies ks: with ks pinned at a bound, f0 looks determined only because the bound fixes the product
     hit = r.at_bound
     weak += [t for t in L.tied if t not in weak and _partner(t, "ks") in hit]
     if weak:
-        L2 = Layout(cls, {**fixed, **{t: 1.0 for t in weak}}, [t for t in tied if t not in weak])
+        L2 = Layout(cls, {**fixed, **{t: 1.0 for t in weak}}, [t for t in tied if t not in weak], linked)
         optimum = None
         if all(abs(r.params[t] - 1.0) <= 1e-7 for t in weak):
             # on its upper bound (the tolerance of _uncertainty), at the value it is now held at: the held
             # fit's minimizer is this one (the same point is feasible and nothing lower is), so the search is
             # not repeated; the colours are solved again at the held value
+            held = {**r.params, **_link_values(r, L2)}
             optimum = (np.array([r.params[n] for n in L2.colour], dtype=np.float64),
-                       np.array([r.params[n] for n in L2.shape], dtype=np.float64))
+                       np.array([float(np.mean(held[n])) for n in L2.shape], dtype=np.float64))
         r2 = _fit_layout(d, L2, lossobj, **kw, optimum=optimum)
         if optimum is not None:
             r2.method = r.method
@@ -501,13 +528,31 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
         r2.n_evals += r.n_evals
         r2.identifiable = False
         r = r2
-    if r.at_bound:
-        r.notes.append("at or near a bound of its range: " + "; ".join(
-            f"{k} ({', '.join(f'{c} {w}' for c, w in v.items())})" for k, v in r.at_bound.items()))
-    if report:
-        add_report(r, d)
-    r.seconds = time.perf_counter() - t0
     return r
+
+
+def _shared_or_free(shared: FitResult, free: FitResult) -> FitResult:
+    """The fit with lobes of one chromaticity (``shared``, :func:`gonio.fit.layout.linked_lobes`) unless the data
+    demand each lobe's own colour (``free``): the free fit is kept when its BIC (Schwarz 1978;
+    :attr:`FitResult.bic`) is lower *and* its lobes are not held apart only by the width-ratio bound (lobes of
+    nearly one width told apart by colour: a lobe whose width varies by channel, issue 29). Either way a note
+    says which and why."""
+    ratio_bound = any("ratio" in str(v) for v in free.at_bound.values())
+    delta = free.bic - shared.bic
+    if delta < 0 and not (ratio_bound and not any("ratio" in str(v) for v in shared.at_bound.values())):
+        free.notes.append(f"each lobe has its own colour: BIC {delta:+.4g} against lobes of one chromaticity")
+        free.n_evals += shared.n_evals
+        return free
+    why = ("the lobes of their own colours are held apart only by the width-ratio bound" if delta < 0
+           else f"their own colours do not pay (BIC {delta:+.4g})")
+    shared.notes.append(f"lobes of one chromaticity: {why}")
+    shared.n_evals += free.n_evals
+    return shared
+
+
+def _link_values(r: FitResult, L: Layout) -> dict[str, float]:
+    """The ratios of ``L``'s links as fitted in ``r`` (``r.links``)."""
+    return {name: r.links[name] for _, _, name in L.links}
 
 
 def _partner(name: str, other: str) -> str:
@@ -600,7 +645,7 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
             cost = prob.cost(p)
     else:
         p, cost = _plain(prob, _starts(prob, rng, n_starts, heur), max_nfev)
-    p = canonical_order(L, p)
+    p = p if L.links else canonical_order(L, p)  # linked lobes are ordered by the link itself
     err, ident, redundancy = _uncertainty(prob, p, cost, notes)
     colour, shape = L.unpack(p)
     ecolour, eshape = L.unpack(err)
@@ -622,7 +667,8 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
         model_name=L.name, params=params, uncertainty=unc, loss=lossobj.name, cost=float(cost), rms_rel=rms_rel,
         n_used=len(d), n_params=L.n_params, chi2_red=chi2_red, identifiable=ident, method=method,
         n_evals=prob.n_evals, seconds=time.perf_counter() - t0, notes=notes, heuristics=heur,
-        dropped=dict(d.dropped), redundancy=redundancy, at_bound=bound_report(L, params, unc),
+        dropped=dict(d.dropped), redundancy=redundancy, at_bound=bound_report(L, {**params, **L.link_values(shape)}, unc),
+        links=L.link_values(shape),
     )
 
 

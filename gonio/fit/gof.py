@@ -71,9 +71,10 @@ def goodness_of_fit(model_values: np.ndarray, data, loss, n_params: int, seed: i
         first = np.argmax(~same, axis=1)
         ok = ~same[np.arange(idx.size), first]
         a, b = res[idx[ok]], res[nb[ok, first[ok]]]
-        a, b = a - a.mean(axis=0), b - b.mean(axis=0)
-        den = np.sqrt(np.sum(a * a) * np.sum(b * b))
-        if ok.sum() >= 10 and den > 0:
+        if ok.sum() >= 10:
+            a, b = a - a.mean(axis=0), b - b.mean(axis=0)
+        den = np.sqrt(np.sum(a * a) * np.sum(b * b)) if ok.sum() >= 10 else 0.0
+        if den > 0:
             rho = float(np.sum(a * b) / den)
             rho_p = float(norm.sf(rho * np.sqrt(a.size)))
     out.update(rho=rho, rho_p=rho_p)

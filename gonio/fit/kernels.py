@@ -255,7 +255,7 @@ PROFILES: dict[str, type] = {"microfacet": MicrofacetTiedF0, "lambert+ggx": Micr
 
 def _kernel_if(layout, test: str):
     cls = PROFILES.get(layout.name)
-    if cls is None:
+    if cls is None or getattr(layout, "links", None):  # linked colours (gonio.fit.layout.linked_lobes): no profile
         return None
     p = cls(layout)
     return p if getattr(p, test)(layout) else None

@@ -14,6 +14,7 @@ from typing import Any, Callable
 import numpy as np
 
 from gonio.brdf import MODELS, BRDF
+from gonio.brdf.base import Param
 from gonio.errors import ConfigError, GonioError
 
 CHANNELS = ("r", "g", "b")
@@ -141,7 +142,7 @@ class Layout(_SearchMap):
         :data:`AUTO_TIED`).
     """
 
-    def __init__(self, model: str | type[BRDF], fixed: dict[str, Any] | None = None, tied=()):
+    def __init__(self, model: str | type[BRDF], fixed: dict[str, Any] | None = None, tied=(), linked=()):
         if isinstance(model, str):
             model = model_class(model)
         self.cls = model
@@ -164,13 +165,18 @@ class Layout(_SearchMap):
                 if spec.default is None:
                     raise ConfigError(f"{model.name}.{name}: a choice parameter must be fixed ({', '.join(spec.choices)})")
                 self.fixed[name] = spec.default
-            elif spec.kind == "rgb" and name not in self.tied:
+            elif spec.kind == "rgb" and name not in self.tied and name not in dict(linked):
                 self.colour.append(name)
-            else:
+            elif name not in dict(linked):
                 self.shape.append(name)
+        #: (dst, src, ratio name): colour ``dst`` = ratio × colour ``src`` (one chromaticity; see :func:`linked_lobes`)
+        self.links = [(dst, src, f"{dst}/{src}") for dst, src in linked if dst not in fixed and src in self.colour]
+        self.extra = {r: Param("scalar", 0.0, RATIO_MAX, 1.0, doc=f"{dst} / {src}, one value for R, G, B")
+                      for dst, src, r in self.links}
+        self.shape += list(self.extra)
         self.K, self.S = len(self.colour), len(self.shape)
         self.n_params = 3 * self.K + self.S
-        b = model.bounds()
+        b = {**model.bounds(), **{r: (0.0, RATIO_MAX) for r in self.extra}}
         self.colour_lo = np.array([b[k][0] for k in self.colour], dtype=np.float64)
         self.colour_hi = np.array([b[k][1] for k in self.colour], dtype=np.float64)
         self.shape_lo = np.array([b[k][0] for k in self.shape], dtype=np.float64)
@@ -201,8 +207,19 @@ class Layout(_SearchMap):
         for k, name in enumerate(self.colour):
             out[name] = np.asarray(colour[k], dtype=np.float64)
         for j, name in enumerate(self.shape):
-            out[name] = float(shape[j])
+            if name not in self.extra:
+                out[name] = float(shape[j])
+        for dst, src, r in self.links:
+            out[dst] = float(shape[self.shape.index(r)]) * np.asarray(colour[self.colour.index(src)], dtype=np.float64)
         return out
+
+    def spec(self, name: str) -> Param:
+        """The :class:`~gonio.brdf.base.Param` of a free parameter (a link's ratio included)."""
+        return self.extra.get(name) or self.cls.PARAMS[name]
+
+    def link_values(self, shape) -> dict[str, float]:
+        """The fitted ratios of the links (``{"lobe2.ks/lobe1.ks": w}``)."""
+        return {r: float(shape[self.shape.index(r)]) for _, _, r in self.links}
 
     def build(self, colour: np.ndarray, shape: np.ndarray) -> BRDF:
         """The model instance (raises :class:`ConfigError` if the model rejects the combination)."""
@@ -225,7 +242,7 @@ class Layout(_SearchMap):
             return cached
         u_lo, u_hi, is_log = [], [], []
         for j, name in enumerate(self.shape):
-            spec = self.cls.PARAMS[name]
+            spec = self.spec(name)
             lo, hi = float(self.shape_lo[j]), float(self.shape_hi[j])
             if not np.isfinite(hi):
                 hi = 1e4 * max(abs(float(spec.default or 1.0)), 1.0)
@@ -234,7 +251,7 @@ class Layout(_SearchMap):
             log = lo >= 0 and hi > 0 and hi / max(lo, 1e-300) >= 100
             if log:
                 if lo <= 0:
-                    lo = log_floor(hi, name in self.tied)
+                    lo = RATIO_MIN if name in self.extra else log_floor(hi, name in self.tied)
                 u_lo.append(np.log(lo)), u_hi.append(np.log(hi))
             else:
                 u_lo.append(lo), u_hi.append(hi)
@@ -245,7 +262,7 @@ class Layout(_SearchMap):
     def default_shape(self) -> np.ndarray:
         out = []
         for j, name in enumerate(self.shape):
-            d = self.cls.PARAMS[name].default
+            d = self.spec(name).default
             out.append(float(d) if d is not None else 0.5 * (self.shape_lo[j] + min(self.shape_hi[j], 1.0)))
         return np.clip(np.array(out, dtype=np.float64), self.shape_lo, self.shape_hi)
 
@@ -405,6 +422,12 @@ class SumBasis:
             if not getattr(pf0, "is_zero", False):
                 f0 = pf0 if f0 is None else f0 + pf0
             cols.update(zip(names, pcols))
+        for dst, src, r in self.layout.links:  # colour dst = w · colour src: one column src → B_src + w B_dst
+            w = shape[self.layout.shape.index(r)]
+            a, b = cols[src], cols.pop(dst)
+            if a.ndim != b.ndim:
+                a, b = np.broadcast_to(a if a.ndim == 2 else a[:, None], self.data.y.shape), (b if b.ndim == 2 else b[:, None])
+            cols[src] = a + w * b
         if f0 is None:
             if getattr(self, "_zero", None) is None:
                 self._zero = _zero_offset(self.data.y.shape)
@@ -422,6 +445,24 @@ def make_basis(layout: Layout, data, use_kernels: bool = True, seed: int = 0):
     if getattr(layout.cls, "PARTS", None):
         return SumBasis(layout, data, use_kernels, seed)
     return Basis(layout, data, kernel_for(layout) if use_kernels else None, seed)
+
+
+#: Range of the ratio of a linked colour to its source (:func:`linked_lobes`), searched in log space.
+RATIO_MIN, RATIO_MAX = 1e-6, 1e3
+
+
+def linked_lobes(cls) -> tuple[tuple[str, str], ...]:
+    """Colour links of a sum that repeats a specular lobe (``lambert+2ggx``): every later copy's ``ks`` is a
+    ratio (one value for R, G, B) times the first copy's, so the lobes share one chromaticity — a narrow and a
+    broad lobe of one coating, never one red and one blue lobe of equal width standing in for a lobe whose
+    width varies by channel (issue 29). ``gonio.fit.fit`` fits with these links unless ``free`` names the
+    later lobes' ``ks``."""
+    parts = getattr(cls, "PARTS", ())
+    groups: dict[tuple, list[str]] = {}
+    for slot, part, fixed in parts:
+        if "ks" in part.PARAMS and part.PARAMS["ks"].kind == "rgb":
+            groups.setdefault((part, tuple(sorted(dict(fixed).items()))), []).append(slot)
+    return tuple((f"{s}.ks", f"{slots[0]}.ks") for slots in groups.values() for s in slots[1:])
 
 
 #: Smallest ratio of widths between the broad and the narrow one of two repeated lobes (a sum such as

@@ -75,6 +75,9 @@ class FitResult:
     at_bound: dict = field(default_factory=dict)
     #: Error measures users compare fits with (:mod:`gonio.fit.metrics`): ``cbrt_rel``, ``image_rel``.
     metrics: dict = field(default_factory=dict)
+    #: Fitted ratios of linked colours (:func:`gonio.fit.layout.linked_lobes`): ``{"lobe2.ks/lobe1.ks": w}``; the
+    #: linked colour (``lobe2.ks``) is w times its source in ``params``, its uncertainty that of w (in ``uncertainty``).
+    links: dict = field(default_factory=dict)
     #: Goodness of fit (:func:`gonio.fit.gof.goodness_of_fit`): ``fits``, ``ratio``, ``test``, χ² and residual
     #: structure; empty when not computed (``report=False``).
     goodness: dict = field(default_factory=dict)
@@ -254,8 +257,11 @@ class FitResult:
                 + (f"  chi2_red {self.chi2_red:.4g}" if self.chi2_red is not None else "")
                 + (f"  ({self.method}, {self.seconds:.2f} s)" if self.method else ""))
         lines = [head, f"  {'parameter':<18} {'value':<36} uncertainty"]
-        for k, v in self.params.items():
-            u = _fmt(self.uncertainty[k]) if k in self.uncertainty else "(fixed)"
+        rows = list(self.params.items()) + list(self.links.items())
+        for k, v in rows:
+            link = next((r for r in self.links if r.startswith(f"{k}/")), None)
+            u = (_fmt(self.uncertainty[k]) if k in self.uncertainty
+                 else f"(= {link} x {link.split('/', 1)[1]})" if link else "(fixed)")
             b = self.at_bound.get(k)
             flag = "  AT BOUND: " + ", ".join(f"{c} {w}" for c, w in b.items()) if b else ""
             lines.append(f"  {k:<18} {_fmt(v):<36} {u}{flag}")
@@ -295,6 +301,7 @@ class FitResult:
             "dropped": self.dropped,
             "redundancy": list(self.redundancy) if self.redundancy else None,
             "at_bound": self.at_bound,
+            "links": self.links,
             "metrics": self.metrics,
             "goodness_of_fit": self.goodness,
             "energy": self.energy,

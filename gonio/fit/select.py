@@ -285,6 +285,16 @@ def _progress(total: int, enabled: bool, desc: str):
     return _Quiet()
 
 
+def _variant(r: FitResult) -> dict:
+    """The ``chroma`` a refit of ``r`` takes (the variant ``r`` is: lobes of one chromaticity or their own), so
+    a warm-started refit does not search the other variant again."""
+    from gonio.fit.layout import linked_lobes, model_class
+
+    if not linked_lobes(model_class(r.model_name)):
+        return {}
+    return {"chroma": "shared" if r.links else "free"}
+
+
 def _holdout_score(r: FitResult, d, loss) -> tuple[float, float]:
     """Mean held-out r² of ``r`` on samples ``d`` and its standard error (per-sample scatter)."""
     m = r.build().eval(d.wi, d.wo)
@@ -399,7 +409,8 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
             else:
                 if len(d) < 2 * folds:
                     raise ConfigError.field("--folds", "folds", folds, f"{len(d)} samples are too few for {folds}-fold CV")
-                row["cv"], row["cv_se"] = _cv_score(d, name, lossobj, folds, seed, fit_kw, bar, start=r.params)
+                row["cv"], row["cv_se"] = _cv_score(d, name, lossobj, folds, seed, {**fit_kw, **_variant(r)}, bar,
+                                                    start={**r.params, **r.links})
         row["score"] = row[criterion]
         unident = sorted(k for k, v in r.uncertainty.items() if np.any(np.isinf(np.asarray(v, dtype=float))))
         # a shape parameter (shared by R, G, B) on a bound: the term has no shape the data determine
@@ -486,6 +497,9 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
                              f"{win['model']} does not (residuals {win['fit_ratio']:.3g}x the noise)")
             win["reason"] = f"{win['reason']}; but it does not fit the data (residuals {win['fit_ratio']:.3g}x the noise)"
             win = new
+        elif widen and big:
+            notes.append(f"the candidate set was not widened ({len(d_all)} samples: each added candidate costs a "
+                         f"subset fit; name more with candidates=)")
         elif widen:
             extra = tuple(c for c in WIDEN_CANDIDATES if c not in candidates)
             if extra:
@@ -509,8 +523,9 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
             r["status"] = "chosen" if r is win else "rejected"
     bar.set_postfix_str(f"{win['model']} on all samples")
     if big and len(d_all) <= REFIT_MAX:
-        winner = fit(d_all, win["model"], loss=lossobj.name, seed=seed, start=fits[win["model"]].params,
-                     **{**fit_kw, "report": True})
+        w = fits[win["model"]]
+        winner = fit(d_all, win["model"], loss=lossobj.name, seed=seed, start={**w.params, **w.links},
+                     **{**fit_kw, **_variant(w), "report": True})
         win.update(rms_rel=winner.rms_rel, at_bound=winner.at_bound)
         fits[win["model"]] = winner
     else:
