@@ -20,7 +20,9 @@ def register(sub) -> None:
                                                           "lambert+2ggx); default microfacet")
     g.add_argument("--select", action="store_true", help="fit the candidates and choose one")
     p.add_argument("--candidates", default=None, help=_candidates_help())
-    p.add_argument("--criterion", default="auto", help="selection criterion: auto, bic, aic, cv")
+    p.add_argument("--criterion", default="auto", help="selection criterion: auto, bic, aic, cv, or what a rendering "
+                                                       "shows: image (rendered-sphere error), delta-e (their CIELAB "
+                                                       "colour difference)")
     p.add_argument("--equivalence", type=float, default=None, metavar="REL",
                    help="--select keeps the simplest candidate whose predictions are within REL (relative) of the "
                         "criterion's choice at every sample (default 0.01: 1 %%, about a gonioreflectometer's accuracy; "

@@ -11,6 +11,8 @@
   with the model and once with the measurement itself (each pixel takes the nearest measured sample in
   Rusinkiewicz's (h, d) coordinates, φh ignored: isotropic), over the pixels where the measurement has
   a sample within :data:`IMAGE_MAX_GAP` and θi, θo are within the fit's range.
+* :func:`delta_e` — the mean CIELAB colour difference ΔE*ab of the same sphere images: the perceptual
+  measure (a difference of 1 is about the smallest one sees).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import numpy as np
 
 from gonio.geometry import frame_from_normal, half_diff_from_dirs, to_local
 
-__all__ = ["cbrt_error", "image_error", "metrics", "IMAGE_ANGLES_DEG", "IMAGE_PIXELS", "IMAGE_MAX_GAP"]
+__all__ = ["cbrt_error", "image_error", "delta_e", "sphere_pixels", "metrics", "IMAGE_ANGLES_DEG", "IMAGE_PIXELS", "IMAGE_MAX_GAP"]
 
 #: Light–view angles of the rendered spheres (degrees).
 IMAGE_ANGLES_DEG = (0.0, 30.0, 60.0)
@@ -61,9 +63,50 @@ def sphere_geometry(angle_deg: float, pixels: int = IMAGE_PIXELS):
 def image_error(model, data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS, _tree=None) -> float | None:
     """Relative RMS difference √(Σ (L_model − L_data)² / Σ L_data²) of the sphere images (module
     docstring); ``None`` when the data cover no pixel."""
+    pairs = sphere_pixels(model, data, angles_deg, pixels, _tree)
+    if pairs is None:
+        return None
+    lm, ld = pairs
+    den = float(np.sum(ld * ld))
+    return None if den == 0.0 else float(np.sqrt(np.sum((lm - ld) ** 2) / den))
+
+
+#: sRGB (linear, D65) to CIE XYZ (IEC 61966-2-1).
+_RGB_TO_XYZ = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]])
+_WHITE_D65 = _RGB_TO_XYZ.sum(axis=1)
+
+
+def _lab(rgb: np.ndarray, white: float) -> np.ndarray:
+    """CIE 1976 L*a*b* of linear sRGB radiances scaled so that ``white`` (a radiance) is the reference white
+    (CIE 15:2004, §8.2.1), values above white allowed (L* > 100)."""
+    xyz = (rgb / white) @ _RGB_TO_XYZ.T / _WHITE_D65
+    e = 216 / 24389
+    f = np.where(xyz > e, np.cbrt(np.maximum(xyz, 0.0)), (24389 / 27 * xyz + 16) / 116)
+    return np.stack([116 * f[:, 1] - 16, 500 * (f[:, 0] - f[:, 1]), 200 * (f[:, 1] - f[:, 2])], axis=-1)
+
+
+def delta_e(model, data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS) -> float | None:
+    """Mean CIE 1976 colour difference ΔE*ab (CIE 15:2004, §8.2.1; 1 ≈ a just-noticeable difference,
+    Sharma, *Digital Color Imaging Handbook*, 2003, ch. 1) between the sphere images of the model and of the
+    data (:func:`image_error`'s pixels), each image's reference white the 99th percentile of the data image's
+    luminance (a highlight may exceed it, as in a displayed photograph); ``None`` when the data cover no pixel."""
+    pairs = sphere_pixels(model, data, angles_deg, pixels)
+    if pairs is None:
+        return None
+    lm, ld = pairs
+    lum = ld @ _RGB_TO_XYZ[1]
+    white = float(np.percentile(lum, 99)) if lum.size else 0.0
+    if white <= 0.0:
+        return None
+    return float(np.mean(np.linalg.norm(_lab(lm, white) - _lab(ld, white), axis=-1)))
+
+
+def sphere_pixels(model, data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS, _tree=None):
+    """``(L_model, L_data)`` (P, 3) of the sphere pixels of :func:`image_error` that have a measured sample
+    within :data:`IMAGE_MAX_GAP`, over all ``angles_deg``; ``None`` when there is none."""
     tree = _tree if _tree is not None else data_tree(data)
     cmin = float(min(data.cos_i.min(), data.cos_o.min()))
-    num = den = 0.0
+    out_m, out_d = [], []
     for angle in angles_deg:
         wi, wo, _ = sphere_geometry(angle, pixels)
         ok = (wi[:, 2] >= cmin) & (wo[:, 2] >= cmin)
@@ -75,11 +118,11 @@ def image_error(model, data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PI
         if not hit.any():
             continue
         c = wi[hit, 2][:, None]
-        lm = model.eval(wi[hit], wo[hit]) * c
-        ld = data.y[idx[hit]] * c
-        num += float(np.sum((lm - ld) ** 2))
-        den += float(np.sum(ld * ld))
-    return None if den == 0.0 else float(np.sqrt(num / den))
+        out_m.append(model.eval(wi[hit], wo[hit]) * c)
+        out_d.append(data.y[idx[hit]] * c)
+    if not out_m:
+        return None
+    return np.concatenate(out_m), np.concatenate(out_d)
 
 
 def data_tree(data):
@@ -96,4 +139,5 @@ def metrics(model, data, values: np.ndarray | None = None) -> dict[str, float | 
     """Both measures of ``model`` on prepared ``data`` (:class:`gonio.fit.data.FitData`):
     ``{"cbrt_rel": ..., "image_rel": ...}``."""
     m = model.eval(data.wi, data.wo) if values is None else values
-    return {"cbrt_rel": cbrt_error(m, data.y, data.cos_i), "image_rel": image_error(model, data)}
+    return {"cbrt_rel": cbrt_error(m, data.y, data.cos_i), "image_rel": image_error(model, data),
+            "delta_e": delta_e(model, data)}

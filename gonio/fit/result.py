@@ -73,7 +73,7 @@ class FitResult:
     #: (:func:`gonio.fit.fit.bound_report`). Such a value has no standard uncertainty and may mean the
     #: model cannot represent the data (e.g. a diffuse albedo of 1 under a specular peak).
     at_bound: dict = field(default_factory=dict)
-    #: Error measures users compare fits with (:mod:`gonio.fit.metrics`): ``cbrt_rel``, ``image_rel``.
+    #: Error measures users compare fits with (:mod:`gonio.fit.metrics`): ``cbrt_rel``, ``image_rel``, ``delta_e``.
     metrics: dict = field(default_factory=dict)
     #: Fitted ratios of linked colours (:func:`gonio.fit.layout.linked_lobes`): ``{"lobe2.ks/lobe1.ks": w}``; the
     #: linked colour (``lobe2.ks``) is w times its source in ``params``, its uncertainty that of w (in ``uncertainty``).
@@ -268,7 +268,7 @@ class FitResult:
         if self.metrics:
             # image_rel is None when no pixel of the rendered spheres has a measured sample near it
             lines.append("  error: " + "  ".join(f"{k} {'n/a' if v is None else _fmt(v)}" for k, v in self.metrics.items())
-                         + "  (cube-root cosine-weighted, Ngan et al. 2005; rendered spheres"
+                         + "  (cube-root cosine-weighted, Ngan et al. 2005; rendered spheres; their mean CIELAB delta E"
                          + ("; n/a: the data are too sparse to render them" if None in self.metrics.values() else "")
                          + ")")
         if self.goodness:

@@ -12,6 +12,12 @@ Criteria
     Tibshirani & Friedman, *The Elements of Statistical Learning*, 2nd ed., §7.10).
 ``auto``
     ``bic`` when every sample has an uncertainty (χ² loss), else ``cv``.
+``image`` / ``delta-e`` (on request)
+    What a rendering shows: the relative RMS difference of spheres rendered with each candidate and with the
+    measurement itself under point lights at 0/30/60° (:func:`gonio.fit.metrics.image_error`), or their mean
+    CIELAB ΔE*ab (:func:`gonio.fit.metrics.delta_e`), on the samples the candidates were not fitted to when
+    the table is large; lowest wins. No penalty for parameters: the practical-equivalence rule below still
+    prefers the simpler of two candidates that predict the same.
 
 Large tables (more than 2 × :data:`SELECT_N` samples, e.g. a MERL table's 9·10⁵): every candidate is fitted
 once on a seeded random subset of :data:`SELECT_N` samples and ``cv`` scores it on a disjoint subset of the
@@ -72,7 +78,9 @@ from gonio.fit.result import FitResult, _clean
 #: Default candidates, simple to complex: diffuse; diffuse + Blinn-Phong; diffuse + one GGX lobe;
 #: diffuse + two GGX lobes.
 DEFAULT_CANDIDATES = ("lambert", "blinn-phong", "microfacet", "lambert+2ggx")
-CRITERIA = ("auto", "bic", "aic", "cv")
+CRITERIA = ("auto", "bic", "aic", "cv", "image", "delta-e")
+#: Criteria judged on rendered spheres (:mod:`gonio.fit.metrics`), on request: what a rendering of the scene shows.
+IMAGE_CRITERIA = {"image": "image_error", "delta-e": "delta_e"}
 #: χ²_red of the best-fitting candidate above which χ² is rescaled before AIC/BIC (see module docstring).
 INFLATE_ABOVE = 1.5
 #: |correlation| between parameters of two terms of a sum above which the terms are redundant.
@@ -411,6 +419,11 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
                     raise ConfigError.field("--folds", "folds", folds, f"{len(d)} samples are too few for {folds}-fold CV")
                 row["cv"], row["cv_se"] = _cv_score(d, name, lossobj, folds, seed, {**fit_kw, **_variant(r)}, bar,
                                                     start={**r.params, **r.links})
+        if criterion in IMAGE_CRITERIA:
+            from gonio.fit import metrics as _metrics
+
+            value = getattr(_metrics, IMAGE_CRITERIA[criterion])(r.model, d_val if big else d)
+            row[criterion] = float("inf") if value is None else value
         row["score"] = row[criterion]
         unident = sorted(k for k, v in r.uncertainty.items() if np.any(np.isinf(np.asarray(v, dtype=float))))
         # a shape parameter (shared by R, G, B) on a bound: the term has no shape the data determine
@@ -456,6 +469,10 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
     if not ok:
         bar.close()
         raise first_error
+    if criterion in IMAGE_CRITERIA and not any(np.isfinite(r["score"]) for r in ok):
+        bar.close()
+        raise ConfigError.field("--criterion", "criterion", criterion,
+                                f"{d_all.source}: the samples are too sparse to render the spheres it compares")
     eligible = [r for r in ok if "redundant" not in r] or ok
     best = min(eligible, key=lambda r: r["score"])
     if criterion == "cv":

@@ -127,7 +127,7 @@ def test_parameters_at_a_bound_are_reported_in_table_and_json(tmp_path, capsys):
     assert "AT BOUND: r lower 0" in "\n".join(r.summary_lines())
     report = json.loads(r.to_json())
     assert report["at_bound"]["kd"] == {"r": "lower 0"}
-    assert set(report["metrics"]) == {"cbrt_rel", "image_rel"} and report["energy"]["ok"]
+    assert set(report["metrics"]) == {"cbrt_rel", "image_rel", "delta_e"} and report["energy"]["ok"]
 
 
 def test_gtr_kernel_matches_the_model():
