@@ -9,9 +9,11 @@ and the GVSP stream are all real; only the sensor is simulated. The fill callbac
 through ctypes (``arv_fake_camera_set_fill_pattern``): PyGObject frees a callback of that scope as soon
 as the setter returns, ctypes keeps it for the server's lifetime.
 
-Pixel formats the fake device offers and this server fills: ``RGB8`` (default; the rendered frame as
-is, an 8-bit linear sensor), ``Mono8``/``Mono16`` (mean of R, G, B) and ``BayerRG8``/``GR8``/``GB8``/
-``BG8`` (the rendered frame mosaiced).
+Pixel formats this server offers and fills: the fake device's own ``RGB8``, ``Mono8``/``Mono16`` (mean
+of R, G, B) and ``BayerRG8``/``GR8``/``GB8``/``BG8`` (the rendered frame mosaiced), and the 12-bit ``RGB12``,
+``Mono12`` and ``Bayer*12`` it adds to the device's GenICam XML (:data:`ADDED_FORMATS`), so that the default
+12-bit simulated camera crosses GigE Vision at its own depth. Each format's full scale is the rendered
+frame's saturation level.
 
 A rendering camera that reports its sensor temperature (``frame.meta["sensor_temp_c"]``, as
 :class:`sim.camera.SimCamera` does by default) is served with the SFNC feature ``DeviceTemperature``
@@ -31,7 +33,8 @@ import threading
 
 import numpy as np
 
-__all__ = ["GigECameraServer", "FILLABLE_FORMATS", "TEMPERATURE_REGISTER"]
+__all__ = ["GigECameraServer", "FILLABLE_FORMATS", "ADDED_FORMATS", "FORMAT_BITS", "TEMPERATURE_REGISTER",
+           "served_formats", "served_xml"]
 
 #: Register of the served ``DeviceTemperature`` (IEEE float32, big-endian): unused by the fake
 #: device's own XML (its registers are 0x48-0x30c; 0x1e0 lies between SensorWidth and TestRegister).
@@ -51,10 +54,19 @@ _TEMPERATURE_XML = f"""
 \t</FloatReg>
 """
 
-#: PFNC pixel format codes (GenICam PFNC 2.x) of the formats this server fills.
+#: PFNC pixel format codes (GenICam PFNC 2.x) of the formats this server fills: the fake device's own
+#: (Mono8, Mono16, RGB8, Bayer*8) and :data:`ADDED_FORMATS`.
 FILLABLE_FORMATS = {0x01080001: "Mono8", 0x01100007: "Mono16", 0x02180014: "RGB8",
                     0x01080009: "BayerRG8", 0x01080008: "BayerGR8", 0x0108000A: "BayerGB8",
-                    0x0108000B: "BayerBG8"}
+                    0x0108000B: "BayerBG8", 0x01100005: "Mono12", 0x0230001A: "RGB12",
+                    0x01100011: "BayerRG12", 0x01100010: "BayerGR12", 0x01100012: "BayerGB12", 0x01100013: "BayerBG12"}
+#: Formats the fake device's GenICam XML does not list and this server adds to its ``PixelFormat`` enumeration
+#: (12-bit formats, unpacked in 16-bit little-endian containers; RGB12 is PFNC 0x0230001A, 48 bits a pixel), so
+#: the simulated 12-bit camera can be read at its own depth, in colour.
+ADDED_FORMATS = ("Mono12", "RGB12", "BayerRG12", "BayerGR12", "BayerGB12", "BayerBG12")
+#: Significant bits of each filled format.
+FORMAT_BITS = {name: (8 if name.endswith("8") else 12 if name.endswith("12") else 16) for name in FILLABLE_FORMATS.values()}
+_PIXEL_FORMAT_ANCHOR = "\t\t<pValue>PixelFormatRegister</pValue>"
 #: Row/column offsets of R, G (first), B in a 2×2 Bayer block, by PFNC name (top-left colour first).
 _BAYER_SITES = {"RG": ((0, 0), (0, 1), (1, 1)), "GR": ((0, 1), (0, 0), (1, 0)),
                 "GB": ((1, 0), (0, 0), (0, 1)), "BG": ((1, 1), (0, 1), (0, 0))}
@@ -85,6 +97,33 @@ def _libaravis():
     lib.arv_fake_camera_set_fill_pattern.restype = None
     lib.arv_fake_camera_set_fill_pattern.argtypes = [ctypes.c_void_p, _FILL, ctypes.c_void_p]
     return lib
+
+
+def served_xml(Aravis, serial: str = "GONIO-SIM") -> tuple[str, list[str]]:
+    """The GenICam XML this server serves (the fake device's own, with :data:`ADDED_FORMATS` added to its
+    ``PixelFormat`` enumeration when it has one) and the pixel formats it offers and fills."""
+    xml = Aravis.FakeCamera.new(serial).get_genicam_xml()[0]
+    start = xml.find('<Enumeration Name="PixelFormat"')
+    anchor = xml.find(_PIXEL_FORMAT_ANCHOR, start) if start >= 0 else -1
+    if anchor >= 0:
+        code = {v: k for k, v in FILLABLE_FORMATS.items()}
+        entries = "".join(f'\t\t<EnumEntry Name="{n}" NameSpace="Standard">\n\t\t\t<Value>{code[n]}</Value>\n'
+                          "\t\t</EnumEntry>\n" for n in ADDED_FORMATS)
+        xml = xml[:anchor] + entries + xml[anchor:]
+    end = xml.find("</Enumeration>", start)
+    listed = xml[start:end] if start >= 0 else ""
+    offered = [n for n in FILLABLE_FORMATS.values() if f'<EnumEntry Name="{n}"' in listed]
+    return xml, offered
+
+
+def served_formats() -> list[str]:
+    """The pixel formats a :class:`GigECameraServer` offers here (this Aravis's fake device's XML decides)."""
+    import gi
+
+    gi.require_version("Aravis", "0.8")
+    from gi.repository import Aravis
+
+    return served_xml(Aravis)[1]
 
 
 def _gpointer(obj) -> int:
@@ -132,16 +171,17 @@ class GigECameraServer:
 
     @staticmethod
     def _start(Aravis, address: str, serial: str, temperature: bool):
-        """The fake device, with the fake camera's own GenICam XML plus ``DeviceTemperature`` if asked."""
-        if not temperature:
-            return Aravis.GvFakeCamera.new(address, serial)
-        xml = Aravis.FakeCamera.new(serial).get_genicam_xml()[0]
-        if "<!-- Port -->" not in xml:
-            raise OSError("this Aravis's fake camera XML has no <!-- Port --> marker to add DeviceTemperature at")
+        """The fake device, with the fake camera's own GenICam XML plus :data:`ADDED_FORMATS` (where its XML has
+        the ``PixelFormat`` enumeration to add them to) and ``DeviceTemperature`` if asked."""
+        xml, _ = served_xml(Aravis, serial)
+        if temperature:
+            if "<!-- Port -->" not in xml:
+                raise OSError("this Aravis's fake camera XML has no <!-- Port --> marker to add DeviceTemperature at")
+            xml = xml.replace("\t<!-- Port -->", _TEMPERATURE_XML + "\t<!-- Port -->", 1)
         fd, path = tempfile.mkstemp(prefix="gonio-gige-", suffix=".xml")
         try:
             with os.fdopen(fd, "w") as f:
-                f.write(xml.replace("\t<!-- Port -->", _TEMPERATURE_XML + "\t<!-- Port -->", 1))
+                f.write(xml)
             return Aravis.GvFakeCamera.new_full(address, serial, path)  # the XML is read here
         finally:
             os.unlink(path)
@@ -169,13 +209,14 @@ class GigECameraServer:
             if px.shape[0] < h or px.shape[1] < w:
                 raise ValueError(f"rendered {px.shape[1]}x{px.shape[0]}, the host asked {w}x{h}")
             px = px[:h, :w]
-            scale = frame.saturation_level
-            if name in ("Mono8", "Mono16"):
-                top = 255 if name == "Mono8" else 65535
-                out = np.rint(px.mean(axis=2) * (top / scale)).astype(np.uint8 if top == 255 else "<u2")
+            top = 2 ** FORMAT_BITS[name] - 1  # the format's full scale: the frame's saturation level maps onto it
+            dtype = np.uint8 if top == 255 else np.dtype("<u2")
+            scaled = px * (top / frame.saturation_level)
+            if name.startswith("Mono"):
+                out = np.rint(scaled.mean(axis=2)).astype(dtype)
             else:
-                rgb8 = np.rint(px * (255.0 / scale)).astype(np.uint8)
-                out = rgb8 if name == "RGB8" else mosaic(rgb8, name[5:7])
+                rgb = np.rint(scaled).astype(dtype)
+                out = rgb if name.startswith("RGB") else mosaic(rgb, name[5:7])
             data = np.ascontiguousarray(out).tobytes()
             size = ctypes.c_size_t()
             ptr = self._lib.arv_buffer_get_data(buf, ctypes.byref(size))

@@ -93,6 +93,9 @@ class SimRigConfig:
     sensor_reports_temperature: bool = True
     #: How the host reaches the camera: ``direct`` (in-process) or ``gige`` (sim.gige_camera over GigE Vision).
     camera_link: str = "direct"
+    #: The GenICam pixel format of the ``gige`` link (sim.gige_camera.FILLABLE_FORMATS; empty: RGB8, as before
+    #: it was recorded).
+    pixel_format: str = ""
     #: Camera faults, :meth:`sim.faults.FrameFaults.from_spec` (``"black=0.05,stale=0.01"``; empty: none).
     frame_faults: str = ""
     #: The rig controller behind its pty: ``firmware`` (the reference firmware's C code, host build,
@@ -118,6 +121,8 @@ class SimRigConfig:
         for k in ("as_built", "tile", "principal_offset_px", "distortion"):
             if d[k] is None:
                 del d[k]
+        if not d["pixel_format"]:
+            del d["pixel_format"]
         return d
 
     def true_calibration(self) -> CameraCalibration:

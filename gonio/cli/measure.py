@@ -67,8 +67,12 @@ def register(sub) -> None:
                         "emulated ATmega328P; real emulated time)")
     p.add_argument("--sim-camera", choices=("direct", "gige"), default="direct",
                    help="gige: the simulated camera is served as a GigE Vision device on 127.0.0.1 and read "
-                        "through gonio's Aravis backend, an 8-bit RGB8 sensor (needs gir1.2-aravis-0.8 and "
-                        "gonio[genicam]); direct (default): called in-process")
+                        "through gonio's Aravis backend (needs gir1.2-aravis-0.8 and gonio[genicam]), in "
+                        "--sim-pixel-format; direct (default): called in-process")
+    p.add_argument("--sim-pixel-format", default="", metavar="FORMAT",
+                   help="with --sim-camera gige: the GenICam pixel format (RGB12 by default, 12 bits like the default "
+                        "camera; RGB8, Mono8, Mono12, Mono16, BayerRG8/12, ...: what the simulated GigE camera offers); "
+                        "the simulated sensor takes its bit depth; recorded in the manifest's sim.pixel_format")
     p.add_argument("--sim-as-built", metavar="SEED|ERRORS.toml", default="",
                    help="simulate an as-built rig: assembly errors (servo zeros, axis tilts and offsets, arm lengths, "
                         "sample height) drawn from SEED or read from a TOML file; the host still uses the declared "
@@ -164,7 +168,8 @@ def run_measure(args) -> int:
     if args.sim:
         sim = SimOptions(resolution=args.sim_resolution, frame_faults=args.sim_frame_faults,
                          controller=getattr(args, "sim_controller", "firmware"), camera=args.sim_camera,
-                         as_built=getattr(args, "sim_as_built", ""), seed=args.seed)
+                         as_built=getattr(args, "sim_as_built", ""), seed=args.seed,
+                         pixel_format=getattr(args, "sim_pixel_format", ""))
     with open_rig(rig_src if args.sim else str(args.rig), sim=sim, hardware=None if args.sim else hardware,
                   material=material, target=args.target, hold=True) as opened:
 

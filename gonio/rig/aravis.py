@@ -14,8 +14,10 @@ Physical units (GenICam SFNC, "Standard Features Naming Convention" 2.x):
   ``20 log10(gain)`` dB (``gain_unit = "dB"``, the default) or the raw number (``gain_unit = "raw"``
   for cameras whose gain register has no unit);
 * pixel formats (PFNC names): ``Mono8``, ``Mono10``, ``Mono12``, ``Mono14``, ``Mono16`` (unpacked,
-  little-endian 16-bit containers), ``RGB8``, and Bayer ``BayerRG8/GR8/GB8/BG8`` and their 16-bit
-  forms, demosaiced with OpenCV (bilinear) into RGB. Packed formats are refused in one line.
+  little-endian 16-bit containers), ``RGB8``, ``RGB12``, ``RGB16``, and Bayer ``BayerRG8/GR8/GB8/BG8`` and
+  their 12- and 16-bit forms, demosaiced with OpenCV (bilinear) into RGB. Packed formats are refused in one
+  line; a format the camera does not offer is refused naming the ones it does. The format is recorded in
+  the session manifest (the camera's identity) and sets the frames' bit depth.
 
 Triggering: without a hardware trigger each capture is a software trigger (``TriggerSource =
 Software``), so the frame is exposed after the exposure was set; with ``trigger`` (the rig
@@ -56,7 +58,9 @@ SENSOR_TEMP_RANGE = (-60.0, 150.0)
 PIXEL_FORMATS = {
     "Mono8": (8, np.uint8, None, 1), "Mono10": (10, np.uint16, None, 1), "Mono12": (12, np.uint16, None, 1),
     "Mono14": (14, np.uint16, None, 1), "Mono16": (16, np.uint16, None, 1), "RGB8": (8, np.uint8, None, 3),
+    "RGB12": (12, np.uint16, None, 3), "RGB16": (16, np.uint16, None, 3),
     **{f"Bayer{p}8": (8, np.uint8, p, 1) for p in ("RG", "GR", "GB", "BG")},
+    **{f"Bayer{p}12": (12, np.uint16, p, 1) for p in ("RG", "GR", "GB", "BG")},
     **{f"Bayer{p}16": (16, np.uint16, p, 1) for p in ("RG", "GR", "GB", "BG")},
 }
 #: OpenCV's demosaicing code for each PFNC Bayer pattern. OpenCV names a pattern by the 2×2 block

@@ -47,7 +47,7 @@ class SimOptions:
     """The simulated rig (:mod:`sim.rig`): camera resolution ``WxH``, per-frame faults (``KIND=RATE,...``),
     which controller answers (``firmware``: the reference firmware's host build, ``python``: the independent
     emulator, ``simavr``: the AVR binary in an emulated ATmega328P), the camera link (``direct`` or ``gige``:
-    served as a GigE Vision device and read through Aravis) and the as-built assembly errors (a seed or an
+    served as a GigE Vision device and read through Aravis, in ``pixel_format``) and the as-built assembly errors (a seed or an
     ERRORS.toml; empty: the rig as declared). ``seed`` seeds every noise source."""
 
     resolution: str | tuple[int, int] = DEFAULT_SIM_RESOLUTION
@@ -56,6 +56,9 @@ class SimOptions:
     camera: str = "direct"
     as_built: str = ""
     seed: int = 0
+    #: The GenICam pixel format of the ``gige`` camera link (empty: the deepest colour format the simulated
+    #: GigE camera offers, matching the default camera's 12 bits where it can; :mod:`gonio.session.rigs`).
+    pixel_format: str = ""
 
     def __post_init__(self):
         if not isinstance(self.resolution, tuple):
@@ -65,6 +68,9 @@ class SimOptions:
                                     "expected firmware, python or simavr")
         if self.camera not in ("direct", "gige"):
             raise ConfigError.field("--sim-camera", "camera", self.camera, "expected direct or gige")
+        if self.pixel_format and self.camera != "gige":
+            raise ConfigError.field("--sim-pixel-format", "pixel_format", self.pixel_format,
+                                    "is the GenICam format of --sim-camera gige")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2 ** 32:
             raise ConfigError.field("--seed", "seed", self.seed, "expected an integer in [0, 2^32)")
 

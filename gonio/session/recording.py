@@ -202,6 +202,14 @@ def checked_sim(sim, where: str) -> dict:
                 raise DataError(f"{where}: sim.camera_link = {str(value)[:40]!r}: expected 'direct' or 'gige'")
             out[key] = value
             continue
+        if key == "pixel_format":
+            from gonio.rig.aravis import PIXEL_FORMATS
+
+            if value not in PIXEL_FORMATS:
+                raise DataError(f"{where}: sim.pixel_format = {str(value)[:40]!r}: expected a GenICam pixel format "
+                                f"({', '.join(PIXEL_FORMATS)})")
+            out[key] = value
+            continue
         if key not in SIM_RANGES:
             continue  # a newer gonio's setting: ignored, as SimRigConfig.from_dict does
         lo, hi, kind = SIM_RANGES[key]

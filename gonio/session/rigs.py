@@ -168,7 +168,7 @@ def _open_sim(rig, text, where, opts: SimOptions, material, target, hold) -> Ope
     simrig = _sim_plugin()
     record = _new_record("sim", rig, text, where, material, target)
     w, h = opts.size
-    link = {} if opts.camera == "direct" else {"camera_link": "gige", "bit_depth": 8}
+    link = {} if opts.camera == "direct" else _gige_link(opts.pixel_format, simrig.SimRigConfig.bit_depth)
     if opts.frame_faults:
         try:
             simrig.FrameFaults.from_spec(opts.frame_faults)
@@ -218,6 +218,39 @@ def _start_sim(record, rig, *, material_brdf, config, hold, exposure_range=None,
                    camera_label="the simulated camera", hold=hold, _stack=stack)
 
 
+#: The simulated GigE camera's default pixel format (12-bit colour, like the default simulated camera) and the
+#: one it falls back to where this Aravis's fake device cannot offer it.
+GIGE_DEFAULT_FORMAT, GIGE_FALLBACK_FORMAT = "RGB12", "RGB8"
+
+
+def _gige_link(pixel_format: str, default_bits: int) -> dict:
+    """The simulated rig's settings for ``--sim-camera gige`` in ``pixel_format``: validated against the formats
+    the simulated GigE camera offers (one line naming them), the sensor's bit depth set to the format's (so the
+    host reads what the sensor makes), a warning when that is not the default camera's ``default_bits``."""
+    import warnings
+
+    from gonio.plugins import plugin
+    from gonio.rig.aravis import PIXEL_FORMATS, aravis_available
+
+    if not aravis_available():
+        raise HardwareError("--sim-camera gige needs Aravis: apt-get install gir1.2-aravis-0.8 and "
+                            "pip install 'gonio[genicam]' (PyGObject)")
+    offered = [f for f in plugin("sim.gige_camera").served_formats() if f in PIXEL_FORMATS]
+    fmt = pixel_format
+    if not fmt:
+        fmt = GIGE_DEFAULT_FORMAT if GIGE_DEFAULT_FORMAT in offered else GIGE_FALLBACK_FORMAT
+    if fmt not in offered:
+        raise ConfigError.field("--sim-pixel-format", "pixel_format", fmt,
+                                f"the simulated GigE camera offers {', '.join(offered)}")
+    bits = PIXEL_FORMATS[fmt][0]
+    if bits != default_bits:
+        why = ("this Aravis's fake camera offers no 12-bit colour format" if not pixel_format
+               else f"{fmt} has {bits} bits")
+        warnings.warn(f"--sim-camera gige: {why}: the simulated camera is a {bits}-bit {fmt} sensor, not the default "
+                      f"camera's {default_bits} bits", stacklevel=2)
+    return {"camera_link": "gige", "pixel_format": fmt, "bit_depth": bits}
+
+
 def _gige_sim_camera(sim, stack):
     """``sim.camera`` served as a GigE Vision camera on the loopback interface (:mod:`sim.gige_camera`)
     and opened through gonio's Aravis backend, as a GenICam camera on a rig would be."""
@@ -230,7 +263,8 @@ def _gige_sim_camera(sim, stack):
     except (ImportError, ValueError, OSError) as exc:
         raise HardwareError(f"--sim-camera gige: cannot serve the simulated camera over GigE Vision ({exc})") from None
     cal = sim.calibration
-    camera = AravisCamera(server.device, sim.clock, pixel_format="RGB8", black_level=sim.sensor.black_level,
+    fmt = getattr(sim.config, "pixel_format", "") or GIGE_FALLBACK_FORMAT  # sessions before pixel_format: RGB8
+    camera = AravisCamera(server.device, sim.clock, pixel_format=fmt, black_level=sim.sensor.black_level,
                           gain_unit="raw", width=cal.width, height=cal.height)
     stack.callback(camera.close)
     return camera

@@ -226,6 +226,9 @@ def test_simulated_session_through_a_gige_camera(aravis, tmp_path, capsys):
     assert code == 0, capsys.readouterr().err
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["sim"]["camera_link"] == "gige" and manifest["exit_status"] == "completed"
+    # the default camera's depth crosses the link: 12-bit colour (RGB12, added to the fake device's formats)
+    assert manifest["sim"]["pixel_format"] == "RGB12" and manifest["sim"]["bit_depth"] == 12
+    assert "warning" not in capsys.readouterr().err
     records = [json.loads(line.split(b" ", 1)[1]) for line in (out / "samples.jsonl").read_bytes().splitlines()]
     temps = [r["meta"]["dark_model"]["sensor_temp_c"] for r in records if "dark_model" in r["meta"]]
     assert temps and all(isinstance(t, float) and 20 < t < 40 for t in temps)  # read over GenICam

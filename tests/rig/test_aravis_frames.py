@@ -12,10 +12,6 @@ from gonio.cli.main import main
 from gonio.errors import HardwareError
 from tests.rig.test_aravis import ARGS, _Clock, _Known, aravis, fake_camera, gige_lock  # noqa: F401 (fixtures)
 
-#: The fake camera's WidthRegister (its GenICam XML: IntReg at 0x100, big-endian).
-WIDTH_REGISTER = 0x100
-
-
 def _open(device, **kw):
     from gonio.rig.aravis import AravisCamera
 
@@ -40,31 +36,34 @@ def test_a_frame_of_another_size_is_one_hardware_error_naming_the_field(aravis, 
     assert "3 times" in msg and cam.incomplete == 3  # retried before it was reported
 
 
-class _Restores(_Known):
-    """A camera that puts its Width back while it serves the zero-size frame (a transient fault)."""
-
-    server = None
-
-    def capture(self, exposure, gain=1.0, *, timeout=10.0):
-        width = self.server._fake.read_register(WIDTH_REGISTER)[1]
-        if width == 0:
-            self.server._fake.write_register(WIDTH_REGISTER, 64)
-        return super().capture(exposure, gain)
-
-
 def test_a_bad_frame_the_camera_corrects_is_retried(aravis):
+    """The camera's region is wrong for a while (another thread puts it back once the first bad frame was seen):
+    the capture retries and returns the frame of the configured size."""
+    import threading
+    import time
+
     from sim.gige_camera import GigECameraServer
 
-    camera = _Restores()
-    with gige_lock(), GigECameraServer(camera, serial="GONIO-R") as server:
-        camera.server = server
-        cam = _open(server.device)
+    with gige_lock(), GigECameraServer(_Known(), serial="GONIO-R") as server:
+        cam = _open(server.device, retries=200)
+        dev = cam._cam.get_device()
+
+        def put_back():
+            t0 = time.monotonic()
+            while cam.incomplete == 0 and time.monotonic() - t0 < 20:
+                time.sleep(0.001)
+            dev.set_integer_feature_value("Width", 64)
+
         try:
-            cam._cam.get_device().set_integer_feature_value("Width", 0)
-            frame = cam.capture(0.001, 1.0, timeout=5)
+            assert cam.capture(0.001, 1.0, timeout=5).pixels.shape == (48, 64, 3)
+            dev.set_integer_feature_value("Width", 32)
+            fixer = threading.Thread(target=put_back)
+            fixer.start()
+            frame = cam.capture(0.001, 1.0, timeout=20)
+            fixer.join()
         finally:
             cam.close()
-    assert frame.pixels.shape == (48, 64, 3) and cam.incomplete == 1
+    assert frame.pixels.shape == (48, 64, 3) and 1 <= cam.incomplete < 200
 
 
 def test_the_fake_camera_at_zero_width_through_the_cli_is_one_line(fake_camera, tmp_path, capsys):
