@@ -50,13 +50,20 @@ def test_a_chosen_format_is_validated_recorded_and_its_depth_said(aravis, tmp_pa
     assert not (tmp_path / "bad").exists()
     assert main(["measure", "--sim", "--sim-pixel-format", "RGB12", "--out", str(tmp_path / "d"), "--quiet"]) == 2
     assert "is the GenICam format of --sim-camera gige" in capsys.readouterr().err
-    with gige_lock():
-        code = _measure(tmp_path / "s8", "--sim-pixel-format", "RGB8")
-    err = capsys.readouterr().err
-    assert code == 0, err
-    assert "RGB8 has 8 bits: the simulated camera is a 8-bit RGB8 sensor, not the default camera's 12 bits" in err
-    manifest = json.loads((tmp_path / "s8" / "manifest.json").read_text())
-    assert manifest["sim"]["pixel_format"] == "RGB8" and manifest["sim"]["bit_depth"] == 8
+    # a format of another depth: the sensor takes it, recorded, and said in one warning (the session itself, in
+    # the default RGB12, is tests/rig/test_aravis.py::test_simulated_session_through_a_gige_camera)
+    from gonio.session.rigs import _gige_link
+
+    with pytest.warns(UserWarning) as said:
+        link = _gige_link("RGB8", 12)
+    assert link == {"camera_link": "gige", "pixel_format": "RGB8", "bit_depth": 8}
+    assert [str(w.message) for w in said] == ["--sim-camera gige: RGB8 has 8 bits: the simulated camera is a 8-bit "
+                                              "RGB8 sensor, not the default camera's 12 bits"]
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the default matches the default camera: nothing to say
+        assert _gige_link("", 12) == {"camera_link": "gige", "pixel_format": "RGB12", "bit_depth": 12}
 
 
 def test_the_manifests_pixel_format_is_checked(tmp_path):
