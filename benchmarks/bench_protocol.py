@@ -188,15 +188,16 @@ def firmware_table(quick: bool) -> list[Table]:
     n = 20 if quick else 200
     t = Table("status() round trip by controller implementation", ["controller", "median ms", "p95 ms", "× baseline"],
               baseline=0, default=1, why_default="gonio measure --sim runs the firmware's host build",
-              notes=["simavr: emulated 16 MHz ATmega328P, 115200 baud, simavr's uart_pty thread polls the pty"])
+              notes=["simavr: emulated 16 MHz ATmega328P, 115200 baud at the wire's pace, in lockstep with a "
+                     "SimClock (sim/simavr.py: the pty relayed to the bridge over its stdin)"])
     rows = []
     for name, make in (("Python emulator (sim.controller)", lambda c: ControllerEmulator(c)),
                        ("firmware, host build (sim.firmware)", lambda c: FirmwareController(c)),
                        ("firmware, AVR build in simavr (sim.simavr)", None)):
         clock = SimClock()
-        dev = make(clock) if make else SimavrController()
+        dev = make(clock) if make else SimavrController(clock)
         with dev:
-            with RigController.open(dev.path, **({"clock": clock} if make else {})) as ctl:
+            with RigController.open(dev.path, clock=clock) as ctl:
                 lat = []
                 for _ in range(n):
                     t0 = time.perf_counter()

@@ -100,7 +100,7 @@ class SimRigConfig:
     frame_faults: str = ""
     #: The rig controller behind its pty: ``firmware`` (the reference firmware's C code, host build,
     #: :mod:`sim.firmware`), ``python`` (the independent Python implementation, :mod:`sim.controller`) or
-    #: ``simavr`` (the AVR build in an emulated ATmega328P, :mod:`sim.simavr`; real emulated time).
+    #: ``simavr`` (the AVR build in an emulated ATmega328P, :mod:`sim.simavr`; in lockstep with the clock).
     controller: str = "firmware"
     #: As-built geometry (:mod:`sim.as_built`): ``None`` the declared (perfect) rig, else
     #: :meth:`sim.as_built.AsBuilt.to_dict` (the assembly errors the simulator renders with).

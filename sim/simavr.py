@@ -1,29 +1,40 @@
-"""The reference firmware's AVR build running in simavr (an emulated ATmega328P), UART on a pty.
+"""The reference firmware's AVR build running in simavr (an emulated ATmega328P), behind a pty.
 
 ``make -C firmware_protocol/firmware simavr`` builds ``goniofw.elf`` (avr-gcc) and the bridge
-``fw_simavr`` (against libsimavr; its UART is simavr's ``uart_pty`` part); :class:`SimavrController`
-starts the bridge and gives the pty's :attr:`path`, to open with
-:class:`gonio.rig.controller.RigController` or ``gonio controller --port``. Time there is emulated CPU
-cycles (the firmware's Timer0), paced to about real time by simavr while the CPU sleeps; the
-photodiode input follows the light's PWM registers, the temperature sensor reads 25 °C, and the
-E-stop loop is opened and closed with :meth:`set_estop` (SIGUSR1/SIGUSR2 to the bridge).
+``fw_simavr`` (against libsimavr); :class:`SimavrController` serves a pty (:attr:`path`, to open with
+:class:`gonio.rig.controller.RigController` or ``gonio controller --port``) and drives the bridge over its
+stdin/stdout **in lockstep with the clock**: before bytes from the host reach the emulated USART (at the
+wire's pace) and on every idle tick, the firmware runs until its emulated time (CPU cycles since its
+power-on) reaches the clock's time since :meth:`start` — never paced by real time, never ahead of the
+clock except while it is handling a request. So a session on a :class:`~sim.clock.SimClock` is
+reproducible for a seed (the same requests at the same clock times meet the same emulated cycles), and on
+a real clock emulated time follows real time.
+
+Physics (in the bridge, at every ADC conversion): the photodiode follows the light's PWM duty with the lamp
+warm-up of :class:`sim.controller.ControllerEmulator` (``I = L (1 − d exp(−(t − t_on)/τ))``) and seeded
+Gaussian noise (:meth:`reseed` per pose); :meth:`light_output` gives the camera the same warm-up on the same
+time base; the heat-sink sensor reads 25 °C unless :meth:`set_heat_sink` says otherwise; :meth:`set_estop`
+opens the E-stop loop; :meth:`hang` makes the firmware's main loop hang (its hardware watchdog must reset it).
 """
 
 from __future__ import annotations
 
 import glob
-import os
-import select
+import math
 import shutil
-import signal
 import subprocess
 import threading
-import time
+
+import numpy as np
 
 from gonio import childproc
 from sim.firmware import FIRMWARE_DIR
+from sim.pty import PtyServer
 
 BRIDGE = FIRMWARE_DIR / "build" / "fw_simavr"
+#: Emulated time the firmware runs at start, before the clock's time (its boot: UART set up, handshake-ready)
+BOOT_S = 0.01
+RX_CHUNK = 1024  #: bytes per RX command
 ELF = FIRMWARE_DIR / "build" / "goniofw.elf"
 
 #: The Debian packages the AVR build and its emulation need, each with a file that shows it is installed
@@ -73,94 +84,174 @@ def avr_size() -> tuple[int, int]:
     return int(m.group(1)), int(m.group(2))
 
 
-class SimavrController:
-    """The AVR firmware in simavr behind a pty (start/stop, or use as a context manager)."""
+def ms_ticks_address() -> int:
+    """Data-space address of the firmware's millisecond counter ``ms_ticks`` (hal_avr.c), from the .elf's symbols
+    (``avr-nm``; SRAM symbols carry avr-gcc's 0x800000 data-space offset); 0 if not found."""
+    r = childproc.run(["avr-nm", str(ELF)], capture_output=True, text=True)
+    for line in r.stdout.splitlines():
+        parts = line.split()
+        if len(parts) == 3 and parts[2] == "ms_ticks":
+            return int(parts[0], 16) & 0xFFFF
+    return 0
 
-    def __init__(self, clock=None, *, faults=None, seed: int = 0, **_physics):
+
+class SimavrController(PtyServer):
+    """The AVR firmware in simavr behind a pty, in lockstep with ``clock`` (start/stop, or a context manager).
+
+    ``clock``: the simulator's clock (a :class:`~sim.clock.SimClock`), or None for real time. ``seed``,
+    ``pd_noise``, ``warmup_depth``, ``warmup_tau``: the photodiode model (as
+    :class:`sim.controller.ControllerEmulator`'s). Link faults are not supported (use the host build,
+    ``controller = 'firmware'``, for those).
+    """
+
+    def __init__(self, clock=None, *, faults=None, seed: int = 0, pd_noise: float = 0.002, warmup_depth: float = 0.05,
+                 warmup_tau: float = 120.0, name: str = "controller", **_physics):
+        from gonio.rig.clock import RealClock
         from sim.faults import LinkFaults
 
-        self.proc: subprocess.Popen | None = None
-        self.path = ""
-        self.clock = clock
-        self.faults = faults or LinkFaults()  # kept for the SimRig's per-pose reseeding; not applied here
-        if any(getattr(self.faults, k, 0) for k in ("delay_rate", "drop_rate", "corrupt_rate", "short_rate")):
+        faults = faults or LinkFaults()  # kept for the SimRig's per-pose reseeding; not applied here
+        if any(getattr(faults, k, 0) for k in ("delay_rate", "drop_rate", "corrupt_rate", "short_rate")):
             raise ValueError("simavr controller: link faults are not supported (use controller = 'firmware')")
-        self._duty = 0
-        self._reader = None
+        super().__init__(name)
+        self.faults = faults
+        self.clock = clock if clock is not None else RealClock()
+        self.pd_noise, self.warmup_depth, self.warmup_tau = float(pd_noise), float(warmup_depth), float(warmup_tau)
+        self.seed = seed
+        self.proc: subprocess.Popen | None = None
+        self._bridge_lock = threading.RLock()
+        self._t0 = 0.0  # clock time of the firmware's power-on
+        self._duty, self._on_since_us = 0, 0.0
+        self.emulated_us = 0.0  #: the firmware's emulated time (us since power-on) after the last command
         #: lengths of the trigger pulses on pin PD7, µs of emulated time, as the bridge measured them
         self.pulses_us: list[float] = []
 
+    # -- the bridge ------------------------------------------------------------------------------
     def start(self, timeout: float = 10.0) -> "SimavrController":
+        if self.proc is not None:
+            return self
         build()
-        # the bridge dies with this process, however it dies (kill -9 included: gonio.childproc)
-        self.proc = childproc.popen([str(BRIDGE), str(ELF)], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
-        fd, out = self.proc.stdout.fileno(), b""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            ready, _, _ = select.select([fd], [], [], 0.2)
-            if ready:
-                chunk = os.read(fd, 4096)
-                out += chunk
-                for line in out.decode(errors="replace").splitlines():
-                    if line.startswith("PTY ") and out.endswith(b"\n"):
-                        self.path = line.split()[1]
-                        self._reader = threading.Thread(target=self._read_reports, args=(fd,), daemon=True)
-                        self._reader.start()
-                        time.sleep(0.2)  # the firmware's boot (a few emulated ms)
-                        return self
-                if not chunk:
-                    break
-        err = out.decode(errors="replace")[-300:]
-        self.stop()
-        raise RuntimeError(f"fw_simavr did not report its pty: {err.strip()}")
+        # the bridge dies with this process: SIGKILL from the kernel when it dies (gonio.childproc), and it
+        # exits by itself at the end of its stdin, a pipe only this process holds
+        self.proc = childproc.popen([str(BRIDGE), str(ELF)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                    stderr=subprocess.DEVNULL, text=True, bufsize=1)
+        self._t0 = self.clock.now() - BOOT_S  # the firmware booted BOOT_S before the clock's now
+        for _ in range(100):  # simavr's own "Loaded ..." lines first
+            line = self.proc.stdout.readline()
+            if not line or line.strip() == "READY":
+                break
+        if line.strip() != "READY":
+            self.stop()
+            raise RuntimeError("fw_simavr did not start")
+        self._command(f"TICKS {ms_ticks_address()}")  # lets the bridge skip idle time (fw_simavr.c)
+        self._command(f"PD {self.pd_noise * 1e6:.0f} {self.warmup_depth * 1e6:.0f} {self.warmup_tau * 1e3:.0f}")
+        self.reseed(self.seed)
+        self._command(f"RUN {self._target_us()}")  # the firmware's boot
+        return super().start()
 
-    def _read_reports(self, fd: int) -> None:
-        buf = b""
-        while True:
-            try:
-                chunk = os.read(fd, 4096)
-            except OSError:
-                return
-            if not chunk:
-                return
-            buf += chunk
-            *lines, buf = buf.split(b"\n")
-            for line in lines:
-                if line.startswith(b"LIGHT "):
-                    self._duty = int(line.split()[1])
-                elif line.startswith(b"PULSE "):
-                    self.pulses_us.append(int(line.split()[1]) / 1000.0)
+    def _target_us(self) -> int:
+        return max(0, int(round((self.clock.now() - self._t0) * 1e6)))
 
+    def _command(self, line: str) -> None:
+        """Send one command and handle the bridge's events up to its IDLE line (bytes the firmware sent go to
+        the host)."""
+        with self._bridge_lock:
+            if self.proc is None or self.proc.poll() is not None:
+                raise RuntimeError("fw_simavr is not running")
+            self.proc.stdin.write(line + "\n")
+            self.proc.stdin.flush()
+            for _ in range(1_000_000):  # bounded: one line per event
+                ev = self.proc.stdout.readline()
+                if not ev:
+                    raise RuntimeError("fw_simavr stopped")
+                kind, _, rest = ev.strip().partition(" ")
+                if kind == "IDLE":
+                    self.emulated_us = float(rest)
+                    return
+                if kind == "TX":
+                    self.send(bytes.fromhex(rest))
+                elif kind == "LIGHT":
+                    duty, since = rest.split()
+                    self._duty, self._on_since_us = int(duty), float(since)
+                elif kind == "PULSE":
+                    self.pulses_us.append(int(rest) / 1000.0)
+            raise RuntimeError("fw_simavr: no IDLE")
+
+    # -- the pty ---------------------------------------------------------------------------------
+    def on_bytes(self, data: bytes) -> None:
+        with self._bridge_lock:
+            self._command(f"RUN {self._target_us()}")
+            data = bytes(data)
+            for k in range(0, len(data), RX_CHUNK):  # the bridge reads lines of at most 8 KiB
+                self._command("RX " + data[k:k + RX_CHUNK].hex())
+
+    def on_idle(self) -> None:
+        with self._bridge_lock:
+            if self.proc is not None:
+                self._command(f"RUN {self._target_us()}")
+
+    # -- the controller's observables and inputs --------------------------------------------------
     def light_output(self) -> float:
-        """Relative light output now, from the PWM duty the firmware set (no warm-up model here)."""
-        return self._duty / 65535.0
+        """Relative light output now: the PWM duty the firmware set, with the lamp's warm-up since it switched
+        on (the photodiode's model, on the same time base)."""
+        with self._bridge_lock:
+            if self.proc is not None:
+                self._command(f"RUN {self._target_us()}")
+            if not self._duty:
+                return 0.0
+            t = (self.emulated_us - self._on_since_us) * 1e-6
+            return self._duty / 65535.0 * (1.0 - self.warmup_depth * math.exp(-t / self.warmup_tau))
+
+    @property
+    def light_on(self) -> bool:
+        return self.light_output() > 0.0
 
     def reseed(self, seed) -> None:
-        """Nothing to reseed: the photodiode model in the bridge is noiseless."""
+        """Restart the photodiode noise from ``seed`` (an int, a SeedSequence or a numpy Generator)."""
+        gen = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        self._command(f"SEED {int(gen.integers(1, 2**63))}")
 
     def inject_reset(self) -> None:
         raise NotImplementedError("simavr controller: brown-out injection is a host-build feature (controller = 'firmware')")
 
     def set_estop(self, pressed: bool) -> None:
         """Open (pressed) or close the E-stop loop on pin PD2."""
-        os.kill(self.proc.pid, signal.SIGUSR1 if pressed else signal.SIGUSR2)
+        with self._bridge_lock:
+            self._command(f"RUN {self._target_us()}")
+            self._command(f"ESTOP {int(bool(pressed))}")
+
+    def set_interlock(self, open_: bool) -> None:
+        """Open or close the enclosure interlock on pin PD3."""
+        with self._bridge_lock:
+            self._command(f"RUN {self._target_us()}")
+            self._command(f"INTERLOCK {int(bool(open_))}")
+
+    def set_heat_sink(self, celsius: float | None) -> None:
+        """The temperature the TMP36 on the light's heat sink reads (None: 25 °C)."""
+        with self._bridge_lock:
+            self._command(f"RUN {self._target_us()}")
+            self._command(f"TEMP {int(round((25.0 if celsius is None else celsius) * 100))}")
+
+    def hang(self) -> None:
+        """Make the firmware's main loop hang (interrupts keep running; nothing feeds the hardware watchdog)."""
+        with self._bridge_lock:
+            self._command(f"RUN {self._target_us()}")
+            self._command("HANG")
+
+    def run_for(self, seconds: float) -> None:
+        """Let the firmware run ``seconds`` of emulated time beyond the clock (a test's way to see what it
+        does on its own, e.g. its watchdog reset, without moving the clock)."""
+        with self._bridge_lock:
+            self._command(f"RUN {int(self.emulated_us + seconds * 1e6)}")
 
     def stop(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        if self.proc is not None:
-            if self._reader is not None:
-                self._reader.join(2)
-            self.proc.stdout.close()
-        self.proc = None
-
-    def __enter__(self):
-        return self.start()
-
-    def __exit__(self, *exc):
-        self.stop()
+        super().stop()
+        with self._bridge_lock:
+            if self.proc is not None:
+                try:
+                    self.proc.stdin.close()  # end of stdin: the bridge exits
+                    self.proc.wait(5)
+                except (OSError, subprocess.TimeoutExpired):
+                    self.proc.kill()
+                    self.proc.wait()
+                self.proc.stdout.close()
+            self.proc = None

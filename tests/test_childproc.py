@@ -90,14 +90,20 @@ def test_batch_workers_die_with_their_parent(tmp_path):
     (tmp_path / "slowjob.py").write_text(textwrap.dedent("""
         import os, time
         def job(source, options):
-            print(os.getpid(), flush=True)
+            with open(f"pid-{source}.tmp", "w") as f:
+                f.write(str(os.getpid()))
+            os.rename(f"pid-{source}.tmp", f"pid-{source}")
             time.sleep(120)
             return {"status": "ok"}
     """))
     assert _kill_parent_and_watch("""
-        import threading, time
+        import os, threading, time
         from gonio.batch import run_batch
         import slowjob
         threading.Thread(target=run_batch, args=(slowjob.job, ["a", "b"], {}), kwargs={"jobs": 2}, daemon=True).start()
+        while not (os.path.exists("pid-a") and os.path.exists("pid-b")):
+            time.sleep(0.05)
+        print(open("pid-a").read(), flush=True)
+        print(open("pid-b").read(), flush=True)
         time.sleep(120)
     """, tmp_path, n_children=2) == []

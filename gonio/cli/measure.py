@@ -64,7 +64,7 @@ def register(sub) -> None:
     p.add_argument("--sim-controller", choices=("firmware", "python", "simavr"), default="firmware",
                    help="the simulated rig controller: firmware (default: the reference firmware's C code, host "
                         "build), python (the independent Python emulator) or simavr (the AVR binary in an "
-                        "emulated ATmega328P; real emulated time)")
+                        "emulated ATmega328P, in lockstep with the simulated clock)")
     p.add_argument("--sim-camera", choices=("direct", "gige"), default="direct",
                    help="gige: the simulated camera is served as a GigE Vision device on 127.0.0.1 and read "
                         "through gonio's Aravis backend (needs gir1.2-aravis-0.8 and gonio[genicam]), in "

@@ -224,8 +224,16 @@ class RigController:
 
     def status(self) -> ControllerStatus:
         """E-stop, interlock, light, temperature, uptime; ``flags`` holds all SPEC.md status bits; the cause of the
-        controller's last reset (protocol ≥ 2.2, else None)."""
-        r = self._transact("STATUS")
+        controller's last reset (protocol ≥ 2.2, else None).
+
+        A controller that reset since the handshake answers STATUS (NOT_CONFIGURED set, the 2.0 payload: it no
+        longer knows this host's version, SPEC.md §3): the client then re-handshakes and restores the watchdog
+        period and the light, as after NOT_READY, and returns the status read after that (with its reset cause)."""
+        with self._lock:
+            r = self._transact("STATUS")
+            if r["flags"] & fp.FLAG_NOT_CONFIGURED and self.info is not None and not self._recovering:
+                self._recover_reset()
+                r = self._transact("STATUS")
         f = r["flags"]
         cause = r.values.get("reset_cause")
         return ControllerStatus(estop=bool(f & fp.FLAG_ESTOP), interlock_open=bool(f & fp.FLAG_INTERLOCK_OPEN),
@@ -359,8 +367,8 @@ class RigController:
                 if ev.seq != seq or ev.type not in (code | fp.REPLY_BIT, fp.ERROR):
                     self.stale_replies += 1
                     continue
-                try:
-                    msg = fp.decode_message(ev, self.session_minor)
+                try:  # a reset controller answers STATUS before any HELLO with the 2.0 payload (SPEC.md §3)
+                    msg = fp.decode_message(ev, None if code == fp.STATUS else self.session_minor)
                 except fp.ProtocolError:
                     corrupt = True
                     continue
