@@ -69,12 +69,16 @@ def _require_positive(values: np.ndarray, what: str, hint: str = "") -> None:
                         f"nothing to show on a log scale{hint}")
 
 
+#: Said under a polar map's title: the rings' values are not written inside the disc, over the data.
+RINGS = "rings at θ = 30°, 60°, 90°"
+
+
 def _polar_axis_style(ax) -> None:
-    """θ rings every 30° with small labels set off the data, so they do not run together."""
+    """θ rings every 30°, unlabelled (their values are in the title: :data:`RINGS`), so no label sits
+    over the data; small φ labels outside the disc."""
     ax.set_rlim(0, 90)
     ax.set_rticks([30, 60, 90])
-    ax.set_rlabel_position(112.5)
-    ax.tick_params(axis="y", labelsize=7)
+    ax.set_yticklabels([])
     ax.tick_params(axis="x", labelsize=7, pad=1)
 
 
@@ -120,7 +124,7 @@ def polar_slice(*, samples: SampleSet | None = None, table=None, theta_i_deg: fl
     else:
         raise ValueError("polar_slice needs samples or a table")
     _polar_axis_style(ax)
-    ax.set_title(f"{title + ': ' if title else ''}BRDF at {ti:.1f}° incidence (radius θo, angle φo − φi)",
+    ax.set_title(f"{title + ': ' if title else ''}BRDF at {ti:.1f}° incidence\n(radius θo, {RINGS}; angle φo − φi)",
                  parse_math=False)
     fig.colorbar(art, ax=ax, label="log10 BRDF (1/sr), mean of R,G,B", shrink=0.8)
     return fig
@@ -187,7 +191,7 @@ def coverage(*, samples: SampleSet | None = None, table=None, title: str = ""):
             ax = fig.add_subplot(1, 3, k + 1, projection="polar")
             ax.scatter(p, np.degrees(t), s=3, alpha=0.5, color=("tab:orange", "tab:blue")[k])
             _polar_axis_style(ax)
-            ax.set_title(f"{name}: {len(t)} samples", pad=14, fontsize=10)
+            ax.set_title(f"{name}: {len(t)} samples\n{RINGS}", pad=14, fontsize=10)
         th, _, td, _ = half_diff_from_dirs(samples.wi, samples.wo)
         ax = fig.add_subplot(1, 3, 3)
         _, _, _, img = ax.hist2d(np.degrees(td), np.degrees(th), bins=[45, 45], range=[[0, 90], [0, 90]],

@@ -216,8 +216,8 @@ def sphere_panel(entry: Entry, *, size: int = SPHERE_SIZE) -> str:
         "measurement); the fitted models are shown.</p>")
     caption = ("<p><small>Error images: |model − measured| / measured, mean of R, G, B; colour map inferno: black "
                f"0 %, yellow {100 * ERROR_SCALE:g} % or more.</small></p>") if measured is not None and entry.fits else ""
-    return (sparse + '<table class="spheres"><tr>' + "".join(f"<th>{text(h)}</th>" for h in head) + "</tr>"
-            + "".join(rows) + "</table>" + caption)
+    return (sparse + '<div class="scroll"><table class="spheres"><tr>' + "".join(f"<th>{text(h)}</th>" for h in head)
+            + "</tr>" + "".join(rows) + "</table></div>" + caption)
 
 
 def _bounds(model) -> dict:
@@ -306,14 +306,14 @@ def summary_html(entry: Entry) -> str:
                                                for k, v in items) + "</table>"
 
 
-STYLE = """body{font-family:sans-serif;margin:1.5em;max-width:1400px}h2{border-bottom:1px solid #ccc}
+STYLE = """body{font-family:sans-serif;margin:1.5em;max-width:1500px}th{white-space:nowrap}h2{border-bottom:1px solid #ccc}
 table{border-collapse:collapse}td,th{padding:3px 8px;text-align:left;vertical-align:top}
-img.sphere,img.live{width:256px;height:256px;background:#000}
+img.sphere,img.live{width:256px;height:256px;background:#404040}
 .figure{display:inline-block;width:48%;min-width:420px}.figure.wide{display:block;width:100%}
 .no-slice{color:#a00}section.live{border:1px solid #ccc;border-radius:6px;padding:0 1em 1em;margin-bottom:2em}
-section.live figure{display:inline-block;margin:0 1em 0 0}section.live .slider{display:inline-block;margin-right:2em}
+section.live figure{display:inline-block;margin:0 1em .8em 0}section.live .slider{display:inline-block;margin-right:2em}
 section.live input[type=range]{width:260px;vertical-align:middle}.live-slice{height:360px}
-.live-error{color:#a00}"""
+.live-error{color:#a00}.scroll{overflow-x:auto}"""
 
 #: The one script that draws every figure of a page from its JSON data block (``script.plotly-figure``,
 #: ``data-target`` the element to draw in): fixed code, so its hash in the page's policy never changes.
@@ -341,8 +341,15 @@ def report_page(entries: Sequence[Entry], *, title: str = "gonio report", lead_h
     for k, e in enumerate(entries):
         page.add(f"<section class='entry' id='entry-{k}'><h2>{text(e.name)}</h2>{summary_html(e)}"
                  "<h3>Coverage and residuals</h3>")
-        _figure(page, f"{k}-0", coverage_figure(e))
-        _figure(page, f"{k}-1", residual_figure(e, styles))
+        has_samples = e.data.samples is not None and len(e.data.samples) > 0
+        if has_samples:  # an empty figure is not drawn: one line says why there is none
+            _figure(page, f"{k}-0", coverage_figure(e))
+        if has_samples and e.fits:
+            _figure(page, f"{k}-1", residual_figure(e, styles))
+        if not (has_samples and e.fits):
+            page.add("<p class='none'>" + ("No model fitted: no residuals." if has_samples else
+                                           f"A {text(e.data.kind)} table: no samples to map or to take residuals on.")
+                     + "</p>")
         angles = slice_angles(e)
         page.add("<h3>Slices in the plane of incidence</h3>")
         if not angles:

@@ -170,3 +170,23 @@ def test_viewer_controls_come_first_then_the_report(browser, compared, screensho
         assert measured == [256, "measured"]  # the table's measured sphere first, at 256 px
         assert not p.errors, p.errors
         page.screenshot(path=str(screenshots / "viewer-layout.png"))
+
+
+def test_no_empty_figure_for_a_table_and_none_without_a_model(compared):
+    _session, table = compared
+    page = build_report([table])
+    assert 'id="data-0-0"' not in page and 'id="data-0-1"' not in page  # no coverage map, no residuals: no samples
+    assert "no samples to map or to take residuals on" in page and page.count('class="plotly-figure"') == 4
+    bare = Entry("bare", _synthetic(30.0, 50.0).data)
+    assert "No model fitted: no residuals." in build_report([bare])
+
+
+def test_matplotlib_polar_maps_write_no_label_over_the_data():
+    from gonio import plots
+
+    e = _synthetic(30.0, 50.0)
+    for fig in (plots.coverage(samples=e.data.samples), plots.polar_slice(samples=e.data.samples, theta_i_deg=30.0)):
+        fig.canvas.draw()
+        polar = [ax for ax in fig.axes if ax.name == "polar"]
+        assert polar and all(not t.get_text() for ax in polar for t in ax.get_yticklabels())
+        assert all("rings at θ = 30°, 60°, 90°" in ax.get_title() for ax in polar)  # said in the title instead
