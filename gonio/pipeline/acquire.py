@@ -340,8 +340,10 @@ class Pipeline:
         var = np.full((c.height * c.width, C), np.nan)
         rate[used], var[used] = hdr.rate[:, 0], hdr.var[:, 0]
         try:
+            perturb = board.perturbed() if (board is not None and self.settings.pose_uncertainty) else []
             fs = sphere_frame_samples(rate.reshape(c.height, c.width, C), var.reshape(c.height, c.width, C), c,
-                                      cam_pose, sph, light_position, self.layout, min_snr=self.settings.min_snr)
+                                      cam_pose, sph, light_position, self.layout, min_snr=self.settings.min_snr,
+                                      pose_perturbations=perturb)
         except DataError as exc:  # the white reference unusable at this pose: no sample, the pose is skipped
             raise BoardNotFound(f"camera frame: {exc}", device="camera") from None
         n = len(fs.f)

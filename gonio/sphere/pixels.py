@@ -145,10 +145,44 @@ def white_scale(rate, var, calib, pose, layout, light_position, sphere: Sphere |
     return kI, np.sqrt(1.0 / w.sum(axis=0))
 
 
+def _geometry_variance(f, px, hits, box, calib, pose, sphere, light_position, perturbations) -> np.ndarray:
+    """Variance (n, 3) of the hit pixels' f from the camera pose's uncertainty (``perturbations``: poses one σ
+    along each principal axis of its covariance, :meth:`gonio.pipeline.markers.BoardPose.perturbed`; linear
+    propagation, JCGM 101 / GUM §5.1.2). A pose off by δ moves the surface point a pixel sees: the sample's angles
+    belong to a point the image shows ``δuv = project_q(x) − u`` pixels away, so its value is off by ``∇f · δuv``
+    (the image gradient of f, central differences over the sphere's pixels), and the irradiance assumed there is off
+    by ``δ ln E`` (E recomputed at the point the pixel's ray meets under the perturbed pose)."""
+    var = np.zeros_like(f)
+    if not perturbations or len(f) == 0:
+        return var
+    rows, cols = box
+    h, w = rows.stop - rows.start, cols.stop - cols.start
+    img = np.full((h, w, f.shape[1]), np.nan)
+    r, c = px[:, 0] - rows.start, px[:, 1] - cols.start
+    img[r, c] = f
+    gy, gx = np.gradient(img, axis=(0, 1)) if min(h, w) > 1 else (np.zeros_like(img), np.zeros_like(img))
+    gx, gy = np.nan_to_num(gx[r, c]), np.nan_to_num(gy[r, c])
+    lnE = np.log(np.clip(hits.cos_i, 1e-12, None) / hits.r2)
+    uv = px[:, ::-1].astype(np.float64)  # (u = col, v = row)
+    for q in perturbations:
+        duv = q.project(hits.x, calib) - uv
+        dq = calib.rays(uv[:, 0], uv[:, 1]) @ q.R
+        dq /= np.linalg.norm(dq, axis=-1, keepdims=True)
+        hq, hit_q = sphere_hits(q.centre, dq, sphere, light_position)
+        dlnE = np.zeros(len(f))
+        if hit_q.any():
+            dlnE[hit_q] = np.log(np.clip(hq.cos_i, 1e-12, None) / hq.r2) - lnE[hit_q]
+        delta = gx * duv[:, :1] + gy * duv[:, 1:] - f * dlnE[:, None]
+        var += np.nan_to_num(delta) ** 2
+    return var
+
+
 def sphere_frame_samples(rate, var, calib, pose, sphere: Sphere, light_position, layout, *,
-                         grazing_deg: float = 80.0, min_snr: float = 5.0) -> SphereFrameSamples:
+                         grazing_deg: float = 80.0, min_snr: float = 5.0, pose_perturbations=()) -> SphereFrameSamples:
     """Per-pixel BRDF samples of ``sphere`` in one merged frame (``rate``/``var`` (H, W, 3), NaN where saturated
-    in every exposure), with the camera ``pose`` and the light at ``light_position`` (sample frame, metres)."""
+    in every exposure), with the camera ``pose`` and the light at ``light_position`` (sample frame, metres);
+    ``pose_perturbations`` (the board pose's, :meth:`~gonio.pipeline.markers.BoardPose.perturbed`) add the
+    geometry's variance (:func:`_geometry_variance`) to each σ."""
     rate = np.asarray(rate, dtype=np.float64)
     var = np.asarray(var, dtype=np.float64)
     box = sphere_box(calib, pose, sphere)
@@ -174,6 +208,10 @@ def sphere_frame_samples(rate, var, calib, pose, sphere: Sphere, light_position,
         snr = np.min(np.abs(f) / sf, axis=1)
     dark = ~sil & ~term & ~sat & ~(snr >= min_snr)
     use = ~(sil | term | sat | dark)
+    if pose_perturbations:
+        geo = _geometry_variance(np.where(use[:, None], f, np.nan), px, hits, box, calib, pose, sphere,
+                                 light_position, pose_perturbations)
+        sf = np.sqrt(sf ** 2 + geo)
     counts.update(hit=int(hit.sum()), silhouette=int(sil.sum()), terminator=int(term.sum()), saturated=int(sat.sum()),
                   dark=int(dark.sum()), used=int(use.sum()))
     return SphereFrameSamples(hits.theta_h[use], hits.theta_d[use], hits.phi_d[use], f[use], sf[use], px[use],
