@@ -222,6 +222,12 @@ def register(sub) -> None:
                    "strategy (wait for a stable light, re-measure the dark set) instead of the default")
     p.add_argument("--out", metavar="PLAN.json", help="write the plan as JSON")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+    s = p.add_argument_group("plan sphere: the MERL cells it fills, before anything moves")
+    s.add_argument("--target", metavar="TARGET.toml", help="the target file declaring the [sphere] (default: a "
+                   "20 mm ball on the board's centre)")
+    s.add_argument("--sim-resolution", metavar="WxH", default=None,
+                   help="the camera: the simulated one at this resolution (default 320x240)")
+    s.add_argument("--calibration", metavar="CAMERA.toml", help="the camera: a rig's camera file")
     p.set_defaults(func=run)
 
 
@@ -240,6 +246,11 @@ def run(args) -> int:
     plan = plan_from_args(args, args.name, rig, where="NAME", source=None, time_budget=args.time_budget)
     if args.name == "adaptive":
         return _print_adaptive(args, plan, rig)
+    for o in ("target", "sim_resolution", "calibration"):
+        if getattr(args, o, None) is not None and args.name != "sphere":
+            from gonio.errors import ConfigError
+
+            raise ConfigError.field(f"--{o.replace('_', '-')}", "option", getattr(args, o), "only for plan sphere")
     if args.name == "sparse":
         p = plan.params
         print(f"plan sparse (n = {p['n']}, prior {p['prior']}) on rig {rig.name!r}: {len(plan)} poses chosen among "
@@ -282,8 +293,39 @@ def run(args) -> int:
         print(f"lower bound (MST moves, minimum costs):   {hms(e.lower_bound)}   this order / bound = {e.ratio_to_bound:.3f}")
         print(f"raster order, one axis at a time:         {hms(e.raster)}   this order / raster = {e.ratio_to_raster:.3f}")
         print(f"raster order, joints together:            {hms(e.raster_concurrent)}")
+    if args.name == "sphere":
+        _print_sphere_coverage(args, plan, rig)
     _write(args, plan)
     return 0
+
+
+#: The simulated camera's focal length at 320 px wide (sim.rig.SimRigConfig.focal_px; gonio does not import sim).
+SIM_FOCAL_PX = 380.0
+
+
+def _print_sphere_coverage(args, plan, rig) -> None:
+    """The sphere plan's coverage of the MERL table (:func:`gonio.sphere.coverage.plan_coverage`)."""
+    from gonio.pipeline.target import TargetLayout, load_target
+    from gonio.session.options import DEFAULT_SIM_RESOLUTION, parse_resolution
+    from gonio.sphere import Sphere
+
+    layout = load_target(args.target) if args.target else TargetLayout(sphere=Sphere((0.0, 0.0, 0.02), 0.02))
+    if layout.sphere is None:
+        from gonio.errors import ConfigError
+
+        raise ConfigError.field("--target", "sphere", args.target, "declares no [sphere] (radius, centre)")
+    if args.calibration:
+        from gonio.rig.calibration import load_camera_calibration
+
+        calib = load_camera_calibration(args.calibration).calibration
+    else:
+        from gonio.pipeline.target import CameraCalibration
+
+        w, h = parse_resolution(args.sim_resolution or DEFAULT_SIM_RESOLUTION)
+        calib = CameraCalibration.pinhole(w, h, SIM_FOCAL_PX * w / 320)  # the simulated camera's field of view
+    from gonio.sphere.coverage import plan_coverage
+
+    print("\n".join(plan_coverage(plan, rig, calib, layout.sphere).lines()))
 
 
 def _print_adaptive(args, plan, rig) -> int:

@@ -141,6 +141,15 @@ def half_diff_poses(n_theta_h: int, theta_d_step: float, phi_d_step: float, thet
     return np.column_stack(angles_from_dirs(wi, wo))
 
 
+def sphere_poses(theta_o: float, theta_i_step: float, phi_i_step: float, theta_max: float) -> np.ndarray:
+    """A sphere's plan (image-based acquisition, :mod:`gonio.sphere`): the camera fixed at (θo, φo = 0) and the
+    light over a (θi, φi) grid of the hemisphere — each frame holds every (θh, φd) the sphere's pixels see at the
+    θd the light–camera angle γ sets (θd ≈ γ/2, cos γ = cos θi cos θo + sin θi sin θo cos φi), so sweeping the
+    light fills the table's θd range (Matusik et al. 2003's rig: a light arm around a fixed camera)."""
+    h = _hemisphere(theta_i_step, phi_i_step, theta_max)
+    return np.column_stack([h, np.full(len(h), theta_o), np.zeros(len(h))])
+
+
 def _n_steps(hi: float, step: float, start: float = 0.0) -> int:
     """``len(_steps(hi, step, start))`` without building the array."""
     return max(int(math.floor((hi - start) / step + 1e-9)) + 1, 0)
@@ -163,6 +172,10 @@ def candidate_count(name: str, values: Mapping[str, Any]) -> int:
         so = v["theta_o_step"]
         return _n_steps(v["theta_max"], v["theta_i_step"]) * _n_steps(
             v["theta_max"], so, start=-so * math.floor(v["theta_max"] / so + 1e-9))
+    if name == "sphere":
+        nt = _n_steps(v["theta_max"], v["theta_i_step"])
+        n_phi = max(1, int(round(2 * math.pi / v["phi_i_step"])))
+        return (1 + (nt - 1) * n_phi) if nt else 0
     if name == "half_diff":
         return int(v["n_theta_h"]) * _n_steps(math.pi / 2 - _TOL, v["theta_d_step"]) * max(
             1, int(round(math.pi / v["phi_d_step"])))
@@ -194,6 +207,12 @@ GENERATORS: dict[str, Generator] = {g.name: g for g in (
         "phi_d_step": PlanParam("angle", _A(60), _A(0.1), _A(180), "difference azimuth step over [0, 180) deg"),
         "theta_max": PlanParam("angle", _A(70), 0.0, _A(89), "largest zenith angle of light and camera"),
     }, "uniform in Rusinkiewicz half/difference angles, denser near the specular peak"),
+    Generator("sphere", sphere_poses, {
+        "theta_o": PlanParam("angle", _A(60), 0.0, _A(85), "the fixed camera's zenith angle"),
+        "theta_i_step": PlanParam("angle", _A(10), _A(0.5), _A(90), "light zenith step"),
+        "phi_i_step": PlanParam("angle", _A(20), _A(0.5), _A(360), "light azimuth step"),
+        "theta_max": PlanParam("angle", _A(85), 0.0, _A(89), "largest light zenith angle"),
+    }, "a sphere target (--target with [sphere]): fixed camera, the light swept over the hemisphere"),
 )}
 
 

@@ -587,6 +587,8 @@ class SessionRunner:
             "run_lab_time_s": float(self.clock.now() - self._lab0),  # lab time of this run so far
             "timing": timing,
         }
+        if res.sphere_counts is not None:  # a sphere's pose: its pixels used and rejected (gonio.sphere.pixels)
+            meta["sphere_pixels"] = dict(res.sphere_counts)
         return res.samples, meta, timing
 
     def _recover(self, exc: HardwareError) -> None:

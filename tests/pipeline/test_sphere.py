@@ -174,6 +174,11 @@ def test_a_sphere_session_on_the_simulated_rig_gives_per_pixel_samples_of_the_ma
                  "--theta-o-step", "40", "--out", str(d), "--quiet"]) == 0
     manifest, s = load_session(d)
     assert manifest["target"]["sphere"]["radius"] == 0.02
+    from gonio.session.store import scan_samples
+
+    counts = [meta["sphere_pixels"] for _, meta in scan_samples(d / "samples.jsonl").records.values()]
+    assert all(c["used"] + c["silhouette"] + c["terminator"] + c["saturated"] + c["dark"] == c["hit"] for c in counts)
+    assert sum(c["used"] for c in counts) == len(s.f)  # every used pixel is one stored sample
     poses = len(manifest["plan"]["poses"])
     assert len(s.f) > 300 * poses  # hundreds of samples per frame (a flat sample gives a few tiles)
     m = make("microfacet", kd=[0.3, 0.12, 0.06], ks=0.8, alpha=0.25, f0=0.04, distribution="ggx")

@@ -40,7 +40,8 @@ def test_half_diff_angles_are_what_was_asked():
 @pytest.mark.parametrize("name", sorted(GENERATORS))
 def test_make_plan_reachable_and_accounted(name):
     small = {"grid": dict(theta_step=RAD(30), phi_step=RAD(90)), "isotropic": dict(theta_step=RAD(20), phi_step=RAD(45)),
-             "in_plane": dict(theta_o_step=RAD(10)), "half_diff": dict(n_theta_h=6, theta_d_step=RAD(20))}[name]
+             "in_plane": dict(theta_o_step=RAD(10)), "half_diff": dict(n_theta_h=6, theta_d_step=RAD(20)),
+             "sphere": dict(theta_i_step=RAD(20), phi_i_step=RAD(90))}[name]
     rig = load_rig()
     plan = make_plan(name, rig=rig, **small)
     raw = GENERATORS[name].fn(**{k: small.get(k, s.default) for k, s in GENERATORS[name].params.items()})

@@ -1,0 +1,110 @@
+"""Which MERL cells a sphere plan fills, before anything moves: each pose's camera and light from the rig's
+kinematics, the sphere's pixels traced (:func:`gonio.sphere.geometry.sphere_hits`), their (θh, θd, φd) cells
+collected — geometry only, no rendering, so a plan is judged in a fraction of a second per pose.
+
+*Valid* cells are the MERL cells whose centre directions (φh = 0) are both above the horizon; *reachable* ones
+those a dense sweep of the light (every ``reach_step`` degrees of zenith and azimuth, within the rig's joint limits
+and collision zones) fills with the same camera: what this camera position can see at all. Coverage is reported
+against both, and per θh and θd band.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from gonio.io.merl import N_CELLS, SHAPE
+from gonio.io.merl_index import half_diff_index
+from gonio.sphere.geometry import Sphere, sphere_hits
+from gonio.sphere.pixels import sphere_box
+
+__all__ = ["cells_of_pose", "plan_cells", "valid_cells", "Coverage", "plan_coverage"]
+
+
+def cells_of_pose(rig, joints, calib, sphere: Sphere, *, grazing_deg: float = 80.0, stride: int = 1) -> np.ndarray:
+    """Flat MERL cell indices the sphere's pixels see at one pose (``joints``: the rig's joint angles)."""
+    from gonio.pipeline.target import CameraPose
+
+    position, R = rig.camera_pose(joints)
+    pose = CameraPose(R, -R @ position)
+    box = sphere_box(calib, pose, sphere)
+    if box is None:
+        return np.zeros(0, dtype=np.intp)
+    rows, cols = box
+    v, u = np.mgrid[rows, cols][:, ::stride, ::stride].astype(np.float64)
+    d = calib.rays(u, v) @ pose.R
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    h, _ = sphere_hits(pose.centre, d, sphere, rig.light_position(joints))
+    c = math.cos(math.radians(grazing_deg))
+    ok = (h.cos_o >= c) & (h.cos_i >= c)
+    ih, idd, ip = half_diff_index(h.theta_h[ok], h.theta_d[ok], h.phi_d[ok])
+    return np.unique(ip + 180 * (idd + 90 * ih))
+
+
+def plan_cells(plan, rig, calib, sphere: Sphere, **kw) -> np.ndarray:
+    """(N_CELLS,) bool: the cells some pose of ``plan`` fills."""
+    filled = np.zeros(N_CELLS, dtype=bool)
+    for j in np.asarray(plan.joints):
+        filled[cells_of_pose(rig, j, calib, sphere, **kw)] = True
+    return filled
+
+
+def valid_cells() -> np.ndarray:
+    """(N_CELLS,) bool: cells whose centre directions (φh = 0) are both above the horizon."""
+    from gonio.geometry import dirs_from_half_diff
+    from gonio.io.merl import cell_centres
+
+    th, td, pd = cell_centres()
+    TH, TD, PD = np.meshgrid(th, td, pd, indexing="ij")
+    wi, wo = dirs_from_half_diff(TH.ravel(), 0.0, TD.ravel(), PD.ravel())
+    return (wi[:, 2] > 0) & (wo[:, 2] > 0)
+
+
+@dataclass
+class Coverage:
+    """A sphere plan's coverage: cells filled, valid, reachable, and per band (θh, θd: 9 bands of 10 index rows)."""
+
+    filled: int
+    valid: int
+    reachable: int
+    of_valid: float
+    of_reachable: float
+    theta_h_bands: list
+    theta_d_bands: list
+
+    def lines(self) -> list[str]:
+        out = [f"coverage: {self.filled} MERL cells filled, {100 * self.of_reachable:.1f} % of the {self.reachable} "
+               f"this camera can reach, {100 * self.of_valid:.1f} % of the {self.valid} valid cells"]
+        out.append("  by θh band (index rows of 10): " + " ".join(f"{100 * f:.0f}%" for f in self.theta_h_bands))
+        out.append("  by θd band (9° each):          " + " ".join(f"{100 * f:.0f}%" for f in self.theta_d_bands))
+        return out
+
+
+def _bands(filled, ref, axis) -> list:
+    f = filled.reshape(SHAPE)
+    r = ref.reshape(SHAPE)
+    out = []
+    for b in range(9):
+        sl = [slice(None)] * 3
+        sl[axis] = slice(10 * b, 10 * b + 10)
+        n = int(r[tuple(sl)].sum())
+        out.append(float((f & r)[tuple(sl)].sum()) / n if n else float("nan"))
+    return out
+
+
+def plan_coverage(plan, rig, calib, sphere: Sphere, *, reach_step: float = 5.0, stride: int = 1) -> Coverage:
+    """The :class:`Coverage` of ``plan`` (see the module docstring); pixels every ``stride`` rows and columns."""
+    from gonio.plan.generators import make_plan
+
+    filled = plan_cells(plan, rig, calib, sphere, stride=stride)
+    theta_o = float(plan.params.get("theta_o", plan.poses[0, 2])) if len(plan) else 0.0
+    dense = make_plan("sphere", rig=rig, order="raster", theta_o=theta_o, theta_i_step=math.radians(reach_step),
+                      phi_i_step=math.radians(2 * reach_step), theta_max=math.radians(89))
+    reach = plan_cells(dense, rig, calib, sphere, stride=stride) | filled
+    valid = valid_cells()
+    reach &= valid
+    filled &= valid
+    return Coverage(int(filled.sum()), int(valid.sum()), int(reach.sum()), float(filled.sum() / valid.sum()),
+                    float(filled.sum() / max(reach.sum(), 1)), _bands(filled, reach, 0), _bands(filled, reach, 1))
