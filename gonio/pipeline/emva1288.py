@@ -5,7 +5,8 @@ Every formula below is the standard's (R4.0 "General" model: ``μ_y = μ_y.dark 
 ``σ_y² = K² σ_d² + σ_q² + K (μ_y − μ_y.dark)``, with ``σ_q² = 1/12 DN²``):
 
 * per exposure, two light frames A, B and two dark frames: ``μ_y = ½(⟨A⟩ + ⟨B⟩)`` and the temporal variance
-  from their difference, free of the fixed pattern: ``σ_y² = ½⟨(A − B)²⟩ − ¼(⟨A⟩ − ⟨B⟩)²`` (R4.0 §6.3);
+  from their difference, free of the fixed pattern: ``σ_y² = ½[⟨(A − B)²⟩ − (⟨A⟩ − ⟨B⟩)²]`` (R4.0 §6.3: the
+  mean square of the difference of the frames' deviations from their own means, halved);
 * **system gain** K (DN/e⁻): the slope of ``σ_y² − σ_y.dark²`` against ``μ_y − μ_y.dark`` (the photon transfer
   curve) through the origin, fitted from the darkest step up to 70 % of saturation (§6.4), weighted by the
   variance estimates' own variance (``2σ⁴/N``); its σ from the fit's residuals;
@@ -44,7 +45,7 @@ def pair_stats(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     ma, mb = float(a.mean()), float(b.mean())
-    return 0.5 * (ma + mb), 0.5 * float(np.mean((a - b) ** 2)) - 0.25 * (ma - mb) ** 2
+    return 0.5 * (ma + mb), 0.5 * (float(np.mean((a - b) ** 2)) - (ma - mb) ** 2)
 
 
 @dataclass(frozen=True)

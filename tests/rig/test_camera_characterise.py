@@ -125,3 +125,14 @@ def test_noise_through_a_genicam_camera(tmp_path, capsys):
     assert code == 0, capsys.readouterr().err
     k = SensorModel(bit_depth=12).dn_per_electron * 65535 / 4095 / 3
     assert tomllib.loads(out.read_text())["noise"]["dn_per_electron"] == pytest.approx(k, rel=0.03)
+
+
+def test_the_toml_writer_round_trips_what_it_writes():
+    from gonio.rig.camera_toml import dumps
+
+    data = {"width": 320, "K": [[380.5, 0.0, 165.25], [0.0, 380.0, 115.5], [0.0, 0.0, 1.0]], "name": 'a "quoted" é',
+            "noise": {"dn_per_electron": 0.1946, "flag": True, "lost": float("nan")},
+            "intrinsics": {"missing": ["one", "two"], "sub": {"x": 1}}}
+    back = tomllib.loads(dumps(data, header="two\nlines"))
+    assert back["K"] == data["K"] and back["name"] == data["name"] and back["noise"]["flag"] is True
+    assert "lost" not in back["noise"] and back["intrinsics"]["sub"] == {"x": 1}
