@@ -113,8 +113,6 @@ def sparse_plan(n: int, prior: Prior, *, rig=None, capture=None, order: str = "o
                 source: str | None = None):
     """A :class:`gonio.plan.Plan` of ``n`` poses chosen under ``prior`` among the poses ``rig`` reaches (module
     docstring), ordered for lab time; ``plan.params`` holds ``n``, the prior's name and the expected error."""
-    from dataclasses import replace
-
     from gonio.errors import ConfigError
     from gonio.plan.ordering import MotionModel, optimize_order
     from gonio.plan.plan import Plan
@@ -143,4 +141,4 @@ def sparse_plan(n: int, prior: Prior, *, rig=None, capture=None, order: str = "o
         from gonio.plan.ordering import raster_order
 
         plan = plan.reordered(raster_order(plan.poses), "raster")
-    return replace(plan)
+    return plan

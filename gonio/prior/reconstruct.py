@@ -16,7 +16,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 
 from gonio.errors import DataError
 from gonio.prior.model import Prior

@@ -143,3 +143,12 @@ def test_prior_build_and_info_from_tables(tmp_path, capsys):
     assert "t0, t1, t2" in text and "gonio-prior/1" in text
     assert main(["prior", "build", str(paths[0]), "-o", str(tmp_path / "one.npz")]) != 0
     assert "at least 2" in capsys.readouterr().err
+
+
+def test_sparse_plan_options_are_checked(prior_file, capsys):
+    assert main(["plan", "sparse", "--n", "5", "--theta-step", "10", "--prior", str(prior_file)]) != 0
+    assert "not a parameter of plan 'sparse'" in capsys.readouterr().err
+    assert main(["plan", "half_diff", "--n", "5"]) != 0
+    assert "only for plan sparse" in capsys.readouterr().err
+    assert main(["plan", "sparse", "--n", "0", "--prior", str(prior_file)]) != 0
+    assert "must be in [1, 1000]" in capsys.readouterr().err
