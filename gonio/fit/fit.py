@@ -482,9 +482,10 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
     links = tuple((dst, src) for dst, src in linked_lobes(cls) if dst not in free and chroma != "free")
     lossobj = resolve_loss(loss, d)
     kw = dict(n_starts=n_starts, seed=seed, method=method, kernel=kernel, max_nfev=max_nfev, start=start)
-    r = _fit_tied(d, cls, fixed, tied, links, lossobj, kw)
+    r = _restart_at_bound(_fit_tied(d, cls, fixed, tied, links, lossobj, kw), d, cls, fixed, tied, links, lossobj, kw)
     if links and chroma == "auto":  # the lobes' own colours only where the data demand them
-        r = _shared_or_free(r, _fit_tied(d, cls, fixed, tied, (), lossobj, kw))
+        free_fit = _fit_tied(d, cls, fixed, tied, (), lossobj, kw)
+        r = _shared_or_free(r, _restart_at_bound(free_fit, d, cls, fixed, tied, (), lossobj, kw))
     if r.at_bound:
         r.notes.append("at or near a bound of its range: " + "; ".join(
             f"{k} ({', '.join(f'{c} {w}' for c, w in v.items())})" for k, v in r.at_bound.items()))
@@ -529,6 +530,36 @@ def _fit_tied(d: FitData, cls, fixed: dict, tied, linked, lossobj: Loss, kw: dic
         r2.identifiable = False
         r = r2
     return r
+
+
+#: Extra seeded starts of a fit whose shape parameters ended on a bound (:func:`_restart_at_bound`).
+RESTARTS = 4
+
+
+def _structural_bounds(r: FitResult) -> list[str]:
+    """Shape parameters (one value for R, G, B: widths, exponents, ABC's B and C, the lobes' width ratio) of
+    ``r`` at a bound."""
+    return [k for k, v in r.at_bound.items() if "value" in v]
+
+
+def _restart_at_bound(r: FitResult, d, cls, fixed, tied, linked, lossobj, kw) -> FitResult:
+    """A fit whose shape parameters ended on a bound (a local search may stop on one: a two-lobe fit at the
+    width-ratio bound, ABC's B at an end of its eight decades) is searched again globally from
+    :data:`RESTARTS` more seeded starts (multi-start, e.g. Nocedal & Wright, *Numerical Optimization*, 2nd ed.,
+    §2.3 on global minimization), without the warm start; the lower cost wins and a note says what was
+    tried. A bound that remains is then the data's answer, reported in ``at_bound``."""
+    hit = _structural_bounds(r)
+    if not hit or not (separated(Layout(cls, fixed, tied)) or cls.name.startswith("abc")):
+        return r  # multi-start where a local search stops on structural bounds: repeated lobes, ABC's B and C
+    kw2 = {**kw, "start": None, "n_starts": max(int(kw.get("n_starts") or 1), 1) + RESTARTS,
+           "seed": int(kw.get("seed") or 0) + 1}
+    r2 = _fit_tied(d, cls, fixed, tied, linked, lossobj, kw2)
+    best, other = (r2, r) if r2.cost < r.cost * (1 - 1e-9) else (r, r2)
+    best.n_evals += other.n_evals
+    still = _structural_bounds(best)
+    best.notes.append(f"{', '.join(hit)} ended on a bound; searched again from {kw2['n_starts']} starts: "
+                      + (f"{', '.join(still)} stays there (the data's optimum)" if still else "off the bound now"))
+    return best
 
 
 def _shared_or_free(shared: FitResult, free: FitResult) -> FitResult:

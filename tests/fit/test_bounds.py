@@ -56,3 +56,11 @@ def test_two_lobes_of_one_colour_are_never_split_by_colour():
         ks1, ks2 = np.array(r.params["lobe1.ks"]), np.array(r.params["lobe2.ks"])
         np.testing.assert_allclose(ks2 / ks2.sum(), ks1 / ks1.sum(), atol=1e-9)
         assert "lobe2.ks/lobe1.ks" in r.links and any("one chromaticity" in n for n in r.notes)
+
+
+def test_a_fit_ending_on_a_structural_bound_is_searched_again_from_more_starts():
+    t = {"diffuse.albedo": [0.1, 0.1, 0.1], "lobe1.ks": [0.5, 0.05, 0.05], "lobe1.alpha": 0.15,
+         "lobe2.ks": [0.05, 0.05, 0.5], "lobe2.alpha": 0.25}
+    r = fit(synth("lambert+2ggx", t, n=400), "lambert+2ggx", report=False, n_starts=1, chroma="free")
+    assert "lobe2.alpha" in r.at_bound  # equal-width lobes of two colours: the ratio bound is the data's answer
+    assert any("searched again from 5 starts" in n and "stays there" in n for n in r.notes)
