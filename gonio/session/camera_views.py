@@ -85,6 +85,8 @@ def capture_views(devices, spec, plan: np.ndarray, *, exposure: float = 0.005, g
 
 
 def _read_image(path: Path) -> np.ndarray:
+    if not path.is_file():
+        raise ConfigError.field("--images", "images", str(path), "no such file")
     if path.suffix.lower() == ".npy":
         try:
             img = np.load(path, allow_pickle=False)
@@ -93,7 +95,10 @@ def _read_image(path: Path) -> np.ndarray:
     else:
         import cv2
 
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        from gonio.rig.camera import _quiet_opencv
+
+        with _quiet_opencv(cv2):  # its own warning would repeat the line below
+            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if img is None:
             raise DataError(f"{path}: cannot be read as an image (PNG, TIFF, JPEG, BMP or .npy)")
         if img.ndim == 3:
