@@ -65,7 +65,7 @@ def run(args) -> int:
     import math
     import os
 
-    from gonio.errors import ConfigError, ControllerError, EmergencyStop
+    from gonio.errors import ConfigError, ControllerError, EmergencyStop, SafetyStop
     from gonio.rig.controller import RigController
 
     if not 50 <= args.baud <= 4_000_000:  # the UART rates of USB-serial bridges; 0 (B0) hangs a real port up
@@ -113,6 +113,9 @@ def run(args) -> int:
             if st.estop or st.interlock_open:
                 raise EmergencyStop(f"{args.port}: light off after {ctl.clock.now() - t0:.1f} s: "
                                     f"{'E-stop pressed' if st.estop else 'interlock opened'}", device=args.port)
+            what = st.unsafe_reason(True)  # over temperature, watchdog (SPEC.md §4.6)
+            if what:
+                raise SafetyStop(f"{args.port}: light off after {ctl.clock.now() - t0:.1f} s: {what}", device=args.port)
             if not st.light_on:
                 raise ControllerError(f"{args.port}: light off after {ctl.clock.now() - t0:.1f} s: the controller "
                                       f"switched it off (status flags 0x{st.flags:02X})", device=args.port)

@@ -124,3 +124,21 @@ def test_a_baud_rate_out_of_range_is_one_line_before_the_port_is_opened(bench, c
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"gonio controller: error: --baud: baud = {baud}") and "\n" not in err, err
     assert bench.bytes_in == 0
+
+
+def test_light_stops_in_one_line_when_the_lamp_overheats_while_it_is_on(bench, capsys):
+    """The heat sink passes the controller's limit during `gonio controller light`: the controller cuts the light
+    and the command says why in one line (exit 7), not after --seconds."""
+    import threading
+
+    timer = threading.Timer(0.35, bench.set_heat_sink, args=(82.0,))
+    timer.start()
+    try:
+        code = main(["controller", "light", "--port", bench.path, "--level", "0.5", "--seconds", "3",
+                     "--every", "0.1"])
+    finally:
+        timer.cancel()
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert code == 7 and "over its temperature limit (82.0 °C)" in err and "\n" not in err, (code, err)
+    assert len(captured.out.splitlines()) < 15 and not bench.light_on
