@@ -29,6 +29,8 @@ _API = {
     "Measured": "gonio.io.source", "SampleSet": "gonio.samples", "FitResult": "gonio.fit.result",
     "Selection": "gonio.fit.select", "make": "gonio.brdf", "MODELS": "gonio.brdf",
     "render_sphere": "gonio.render", "light_from_angles": "gonio.render",
+    # renderer exports of a fit, one shape for all (defined in gonio.io: the formats depend on the fit)
+    "to_mitsuba": "gonio.io.exports", "to_pbrt": "gonio.io.exports", "to_gltf": "gonio.io.exports",
     # the instrument: open a rig, measure a plan, resume a session (gonio.session.api)
     "open_rig": "gonio.session.rigs", "measure": "gonio.session.api", "resume": "gonio.session.api",
     "SessionResult": "gonio.session.api", "PoseEvent": "gonio.session.runner",

@@ -19,12 +19,26 @@ __all__ = ["load", "as_samples", "fit", "select"]
 
 def load(path):
     """Read any source gonio knows — a session directory, a MERL ``.binary``, a gonio NPZ or CSV
-    export, ... — as a :class:`gonio.io.source.Measured` (samples, table, metadata, ``eval``/``lookup``).
+    export, an RGL ``.bsdf`` — as a :class:`gonio.io.source.Measured` (samples, table, metadata,
+    ``eval``/``lookup``); a fit JSON (``gonio fit --json``) as its :class:`gonio.fit.result.FitResult`
+    (evaluable: ``.eval(wi, wo)``, ``.model``).
 
     Raises :class:`gonio.errors.DataError` with one line naming the path and what is wrong with it.
     """
     from gonio.io.source import load_source
 
+    p = Path(path)
+    if p.is_file():
+        from gonio.io.sniff import sniff
+
+        try:
+            looks = sniff(p)[1]
+        except OSError:
+            looks = ""  # load_source names the fault
+        if looks == "a JSON document":
+            from gonio.fit.result import FitResult
+
+            return FitResult.from_json(p)
     return load_source(path)
 
 
@@ -55,7 +69,7 @@ def fit(data, model: str = "microfacet", *, fix: dict | None = None, **options):
     ``max_theta_deg``, ...). ``fix`` (as ``--fix``) is ``fixed``: parameters held, named as ``gonio fit``
     prints them (``{"lobe1.f0": 1}``, ``{"f0": 1}`` for every lobe, ``{"kd.r": .., "kd.g": .., "kd.b": ..}``).
     Returns a :class:`gonio.fit.result.FitResult`: ``.model`` (evaluable), ``.params``, ``.uncertainty``,
-    ``.errors``, ``.to_json()``, ``.to_mitsuba()``."""
+    ``.errors``, ``.to_json()``; the renderer exports are :func:`gonio.io.exports.to_mitsuba` and its siblings."""
     from gonio.errors import ConfigError
     from gonio.fit.fit import fit as fit_samples
 

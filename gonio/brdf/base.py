@@ -187,7 +187,7 @@ class BRDF:
         ``python -m benchmarks brdf``). The finiteness guarantees at the extremes are for float64.
 
         ``backend``: ``"numpy"`` the NumPy reference path; ``"compiled"`` the numba-compiled loop of
-        :mod:`gonio.brdf.compiled` (float64 only; the optional extra ``gonio[fast]``; ValueError if it
+        :mod:`gonio.brdf.compiled` (float64 only; numba, a core dependency; ValueError if it
         cannot be used); ``"auto"`` (default) the compiled loop for float64 arrays of
         ≥ :data:`gonio.brdf.compiled.MIN_PAIRS` pairs when numba is installed and the model has a compiled
         form, else NumPy. Both give the same values (≤ 1e-12 relative, a test). The environment variable

@@ -1,6 +1,6 @@
 """The compiled BRDF path: the lobe formulas of :mod:`gonio.brdf.pairs` run per pair in a numba loop.
 
-Optional (``pip install 'gonio[fast]'``); :mod:`gonio.brdf.pairs` (NumPy) stays the reference, and the
+numba is a core dependency (issue 31.5; ``gonio --version`` says which path runs); :mod:`gonio.brdf.pairs` (NumPy) stays the reference, and the
 two agree to ≤ 1e-12 relative (tests/brdf/test_compiled.py). Nothing here is a formula: the loop calls
 the :func:`gonio._jit.jitable` functions the NumPy path calls — :func:`gonio.brdf.pairs.pair_geometry`,
 the lobes' spec functions (:data:`SPECS`) and :func:`gonio.brdf.fresnel.schlick_m` — which numba compiles
@@ -56,6 +56,23 @@ def available() -> bool:
     return importlib.util.find_spec("numba") is not None
 
 
+def describe_path() -> str:
+    """Which BRDF evaluation path runs, for ``gonio --version``: ``compiled (numba X.Y)`` — for float64 arrays of
+    :data:`MIN_PAIRS` pairs or more of the models that have a compiled form — or ``NumPy`` and why (numba not
+    installed, or ``GONIO_BRDF_BACKEND=numpy``). numba is not imported to say so."""
+    if not available():
+        return "NumPy (numba is not installed: pip install numba for the compiled path)"
+    if os.environ.get("GONIO_BRDF_BACKEND", "auto") == "numpy":
+        return "NumPy (GONIO_BRDF_BACKEND=numpy)"
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        v = version("numba")
+    except PackageNotFoundError:  # importable but not installed as a distribution (a source tree on the path)
+        v = "unknown version"
+    return f"compiled (numba {v})"
+
+
 def _pack(model):
     """Arrays the kernel takes for ``model`` (cached on the immutable model), or None without a compiled form."""
     cached = model.__dict__.get("_compiled_pack", False)
@@ -90,7 +107,7 @@ def wanted(model, wi, dtype, backend: str) -> bool:
         if dtype != np.float64:
             raise ValueError("the compiled BRDF path is float64 only")
         if not available():
-            raise ValueError("the compiled BRDF path needs numba: pip install 'gonio[fast]'")
+            raise ValueError("the compiled BRDF path needs numba: pip install numba")
         if not supports(model):
             raise ValueError(f"model {model.name!r} has no compiled form")
         return True

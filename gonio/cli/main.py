@@ -15,12 +15,24 @@ from gonio.errors import GonioError
 COMMANDS = ["models", "servo", "controller", "camera", "measure", "calibrate", "fit", "tabulate", "export", "plot", "plan", "prior", "reconstruct", "status", "repair", "report", "bench"]
 
 
+class _Version(argparse.Action):
+    """``gonio --version``: the version and the BRDF evaluation path (:func:`gonio.brdf.compiled.describe_path`),
+    found only when asked."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from gonio.brdf.compiled import describe_path
+
+        print(f"gonio {__version__}; BRDF evaluation: {describe_path()}")
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="gonio",
         description="Run a gonioreflectometer (or its simulation) and turn measurements into BRDFs.",
     )
-    parser.add_argument("--version", action="version", version=f"gonio {__version__}")
+    parser.add_argument("--version", action=_Version, nargs=0,
+                        help="show gonio's version and which BRDF evaluation path runs (compiled or NumPy), and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
         importlib.import_module(f"gonio.cli.{name}").register(sub)

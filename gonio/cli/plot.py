@@ -31,11 +31,12 @@ def register(sub) -> None:
 
 
 def load_model(path):
-    """Build the model of a ``gonio fit --json`` report: ``{"model": name, "params": {...}}``."""
+    """The model of a ``gonio fit --json`` report (:meth:`gonio.fit.result.FitResult.from_dict`); every fault is
+    one :class:`ConfigError` line naming the file."""
     import json
 
-    from gonio.brdf import make
-    from gonio.errors import ConfigError
+    from gonio.errors import ConfigError, DataError
+    from gonio.fit.result import FitResult
 
     try:
         with open(path, encoding="utf-8") as fh:
@@ -48,12 +49,10 @@ def load_model(path):
         raise ConfigError(f"{path}: not a fit result (gonio fit --json FIT.json): it looks like {describe(path)}") from None
     except ValueError as exc:
         raise ConfigError(f"{path}: not valid JSON ({exc})") from None
-    if isinstance(report, dict) and "model" not in report and isinstance(report.get("winner"), dict):
-        report = report["winner"]
-    if not isinstance(report, dict) or not isinstance(report.get("model"), str) \
-            or not isinstance(report.get("params", {}), dict):
-        raise ConfigError(f"{path}: expected a JSON object with \"model\" (a name) and \"params\" (an object)")
-    return make(report["model"], source=str(path), **report.get("params", {}))
+    try:
+        return FitResult.from_dict(report, str(path)).model
+    except DataError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def run(args) -> int:

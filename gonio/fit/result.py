@@ -153,8 +153,7 @@ class FitResult:
             report = report["winner"]
         if not isinstance(report, dict) or not isinstance(report.get("model"), str) \
                 or not isinstance(report.get("params", {}), dict):
-            raise DataError(f"{source}: not a fit result: expected a JSON object with \"model\" (a name) and "
-                            "\"params\" (an object)")
+            raise DataError(f"{source}: expected a JSON object with \"model\" (a name) and \"params\" (an object)")
         err = report.get("error") if isinstance(report.get("error"), dict) else {}
 
         def num(v, default=math.nan):
@@ -193,7 +192,7 @@ class FitResult:
             identifiable=bool(report.get("identifiable", True)), method=str(report.get("method", "")),
             notes=[str(n) for n in table("notes", list)], heuristics=table("heuristics"),
             dropped=table("dropped"), redundancy=tuple(red) if isinstance(red, list) else None,
-            at_bound=table("at_bound"), metrics=metrics, energy=table("energy"))
+            at_bound=table("at_bound"), metrics=metrics, goodness=table("goodness_of_fit"), energy=table("energy"))
         from gonio.brdf import make
 
         try:  # built once here, naming the file in a refusal; :attr:`model` keeps it
@@ -229,24 +228,6 @@ class FitResult:
         except ValueError as exc:
             raise DataError(f"{where}: not valid JSON ({exc})") from None
         return cls.from_dict(report, where)
-
-    def to_mitsuba(self, path=None, *, approx: bool = False):
-        """The fitted model as a Mitsuba 3 BSDF dict (``mitsuba.load_dict``); also written to ``path``
-        (``.xml`` or ``.json``) when given. Refused with a one-line reason where Mitsuba's plugins cannot
-        reproduce the model, unless ``approx`` (as ``--approx``: the closest plugin, its error in
-        :func:`gonio.io.mitsuba.mitsuba_export`'s result) (:mod:`gonio.io.mitsuba`)."""
-        import json
-
-        from gonio.errors import ConfigError
-        from gonio.io import mitsuba
-
-        try:
-            ex = mitsuba.mitsuba_export(self.model, approx=approx)
-        except ConfigError as exc:  # the refusal names the CLI's option; in Python it is the keyword
-            raise ConfigError(str(exc).replace("--approx", "approx=True")) from None
-        if path is not None:
-            mitsuba.write_mitsuba(self.model, path, approx=approx)
-        return json.loads(ex.text)
 
     def __repr__(self) -> str:
         return "\n".join(self.summary_lines())
@@ -317,13 +298,12 @@ def _fmt(v) -> str:
 
 
 def _write_new(path, text: str, force: bool) -> None:
-    """Write ``text`` to ``path`` (:func:`gonio.io.outputs.check_output`: not into a session, an existing
+    """Write ``text`` to ``path`` (:func:`gonio.outputs.check_output`: not into a session, an existing
     file only with ``force``; one-line ConfigError)."""
     from gonio.errors import ConfigError
-    from gonio.io.outputs import check_output
+    from gonio.outputs import check_output, write_text_atomically
 
     p = check_output(path, option="output", force=force)
-    from gonio.io.outputs import write_text_atomically
 
     try:
         write_text_atomically(p, text)

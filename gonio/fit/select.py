@@ -138,10 +138,6 @@ class Selection:
             _write_new(path, text, force)
         return text
 
-    def to_mitsuba(self, path=None, *, approx: bool = False):
-        """The chosen model as a Mitsuba 3 BSDF (see :meth:`FitResult.to_mitsuba`)."""
-        return self.winner.to_mitsuba(path, approx=approx)
-
     def table_lines(self) -> list[str]:
         """One row per candidate: parameters, score, error, status and why it won or lost."""
         lines = [f"{'model':<16} {'k':>3} {self.criterion:>12} {'rms_rel':>9} {'chi2_red':>9}  status    reason"]

@@ -88,5 +88,5 @@ def test_a_mitsuba_refusal_names_the_python_keyword_not_the_cli_option(merl_file
     samples = gonio.load(path).to_samples()
     result = gonio.fit(samples.subset(np.arange(0, len(samples), 100)), "ward")  # no exact Mitsuba 3 counterpart
     with pytest.raises(ConfigError, match="approx=True") as refused:
-        result.to_mitsuba()
+        gonio.to_mitsuba(result)
     assert "--approx" not in str(refused.value)
