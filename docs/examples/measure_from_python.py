@@ -41,5 +41,5 @@ assert run.ok and run.poses_done == run.poses_total
 # %% Fit, look, export
 fit = gonio.fit(run.load(), "microfacet")
 print(fit)
-fit.to_mitsuba(out.with_suffix(".xml"), approx=True)
+gonio.to_mitsuba(fit, out.with_suffix(".xml"), approx=True)
 print(f"wrote {out.with_suffix('.xml')}")
