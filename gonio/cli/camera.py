@@ -68,7 +68,8 @@ def register(sub) -> None:
     register_actions(csub, common)  # calibrate, noise: the first day in the lab
 
 
-def _open(args):
+def open_camera_from_args(args):
+    """The camera the options name (``--sim``: the simulated one; else the backend and device), opened."""
     from gonio.errors import ConfigError
 
     if args.sim:
@@ -153,7 +154,7 @@ def run(args) -> int:
     if getattr(args, "output", None):  # before the camera is opened
         check_output(args.output, option="-o", force=args.force,
                      suffixes=(".png", ".npy") if args.camera_command == "capture" else (".npz",))
-    cam = _open(args)
+    cam = open_camera_from_args(args)
     try:
         if args.camera_command == "info":
             return _info(cam, args)

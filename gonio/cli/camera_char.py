@@ -264,13 +264,13 @@ def _noise_camera(args, stack):
     from gonio.errors import ConfigError
 
     if not args.sim:
-        from gonio.cli.camera import _open
+        from gonio.cli.camera import open_camera_from_args
         from gonio.rig.controller import RigController
 
         if not args.controller_port:
             raise ConfigError("gonio camera noise --camera: --controller-port is required (the rig's light is switched "
                               "off for the dark frames; the camera looks at a uniform, diffusely lit target)")
-        camera = _open(args)
+        camera = open_camera_from_args(args)
         stack.callback(camera.close)
         ctl = RigController.open(args.controller_port)
         stack.callback(ctl.close)

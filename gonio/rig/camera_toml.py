@@ -69,7 +69,7 @@ def write_camera_toml(path, updates: Mapping[str, Any], *, force: bool, command:
     ``remove``: top-level keys to drop (``focal_px`` when ``K`` is written). Returns the keys written that
     replaced a value the file had."""
     from gonio.config import read_toml
-    from gonio.io.outputs import check_output, written_atomically
+    from gonio.outputs import check_output, written_atomically
     from gonio.rig.calibration import load_camera_calibration
 
     p = check_output(path, option=option, force=force, suffixes=(".toml",))
