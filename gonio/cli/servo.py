@@ -113,14 +113,16 @@ def _open_guard(args):
     rig = load_rig(args.rig)
     ctl = RigController.open(args.controller_port)
     try:
-        _clear(ctl)
+        clear_to_move(ctl)
     except BaseException:
         ctl.close()
         raise
     return ctl, rig
 
 
-def _clear(ctl) -> None:
+def clear_to_move(ctl) -> None:
+    """An EmergencyStop naming the controller's stop reason (E-stop, interlock, over-temperature) before any byte
+    that moves a servo; nothing when the rig is clear (servo and servo setup ask it)."""
     from gonio.errors import EmergencyStop
 
     what = ctl.status().stop_reason
@@ -259,7 +261,7 @@ def _run_bus(args, ids, ctl, rig) -> int:
         goal = min(int(round(args.deg / 360.0 * table.ticks_per_rev)), table.position_max)
         if rig is not None:
             _check_move(bus, rig, args.id, table, goal)
-            _clear(ctl)  # once more, right before the first byte that makes the servo move
+            clear_to_move(ctl)  # once more, right before the first byte that makes the servo move
         if bus.read(args.id, table, "hardware_error_status", alarm_ok=True):
             bus.raise_alarm(args.id)
         if not bus.read(args.id, table, "torque_enable"):
@@ -276,7 +278,7 @@ def _run_bus(args, ids, ctl, rig) -> int:
             if not state["moving"] and abs(state["present_position"] - goal) <= args.tolerance:
                 break
             if ctl is not None:
-                _clear(ctl)  # the E-stop pressed mid-move (it cuts the servos' power): not one more byte to them
+                clear_to_move(ctl)  # the E-stop pressed mid-move (it cuts the servos' power): not one more byte to them
             if clock.now() > deadline:
                 raise HardwareTimeout(f"{args.port}: servo {args.id} did not arrive within {args.timeout:g} s "
                                       f"(at {state['present_position']} ticks, goal {goal})", device=args.port)

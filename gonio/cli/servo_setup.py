@@ -6,7 +6,7 @@ is changed only with ``--controller-port`` (E-stop and interlock clear) or ``--u
 
 from __future__ import annotations
 
-from gonio.cli.servo import _clear
+from gonio.cli.servo import clear_to_move
 
 
 def register_setup(ssub) -> None:
@@ -119,7 +119,7 @@ def run_setup(args) -> int:
     ctl = RigController.open(args.controller_port) if change and not args.unmounted else None
     try:
         if ctl is not None:
-            _clear(ctl)
+            clear_to_move(ctl)
         scan = scan_bus(args.port, bauds, max_id=args.max_id, latency_timer_ms=args.latency_ms)
         print("\n".join(scan.lines()))
         if not change:
@@ -138,7 +138,7 @@ def run_setup(args) -> int:
             what = f"servo {servo} -> ID {new_id} at {new_baud} baud (torque off, EEPROM written)"
         _confirm(args, what)
         if ctl is not None:
-            _clear(ctl)  # once more, right before the first byte that changes the servo
+            clear_to_move(ctl)  # once more, right before the first byte that changes the servo
         if args.factory_reset:
             now = factory_reset(args.port, servo, args.factory_reset, latency_timer_ms=args.latency_ms)
         else:
