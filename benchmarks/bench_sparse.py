@@ -37,10 +37,10 @@ import numpy as np
 
 from benchmarks.common import Table
 
-NS = (5, 10, 15, 20)
+NS = (5, 10, 20)
 QUICK_NS = (5, 10, 20)
 SELECT_NS = (20,)
-N_EVAL = 30_000
+N_EVAL = 20_000
 SAMPLES_PER_POSE = 5
 JITTER_DEG = 2.0
 QUICK_MATERIALS = ("chrome", "red-plastic", "green-latex", "nickel", "acrylic_felt_yellow_rgb", "chm_orange_rgb")

@@ -216,6 +216,10 @@ def _say_plan(plan, store, quiet: bool, rig) -> None:
         dropped = f" of {p['candidates']} candidates" + (f" ({plan.n_dropped} unreachable)" if plan.n_dropped else "")
         eta = (f" in the coarse round, estimated {format_lab_time(est.optimized)}; later rounds are chosen while "
                f"measuring: total lab time not known ahead ({budget}), target error {p['target_error']:g}")
+    if plan.generator == "sparse" and isinstance(plan.params.get("expected_error"), (int, float)):
+        dropped = f" (prior {plan.params.get('prior')}; {plan.n_dropped} unreachable candidates never planned)"
+        eta += (f"; expected reconstruction error {plan.params['expected_error']:.3g} (RMS, log domain; "
+                "`gonio reconstruct` gives the table)")
     print(f"session {store.directory}: plan {plan.generator}, {len(plan)} poses{dropped}{eta}", file=sys.stderr)
 
 

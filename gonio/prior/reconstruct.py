@@ -1,10 +1,10 @@
 """Reconstruct a whole BRDF table from a measurement's samples under a prior, and write it as a gonio source.
 
 :func:`reconstruct` reads a session directory, CSV or NPZ export (anything :func:`gonio.load` reads that has
-samples), checks every sample before any arithmetic (no samples, a non-finite value or direction, σ ≤ 0 or
-missing: one :class:`gonio.errors.DataError` line naming the source and the sample), leaves out samples with
-quality flags (saturated, low signal: :mod:`gonio.samples`, as ``gonio fit`` does), and conditions the prior on
-the rest (:class:`gonio.prior.posterior.Posterior`).
+samples), leaves out samples with quality flags (saturated, low signal: :mod:`gonio.samples`, as ``gonio fit`` does),
+checks every remaining sample before any arithmetic (no samples, a non-finite value or direction, σ ≤ 0 or
+missing: one :class:`gonio.errors.DataError` line naming the source and the sample; the index is among the
+unflagged samples), and conditions the prior on them (:class:`gonio.prior.posterior.Posterior`).
 
 :func:`write_reconstruction` writes the posterior table: ``.npz`` (:mod:`gonio.io.npz`'s format: ``table/values``
 the posterior median, ``table/sigma`` its per-cell standard uncertainty, no samples, so every reader takes the
@@ -36,11 +36,12 @@ def measured_samples(source):
     s = m.to_samples()
     if len(s) == 0:
         raise DataError(f"{name}: holds no samples (an empty export or a session stopped before its first pose)")
-    _check_samples(s.wi, s.wo, s.f, s.sigma, name)
     keep = s.flags == 0
     if not keep.any():
         raise DataError(f"{name}: all {len(s)} samples carry quality flags (saturated, low signal): none to use")
-    return m, s.subset(keep) if not keep.all() else s
+    used = s.subset(keep) if not keep.all() else s
+    _check_samples(used.wi, used.wo, used.f, used.sigma, name)  # a flagged sample is not used, so not checked
+    return m, used
 
 
 def reconstruct(source, prior: Prior):
