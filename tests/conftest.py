@@ -99,6 +99,7 @@ SLOW_FIRST = (
     "tests/rig/test_servo_hardening.py",
     "tests/test_end_to_end.py",
     "tests/rig/test_aravis.py",
+    "tests/rig/test_camera_characterise.py",
     "tests/session/test_lab_time_estimate.py",
     "tests/io/test_exports_and_plots.py",
     "tests/api/test_batch.py",
