@@ -114,11 +114,14 @@ class SimRigConfig:
     #: are rendered through it; :meth:`calibration` (what the host is given) stays the ideal pinhole.
     principal_offset_px: tuple[float, float] | None = None
     distortion: tuple[float, ...] | None = None
+    #: A sphere target as built: its true centre's offset (m) from the one the target file declares, which the
+    #: host does not know (the silhouette refinement finds it, gonio.sphere.refine). ``None``: where declared.
+    sphere_offset_m: tuple[float, float, float] | None = None
 
     def to_dict(self) -> dict:
         d = dict(self.__dict__)
         # a plain rig's manifest stays what it was before these existed
-        for k in ("as_built", "tile", "principal_offset_px", "distortion"):
+        for k in ("as_built", "tile", "principal_offset_px", "distortion", "sphere_offset_m"):
             if d[k] is None:
                 del d[k]
         if not d["pixel_format"]:
@@ -323,13 +326,20 @@ class SimRig:
 
             tile = CalibrationTile(rect=self.layout.sample, **cfg.tile)
         scene = SimScene(self.layout, self.material, light_intensity=cfg.light_intensity, tile=tile,
-                         sphere=self.layout.sphere)
+                         sphere=self._true_sphere(cfg))
         self.sim_camera = SimCamera(cfg.true_calibration(), self.sensor, scene, seed=cfg.seed, clock=self.clock,
                                     light_output=self.controller.light_output)
         self.camera = RigCamera(self)
         self._started = False
 
     # -- device paths ---------------------------------------------------------------------------
+    def _true_sphere(self, cfg):
+        """The layout's sphere where it really is (``cfg.sphere_offset_m`` from the declared centre)."""
+        sph = self.layout.sphere
+        if sph is None or cfg.sphere_offset_m is None:
+            return sph
+        return type(sph)(tuple(np.asarray(sph.centre) + np.asarray(cfg.sphere_offset_m, dtype=float)), sph.radius)
+
     @property
     def servo_port(self) -> str:
         """The servo bus's pty (open it with the real dynamixel-sdk)."""

@@ -73,6 +73,8 @@ def register(sub) -> None:
                    help="with --sim-camera gige: the GenICam pixel format (RGB12 by default, 12 bits like the default "
                         "camera; RGB8, Mono8, Mono12, Mono16, BayerRG8/12, ...: what the simulated GigE camera offers); "
                         "the simulated sensor takes its bit depth; recorded in the manifest's sim.pixel_format")
+    p.add_argument("--sim-sphere-offset", metavar="X,Y,Z", default=None,
+                   help="a sphere target as built: its true centre this far (mm) from the declared one")
     p.add_argument("--sim-as-built", metavar="SEED|ERRORS.toml", default="",
                    help="simulate an as-built rig: assembly errors (servo zeros, axis tilts and offsets, arm lengths, "
                         "sample height) drawn from SEED or read from a TOML file; the host still uses the declared "
@@ -169,7 +171,8 @@ def run_measure(args) -> int:
         sim = SimOptions(resolution=args.sim_resolution, frame_faults=args.sim_frame_faults,
                          controller=getattr(args, "sim_controller", "firmware"), camera=args.sim_camera,
                          as_built=getattr(args, "sim_as_built", ""), seed=args.seed,
-                         pixel_format=getattr(args, "sim_pixel_format", ""))
+                         pixel_format=getattr(args, "sim_pixel_format", ""),
+                         sphere_offset_mm=getattr(args, "sim_sphere_offset", None))
     with open_rig(rig_src if args.sim else str(args.rig), sim=sim, hardware=None if args.sim else hardware,
                   material=material, target=args.target, hold=True) as opened:
 
@@ -231,6 +234,11 @@ def print_outcome(result) -> int:
 
         return print_calibration_outcome(result)
     run = result.run
+    from gonio.sphere.refine import centre_note
+
+    note = centre_note(result.manifest.get("sphere_centre"))
+    if note:
+        print(note, file=sys.stderr)
     if result.kind == "adaptive":
         from gonio.session.adaptive import model_table, rounds_table
 

@@ -350,7 +350,13 @@ class Pipeline:
         samples = SampleSet(fs.wi_local, fs.wo_local, fs.f, fs.sigma, n_pixels=np.ones(n), flags=np.full(n, flags),
                             pose=np.full(n, pose_index))
         self._next_exposure = plan.exposures[0]
-        return PoseResult(samples, plan, board, cam_pose, lights, times, source, sphere_counts=fs.counts)
+        counts = dict(fs.counts)
+        from gonio.sphere.refine import refine_centre
+
+        est = refine_centre(rate.reshape(c.height, c.width, C), c, cam_pose, sph)  # the centre its silhouette says
+        if est is not None:
+            counts["centre"] = {"centre_m": est.centre.tolist(), "sigma_m": est.sigma.tolist(), "edges": est.n_edges}
+        return PoseResult(samples, plan, board, cam_pose, lights, times, source, sphere_counts=counts)
 
     def _meter(self, frame: Frame, px: np.ndarray, level: float, used: np.ndarray, gain: float,
                n_min: int) -> CapturePlan:

@@ -215,12 +215,28 @@ def run_session(store, plan, rig: OpenRig, *, on_pose=None, progress: TextIO | b
     if kind != "adaptive":
         runner.on_pose = on_pose
     result = runner.run()
+    _record_sphere_centre(store, rig)
     total = store.manifest["plan"] if kind == "adaptive" else plan
     n_total = len(total["poses"]) if isinstance(total, dict) else len(total)
     return SessionResult(directory=store.directory, status=result.status, run=result,
                          poses_done=len(store.done_poses()), poses_total=n_total, samples_total=store.sample_count,
                          simulated=bool(devices.clock.simulated), kind=kind, manifest=store.manifest, rig=devices.rig,
                          recovered_faults=recovered_faults(devices))
+
+
+def _record_sphere_centre(store, rig: OpenRig) -> None:
+    """A sphere session: the centre its poses' silhouettes say (:func:`gonio.sphere.refine.session_centre`),
+    recorded in the manifest (``sphere_centre``) after every run."""
+    sph = getattr(rig.layout, "sphere", None)
+    if sph is None:
+        return
+    from gonio.session.store import scan_samples, _samples_path
+    from gonio.sphere.refine import session_centre
+
+    scan = scan_samples(_samples_path(store.directory, store.manifest))
+    found = session_centre((meta for _, meta in scan.records.values()), sph)
+    if found is not None:
+        store.update_manifest(sphere_centre=found)
 
 
 def resume(directory, *, rig: OpenRig | None = None, rig_file: str | None = None, servo_port: str | None = None,

@@ -59,8 +59,23 @@ class SimOptions:
     #: The GenICam pixel format of the ``gige`` camera link (empty: the deepest colour format the simulated
     #: GigE camera offers, matching the default camera's 12 bits where it can; :mod:`gonio.session.rigs`).
     pixel_format: str = ""
+    #: A sphere target as built: its true centre's offset (mm, x/y/z) from the declared one, unknown to the host
+    #: (``--sim-sphere-offset``; the silhouette refinement finds it)
+    sphere_offset_mm: tuple[float, float, float] | None = None
 
     def __post_init__(self):
+        if self.sphere_offset_mm is not None:
+            v = self.sphere_offset_mm
+            if isinstance(v, str):
+                try:
+                    v = tuple(float(x) for x in v.split(","))
+                except ValueError:
+                    v = ()
+            ok = len(v) == 3 and all(isinstance(x, (int, float)) and abs(x) <= 50 for x in v)
+            if not ok:
+                raise ConfigError.field("--sim-sphere-offset", "sphere_offset", self.sphere_offset_mm,
+                                        "expected X,Y,Z in millimetres, each within ±50")
+            object.__setattr__(self, "sphere_offset_mm", tuple(float(x) for x in v))
         if not isinstance(self.resolution, tuple):
             parse_resolution(self.resolution)
         if self.controller not in ("firmware", "python", "simavr"):

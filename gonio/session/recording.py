@@ -154,6 +154,12 @@ SIM_RANGES = {"seed": (0, 2 ** 32 - 1, int), "width": (64, 4096, int), "height":
                "warmup_depth": (0.0, 1.0, float), "warmup_tau": (0.0, 1e5, float), "pd_noise": (0.0, 1.0, float)}
 
 
+#: The simulated rig's list-valued settings: allowed lengths and the bound on each value (px, OpenCV distortion
+#: coefficients, metres) — dropped by a resume before, so a resumed session rendered another camera or sphere.
+_SIM_VECTORS = {"principal_offset_px": ((2,), 1000.0), "distortion": ((4, 5, 8), 10.0),
+                "sphere_offset_m": ((3,), 0.05)}
+
+
 def checked_sim(sim, where: str) -> dict:
     """The manifest's ``sim`` section, every field checked for type and range (DataError naming it)."""
     from gonio.errors import DataError
@@ -208,6 +214,15 @@ def checked_sim(sim, where: str) -> dict:
             if value not in PIXEL_FORMATS:
                 raise DataError(f"{where}: sim.pixel_format = {str(value)[:40]!r}: expected a GenICam pixel format "
                                 f"({', '.join(PIXEL_FORMATS)})")
+            out[key] = value
+            continue
+        if key in _SIM_VECTORS:  # the camera and the sphere as built: short lists of bounded numbers
+            n, bound = _SIM_VECTORS[key]
+            ok = value is None or (isinstance(value, list) and len(value) in n and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= bound for v in value))
+            if not ok:
+                raise DataError(f"{where}: sim.{key} = {str(value)[:60]}: expected None or {'/'.join(map(str, n))} "
+                                f"numbers within ±{bound:g}")
             out[key] = value
             continue
         if key not in SIM_RANGES:

@@ -179,6 +179,8 @@ def _open_sim(rig, text, where, opts: SimOptions, material, target, hold) -> Ope
         link["controller"] = opts.controller
     if opts.as_built:
         link["as_built"] = simrig.parse_as_built(rig, opts.as_built).to_dict()
+    if opts.sphere_offset_mm is not None:
+        link["sphere_offset_m"] = [x / 1000.0 for x in opts.sphere_offset_mm]
     config = simrig.SimRigConfig.at_resolution(w, h, seed=opts.seed, **link)
     return open_sim_config(rig, text, where, config, material, target, hold=hold)
 

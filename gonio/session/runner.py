@@ -588,7 +588,11 @@ class SessionRunner:
             "timing": timing,
         }
         if res.sphere_counts is not None:  # a sphere's pose: its pixels used and rejected (gonio.sphere.pixels)
-            meta["sphere_pixels"] = dict(res.sphere_counts)
+            counts = dict(res.sphere_counts)
+            centre = counts.pop("centre", None)
+            meta["sphere_pixels"] = counts
+            if centre is not None:  # the centre this pose's silhouette says (gonio.sphere.refine)
+                meta["sphere_centre"] = centre
         return res.samples, meta, timing
 
     def _recover(self, exc: HardwareError) -> None:
