@@ -54,6 +54,9 @@ _TEMPERATURE_XML = f"""
 \t</FloatReg>
 """
 
+#: GigE Vision's heartbeat-timeout bootstrap register (GigE Vision 2.0 §28, ms), and the value this server gives it.
+HEARTBEAT_TIMEOUT_REGISTER, HEARTBEAT_TIMEOUT_MS = 0x0938, 60_000
+
 #: PFNC pixel format codes (GenICam PFNC 2.x) of the formats this server fills: the fake device's own
 #: (Mono8, Mono16, RGB8, Bayer*8) and :data:`ADDED_FORMATS`.
 FILLABLE_FORMATS = {0x01080001: "Mono8", 0x01100007: "Mono16", 0x02180014: "RGB8",
@@ -167,6 +170,11 @@ class GigECameraServer:
         if self._server is None or not self._server.is_running():
             raise OSError(f"cannot start a GigE Vision fake camera on {address}")
         self._fake = self._server.get_fake_camera()
+        # GigE Vision bootstrap register 0x0938, the heartbeat timeout (ms; the device's default 3,000): a frame
+        # rendered in the fill callback holds the device's registers, so its control channel does not answer
+        # while a slow frame renders (the first one, compiling its kernels: seconds), and the device would
+        # drop its controller after the timeout and never send again; a rig's camera renders nothing
+        self._fake.write_register(HEARTBEAT_TIMEOUT_REGISTER, HEARTBEAT_TIMEOUT_MS)
         self._lib.arv_fake_camera_set_fill_pattern(_gpointer(self._fake), self._callback, None)
 
     @staticmethod

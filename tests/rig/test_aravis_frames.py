@@ -81,3 +81,30 @@ def test_the_fake_camera_at_zero_width_through_the_cli_is_one_line(fake_camera, 
     # the CLI opens the camera afresh (its region is set again): a frame of the size asked comes back
     assert main(["camera", "capture", "--camera", fake_camera, *ARGS, "--pixel-format", "Mono8", "--exposure", "0.001",
                  "-o", str(tmp_path / "f.npy")]) == 0
+
+
+class _SlowFirst(_Known):
+    """A renderer whose first frame takes 3 s (the simulated camera's first frame compiles its kernels)."""
+
+    def capture(self, exposure, gain=1.0, *, timeout=10.0):
+        if not self.asked:
+            import time
+
+            time.sleep(3.0)
+        return super().capture(exposure, gain)
+
+
+def test_a_slow_frame_does_not_lose_the_simulated_camera(aravis):
+    """The rendering GigE camera renders inside the fake device's fill callback, which holds its registers: a
+    first frame of 3 s left the host's heartbeats unanswered past the device's 3 s heartbeat timeout, the device
+    dropped its controller and never sent another frame ('no frame within 10 s' in 2 of 3 `gonio measure --sim
+    --sim-camera gige` runs on a loaded machine). The server gives the device a longer heartbeat timeout."""
+    from sim.gige_camera import GigECameraServer
+
+    with gige_lock(), GigECameraServer(_SlowFirst(), serial="GONIO-SLOW") as server:
+        cam = _open(server.device)
+        try:
+            shapes = [cam.capture(0.001, 1.0, timeout=8).pixels.shape for _ in range(3)]
+        finally:
+            cam.close()
+    assert shapes == [(48, 64, 3)] * 3
