@@ -116,4 +116,34 @@ def run(quick: bool = False) -> list[Table]:
             tab.notes.append(f"{name}: flat {lab_flat / 60:.2f} lab min")
     tab.notes.append("cells: MERL cells holding ≥ 1 sample; errors: binned measured / binned truth − 1 over cells with "
                      "truth > 1e-6, every channel")
-    return [tab]
+    return [tab, _memory(quick)]
+
+
+def _memory(quick: bool) -> Table:
+    """Peak resident memory of a whole sphere session (``gonio measure`` in a child process, 320×240): the frames
+    are merged and reduced to samples pose by pose, so memory does not grow with the frames."""
+    import resource
+    import subprocess
+    import sys
+
+    tab = Table("Memory of a sphere session (gonio measure --sim, 320×240)",
+                ["frames (poses)", "samples", "peak RSS MB", "wall s"], baseline=0)
+    target = Path(tempfile.mkdtemp(prefix="bench-sphere-mem-")) / "sphere.toml"
+    target.write_text("[sphere]\nradius = 0.02\n")
+    sizes = [("30", "60"), ("20", "40")] if quick else [("30", "60"), ("4", "18")]  # ~20 and ~400 poses
+    with tempfile.TemporaryDirectory() as d:
+        for k, (ti, pi) in enumerate(sizes):
+            out = Path(d) / f"s{k}"
+            t0 = time.perf_counter()
+            before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+            subprocess.run([sys.executable, "-m", "gonio.cli.main", "measure", "--sim", "--target", str(target),
+                            "--plan", "sphere", "--theta-i-step", ti, "--phi-i-step", pi, "--out", str(out), "--quiet"],
+                           check=True, capture_output=True)
+            peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss  # KiB, the largest child so far
+            import json
+
+            m = json.loads((out / "manifest.json").read_text())
+            tab.add(m["last_run"]["poses"], m["last_run"]["samples"], f"{max(peak, before) / 1024:.0f}",
+                    f"{time.perf_counter() - t0:.1f}")
+    tab.notes.append("peak RSS: the largest child process's (getrusage RUSAGE_CHILDREN); the rows run in increasing size")
+    return tab

@@ -207,3 +207,41 @@ def test_a_sphere_declared_off_its_true_centre_is_found_from_its_silhouette_and_
     assert err.count("sphere's centre was found") == 1 and "declare centre = [0.000" in err
     assert main([*args, "--out", str(tmp_path / "ok")]) == 0
     assert "sphere's centre was found" not in capsys.readouterr().err
+
+
+def test_a_resumed_sphere_session_is_bit_identical_to_an_uninterrupted_one(tmp_path):
+    """Every random source is per pose (sim.seeding), the sphere's samples depend on the pose's frames only: a
+    session stopped after pose 1 and resumed stores, pose by pose, the same bits as one run through."""
+    from gonio.pipeline.target import TargetLayout
+    from gonio.plan.plan import CaptureSettings, Plan
+    from gonio.session.runner import SessionRunner, open_devices
+    from gonio.session.store import SessionStore
+    from sim.rig import SimRig, SimRigConfig
+    from tests.session.test_bit_identical_resume import CONFIG, assert_bit_identical
+
+    layout = TargetLayout(sphere=Sphere((0.0, 0.0, 0.02), 0.02))
+    plan = Plan(poses=np.radians([[30, 0, 40, 180], [20, 0, 40, 0], [50, 0, 40, 180], [40, 90, 40, 0]]),
+                capture=CaptureSettings(), generator="custom")
+
+    def run(d, *, stop_after=None, resume=False):
+        with SimRig(config=SimRigConfig(**CONFIG), layout=layout) as sim:
+            devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+            try:
+                store = SessionStore.open(d) if resume else SessionStore.create(d, {"plan": plan, "mode": "test"})
+                runner = None
+
+                def before(index):
+                    sim.begin_pose(index)
+                    if index == stop_after:
+                        runner.request_stop()
+
+                runner = SessionRunner(plan, store, devices, sim.calibration, sim.layout, before_pose=before,
+                                       stream=None)
+                return runner.run()
+            finally:
+                devices.close()
+
+    assert run(tmp_path / "ref").status == "completed"
+    assert run(tmp_path / "cut", stop_after=1).status == "interrupted"
+    assert run(tmp_path / "cut", resume=True).status == "completed"
+    assert_bit_identical(tmp_path / "ref", tmp_path / "cut")
