@@ -306,3 +306,9 @@ def _plot(errs, ns, path, t: Table) -> None:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     t.notes.append(f"plot: {path}")
+
+
+# Rows of helper modules: adaptive measuring and the simulated rig with noise (benchmarks/sparse_rig.py).
+from benchmarks.sparse_rig import HOOKS as _SPARSE_RIG_HOOKS  # noqa: E402
+
+ROW_HOOKS.extend(_SPARSE_RIG_HOOKS)

@@ -131,6 +131,11 @@ def _plan(args, rig):
         plan = read_plan_file(args.plan_file, rig)
         print(f"plan {args.plan_file}: {plan.generator}, {len(plan)} poses")
         return plan, None
+    if args.plan == "sparse" and getattr(args, "sparse_adaptive", None):
+        from gonio.cli.plan import sparse_adaptive_from_args
+
+        adaptive = sparse_adaptive_from_args(args, rig)
+        return adaptive["plan"], adaptive["adaptive"]
     if args.plan == "adaptive":
         from gonio.cli.plan import adaptive_from_args
         from gonio.session.adaptive import new_adaptive_manifest

@@ -64,6 +64,13 @@ def add_plan_options(p, *, default_plan: str | None = None) -> None:
     from gonio.cli.prior import add_prior_option
 
     add_prior_option(sp)
+    sp.add_argument("--adaptive", dest="sparse_adaptive", action="store_true", default=None,
+                    help="gonio measure: choose each next pose while measuring, the one that most reduces the expected "
+                         "error under the posterior of the samples so far; stops at --target-error (the expected "
+                         "error, default: none) or --max-poses (--coarse N fixed-design poses first, default 4; "
+                         "--batch per round, default 1)")
+    sp.add_argument("--max-poses", dest="max_poses", type=int, default=None, metavar="N",
+                    help="plan sparse --adaptive: poses at most (default 20)")
 
 
 def _capture(args):
@@ -108,13 +115,11 @@ def plan_from_args(args, name: str, rig, *, where: str, source: str, defaults=No
         candidates, settings, spec = adaptive_from_args(args, rig, source=source)
         planner = AdaptivePlanner(candidates, spec.callable(), motion=MotionModel.from_rig(rig), settings=settings)
         return planner.plan([planner.first_round()], extra={"fit": spec.to_dict()})
-    sparse_given = [o for o in ("sparse_n", "prior") if getattr(args, o, None) is not None]
+    sparse_given = [o for o in ("sparse_n", "prior", "sparse_adaptive", "max_poses") if getattr(args, o, None) is not None]
     if name == "sparse":
         return sparse_from_args(args, rig, source=source, time_budget=time_budget)
     if sparse_given:
-        o = sparse_given[0]
-        raise ConfigError.field("--n" if o == "sparse_n" else "--prior", "option", getattr(args, o),
-                                "only for plan sparse")
+        _refuse_options(args, sparse_given[:1], "only for plan sparse")
     gen = GENERATORS.get(name)
     if gen is None:
         raise ConfigError.field(where, "plan", name, f"unknown plan; known: {', '.join(GENERATORS)}, adaptive, sparse")
@@ -147,12 +152,64 @@ def sparse_from_args(args, rig, *, source, time_budget=None):
         k = given[0][5:]
         raise ConfigError.field(f"--{k.replace('_', '-')}", "plan parameter", getattr(args, given[0]),
                                 "not a parameter of plan 'sparse' (it takes --n and --prior)")
+    if getattr(args, "sparse_adaptive", None):
+        raise ConfigError.field("--adaptive", "option", True, "the poses are chosen while measuring: "
+                                "gonio measure --plan sparse --adaptive")
+    _refuse_options(args, ("sparse_adaptive", "max_poses", *_ADAPTIVE_OPTS), "only for plan sparse --adaptive "
+                    "(or plan adaptive)")
     n = SPARSE_N if getattr(args, "sparse_n", None) is None else args.sparse_n
     if not 1 <= n <= 1000:
         raise ConfigError.field("--n", "n", n, "must be in [1, 1000]")
     prior, name = load_prior_arg(getattr(args, "prior", None))
     return sparse_plan(n, prior, rig=rig, capture=_capture(args), order=args.order, seed=args.seed,
                        time_budget=time_budget, prior_name=name, source=source)
+
+
+def _refuse_options(args, names, why: str) -> None:
+    """A one-line ConfigError naming the first of the options ``names`` (dests) that was given."""
+    from gonio.errors import ConfigError
+
+    for o in names:
+        if getattr(args, o, None) is not None:
+            flag = {"sparse_n": "--n", "sparse_adaptive": "--adaptive"}.get(o, f"--{o.replace('_', '-')}")
+            raise ConfigError.field(flag, "option", getattr(args, o), why)
+
+
+def sparse_adaptive_from_args(args, rig, *, source: str = "--plan sparse --adaptive") -> dict:
+    """The ``plan`` and ``adaptive`` manifest entries of ``gonio measure --plan sparse --adaptive``
+    (:func:`gonio.prior.adaptive.new_sparse_adaptive_manifest`): ``--prior``, ``--target-error``, ``--max-poses``,
+    ``--coarse``, ``--batch``, ``--lab-budget`` and the capture settings."""
+    import math
+
+    from gonio.errors import ConfigError
+    from gonio.prior.adaptive import SparseAdaptiveSettings, new_sparse_adaptive_manifest
+    from gonio.session.runner import RunnerSettings
+
+    given = [k for k, v in vars(args).items() if k.startswith("plan_") and k != "plan_file" and v is not None]
+    if given:
+        k = given[0][5:]
+        raise ConfigError.field(f"--{k.replace('_', '-')}", "plan parameter", getattr(args, given[0]),
+                                "not a parameter of plan 'sparse' (it takes --n and --prior)")
+    _refuse_options(args, ("sparse_n",), "plan sparse --adaptive takes --max-poses (the poses are chosen while "
+                    "measuring)")
+    _refuse_options(args, ("candidates", "model", "select", "max_rounds"), "not an option of plan sparse --adaptive")
+    for opt, lo in (("batch", 1), ("coarse", 1), ("max_poses", 1)):
+        v = getattr(args, opt, None)
+        if v is not None and not lo <= v <= 1000:
+            raise ConfigError.field(f"--{opt.replace('_', '-')}", opt, v, f"must be in [{lo}, 1000]")
+    for opt in ("target_error", "lab_budget"):
+        v = getattr(args, opt, None)
+        if v is not None and (not math.isfinite(v) or v < 0 or (opt == "lab_budget" and v == 0)):
+            raise ConfigError.field(f"--{opt.replace('_', '-')}", opt, v,
+                                    "must be positive seconds" if opt == "lab_budget" else "must be >= 0")
+    settings = SparseAdaptiveSettings(
+        n_initial=4 if args.coarse is None else args.coarse, batch=1 if args.batch is None else args.batch,
+        target_error=0.0 if args.target_error is None else args.target_error,
+        max_poses=20 if getattr(args, "max_poses", None) is None else args.max_poses,
+        lab_budget=math.inf if args.lab_budget is None else args.lab_budget, seed=args.seed,
+        round_overhead=RunnerSettings().timing.warmup_step)
+    return new_sparse_adaptive_manifest(rig, prior_arg=getattr(args, "prior", None), settings=settings,
+                                        capture=_capture(args))
 
 
 def adaptive_from_args(args, rig, *, source: str):
@@ -166,6 +223,7 @@ def adaptive_from_args(args, rig, *, source: str):
     from gonio.session.adaptive import FitSpec
     from gonio.session.runner import RunnerSettings
 
+    _refuse_options(args, ("sparse_n", "prior", "sparse_adaptive", "max_poses"), "only for plan sparse")
     name = args.candidates or ADAPTIVE_CANDIDATES
     if name == "adaptive":
         raise ConfigError.field("--candidates", "plan", name, "the candidates must come from a generator")

@@ -45,7 +45,10 @@ from gonio.plan.plan import Plan
 from gonio.samples import SampleSet
 
 __all__ = ["AdaptiveResult", "AdaptiveSettings", "AdaptivePlanner", "Round", "Decision", "adaptive_plan",
-           "fit_model", "select_model", "relative_rms", "STOP_REASONS"]
+           "fit_model", "select_model", "relative_rms", "STOP_REASONS", "ADAPTIVE_FORMAT", "round_entry"]
+
+#: Version of a session manifest's ``adaptive`` section (:mod:`gonio.session.adaptive`).
+ADAPTIVE_FORMAT = 1
 
 #: Why an adaptive plan stops: the prediction error reached the target, the lab-time budget is used up,
 #: every candidate is measured, or the round limit was reached.
@@ -182,6 +185,12 @@ class Round:
         return cls(index=int(d["round"]), candidates=np.asarray(d["candidate_index"], dtype=np.int64),
                    lab_time=float(d["lab_time_estimate_s"]), lab_total=float(d["lab_total_estimate_s"]),
                    cut=bool(d.get("cut", False)), error=None if d.get("error") is None else float(d["error"]))
+
+
+def round_entry(rnd: "Round", first_pose: int) -> dict[str, Any]:
+    """A round as a session manifest records it before it is measured (:mod:`gonio.session.adaptive`)."""
+    return {**rnd.to_dict(), "first_pose": int(first_pose), "status": "planned", "model_after": None,
+            "lab_time_s": 0.0}
 
 
 @dataclass

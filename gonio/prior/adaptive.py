@@ -26,7 +26,6 @@ and the prior (name, file, SHA-256: a resumed session plans with the same prior,
 
 from __future__ import annotations
 
-import hashlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +34,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from gonio.errors import ConfigError, DataError
+from gonio.io.material_file import file_sha256 as _sha256
 from gonio.plan.adaptive import AdaptivePlanner, AdaptiveSettings, Decision, Round
 from gonio.plan.plan import Plan
 from gonio.prior.design import SAMPLES_PER_POSE, SIGMA_REL, _directions, candidate_poses, select_directions
@@ -205,14 +205,6 @@ class PosteriorPlanner(AdaptivePlanner):
         sigma_u = sigma_to_mapped(f, s.sigma_rel * f, self.prior.eps)
         after = post.expected_error_after(wi, wo, sigma_u, n_samples=np.maximum(n_eff, 1))
         return left[[int(np.argmin(after))]]
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def prior_record(prior_arg) -> tuple[Prior, dict]:

@@ -11,7 +11,8 @@ The manifest is the record of the adaptation (rewritten atomically after every d
 
 * ``plan`` — every round's poses so far, concatenated in measurement order (pose *k* of the store is
   row *k*, as for any plan, so ``gonio status``/``export``/``fit`` read an adaptive session unchanged);
-* ``adaptive`` — ``candidates`` (the candidate plan), ``settings``
+* ``adaptive`` — ``planner`` (absent: the model-fitting planner; ``"prior"``: the sparse adaptive planner of
+  :mod:`gonio.prior.adaptive`, which records its ``prior`` instead of ``fit``), ``candidates`` (the candidate plan), ``settings``
   (:class:`~gonio.plan.adaptive.AdaptiveSettings`), ``fit`` (:class:`FitSpec`), ``rounds`` (per round:
   first pose, candidate indices in order, the planner's lab-time estimate, whether it was cut to the
   budget, ``status`` planned/measured, the prediction ``error`` of the round, the model fitted after it,
@@ -44,7 +45,8 @@ from typing import Any, Callable, Mapping, Sequence, TextIO
 import numpy as np
 
 from gonio.errors import ConfigError, DataError, GonioError
-from gonio.plan.adaptive import AdaptivePlanner, AdaptiveSettings, Round, fit_model, select_model
+from gonio.plan.adaptive import ADAPTIVE_FORMAT, AdaptivePlanner, AdaptiveSettings, Round, fit_model, select_model
+from gonio.plan.adaptive import round_entry as _round_entry
 from gonio.plan.ordering import MotionModel
 from gonio.plan.plan import Plan
 from gonio.samples import SampleSet
@@ -52,8 +54,6 @@ from gonio.samples import SampleSet
 __all__ = ["FitSpec", "AdaptiveSession", "AdaptiveSessionResult", "new_adaptive_manifest", "ADAPTIVE_FORMAT",
            "rounds_table", "model_table"]
 
-#: Version of the manifest's ``adaptive`` section.
-ADAPTIVE_FORMAT = 1
 
 
 @dataclass(frozen=True)
@@ -108,11 +108,6 @@ def new_adaptive_manifest(candidates: Plan, settings: AdaptiveSettings, fit: Fit
     return {"plan": planner.plan([first]),
             "adaptive": {"format": ADAPTIVE_FORMAT, "candidates": candidates.to_dict(), "settings": settings.to_dict(),
                          "fit": fit.to_dict(), "rounds": [_round_entry(first, 0)], "stop": None, "model": None}}
-
-
-def _round_entry(rnd: Round, first_pose: int) -> dict[str, Any]:
-    return {**rnd.to_dict(), "first_pose": int(first_pose), "status": "planned", "model_after": None,
-            "lab_time_s": 0.0}
 
 
 def _model_dict(model) -> dict[str, Any] | None:
@@ -216,15 +211,21 @@ class AdaptiveSession:
             raise DataError(f"{where}: adaptive.format = {ad.get('format') if isinstance(ad, Mapping) else ad!r}: "
                             f"expected an adaptive session, format {ADAPTIVE_FORMAT}")
         try:
-            self.candidates = Plan.from_dict(ad["candidates"], source=f"{where}: adaptive.candidates")
-            self.settings = AdaptiveSettings.from_dict(ad["settings"], source=f"{where}: adaptive.settings")
-            self.fit = FitSpec.from_dict(ad["fit"])
+            if ad.get("planner") == "prior":  # sparse adaptive: rounds chosen under a BRDF prior's posterior
+                from gonio.prior.adaptive import planner_from_manifest
+
+                self.planner = planner_from_manifest(ad, devices.rig, where)
+                self.candidates, self.settings, self.fit = self.planner.candidates, self.planner.settings, None
+            else:
+                self.candidates = Plan.from_dict(ad["candidates"], source=f"{where}: adaptive.candidates")
+                self.settings = AdaptiveSettings.from_dict(ad["settings"], source=f"{where}: adaptive.settings")
+                self.fit = FitSpec.from_dict(ad["fit"])
+                self.planner = AdaptivePlanner(self.candidates, self.fit.callable(),
+                                               motion=MotionModel.from_rig(devices.rig), settings=self.settings)
             self.rounds = [dict(r) for r in ad["rounds"]]
         except KeyError as exc:
             raise DataError(f"{where}: adaptive.{exc.args[0]}: missing") from None
         self.stop: str | None = ad.get("stop")
-        self.planner = AdaptivePlanner(self.candidates, self.fit.callable(), motion=MotionModel.from_rig(devices.rig),
-                                       settings=self.settings)
         self.runner = SessionRunner(self._plan(), store, devices, calibration, layout, settings=settings,
                                     before_pose=before_pose, resume_command=resume_command, stream=stream,
                                     pipeline_settings=pipeline_settings)
@@ -332,7 +333,8 @@ class AdaptiveSession:
         last = self.rounds[-1]
         last["status"], last["error"], last["model_after"] = "measured", d.error, _model_dict(d.model)
         last["plan_wall_s"] = time.perf_counter() - w0  # fitting + selection (real time, the rig idles)
-        err = "" if d.error is None else f", prediction error {d.error:.3g} (target {self.settings.target_error:g})"
+        what = getattr(self.planner, "error_name", "prediction error")
+        err = "" if d.error is None else f", {what} {d.error:.3g} (target {self.settings.target_error:g})"
         if d.stop is not None:
             self.stop = d.stop
             self._say(f"adaptive round {last['round']} assessed{err}: stop ({d.stop})")
