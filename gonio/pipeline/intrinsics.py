@@ -158,8 +158,9 @@ def coverage(views, width: int, height: int, rvecs, sigma: dict | None = None) -
         missing.append(f"{int(tilted.sum())} views tilted ≥ {TILT_DEG:g}° (3 or more needed, in different "
                        "directions): focal length and principal point are not identified by fronto-parallel views")
     elif _spread_mod180(axes[tilted]) < 30.0:
-        missing.append("every tilted view leans about one axis: tilt the board about another axis too (the focal "
-                       "length and the principal point along that axis are not identified)")
+        missing.append("every tilted view leans about one image axis: the focal length across it rests on the "
+                       "board's square shape (fx/fy) and its σ says how well; views tilted about the other axis too "
+                       "(e.g. hand-held images, --images) would determine it independently")
     if sigma is not None and max(sigma.get("cx", 0.0), sigma.get("cy", 0.0)) > 0.3:
         missing.append(f"principal point σ ({sigma['cx']:.2f}, {sigma['cy']:.2f}) px > 0.3 px: more tilted views "
                        "(30–50°), about both axes")
