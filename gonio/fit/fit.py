@@ -347,7 +347,20 @@ def canonical_order(L: Layout, p: np.ndarray) -> np.ndarray:
     return L.pack(colour, shape)
 
 
-def _uncertainty(prob: _Problem, p: np.ndarray, cost: float, notes: list[str], A: np.ndarray | None = None):
+def _shape_dependent_bounds(basis, L: Layout, p: np.ndarray) -> np.ndarray:
+    """Entries of the packed ``p`` on a colour bound that depends on the shape (``basis.colour_hi``: a lobe's
+    albedo ≤ 1, :func:`gonio.fit.kernels_abc.abc_smooth_albedo`), within :data:`gonio.fit.bounds.ON_BOUND`."""
+    out = np.zeros(p.size, dtype=bool)
+    hook = getattr(basis, "colour_hi", None)
+    colour, shape = L.unpack(p)
+    hi = hook(shape) if hook is not None else None
+    if hi is not None:
+        out[:3 * L.K] = (colour >= hi[:, None] * (1 - 1e-6)).ravel() & np.isfinite(np.repeat(hi, 3))
+    return out
+
+
+def _uncertainty(prob: _Problem, p: np.ndarray, cost: float, notes: list[str], A: np.ndarray | None = None,
+                 extra_bound: np.ndarray | None = None):
     """Standard uncertainties from s²(JᵀJ)⁻¹ over the parameters that are off their bounds and
     identifiable; ``nan`` on a bound, ``inf`` when not identifiable.
 
@@ -368,6 +381,8 @@ def _uncertainty(prob: _Problem, p: np.ndarray, cost: float, notes: list[str], A
     on_bound = lower | upper
     for j in ratio_flags(L, L.unpack(p)[1], ON_BOUND):  # a repeated lobe's width on the width-ratio bound
         on_bound[3 * L.K + j] = True
+    if extra_bound is not None:
+        on_bound |= extra_bound
     A = prob.jtj(p) if A is None else A
     free = ~on_bound
     ident = free.copy()
@@ -533,7 +548,7 @@ def _fit_tied(d: FitData, cls, fixed: dict, tied, linked, lossobj: Loss, kw: dic
 
 
 #: Extra seeded starts of a fit whose shape parameters ended on a bound (:func:`_restart_at_bound`).
-RESTARTS = 4
+RESTARTS = 2
 
 
 def _structural_bounds(r: FitResult) -> list[str]:
@@ -677,7 +692,8 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
     else:
         p, cost = _plain(prob, _starts(prob, rng, n_starts, heur), max_nfev)
     p = p if L.links else canonical_order(L, p)  # linked lobes are ordered by the link itself
-    err, ident, redundancy = _uncertainty(prob, p, cost, notes)
+    shape_hi = _shape_dependent_bounds(basis, L, p)
+    err, ident, redundancy = _uncertainty(prob, p, cost, notes, extra_bound=shape_hi)
     colour, shape = L.unpack(p)
     ecolour, eshape = L.unpack(err)
     params = L.params(colour, shape)
@@ -694,11 +710,14 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
         L.build(colour, shape)
     except GonioError as exc:
         notes.append(f"the fitted parameters violate a model constraint: {exc}")
+    at_bound = bound_report(L, {**params, **L.link_values(shape)}, unc)
+    for e in np.flatnonzero(shape_hi):
+        at_bound.setdefault(L.colour[e // 3], {})[CHANNELS[e % 3]] = "upper (the lobe's albedo 1)"
     return FitResult(
         model_name=L.name, params=params, uncertainty=unc, loss=lossobj.name, cost=float(cost), rms_rel=rms_rel,
         n_used=len(d), n_params=L.n_params, chi2_red=chi2_red, identifiable=ident, method=method,
         n_evals=prob.n_evals, seconds=time.perf_counter() - t0, notes=notes, heuristics=heur,
-        dropped=dict(d.dropped), redundancy=redundancy, at_bound=bound_report(L, {**params, **L.link_values(shape)}, unc),
+        dropped=dict(d.dropped), redundancy=redundancy, at_bound=at_bound,
         links=L.link_values(shape),
     )
 

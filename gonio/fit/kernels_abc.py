@@ -41,5 +41,27 @@ def abc_smooth(data, layout, shape):
     return offset, [basis[k] for k in layout.colour]
 
 
+def abc_smooth_albedo(B: float, C: float) -> float:
+    """Directional albedo at normal incidence of the lobe S(x) = 1/(1 + B x)^C of :class:`gonio.brdf.abc.ABCSmooth`
+    with F = 1 (a perfect reflector): at θi = 0, x = sin²θo, and with u = sin²θo (du = 2 sinθo cosθo dθo)
+    ∫ S cos θo dω = π ∫₀¹ (1 + B u)^−C du = π (1 − (1 + B)^(1−C)) / (B (C − 1)) (π ln(1 + B)/B at C = 1)."""
+    if abs(C - 1.0) < 1e-9:
+        return float(np.pi * np.log1p(B) / B)
+    return float(np.pi * -np.expm1((1.0 - C) * np.log1p(B)) / (B * (C - 1.0)))
+
+
+def _abc_smooth_hi(layout, shape) -> np.ndarray | None:
+    """Upper bound of the colours of :func:`abc_smooth`: A ≤ 1/albedo(B, C) (:func:`abc_smooth_albedo`), so the
+    lobe reflects at most all the light before Fresnel's F ≤ 1 (energy conservation of the lobe; without it the
+    unnormalized A lets a dielectric F of 0.04 stand in for a metal's reflectance, issue 29); kd ≤ 1 as declared."""
+    if "A" not in layout.colour:
+        return None
+    p = {**layout.fixed, **shape}
+    hi = np.array(layout.colour_hi, dtype=np.float64)
+    hi[layout.colour.index("A")] = 1.0 / abc_smooth_albedo(float(p["B"]), float(p["C"]))
+    return hi
+
+
 abc_smooth.supports = lambda L: set(L.colour) <= {"kd", "A"}
+abc_smooth.colour_hi = _abc_smooth_hi
 KERNELS_ABC = {"abc-smooth": abc_smooth}

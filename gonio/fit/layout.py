@@ -347,6 +347,14 @@ class Basis:
                 self._offset_static = np.empty(0)
         return True
 
+    def colour_hi(self, shape) -> np.ndarray | None:
+        """Shape-dependent upper bounds of the colours (the kernel's ``colour_hi``, e.g. a lobe's albedo ≤ 1), or
+        None."""
+        hook = getattr(self.kernel, "colour_hi", None)
+        if hook is None:
+            return None
+        return hook(self.layout, dict(zip(self.layout.shape, map(float, np.asarray(shape)))))
+
     def __call__(self, shape: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
         """``(f₀ (N, 3), [B_k (N, 3) or (N,)])`` at shape parameters ``shape`` on the full data."""
         key = tuple(np.asarray(shape, dtype=np.float64).tolist())

@@ -157,18 +157,26 @@ class Projection:
         c0 = (t * self.w * t).sum(axis=0)
         return G, b, c0
 
+    def upper(self, shape) -> np.ndarray:
+        """Upper bounds of the colours at ``shape``: the layout's, or lower where the basis bounds them by the
+        shape (``basis.colour_hi``, e.g. a lobe's albedo ≤ 1, :func:`gonio.fit.kernels_abc.abc_smooth_albedo`)."""
+        hook = getattr(self.basis, "colour_hi", None)
+        extra = hook(shape) if hook is not None else None
+        return self.hi if extra is None else np.minimum(self.hi, extra)
+
     def __call__(self, shape) -> tuple[float, np.ndarray]:
         self.n_evals += 1
         G, b, c0 = self.normal_equations(shape)
         G = np.ascontiguousarray(np.broadcast_to(G, (3,) + G.shape[-2:]))
+        hi = self.upper(shape)
         with np.errstate(all="ignore"):
             try:
                 a = np.linalg.solve(G, b[..., None])[..., 0]  # the three channels at once
-                ok = np.isfinite(a).all(-1) & (a >= self.lo).all(-1) & (a <= self.hi).all(-1)
+                ok = np.isfinite(a).all(-1) & (a >= self.lo).all(-1) & (a <= hi).all(-1)
             except np.linalg.LinAlgError:
                 a, ok = np.zeros_like(b), np.zeros(3, dtype=bool)
         if not ok.all():  # exact active-set solution where a bound is active (Lawson & Hanson 1974)
-            a[~ok] = bounded_lsq_batch(G[~ok], b[~ok], self.lo, self.hi)
+            a[~ok] = bounded_lsq_batch(G[~ok], b[~ok], self.lo, hi)
         q = c0 - 2.0 * np.einsum("ck,ck->c", b, a) + np.einsum("ck,ckl,cl->c", a, G, a)
         return float(0.5 * np.maximum(q, 0.0).sum()), a.T.copy()
 
