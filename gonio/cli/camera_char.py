@@ -252,8 +252,9 @@ def run_noise(args) -> int:
     print(f"wrote {args.output} ([noise], [emva1288], [camera] black_level)"
           + (f"; replaced {', '.join(replaced)}" if replaced else ""))
     import tomllib
+    from pathlib import Path
 
-    if not {"K", "focal_px"} & set(tomllib.loads(open(args.output, encoding="utf-8").read())):
+    if not {"K", "focal_px"} & set(tomllib.loads(Path(args.output).read_text(encoding="utf-8"))):
         print(f"{args.output} is without intrinsics yet: add them with `gonio camera calibrate ... -o {args.output} "
               "--force`")
     return 0
