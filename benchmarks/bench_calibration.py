@@ -149,10 +149,13 @@ def free_cores() -> int:
     return max(1, min(default_jobs(), int(default_jobs() - load + 0.5)))
 
 
-def run(quick: bool = False, jobs: int | None = None, seeds: int | None = None, rendered: int | None = None) -> list[Table]:
-    """The table (quick: 5 seeds, 1 rendered with the quick plan, for CI; full: 20 seeds, 10 rendered with the
+def run(quick: bool = False, jobs: int | None = None, seeds: int | None = None, rendered: int | None = None,
+        honesty: int | None = None, fit: bool | None = None) -> list[Table]:
+    """The tables (quick: 5 seeds, 1 rendered with the quick plan, for CI; full: 20 seeds, 10 rendered with the
     full plan). ``jobs``: worker processes over the seeds (default: :func:`free_cores`); ``seeds``, ``rendered``:
-    other counts (e.g. ``run(seeds=40, rendered=40)`` to check the stated uncertainty on more rendered rigs)."""
+    other counts (e.g. ``run(seeds=40, rendered=40)`` to check the stated uncertainty on more rendered rigs).
+    The second table (:mod:`benchmarks.calibration_honesty`): ``honesty`` runs on independently drawn rigs
+    (quick: 2, full: 20), each with a measurement session and a GGX fit unless ``fit`` is False (quick: no fit)."""
     import os
     import time
 
@@ -252,4 +255,9 @@ def run(quick: bool = False, jobs: int | None = None, seeds: int | None = None, 
                    "±3 mm, distances ±5 mm, lateral ±3 mm, camera mounting rotation ±1° per axis, sample height ±1 mm)")
     t.notes.append(f"this run: {wall:.0f} s wall, {jobs} worker process(es) over the seeds, 1-min load average "
                    f"{load0:.2f} at the start on {os.cpu_count()} cores")
-    return [t]
+    from benchmarks.calibration_honesty import table as honesty_table
+
+    n_h = (2 if quick else 20) if honesty is None else int(honesty)
+    if n_h <= 0:
+        return [t]
+    return [t, honesty_table(n_h, fit=(not quick) if fit is None else fit, jobs=jobs, quick=quick)]

@@ -69,6 +69,11 @@ class SampleSet:
         Bit mask of :data:`SATURATED`, :data:`LOW_SIGNAL`, ...
     pose : ndarray (N,) int
         Index of the plan pose the sample came from (−1 if none).
+    sigma_pose : ndarray (N, 3)
+        The part of ``sigma`` that every sample of the same pose shares (same units; included in ``sigma``:
+        ``sigma² = σ_own² + sigma_pose²``): the geometry's error — the camera pose's and the light position's,
+        the calibration's covariance included — moves all samples of a pose together, so their errors are
+        correlated, ``cov(i, j) ≈ sigma_pose_i · sigma_pose_j`` within a pose (docs/uncertainty.md). 0: none known.
     """
 
     wi: np.ndarray
@@ -78,6 +83,7 @@ class SampleSet:
     n_pixels: np.ndarray = field(default=None)  # type: ignore[assignment]
     flags: np.ndarray = field(default=None)  # type: ignore[assignment]
     pose: np.ndarray = field(default=None)  # type: ignore[assignment]
+    sigma_pose: np.ndarray = field(default=None)  # type: ignore[assignment]
 
     def __post_init__(self):
         wi = _col("wi", self.wi, np.float64, 3, None)
@@ -90,6 +96,8 @@ class SampleSet:
             "n_pixels": _col("n_pixels", np.ones(n) if self.n_pixels is None else self.n_pixels, np.int64, None, n),
             "flags": _col("flags", np.zeros(n) if self.flags is None else self.flags, np.int64, None, n),
             "pose": _col("pose", np.full(n, -1) if self.pose is None else self.pose, np.int64, None, n),
+            "sigma_pose": _col("sigma_pose", np.zeros((n, 3)) if self.sigma_pose is None else self.sigma_pose,
+                               np.float64, 3, n),
         }
         for k, v in cols.items():
             object.__setattr__(self, k, v)

@@ -41,6 +41,12 @@ HARDWARE_OPTIONS = (("--rig", "rig", "the declared rig file"), ("--servo-port", 
                     ("--camera", "camera", "the camera"), ("--calibration", "calibration", "the camera's CAMERA.toml"))
 
 
+#: What helps a calibration session that lost poses, by cause (said with the causes counted).
+LOST_POSES_HELP = ("board not found: the whole ChArUco board lit and in focus at every camera pose, the camera "
+                   "file this camera's; highlight near the tile's edge or off it: the tile centred and flush, "
+                   "80 mm; saturated: dim the light (a mirror) or a darker tile")
+
+
 def register(sub) -> None:
     p = sub.add_parser("calibrate", help="geometric calibration of the rig (servo zeros, axes, arm lengths)",
                        description=DESCRIPTION)
@@ -96,6 +102,9 @@ def print_result(res, refused=()) -> None:
               f"frontal {scale('scale_board_frontal')}, board oblique {scale('scale_board_oblique')}, highlight "
               f"{scale('scale_highlight')}; χ²/n " + ", ".join(
                   f"{k[5:].replace('_', ' ')} {v:.2f}" for k, v in n.items() if k.startswith("chi2_")))
+    if res.rejected:
+        print(f"  {len(res.rejected)} frame(s) left out as outliers (whitened χ² improbable under their covariance), "
+              f"e.g. {res.rejected[0]}")
     if refused:
         print(f"  {len(refused)} poses without a highlight or a board pose, e.g. pose {refused[0][0]}: {refused[0][1]}")
 
@@ -112,6 +121,14 @@ def print_calibration_outcome(result) -> int:
           f"estimated {format_lab_time(run.estimated_lab_time or 0.0)}), wall time {run.wall_time:.1f} s")
     if run.skipped:
         print(f"{len(run.skipped)} poses skipped: " + "; ".join(f"pose {k}: {r}" for k, r in run.skipped[:3]))
+    from gonio.session.usability import STATUS_PREFIX, UNUSABLE_EXIT, run_warning
+
+    if run_warning(run):  # a calibration that lost many poses still estimates, but says what it lost
+        print(f"gonio: {run_warning(run)}; {LOST_POSES_HELP}", file=sys.stderr)
+    if str(result.status).startswith(STATUS_PREFIX):
+        print(f"gonio: calibration session {result.status}; no calibrated rig file written: {LOST_POSES_HELP}",
+              file=sys.stderr)
+        return UNUSABLE_EXIT
     if not result.ok:
         print(f"gonio: calibration session ended: {result.status}; resume with `{resume_cmd}`", file=sys.stderr)
         if result.status == "interrupted":
@@ -130,6 +147,10 @@ def _write_calibrated(directory, rig, manifest, out) -> int:
     res, refused = finish_calibration(directory, rig, manifest["rig"]["toml"], out,
                                       note=manifest["geocal"].get("note", ""))
     print_result(res, refused)
+    from gonio.rig.geocov import goal_line, with_calibration
+
+    reached, line = goal_line(with_calibration(rig, res))
+    print(f"  {line}")
     print(f"wrote {out} (use it with: gonio measure --rig {out})")
     return 0
 
@@ -151,20 +172,22 @@ def report_check(directory, rig, manifest) -> int:
     threshold = _threshold(manifest["geocal"]["check"].get("threshold_deg"), f"{where}: geocal.check.threshold_deg",
                            error=DataError)
     cams, highs, refused = observations_from_store(directory, rig)
-    chk = check_geometry(rig, cams, highs, threshold_deg=threshold)
+    sim = manifest.get("sim")
+    truth = None
+    if isinstance(sim, dict) and isinstance(sim.get("as_built"), dict):
+        truth = ChainErrors.from_dict({k: v for k, v in sim["as_built"].items() if k != "source"}, source=where)
+    chk = check_geometry(rig, cams, highs, threshold_deg=threshold, truth=truth)
     name = manifest["rig"].get("source") or rig.name
     print(f"{len(cams)} board poses and {len(highs)} highlights re-measured with {name}"
           + (f" ({len(refused)} poses without one, e.g. pose {refused[0][0]}: {refused[0][1]})" if refused else "") + ":")
     lines = chk.lines(str(name))
     print("\n".join(lines[:-1]))
-    sim = manifest.get("sim")
-    if isinstance(sim, dict) and isinstance(sim.get("as_built"), dict):
-        truth = ChainErrors.from_dict({k: v for k, v in sim["as_built"].items() if k != "source"}, source=where)
+    if truth is not None and cams:
         j = np.stack([c.joints for c in cams])
         twi, two = true_directions(replace(rig, geometry_errors=None), truth, j)
         wi, wo = rig.directions(j)
         ei, eo = angle_between_deg(wi, twi), angle_between_deg(wo, two)
-        print(f"  vs the simulated truth: wi median {np.median(ei):.3f}° (max {ei.max():.3f}°), "
+        print(f"  vs the simulated truth at the board poses: wi median {np.median(ei):.3f}° (max {ei.max():.3f}°), "
               f"wo median {np.median(eo):.3f}° (max {eo.max():.3f}°)")
     print(lines[-1])
     return 0 if chk.ok else 1

@@ -39,6 +39,10 @@ class FitData:
         Where the data came from (named in error messages).
     dropped : dict
         Reason -> number of samples excluded by :func:`prepare`.
+    pose : ndarray (N,) int or None
+        The plan pose of each sample (a session's): samples of one pose share the geometry's error.
+    sigma_pose : ndarray (N, 3) or None
+        The part of ``sigma`` shared by the samples of a pose (:class:`gonio.samples.SampleSet`); ``None``: none.
     """
 
     wi: np.ndarray
@@ -47,6 +51,8 @@ class FitData:
     sigma: np.ndarray | None
     source: str = "samples"
     dropped: dict = field(default_factory=dict)
+    pose: np.ndarray | None = None
+    sigma_pose: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.y.shape[0]
@@ -100,7 +106,9 @@ class FitData:
         """The samples selected by a mask or index array; geometry already computed here is shared (sliced),
         the rest is computed lazily (the folds of a cross-validation share one geometry)."""
         sub = FitData(self.wi[index], self.wo[index], self.y[index],
-                      None if self.sigma is None else self.sigma[index], self.source, dict(self.dropped))
+                      None if self.sigma is None else self.sigma[index], self.source, dict(self.dropped),
+                      None if self.pose is None else self.pose[index],
+                      None if self.sigma_pose is None else self.sigma_pose[index])
         for name in _GEOMETRY:
             if name in self.__dict__ and self.__dict__[name] is not None:
                 sub.__dict__[name] = self.__dict__[name][index]
@@ -136,9 +144,11 @@ def prepare(data, *, max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG, use_fl
     """
     if isinstance(data, FitData):
         return data
-    flags = None
+    flags = pose = sigma_pose = None
     if isinstance(data, SampleSet):
         wi, wo, f, sigma, flags = data.wi, data.wo, data.f, data.sigma, data.flags
+        if np.all(data.pose >= 0):  # a session's samples: which pose each came from, what they share
+            pose, sigma_pose = data.pose, data.sigma_pose
         source = source or "samples"
     else:
         try:
@@ -195,4 +205,9 @@ def prepare(data, *, max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG, use_fl
         sigma = sigma[keep]
         if not (np.isfinite(sigma).all() and (sigma > 0).all()):
             sigma = None  # uncertainties unknown for some samples: χ² is not available
-    return FitData(wi, wo, f, sigma, source, dropped)
+    if pose is not None:
+        pose = pose[keep]
+        sigma_pose = sigma_pose[keep]
+        if sigma is None or not (np.isfinite(sigma_pose).all() and np.any(sigma_pose > 0)):
+            sigma_pose = None
+    return FitData(wi, wo, f, sigma, source, dropped, pose, sigma_pose)

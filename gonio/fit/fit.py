@@ -28,6 +28,7 @@ import numpy as np
 from gonio.errors import ConfigError, DataError, GonioError
 from gonio.fit.bounds import NEAR_BOUND, ON_BOUND, bound_flags, bound_report, ratio_flags
 from gonio.fit.data import DEFAULT_MAX_THETA_DEG, FitData, prepare
+from gonio.fit.correlated import pose_covariance
 from gonio.fit.kernels import jacobian_for, profile_for
 from gonio.fit.layout import (CHANNELS, Basis, Layout, SubSpace, auto_tied, linked_lobes, make_basis, model_class,
                               resolve_fixed, separated)
@@ -408,6 +409,12 @@ def _uncertainty(prob: _Problem, p: np.ndarray, cost: float, notes: list[str], A
                              f"the stated sigma")
             s2 = max(s2, 1.0)
         cov = s2 * np.linalg.pinv(A[np.ix_(idx, idx)])
+        pc = pose_covariance(prob, p, idx, s2 if prob.loss.name == "chi2" else 1.0)
+        if pc is not None:  # a session's samples: errors correlated within a pose (gonio.fit.correlated)
+            v = np.maximum(np.diag(cov), np.diag(pc[0]))  # never below the independent samples' estimate
+            sd = np.sqrt(np.clip(np.diag(pc[0]), 1e-300, None))
+            cov = pc[0] / np.outer(sd, sd) * np.sqrt(np.outer(v, v))
+            notes.append(pc[1])
         err[idx] = np.sqrt(np.clip(np.diag(cov), 0, None))
     redundancy = None
     if idx.size and getattr(L.cls, "PARTS", None):

@@ -27,6 +27,7 @@ __all__ = ["COSINE_CONVENTION", "NpzContent", "build_metadata", "write_npz", "re
 COSINE_CONVENTION = "BRDF, not BRDF·cos"
 UNITS = {
     "f": "1/sr", "sigma": "1/sr (standard uncertainty)", "wi": "unit vector, local frame",
+    "sigma_pose": "1/sr (the part of sigma shared by every sample of the pose: docs/uncertainty.md)",
     "wo": "unit vector, local frame", "angles": "rad", "table/values": "1/sr",
     "table/sigma": "1/sr (standard uncertainty)", "table/count": "samples per cell",
 }

@@ -133,6 +133,12 @@ def _warn_if_unfinished(path: Path, manifest: dict, samples) -> None:
     status = manifest.get("exit_status")
     if status == "completed":
         return
+    if str(status).startswith("unusable"):  # gonio.session.usability: every pose may be stored, most unusable
+        import textwrap
+
+        warnings.warn(f"{path}: the session ended {textwrap.shorten(str(status), 200, placeholder=' …')}: its "
+                      "samples are mostly flagged or missing", stacklevel=4)
+        return
     plan = manifest.get("plan")
     n_plan = plan.get("n_poses") if isinstance(plan, dict) else None
     if isinstance(n_plan, int) and not isinstance(n_plan, bool) and done is not None and done >= n_plan:

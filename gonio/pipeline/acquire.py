@@ -209,8 +209,12 @@ class Pipeline:
     # -- the pose -----------------------------------------------------------------------------
     def measure(self, light_position, *, pose_index: int = -1, camera_pose_hint: CameraPose | None = None,
                 plan: CapturePlan | None = None, nominal=None, meter_exposure: float | None = None,
-                board: BoardPose | None = None, confirm_board: bool = False) -> PoseResult:
+                board: BoardPose | None = None, confirm_board: bool = False, light_cov=None) -> PoseResult:
         """Measure one pose; see the module docstring. Raises :class:`BoardNotFound` or :class:`BadFrame`.
+
+        ``light_cov``: covariance (m², 3 × 3) of ``light_position`` beyond the servos' own scatter
+        (:attr:`PipelineSettings.light_position_sigma`): the geometric calibration's, propagated to this pose
+        (:func:`gonio.rig.geocov.light_position_covariance`); both enter every sample's σ and ``sigma_pose``.
 
         ``nominal = (camera centre, light position)`` of the planned pose fixes the tiling (see
         :func:`gonio.pipeline.reflectance.build_roi`). ``meter_exposure``: exposure of the metering frame
@@ -282,9 +286,17 @@ class Pipeline:
         perturb = board.perturbed() if (board is not None and st.pose_uncertainty) else []
         samples = used_pixel_samples(hdr, roi, cam_pose, light_position, self.layout, absolute_scale=self.absolute_scale,
                                      min_snr=st.min_snr, pose_index=pose_index, flags=flags,
-                                     pose_perturbations=perturb, light_sigma=st.light_position_sigma)
+                                     pose_perturbations=perturb, light_sigma=self._light_sigma(light_cov))
         self._next_exposure = plan.exposures[0]
         return PoseResult(samples, plan, board, cam_pose, lights, times, source)
+
+    def _light_sigma(self, light_cov):
+        """The light position's uncertainty: the servos' per-coordinate σ, plus the calibration's covariance."""
+        st = self.settings
+        if light_cov is None:
+            return st.light_position_sigma
+        C = np.asarray(light_cov, dtype=np.float64).reshape(3, 3)
+        return C + np.eye(3) * st.light_position_sigma ** 2
 
     def _capture_merge(self, plan: CapturePlan, used: np.ndarray, flags: int):
         """Capture ``plan``'s bracket, subtract darks and merge the ``used`` pixels (flat indices): ``(hdr as an

@@ -23,7 +23,8 @@ from gonio import samples as S
 from gonio.geometry import dot, normalize, to_local
 from gonio.pipeline.hdr import HdrImage
 from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
-from gonio.pipeline.uncertainty import geometry_variance
+from gonio.pipeline.footprint import footprint_correction, tile_half_moments
+from gonio.pipeline.uncertainty import geometry_variance, light_offsets
 from gonio.samples import SampleSet
 
 __all__ = ["Roi", "build_roi", "reflectance_samples", "used_pixel_samples"]
@@ -150,9 +151,16 @@ def _tile_sums(lab: np.ndarray, values: np.ndarray, nt: int) -> np.ndarray:
     return np.bincount(idx, np.asarray(values, dtype=np.float64).ravel(), minlength=nt * m).reshape(nt, m)
 
 
+def _in_frame(light_sigma, frame):
+    """The light position's uncertainty in the mounted sample's frame (rows of ``frame``: its axes): a
+    per-coordinate σ is the same in any frame, a covariance turns, ``F C Fᵀ``."""
+    a = np.asarray(light_sigma, dtype=np.float64)
+    return light_sigma if a.ndim == 0 else frame @ a @ frame.T
+
+
 def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_position, layout: TargetLayout, *,
                         absolute_scale=None, min_snr: float = 10.0, pose_index: int = -1, flags: int = 0,
-                        light_rel_sigma: float = 0.0, pose_perturbations=(), light_sigma: float = 0.0) -> SampleSet:
+                        light_rel_sigma: float = 0.0, pose_perturbations=(), light_sigma=0.0) -> SampleSet:
     """BRDF samples (one per tile) from a merged image over ``roi`` (see the module docstring).
 
     Uncertainty: per pixel ``σ_f² = σ²_rate / (kI E)²``; per tile the mean's variance
@@ -162,7 +170,8 @@ def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_positio
     of exposure k in a value (:attr:`HdrImage.light_weight`), ``f² Σ_k (α_k,tile − α_k,white)² ε_k²``
     (ε_k the reading's relative uncertainty; it cancels where both come from the same exposures);
     plus the geometry's (:func:`gonio.pipeline.uncertainty.geometry_variance`: the camera pose's
-    ``pose_perturbations`` and the light position's ``light_sigma``, metres per coordinate).
+    ``pose_perturbations`` and the light position's ``light_sigma``, metres per coordinate, or its (3, 3)
+    covariance in m²), which is also returned alone as ``sigma_pose``: shared by all the pose's samples.
     Pixels saturated in every exposure are excluded and their tile flagged ``SATURATED``; a tile
     with no usable pixel gets f = σ = NaN (flagged). SNR below ``min_snr`` → ``LOW_SIGNAL``.
     ``flags`` (e.g. ``NO_BOARD``, ``DRIFT``) are set on every sample.
@@ -183,7 +192,7 @@ def reflectance_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_positio
 
 def used_pixel_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_position, layout: TargetLayout, *,
                        absolute_scale=None, min_snr: float = 10.0, pose_index: int = -1, flags: int = 0,
-                       light_rel_sigma: float = 0.0, pose_perturbations=(), light_sigma: float = 0.0) -> SampleSet:
+                       light_rel_sigma: float = 0.0, pose_perturbations=(), light_sigma=0.0) -> SampleSet:
     """:func:`reflectance_samples` from a merge of the ROI's used pixels only — the sample's and the white's
     (``(roi.label >= 0) | roi.white``), in the box's C order: ``hdr``'s arrays are (n, C) or (n, 1, C), its
     ``light_weight`` (K, n, C) or (K, n, 1, C), what :func:`~gonio.pipeline.hdr.merge_linear` returns for those
@@ -259,7 +268,7 @@ def used_pixel_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_position
     fsum, vsum = np.ascontiguousarray(sums[:, :chans]), np.ascontiguousarray(sums[:, chans:])
     # directions: mean over all sample pixels of the tile (saturated ones included: same geometry); the tiles'
     # mean plane points too when the geometry's uncertainty needs them
-    geometry = bool((pose_perturbations or light_sigma > 0) and chans == 3)
+    geometry = bool((pose_perturbations or len(light_offsets(light_sigma))) and chans == 3)
     lab_s = lab[in_s]
     vecs = _tile_sums(lab_s, np.concatenate([wi, wo, p] if geometry else [wi, wo], axis=1)[in_s], nt)
     wi_t = normalize(np.ascontiguousarray(vecs[:, 0:3]))
@@ -269,6 +278,14 @@ def used_pixel_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_position
     with np.errstate(invalid="ignore", divide="ignore"):
         f = fsum / n[:, None]
         var = vsum / n[:, None] ** 2 + f**2 * (kI_var / kI**2 + light_rel_sigma**2)
+    n_side = int(round(np.sqrt(nt)))
+    if n_side * n_side == nt and n_side >= 3:  # the mean over a tile's directions is not the value at its mean
+        # direction where the BRDF curves: second-order correction (gonio.pipeline.footprint)
+        h_px = normalize(wi[in_s] + wo[in_s])
+        hm, hc = tile_half_moments(h_px if flat else to_local(h_px, frame), lab[in_s], nt)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            delta, dvar = footprint_correction(f, var, hm, hc, n_side)
+        f, var = f - delta, var + dvar
     if h_lw is not None and hdr.light_rel_var is not None and hdr.light_rel_var.any():
         aw = np.take(h_lw, ig, axis=1) * f_px  # (K, Ngood, C)
         K = aw.shape[0]
@@ -296,12 +313,16 @@ def used_pixel_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_position
             loc = lambda x: (x - origin) @ frame.T * np.array([1.0, 1.0, 0.0])  # noqa: E731
             gv = geometry_variance(np.where(np.isfinite(f), f, np.nan), loc(p_tile),
                                    None if p_white is None else loc(p_white), _pose_in_frame(pose, origin, frame),
-                                   (S_ - origin) @ frame.T, n_grid, light_sigma=light_sigma,
+                                   (S_ - origin) @ frame.T, n_grid, light_sigma=_in_frame(light_sigma, frame),
                                    pose_perturbations=[_pose_in_frame(q, origin, frame) for q in pose_perturbations])
-        var = var + np.where(okt[:, None], gv, 0.0)
+        gv = np.where(okt[:, None], gv, 0.0)
+        var = var + gv
+    else:
+        gv = np.zeros_like(var)
     if chans == 1:
-        f, var = np.repeat(f, 3, axis=1), np.repeat(var, 3, axis=1)
+        f, var, gv = np.repeat(f, 3, axis=1), np.repeat(var, 3, axis=1), np.repeat(gv, 3, axis=1)
     sigma = np.sqrt(var)
+    sigma_pose = np.sqrt(gv)  # the geometry's part: shared by every tile of the pose (docs/uncertainty.md)
     fl = np.full(nt, int(flags) | white_flags, dtype=np.int64)
     fl[nsat > 0] |= S.SATURATED
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -316,7 +337,8 @@ def used_pixel_samples(hdr: HdrImage, roi: Roi, pose: CameraPose, light_position
         keep[0] = True
         wi_t[0] = to_local(normalize(S_ - origin), frame)
         wo_t[0] = to_local(normalize(C - origin), frame)
-        f[0], sigma[0] = np.nan, np.nan
+        f[0], sigma[0], sigma_pose[0] = np.nan, np.nan, np.nan
         fl[0] |= S.BAD_FRAME
     return SampleSet(wi=wi_t[keep], wo=wo_t[keep], f=f[keep], sigma=sigma[keep], n_pixels=n[keep].astype(np.int64),
-                     flags=fl[keep], pose=np.full(int(keep.sum()), pose_index))
+                     flags=fl[keep], pose=np.full(int(keep.sum()), pose_index),
+                     sigma_pose=np.where(np.isfinite(sigma_pose[keep]), sigma_pose[keep], 0.0))

@@ -122,8 +122,20 @@ def _log_irradiance(p: np.ndarray, S: np.ndarray) -> np.ndarray:
         return np.log(np.maximum(d[..., 2], 1e-300)) - 1.5 * np.log(r2)
 
 
+def light_offsets(light_sigma) -> np.ndarray:
+    """The light position's perturbations one σ along each principal axis, (k, 3) metres: ``light_sigma`` a
+    standard uncertainty per coordinate (metres) or a (3, 3) covariance (m²; e.g. the servos' scatter plus the
+    geometric calibration's, :func:`gonio.rig.geocov.light_position_covariance`): ``√λ v`` per eigenpair."""
+    a = np.asarray(light_sigma, dtype=np.float64)
+    if a.ndim == 0:
+        return np.eye(3) * float(a) if a > 0 else np.zeros((0, 3))
+    w, V = np.linalg.eigh(0.5 * (a + a.T))
+    keep = w > 1e-12 * max(float(w.max()), 1e-300)
+    return (V[:, keep] * np.sqrt(w[keep])).T
+
+
 def geometry_variance(f: np.ndarray, p_tile: np.ndarray, p_white: np.ndarray | None, pose: CameraPose,
-                      light_position, n_grid: int, *, pose_perturbations=(), light_sigma: float = 0.0) -> np.ndarray:
+                      light_position, n_grid: int, *, pose_perturbations=(), light_sigma=0.0) -> np.ndarray:
     """Variance (nt, C) of the tiles' residuals from the uncertain camera pose and light position.
 
     Parameters
@@ -132,7 +144,11 @@ def geometry_variance(f: np.ndarray, p_tile: np.ndarray, p_white: np.ndarray | N
     p_white : (3,) mean plane point of the white reference's pixels (None in absolute mode);
     pose : the estimated camera pose; light_position : (3,) the assumed light position;
     n_grid : tiles per side; pose_perturbations : camera poses one σ away (principal axes);
-    light_sigma : standard uncertainty (metres) of each coordinate of the light position.
+    light_sigma : standard uncertainty (metres) of each coordinate of the light position, or its (3, 3)
+        covariance (m²): :func:`light_offsets`.
+
+    Every case moves all tiles of the pose together: the variance returned is the part of each tile's σ²
+    that the pose's samples share (fully correlated within the pose; the store's ``sigma_pose``).
     """
     S = np.asarray(light_position, dtype=np.float64)
     C = pose.centre
@@ -145,8 +161,7 @@ def geometry_variance(f: np.ndarray, p_tile: np.ndarray, p_white: np.ndarray | N
     # one stack): camera poses one σ away first, then the light moved one σ along each axis
     qs = list(pose_perturbations)
     Sq = [S] * len(qs)
-    if light_sigma > 0:
-        Sq += [S + light_sigma * e for e in np.eye(3)]
+    Sq += [S + d for d in light_offsets(light_sigma)]
     nq = len(qs)
     nc = len(Sq)
     var = np.zeros_like(f)

@@ -213,3 +213,39 @@ class FrameNoise:
             if v.size:
                 out[name] = (float(np.mean(v ** 2)), int(v.size))
         return out
+
+    # -- outlier frames ---------------------------------------------------------------------------------
+    def outlier_frames(self, whitened: np.ndarray, p_value: float) -> list[int]:
+        """Frames (:meth:`clusters` indices) whose whitened residual χ² has a probability below ``p_value``
+        under their covariance (χ² with the frame's residual count as degrees of freedom): a board pose or a
+        highlight the detector got wrong (a corner on a reflection, a highlight cut by the tile's edge)."""
+        from scipy.stats import chi2
+
+        cid = self.clusters()
+        q = np.bincount(cid, whitened ** 2, minlength=self.n_frames)
+        dof = np.bincount(cid, minlength=self.n_frames)
+        return [int(k) for k in np.flatnonzero(chi2.sf(q, np.maximum(dof, 1)) < p_value)]
+
+    def without(self, frames) -> tuple[list, list, list[str]]:
+        """``(cams, highs, what)``: the observations without the given frames (a board pose and its highlight go
+        together) and one description per frame dropped."""
+        drop_c, drop_h, what = set(), set(), []
+        n0, n1 = len(self.cam_only), len(self.pair_h)
+        for k in frames:
+            if k < n0:
+                drop_c.add(int(self.cam_only[k]))
+                what.append(f"board pose at joints {_deg(self.cams[self.cam_only[k]].joints)}")
+            elif k < n0 + n1:
+                drop_c.add(int(self.pair_c[k - n0]))
+                drop_h.add(int(self.pair_h[k - n0]))
+                what.append(f"board pose + highlight at joints {_deg(self.highs[self.pair_h[k - n0]].joints)}")
+            else:
+                drop_h.add(int(self.high_only[k - n0 - n1]))
+                what.append(f"highlight at joints {_deg(self.highs[self.high_only[k - n0 - n1]].joints)}")
+        return ([c for i, c in enumerate(self.cams) if i not in drop_c],
+                [h for i, h in enumerate(self.highs) if i not in drop_h], what)
+
+
+def _deg(joints) -> str:
+    return "(" + ", ".join(f"{math.degrees(a):.1f}" for a in np.asarray(joints)) + ") deg"
+

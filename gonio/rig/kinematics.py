@@ -187,6 +187,9 @@ class Rig:
     #: the calibrated chain (:func:`gonio.rig.chain.chain_forward`); the inverse (:meth:`solve_many`) stays the
     #: declared one, so a pose lands within the calibration's corrections of its target and is recorded where it is.
     geometry_errors: object = field(default=None, compare=False)
+    #: The calibration's covariance (:class:`gonio.rig.geocov.GeometryCovariance`, the ``[calibration.covariance]``
+    #: table), or ``None``: propagated into each pose's light position (every sample's σ) and wi
+    geometry_covariance: object = field(default=None, compare=False)
 
     def within(self, other: "Rig") -> "Rig":
         """This rig with every joint's limits, speed and acceleration no wider than ``other``'s joint of
@@ -587,7 +590,7 @@ def load_rig(path: str | Path | None = None, *, text: str | None = None, source:
 
     if isinstance(baud, bool) or baud not in BAUD_RATES:
         raise ConfigError.field(src, "bus.baud", baud, f"must be one of {', '.join(map(str, BAUD_RATES))}")
-    errors = None
+    errors = covariance = None
     if "calibration" in data:  # written by `gonio calibrate rig` (gonio.rig.geocal.write_calibrated_rig)
         from gonio.rig.chain import ChainErrors
 
@@ -597,8 +600,13 @@ def load_rig(path: str | Path | None = None, *, text: str | None = None, source:
         errors = ChainErrors.from_dict({k: v for k, v in cal.items() if k in ("light", "camera", "turntable",
                                                                               "sample_height_mm")},
                                        source=f"{src}: calibration")
+        if "covariance" in cal:
+            from gonio.rig.geocov import GeometryCovariance
+
+            covariance = GeometryCovariance.from_table(cal["covariance"], source=f"{src}: calibration.covariance")
     return Rig(name=rig_name, joints=tuple(joints), light_radius=rl, camera_radius=rc,
                camera_body_radius=_num(src, "geometry", geo, "camera_body_radius_m", 0, 10),
                light_beam_radius=_num(src, "geometry", geo, "light_beam_radius_m", 0, 10),
                min_separation=math.radians(_num(src, "geometry", geo, "min_arm_separation_deg", 0, 180)),
-               baud=int(baud), source=src, layout=layout, light_azimuth=alpha, geometry_errors=errors)
+               baud=int(baud), source=src, layout=layout, light_azimuth=alpha, geometry_errors=errors,
+               geometry_covariance=covariance)

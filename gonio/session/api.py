@@ -30,6 +30,7 @@ from gonio.session.options import TimingOptions, check_exposures, check_session_
 from gonio.session.recording import check_plan_against_records, manifest_timing
 from gonio.session.rigs import OpenRig, open_rig, open_rig_from_manifest
 from gonio.session.runner import PoseEvent
+from gonio.session.usability import STATUS_PREFIX as UNUSABLE_PREFIX, UNUSABLE_EXIT
 
 __all__ = ["measure", "resume", "run_session", "SessionResult", "PoseEvent", "open_rig", "INCOMPLETE_EXIT",
            "make_session_plan"]
@@ -67,13 +68,15 @@ class SessionResult:
     @property
     def exit_code(self) -> int:
         """The command line's exit status for this outcome: 0, 130 (interrupted), 6 (incomplete: bad frames),
-        the fault's own code, or 3."""
+        8 (unusable: most poses gave nothing usable, :mod:`gonio.session.usability`), the fault's own code, or 3."""
         if self.ok:
             return 0
         if self.status == "interrupted":
             return 130
         if self.status.startswith("incomplete"):
             return INCOMPLETE_EXIT
+        if self.status.startswith(UNUSABLE_PREFIX):
+            return UNUSABLE_EXIT
         err = getattr(self.run, "error", None)
         return err.exit_code if err is not None else 3
 
@@ -268,7 +271,12 @@ def resume(directory, *, rig: OpenRig | None = None, rig_file: str | None = None
     plan = Plan.from_dict(manifest.get("plan"), source=str(d / MANIFEST))
     scan = scan_samples(_samples_path(d, manifest))
     if _all_measured(manifest, plan, scan):
-        if manifest.get("exit_status") != "completed":
+        status = manifest.get("exit_status")
+        if str(status).startswith(UNUSABLE_PREFIX):  # every pose stored, most of them unusable: it stays so
+            return SessionResult(directory=d, status=status, poses_done=len(plan), poses_total=len(plan),
+                                 kind="calibration" if "geocal" in manifest else "plan", manifest=manifest,
+                                 nothing_to_resume=True, simulated=manifest.get("mode") == "sim")
+        if status != "completed":
             SessionStore.open(d, resume=False).finish("completed")
         return SessionResult(directory=d, status="completed", poses_done=len(plan), poses_total=len(plan),
                              kind="calibration" if "geocal" in manifest else "plan", manifest=_read_manifest(d),

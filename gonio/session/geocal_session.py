@@ -105,6 +105,10 @@ class CalibrationRunner(SessionRunner):
         self._tile = Rect(*tile) if tile is not None else layout.sample
         self._lit = False
 
+    def unusable_cause(self, samples, meta) -> str | None:
+        """A calibration pose is lost when it gave no board pose, or (a highlight pose) no highlight: its reason."""
+        return str(meta.get("reason") or "") or None
+
     def _target(self, index: int, current) -> dict:
         """The plan's joints themselves (the calibration needs these configurations, not any equivalent one),
         refused like any pose outside the joint limits or in a collision zone."""

@@ -58,7 +58,7 @@ def rig_record(rig, source: str, text: str) -> dict:
         import tomllib
 
         cal = tomllib.loads(text).get("calibration", {})
-        rec["calibration"] = {k: cal[k] for k in ("uncertainty", "not_identified", "rms") if k in cal}
+        rec["calibration"] = {k: cal[k] for k in ("uncertainty", "not_identified", "rms", "covariance") if k in cal}
     return rec
 
 

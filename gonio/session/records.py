@@ -46,7 +46,9 @@ MAX_LINE = 256 * 1024 * 1024
 #: Deepest JSON nesting accepted in a record's meta.
 MAX_DEPTH = 32
 _COLUMNS = {name: width for name, width in (("wi", 3), ("wo", 3), ("f", 3), ("sigma", 3), ("flags", None),
-                                            ("n_pixels", None), ("pose", None))}
+                                            ("n_pixels", None), ("pose", None), ("sigma_pose", 3))}
+#: Columns a record may leave out (records written before they existed): read as the SampleSet's default.
+_OPTIONAL = {"sigma_pose"}
 
 
 _PLAIN = (int, str, bool, type(None))
@@ -136,7 +138,7 @@ def decode_record(line: bytes) -> tuple[int, SampleSet, dict]:
     pose = _int(obj, "pose", 0, MAX_POSE)
     n = _int(obj, "n", 0, MAX_RECORD_SAMPLES)
     cols, meta = obj.get("cols"), obj.get("meta", {})
-    if not isinstance(cols, dict) or set(cols) != set(_COLUMNS):
+    if not isinstance(cols, dict) or not set(_COLUMNS) - _OPTIONAL <= set(cols) <= set(_COLUMNS):
         raise ValueError(f"cols must hold exactly the columns {', '.join(_COLUMNS)}")
     if not isinstance(meta, dict):
         raise ValueError("meta must be an object")

@@ -39,7 +39,10 @@ in flight is not kept, and the session stops with status ``safety stop: <cause>`
 resume command; so does a servo's hardware alarm. A pose whose camera frames stay
 bad (black, stale, all-saturated, wrong size: :mod:`gonio.pipeline.signal`) after the pipeline's retakes
 and the pose retries is flagged, not stored (``RunResult.failed``), and the session goes on; it then ends
-``incomplete`` (never ``completed``), and ``max_failed_in_a_row`` such poses stop it (a dead camera). A pose is appended only once,
+``incomplete`` (never ``completed``), and ``max_failed_in_a_row`` such poses stop it (a dead camera). A run most
+of whose poses give nothing usable (every sample flagged NO_BOARD, saturated...; skipped; in a calibration, no
+board pose or highlight) stops or ends ``unusable: ...`` naming the causes (:mod:`gonio.session.usability`).
+A pose is appended only once,
 whole, after it succeeded, so nothing measured is lost and nothing is duplicated. SIGINT (Ctrl-C)
 finishes the pose in flight, marks the session ``interrupted`` and prints the command to resume.
 
@@ -62,7 +65,9 @@ import numpy as np
 from gonio.errors import (ConfigError, EmergencyStop, GonioError, HardwareError, SafetyStop, ServoAlarm,
                           UnreachablePose)
 from gonio.plan.labtime import SessionTiming, dark_exposures, session_lab_time
+from gonio.rig.geocov import light_position_covariance
 from gonio.rig.interfaces import Frame
+from gonio.session.usability import Usability, sample_cause
 from gonio.session.records import MAX_POSE
 
 __all__ = ["RunnerSettings", "Devices", "RunResult", "SessionRunner", "PoseEvent", "open_devices", "format_lab_time",
@@ -202,7 +207,9 @@ def recovered_faults(devices) -> dict:
 class RunResult:
     """How a run ended and what it did."""
 
-    status: str  #: "completed", "interrupted", "error: ..." (the store's exit-status vocabulary)
+    #: "completed", "interrupted", "incomplete: ...", "unusable: ..." (:mod:`gonio.session.usability`), "error: ..."
+    #: (the store's exit-status vocabulary)
+    status: str
     measured: int = 0  #: poses appended in this run
     samples: int = 0  #: samples appended in this run
     skipped: list = field(default_factory=list)  #: (pose index, reason) of poses that could not be measured
@@ -217,6 +224,8 @@ class RunResult:
     estimated_lab_time: float | None = None  #: the cost model's estimate of this run, before it started
     exposure: dict = field(default_factory=dict)  #: mode and poses per bracket used
     recovered_faults: dict = field(default_factory=dict)  #: :func:`recovered_faults` of this run
+    #: poses tried in this run and the unusable ones by cause (:class:`gonio.session.usability.Usability`)
+    usability: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
         """JSON-able summary for the manifest."""
@@ -225,7 +234,7 @@ class RunResult:
                 "estimated_lab_time_s": self.estimated_lab_time, "exposure": self.exposure,
                 "skipped": [{"pose": k, "reason": r} for k, r in self.skipped],
                 "failed": [{"pose": k, "reason": r} for k, r in self.failed],
-                "recovered_faults": dict(self.recovered_faults)}
+                "recovered_faults": dict(self.recovered_faults), "usability": dict(self.usability)}
 
     @property
     def ok(self) -> bool:
@@ -548,6 +557,7 @@ class SessionRunner:
         key = self._camera_key(planned_pose, (position, R))
         prev = self._board_prev if self._board_prev is not None and self._board_prev[0] == key else None
         cam_w, cam_l, frames = self.camera.wall, self.camera.lab, self.camera.frames
+        lcov = light_position_covariance(rig, joints)  # the geometric calibration's, at this pose (or None)
         # meter every pose at the expected bracket's shortest exposure, not at the previous pose's: a pose's
         # bracket then depends on the pose only, so a resumed session measures what an uninterrupted one does
         res = self.pipeline.measure(rig.light_position(joints), pose_index=index,
@@ -555,7 +565,8 @@ class SessionRunner:
                                     meter_exposure=self.plan.capture.exposures[0],
                                     nominal=(planned_pose[0], rig.light_position(planned)),
                                     board=None if prev is None else prev[1],
-                                    confirm_board=prev is not None and prev[2])
+                                    confirm_board=prev is not None and prev[2],
+                                    light_cov=lcov)
         self.check_devices()  # an E-stop during the capture: the frames are not of a lit sample, keep nothing
         w3, l3 = time.perf_counter(), self.clock.now()
         capture_wall = self.camera.wall - cam_w
@@ -581,6 +592,9 @@ class SessionRunner:
             # its pose error (their camera-pose uncertainty is one draw, not independent ones)
             "board_from": (None if res.board is None else
                            prev[3] if res.board_source in ("reused", "confirmed") else int(index)),
+            # covariance (m²) of the light's position from the rig file's calibration (gonio.rig.geocov): part of
+            # every sample's sigma_pose
+            "light_cov_m2": None if lcov is None else np.asarray(lcov).tolist(),
             "darks_refreshed": darks,
             **self._dark_meta(),
             "lab_time_s": float(self.clock.now()),
@@ -625,6 +639,7 @@ class SessionRunner:
         remaining = [int(k) for k in self.store.remaining(self.plan)]
         done = set(int(k) for k in self.store.done_poses())
         result = RunResult(status="completed")
+        usable = Usability()  # poses that gave nothing usable, by cause (gonio.session.usability)
         total = len(self.plan)
         progress = _Progress(self.stream, total)
         todo = [k for k in remaining if k not in done]
@@ -659,6 +674,12 @@ class SessionRunner:
                     samples, meta, timing = self._pose_with_retries(k, result)
                     if samples is None:
                         self._board_prev = None  # the camera may have moved: search the board again
+                        lost = [r for j, r in result.skipped[-1:] + result.failed[-1:] if j == k]
+                        usable.add(lost[0] if lost else "not measured")
+                        stop = usable.should_stop()
+                        if stop:
+                            result.status = stop
+                            break
                         failed_run = failed_run + 1 if result.failed and result.failed[-1][0] == k else 0
                         if failed_run >= self.settings.max_failed_in_a_row:
                             raise HardwareError(f"camera: {failed_run} poses in a row without a usable frame "
@@ -667,6 +688,7 @@ class SessionRunner:
                         continue
                     failed_run = 0
                     self.store.append(k, samples, meta)
+                    usable.add(self.unusable_cause(samples, meta))
                     self._board_prev = self._board_entry(meta, confirm=False)  # what the next pose may reuse
                     done.add(k)
                     result.measured += 1
@@ -680,9 +702,15 @@ class SessionRunner:
                     progress.update(len(done), self.lab_offset + self.clock.now() - lab0, eta)
                     self._notify(PoseEvent(k, len(done), total, samples, meta,
                                            self.lab_offset + self.clock.now() - lab0, eta))
+                    stop = usable.should_stop()
+                    if stop:  # a session that cannot succeed stops instead of measuring on
+                        result.status = stop
+                        break
                 else:
                     if self._stop.is_set():
                         result.status = "interrupted"
+                    elif usable.final_status():  # never "completed" when most poses gave nothing usable
+                        result.status = usable.final_status()
                     elif result.failed:  # never "completed" with poses whose frames were bad
                         result.status = (f"incomplete: {len(result.failed)} poses not measured (bad camera frames: "
                                          f"{result.failed[0][1]})")
@@ -704,6 +732,7 @@ class SessionRunner:
             result.lab_time = self.clock.now() - lab0
             result.wall_time = time.perf_counter() - wall0
             result.recovered_faults = recovered_faults(self.dev)
+            result.usability = usable.to_dict()
             result.exposure = {"mode": "fixed" if self.bracket is not None else "auto",
                                "dark_exposures_s": list(self.dark_exposures), "poses_per_bracket": brackets}
             self.store.finish(result.status, last_run=result.summary())
@@ -721,6 +750,11 @@ class SessionRunner:
         except Exception as exc:  # noqa: BLE001 - a subscriber's bug must not stop a measurement
             print(f"gonio: warning: pose {event.index}: the on_pose callback failed ({type(exc).__name__}: "
                   f"{str(exc)[:120]}); the pose is stored", file=self.stream or sys.stderr, flush=True)
+
+    def unusable_cause(self, samples, meta) -> str | None:
+        """Why a stored pose gave nothing usable (``None``: it did): no sample without a flag
+        (:func:`gonio.session.usability.sample_cause`)."""
+        return sample_cause(samples)
 
     def _predict(self, todo) -> np.ndarray:
         """Cost-model lab time at the end of each pose of ``todo`` from the start of this run (start-up

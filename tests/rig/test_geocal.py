@@ -135,7 +135,7 @@ def test_calibrate_check_re_measures_the_rig_and_gives_a_verdict(calibrated_7, t
         return float(text.split(f"  {name} vs the ")[1].split("p95 ")[1].split("°")[0])
 
     def truth(text):
-        return float(text.split("vs the simulated truth: wi median ")[1].split("°")[0])
+        return float(text.split("vs the simulated truth at the board poses: wi median ")[1].split("°")[0])
 
     assert truth(after) < 0.1 < 0.5 < truth(before)
     assert seen(after, "wi") < 0.25 < 1.0 < seen(before, "wi") and seen(after, "wo") < 0.25 < 1.0 < seen(before, "wo")
@@ -155,11 +155,24 @@ def test_a_session_on_the_calibrated_rig_records_its_uncertainties(calibrated_7,
     out, _ = calibrated_7
     d = tmp_path / "s"
     assert main(["measure", "--sim", "--quiet", "--plan", "in_plane", "--theta-i-step", "40", "--theta-o-step", "40",
-                 "--sim-resolution", "160x120", "--sim-as-built", "7", "--rig", str(out), "--out", str(d)]) == 0
+                 "--sim-resolution", "320x240", "--sim-as-built", "7", "--rig", str(out), "--out", str(d)]) == 0
     import json
 
     rec = json.loads((d / "manifest.json").read_text())["rig"]
     assert len(rec["sha256"]) == 64 and "light" in rec["calibration"]["uncertainty"]
+    assert "names" in rec["calibration"]["covariance"]
+    # the calibration's covariance reaches every pose's light position and every sample's shared σ
+    from gonio.rig.geocov import light_position_covariance
+    from gonio.session.store import load_session, scan_samples
+
+    metas = {k: m for k, (_s, m) in scan_samples(d / "samples.jsonl").records.items()}
+    cal = load_rig(out)
+    for m in metas.values():
+        j = cal.as_array(m["joints_rad"])
+        assert np.allclose(m["light_cov_m2"], light_position_covariance(cal, j), rtol=1e-9, atol=0)
+    _, samples = load_session(d)
+    ok = np.isfinite(samples.sigma).all(axis=1)
+    assert np.all(samples.sigma_pose[ok] > 0) and np.all(samples.sigma_pose[ok] <= samples.sigma[ok])
     assert main(["calibrate", "rig", "--rig", str(out), "--sim", "--estimate"]) != 0
     assert "already calibrated" in capsys.readouterr().err
 

@@ -19,6 +19,6 @@ def test_exposures_in_milliseconds_are_refused_before_a_session_exists(tmp_path,
 def test_exposures_in_range_measure(tmp_path, capsys):
     out = tmp_path / "s"
     argv = ["measure", "--sim", "--quiet", "--plan", "in_plane", "--theta-i-step", "30", "--theta-o-step", "30",
-            "--theta-max", "60", "--sim-resolution", "160x120", "--exposures", "0.004,0.016", "--out", str(out)]
+            "--theta-max", "60", "--sim-resolution", "320x240", "--exposures", "0.004,0.016", "--out", str(out)]
     assert main(argv) == 0
     assert (out / "samples.jsonl").stat().st_size > 0
