@@ -155,7 +155,7 @@ def run(quick: bool = False, jobs: int | None = None, seeds: int | None = None, 
     full plan). ``jobs``: worker processes over the seeds (default: :func:`free_cores`); ``seeds``, ``rendered``:
     other counts (e.g. ``run(seeds=40, rendered=40)`` to check the stated uncertainty on more rendered rigs).
     The second table (:mod:`benchmarks.calibration_honesty`): ``honesty`` runs on independently drawn rigs
-    (quick: 2, full: 20), each with a measurement session and a GGX fit unless ``fit`` is False (quick: no fit)."""
+    (quick: 1, full: 20), each with a measurement session and a GGX fit unless ``fit`` is False (quick: no fit)."""
     import os
     import time
 
@@ -257,7 +257,7 @@ def run(quick: bool = False, jobs: int | None = None, seeds: int | None = None, 
                    f"{load0:.2f} at the start on {os.cpu_count()} cores")
     from benchmarks.calibration_honesty import table as honesty_table
 
-    n_h = (2 if quick else 20) if honesty is None else int(honesty)
+    n_h = (1 if quick else 20) if honesty is None else int(honesty)
     if n_h <= 0:
         return [t]
     return [t, honesty_table(n_h, fit=(not quick) if fit is None else fit, jobs=jobs, quick=quick)]
