@@ -263,17 +263,12 @@ def print_outcome(result) -> int:
           f"wall time {run.wall_time:.1f} s")
     if run.skipped:
         print(f"{len(run.skipped)} poses skipped: " + "; ".join(f"pose {k}: {r}" for k, r in run.skipped[:3]))
-    from gonio.session.usability import STATUS_PREFIX as UNUSABLE_PREFIX, run_warning
+    from gonio.session.usability import outcome_lines
 
-    if run_warning(run):
-        print(f"gonio: {run_warning(run)}", file=sys.stderr)
+    for line in outcome_lines(result):
+        print(line, file=sys.stderr)
     code = result.exit_code
-    if code in (0, 130):
-        return code
-    if result.status.startswith(UNUSABLE_PREFIX):
-        print(f"gonio: session {result.status}; nothing here to fit: fix the cause (is the board in view and "
-              f"lit, the camera file this camera's, the exposure range right?) and start a new session "
-              f"(`gonio status {result.directory}` shows the run)", file=sys.stderr)
+    if code in (0, 130) or result.status.startswith("unusable"):
         return code
     if code == INCOMPLETE_EXIT:
         failed = getattr(run, "failed", [])
@@ -306,8 +301,7 @@ def run_resume(args) -> int:
     if result.nothing_to_resume:
         print(f"{args.dir}: all {result.poses_total} poses are measured; nothing to resume (not counted as a resume)")
         if not result.ok:  # every pose stored, most of them unusable (gonio.session.usability): it stays so
-            print(f"gonio: the session ended {result.status}: start a new session once the cause is fixed",
-                  file=sys.stderr)
+            print(f"gonio: the session ended {result.status}", file=sys.stderr)
             return result.exit_code
         if result.kind == "calibration":  # every pose measured: the calibration's estimate may still be missing
             from gonio.cli.calibrate import finish_from_directory

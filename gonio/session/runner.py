@@ -224,7 +224,8 @@ class RunResult:
     estimated_lab_time: float | None = None  #: the cost model's estimate of this run, before it started
     exposure: dict = field(default_factory=dict)  #: mode and poses per bracket used
     recovered_faults: dict = field(default_factory=dict)  #: :func:`recovered_faults` of this run
-    #: poses tried in this run and the unusable ones by cause (:class:`gonio.session.usability.Usability`)
+    #: poses tried and the unusable ones by cause, over the session's runs up to this one
+    #: (:class:`gonio.session.usability.Usability`)
     usability: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
@@ -639,7 +640,10 @@ class SessionRunner:
         remaining = [int(k) for k in self.store.remaining(self.plan)]
         done = set(int(k) for k in self.store.done_poses())
         result = RunResult(status="completed")
-        usable = Usability()  # poses that gave nothing usable, by cause (gonio.session.usability)
+        # poses that gave nothing usable, by cause (gonio.session.usability), counted over the session's runs: a
+        # resume goes on from the last run's counts (a session is judged whole, not one short resume at a time)
+        last = (getattr(self.store, "manifest", None) or {}).get("last_run")
+        usable = Usability.from_dict(last.get("usability") if isinstance(last, dict) else None)
         total = len(self.plan)
         progress = _Progress(self.stream, total)
         todo = [k for k in remaining if k not in done]

@@ -4,7 +4,8 @@ A pose can be measured without error and still give nothing a fit or a calibrati
 flagged (the ChArUco board never found — NO_BOARD, the camera pose then from the kinematics only —,
 saturated, too little signal), no sample at all, skipped (board or sample not in the image, unreachable), or,
 in a calibration session, no board pose or no highlight (off the tile, cut by its edge, saturated). A run
-counts such poses per cause (:class:`Usability`):
+counts such poses per cause (:class:`Usability`; a resumed session goes on from its last run's counts, so a
+session is judged whole):
 
 * it **stops** once at least :data:`STOP_AFTER` poses were tried in this run and at least
   :data:`STOP_FRACTION` of them were unusable (a board out of view, a camera file of another camera, a
@@ -25,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Usability", "sample_cause", "run_warning", "UNUSABLE_EXIT", "STOP_AFTER", "STOP_FRACTION", "UNUSABLE_FRACTION",
+__all__ = ["Usability", "sample_cause", "run_warning", "outcome_lines", "UNUSABLE_EXIT", "STOP_AFTER", "STOP_FRACTION", "UNUSABLE_FRACTION",
            "WARN_FRACTION", "STATUS_PREFIX", "MIN_JUDGED"]
 
 #: Exit status of a session (or calibration) that ended ``unusable``.
@@ -117,7 +118,10 @@ class Usability:
     def from_dict(cls, d) -> "Usability":
         """Inverse of :meth:`to_dict` (an empty dict: nothing tried)."""
         d = d if isinstance(d, dict) else {}
-        return cls(int(d.get("tried", 0)), Counter({str(k): int(v) for k, v in dict(d.get("causes", {})).items()}))
+        try:  # a manifest's (untrusted) counts: anything malformed counts as nothing
+            return cls(int(d.get("tried", 0)), Counter({str(k): int(v) for k, v in dict(d.get("causes", {})).items()}))
+        except (TypeError, ValueError):
+            return cls()
 
 
 def run_warning(result) -> str | None:
@@ -148,3 +152,18 @@ def _short(cause: str) -> str:
         if pattern in low:
             return kind
     return re.sub(r"\s+", " ", re.sub(r"\([^)]*\)|[-+]?\d[\d.eE+-]*", "", c)).strip(" :;,")[:80]
+
+
+def outcome_lines(result) -> list[str]:
+    """What ``gonio measure``/``resume`` say of a session's usability (:class:`gonio.session.api.SessionResult`):
+    the warning of a run that lost many poses, or why an ``unusable`` one is, and what to do."""
+    out = []
+    warn = run_warning(result.run) if result.run is not None else None
+    if warn:
+        out.append(f"gonio: {warn}")
+    if str(result.status).startswith(STATUS_PREFIX):
+        out.append(f"gonio: session {result.status}; nothing here to fit: fix the cause (is the board in view and "
+                   f"lit, the camera file this camera's, the exposure range right?) and start a new session "
+                   f"(`gonio status {result.directory}` shows the run)")
+    return out
+
