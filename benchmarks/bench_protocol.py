@@ -24,7 +24,7 @@ def _frames(n: int) -> bytes:
     """n encoded replies of mixed types and sizes (as a controller would send)."""
     msgs = [fp.encode_message("HEARTBEAT_REPLY", 1), fp.encode_message("SET_LIGHT_REPLY", 2, on=1, level=40000),
             fp.encode_message("STATUS_REPLY", 3, flags=4, level=65535, temperature=2600, uptime_ms=12345678,
-                              watchdog_ms=10000),
+                              watchdog_ms=10000, reset_cause=1),
             fp.encode_message("READ_PHOTODIODE_REPLY", 4, samples=16, mean=987654, sem=321, time_ms=123457, span_us=1560),
             fp.encode_message("TRIGGER_REPLY", 5, exposure_us=20000, count=77)]
     return b"".join(msgs[i % len(msgs)] for i in range(n))

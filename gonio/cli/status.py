@@ -77,8 +77,9 @@ def _failed_poses(manifest) -> list[tuple[int, str]]:
     """``(pose, reason)`` of the poses the last run could not measure for bad camera frames, from its
     summary (checked: a hand-edited manifest gives what is readable, never a traceback)."""
     run = manifest.get("last_run")
+    failed = run.get("failed") if isinstance(run, dict) else None
     out = []
-    for x in (run.get("failed") if isinstance(run, dict) else None) or ():
+    for x in failed if isinstance(failed, list) else ():  # a number or a string there is not a list of poses
         if isinstance(x, dict) and isinstance(x.get("pose"), int) and not isinstance(x.get("pose"), bool):
             out.append((x["pose"], str(x.get("reason", ""))[:200]))
     return out

@@ -69,3 +69,16 @@ def test_a_record_of_a_pose_the_plan_does_not_have_is_not_counted_nor_loaded(mea
         _, after = load_session(d)
     assert len(after) == len(before) and 500 not in set(after.pose.tolist())
     assert any("pose 500" in str(w.message) and "left out" in str(w.message) for w in caught)
+
+
+@pytest.mark.parametrize("value", [1.5, "abc", {"pose": 1}, None])
+def test_a_failed_list_that_is_not_a_list_reads_as_none(measured, tmp_path, capsys, value):
+    """``last_run.failed`` edited to a number was a TypeError traceback (found by `benchmarks robustness`)."""
+    d = tmp_path / "s"
+    shutil.copytree(measured, d)
+    m = json.loads((d / "manifest.json").read_text())
+    m["last_run"]["failed"] = value
+    (d / "manifest.json").write_text(json.dumps(m))
+    capsys.readouterr()
+    assert main(["status", str(d)]) == 0
+    assert "Traceback" not in capsys.readouterr().err
