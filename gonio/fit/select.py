@@ -531,6 +531,9 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
         win["reason"] += f"; {win['unphysical']}"
     if win.get("at_bound"):
         win["reason"] += "; parameters at a bound: " + ", ".join(win["at_bound"])
+    for r in ok:
+        if not r["fits"] and r.get("fit_ratio") is not None and "does not fit" not in r["reason"]:
+            r["reason"] += f"; does not fit the data (residuals {r['fit_ratio']:.3g}x the noise)"
     for r in rows:
         if "score" in r:
             r["status"] = "chosen" if r is win else "rejected"
