@@ -569,8 +569,11 @@ def _restart_at_bound(r: FitResult, d, cls, fixed, tied, linked, lossobj, kw) ->
     width-ratio bound, ABC's B at an end of its eight decades) is searched again globally from
     :data:`RESTARTS` more seeded starts (multi-start, e.g. Nocedal & Wright, *Numerical Optimization*, 2nd ed.,
     §2.3 on global minimization), without the warm start; the lower cost wins and a note says what was
-    tried. A bound that remains is then the data's answer, reported in ``at_bound``."""
+    tried. A bound that remains is then the data's answer, reported in ``at_bound``. Not with ``n_starts = 1``
+    (a single local refinement asked for: :func:`gonio.fit.select.select` on a large table, for time)."""
     hit = _structural_bounds(r)
+    if int(kw.get("n_starts") or 1) <= 1:  # a single local refinement was asked for (the big-table selection's budget)
+        return r
     if not hit or not (separated(Layout(cls, fixed, tied)) or cls.name.startswith("abc")):
         return r  # multi-start where a local search stops on structural bounds: repeated lobes, ABC's B and C
     kw2 = {**kw, "start": None, "n_starts": max(int(kw.get("n_starts") or 1), 1) + RESTARTS,
@@ -592,7 +595,7 @@ def _shared_or_free(shared: FitResult, free: FitResult) -> FitResult:
     says which and why."""
     ratio_bound = any("ratio" in str(v) for v in free.at_bound.values())
     delta = free.bic - shared.bic
-    if delta < 0 and not (ratio_bound and not any("ratio" in str(v) for v in shared.at_bound.values())):
+    if delta < 0 and not ratio_bound:
         free.notes.append(f"each lobe has its own colour: BIC {delta:+.4g} against lobes of one chromaticity")
         free.n_evals += shared.n_evals
         return free
