@@ -68,49 +68,6 @@ def register(sub) -> None:
     register_actions(csub, common)  # calibrate, noise: the first day in the lab
 
 
-def open_camera_from_args(args):
-    """The camera the options name (``--sim``: the simulated one; else the backend and device), opened."""
-    from gonio.errors import ConfigError
-
-    if args.sim:
-        return _sim_camera(args)
-    from gonio.rig.calibration import BACKENDS
-    from gonio.rig.camera import OpenCVCamera
-    from gonio.rig.clock import RealClock
-
-    backend = args.backend.lower()
-    if backend not in BACKENDS:
-        raise ConfigError.field("--backend", "backend", args.backend, f"must be one of {', '.join(BACKENDS)}")
-    if backend == "aravis":
-        from gonio.rig.aravis import AravisCamera
-
-        return AravisCamera(args.camera, RealClock(), pixel_format=args.pixel_format, gain_unit=args.gain_unit)
-    if not args.exposure_unit > 0:
-        raise ConfigError.field("--exposure-unit", "exposure_unit", args.exposure_unit, "must be positive")
-    # raw frames: no linearization here (the response is what `response` measures)
-    return OpenCVCamera(args.camera, RealClock(), backend=BACKENDS[backend], exposure_unit=args.exposure_unit)
-
-
-def _sim_camera(args):
-    from gonio.brdf import make
-    from gonio.session.options import parse_resolution as _resolution
-    from gonio.errors import ConfigError
-    from gonio.pipeline.target import CameraCalibration, TargetLayout
-    from gonio.plugins import plugin
-
-    simcam, SimClock = plugin("sim.camera"), plugin("sim.clock").SimClock  # docs/architecture.md §1: found, not imported
-    SensorModel, SimCamera, SimScene = simcam.SensorModel, simcam.SimCamera, simcam.SimScene
-
-    w, h = _resolution(args.sim_resolution)
-    if not (args.sim_gamma > 0):
-        raise ConfigError.field("--sim-gamma", "gamma", args.sim_gamma, "must be positive")
-    sensor = SensorModel(bit_depth=args.sim_bit_depth, linear=args.sim_bit_depth != 8, gamma=args.sim_gamma)
-    focal = plugin("sim.rig").SimRigConfig.at_resolution(w, h).focal_px  # the simulated rig's camera
-    calib = CameraCalibration.pinhole(w, h, focal, noise=sensor.noise_model())
-    scene = SimScene(layout=TargetLayout(), material=make("lambert", albedo=(0.5, 0.5, 0.5)))
-    return SimCamera(calib, sensor, scene, seed=args.seed, clock=SimClock())
-
-
 def _positive(text: str, option: str) -> float:
     import math
 
@@ -154,6 +111,8 @@ def run(args) -> int:
     if getattr(args, "output", None):  # before the camera is opened
         check_output(args.output, option="-o", force=args.force,
                      suffixes=(".png", ".npy") if args.camera_command == "capture" else (".npz",))
+    from gonio.cli.camera_char import open_camera_from_args
+
     cam = open_camera_from_args(args)
     try:
         if args.camera_command == "info":

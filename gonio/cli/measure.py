@@ -111,40 +111,6 @@ def register(sub) -> None:
 
 
 # -- measure -------------------------------------------------------------------------------------
-def _make_plan(args, rig):
-    from gonio.cli.plan import plan_from_args
-
-    return plan_from_args(args, args.plan, rig, where="--plan", source="--plan")  # generator defaults
-
-
-def _plan(args, rig):
-    """The plan of ``--plan-file`` / ``--plan adaptive`` / ``--plan NAME`` and, for adaptive, its manifest entry."""
-    from gonio.errors import ConfigError
-
-    if getattr(args, "plan_file", None):
-        given = [k for k, v in vars(args).items() if k.startswith("plan_") and k != "plan_file" and v is not None]
-        if args.plan != DEFAULT_PLAN or given:
-            raise ConfigError.field("--plan-file", "plan_file", args.plan_file,
-                                    "runs a saved plan: give it without --plan or plan parameters")
-        from gonio.io.plan_file import read_plan_file
-
-        plan = read_plan_file(args.plan_file, rig)
-        print(f"plan {args.plan_file}: {plan.generator}, {len(plan)} poses")
-        return plan, None
-    if args.plan == "sparse" and getattr(args, "sparse_adaptive", None):
-        from gonio.cli.plan import sparse_adaptive_from_args
-
-        adaptive = sparse_adaptive_from_args(args, rig)
-        return adaptive["plan"], adaptive["adaptive"]
-    if args.plan == "adaptive":
-        from gonio.cli.plan import adaptive_from_args
-        from gonio.session.adaptive import new_adaptive_manifest
-
-        adaptive = new_adaptive_manifest(*adaptive_from_args(args, rig, source="--plan adaptive"), rig)
-        return adaptive["plan"], adaptive["adaptive"]
-    return _make_plan(args, rig), None
-
-
 def run_measure(args) -> int:
     from gonio.rig.kinematics import load_rig, read_rig_text
     from gonio.session.api import measure
@@ -168,7 +134,9 @@ def run_measure(args) -> int:
     for note in (material.defaults_note(), getattr(material, "note", "")) if material is not None else ():
         if note:
             print(note)
-    plan, adaptive = _plan(args, rig)
+    from gonio.cli.plan import measure_plan_from_args
+
+    plan, adaptive = measure_plan_from_args(args, rig, default=DEFAULT_PLAN)
     check_session_dir(out)
     timing = TimingOptions(accurate=args.accurate, warmup_wait=args.warmup_wait, darks=args.darks).as_dict()
     sim = None

@@ -432,3 +432,30 @@ def _write(args, plan) -> None:
         except OSError as exc:
             raise ConfigError.field("--out", "file", str(out), f"cannot write: {exc.strerror}") from None
         print(f"wrote {out}")
+
+
+def measure_plan_from_args(args, rig, *, default: str):
+    """``gonio measure``'s plan: ``--plan-file`` / ``--plan sparse --adaptive`` / ``--plan adaptive`` /
+    ``--plan NAME`` (``default``: the command's default plan name), and for an adaptive one its manifest entry:
+    ``(plan, adaptive or None)``."""
+    from gonio.errors import ConfigError
+
+    if getattr(args, "plan_file", None):
+        given = [k for k, v in vars(args).items() if k.startswith("plan_") and k != "plan_file" and v is not None]
+        if args.plan != default or given:
+            raise ConfigError.field("--plan-file", "plan_file", args.plan_file,
+                                    "runs a saved plan: give it without --plan or plan parameters")
+        from gonio.io.plan_file import read_plan_file
+
+        plan = read_plan_file(args.plan_file, rig)
+        print(f"plan {args.plan_file}: {plan.generator}, {len(plan)} poses")
+        return plan, None
+    if args.plan == "sparse" and getattr(args, "sparse_adaptive", None):
+        adaptive = sparse_adaptive_from_args(args, rig)
+        return adaptive["plan"], adaptive["adaptive"]
+    if args.plan == "adaptive":
+        from gonio.session.adaptive import new_adaptive_manifest
+
+        adaptive = new_adaptive_manifest(*adaptive_from_args(args, rig, source="--plan adaptive"), rig)
+        return adaptive["plan"], adaptive["adaptive"]
+    return plan_from_args(args, args.plan, rig, where="--plan", source="--plan"), None  # generator defaults

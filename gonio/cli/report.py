@@ -25,22 +25,6 @@ def register(sub) -> None:
     view.register(sub, _common)
 
 
-def entries(args):
-    """The report's entries from the shared options (sources, --model, --fit, --max-theta)."""
-    from gonio.errors import ConfigError
-    from gonio.report import load_entries
-
-    if not 0.0 < args.max_theta <= 90.0:
-        raise ConfigError.field("--max-theta", "max_theta", args.max_theta, "must be in (0, 90] degrees")
-    if args.model and args.fit is not None:
-        import sys
-
-        print(f"gonio {args.command}: note: --fit {args.fit} is not fitted: --model gives the models shown "
-              "(--fit fits on the spot only without --model)", file=sys.stderr)
-    models = [m.strip() for m in (args.fit or "microfacet").split(",") if m.strip()]
-    return load_entries(args.source, args.model, fit_models=models, fit_kw={"max_theta_deg": args.max_theta})
-
-
 def run_report(args) -> int:
     from pathlib import Path
 
@@ -50,6 +34,8 @@ def run_report(args) -> int:
 
     out = check_output(args.output, option="-o", force=args.force, suffixes=(".html", ".htm"),
                        inputs=[*args.source, *(args.model or [])])
+    from gonio.cli.view import entries
+
     page = build_report(entries(args), title="gonio report: " + ", ".join(Path(s).name for s in args.source))
     from gonio.io.outputs import write_text_atomically
 

@@ -7,6 +7,8 @@ Raw angles: 0–360° ↔ 0–4095 ticks (Present/Goal Position, Position Contro
 
 from __future__ import annotations
 
+from gonio.rig.controller import clear_to_move
+
 DEFAULT_BAUD = 57600  # the factory default of X-series servos (Baud Rate(8) = 1)
 
 
@@ -118,16 +120,6 @@ def _open_guard(args):
         ctl.close()
         raise
     return ctl, rig
-
-
-def clear_to_move(ctl) -> None:
-    """An EmergencyStop naming the controller's stop reason (E-stop, interlock, over-temperature) before any byte
-    that moves a servo; nothing when the rig is clear (servo and servo setup ask it)."""
-    from gonio.errors import EmergencyStop
-
-    what = ctl.status().stop_reason
-    if what:
-        raise EmergencyStop(f"{ctl.device}: {what}: nothing was sent to the servo", device=ctl.device)
 
 
 def _check_move(bus, rig, servo_id: int, table, goal: int) -> None:

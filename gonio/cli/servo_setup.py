@@ -6,7 +6,7 @@ is changed only with ``--controller-port`` (E-stop and interlock clear) or ``--u
 
 from __future__ import annotations
 
-from gonio.cli.servo import clear_to_move
+from gonio.rig.controller import clear_to_move
 
 
 def register_setup(ssub) -> None:

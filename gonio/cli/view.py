@@ -33,7 +33,6 @@ def run_view(args) -> int:
     import webbrowser
     from pathlib import Path
 
-    from gonio.cli.report import entries
     from gonio.errors import ConfigError
     from gonio.viewer import make_server
 
@@ -56,3 +55,19 @@ def run_view(args) -> int:
     finally:
         server.server_close()
     return 0
+
+
+def entries(args):
+    """The report's entries from the shared options (sources, --model, --fit, --max-theta)."""
+    from gonio.errors import ConfigError
+    from gonio.report import load_entries
+
+    if not 0.0 < args.max_theta <= 90.0:
+        raise ConfigError.field("--max-theta", "max_theta", args.max_theta, "must be in (0, 90] degrees")
+    if args.model and args.fit is not None:
+        import sys
+
+        print(f"gonio {args.command}: note: --fit {args.fit} is not fitted: --model gives the models shown "
+              "(--fit fits on the spot only without --model)", file=sys.stderr)
+    models = [m.strip() for m in (args.fit or "microfacet").split(",") if m.strip()]
+    return load_entries(args.source, args.model, fit_models=models, fit_kw={"max_theta_deg": args.max_theta})

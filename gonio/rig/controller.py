@@ -383,3 +383,13 @@ class RigController:
         self._port.reset_input_buffer()
         self._decoder.reset()
         self._needs_flush = False
+
+
+def clear_to_move(ctl) -> None:
+    """An EmergencyStop naming the controller's stop reason (E-stop, interlock, over-temperature) before any byte
+    that moves a servo; nothing when the rig is clear (``gonio servo move`` and ``gonio servo setup`` ask it)."""
+    from gonio.errors import EmergencyStop
+
+    what = ctl.status().stop_reason
+    if what:
+        raise EmergencyStop(f"{ctl.device}: {what}: nothing was sent to the servo", device=ctl.device)
