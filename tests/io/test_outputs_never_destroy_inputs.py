@@ -99,16 +99,18 @@ def test_tabulate_writes_the_sidecar_so_filled_cells_are_not_taken_for_measureme
     assert src.filled is not None and src.filled.sum() > 0
 
 
-def test_a_batch_refuses_two_sources_with_one_output_name(session, tmp_path, capsys):
+def test_a_batch_names_two_sources_with_one_name_apart(session, tmp_path, capsys):
+    """a/s and b/s would both be s.npz: each is named with its parent directory, and the run says so (one output
+    never replaces the other; tests/api/test_batch_outputs.py for fit, plot and the checks before the run)."""
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
     for sub in ("a", "b"):
         os.symlink(session, tmp_path / sub / "s")
     code = main(["export", str(tmp_path / "a" / "s"), str(tmp_path / "b" / "s"), "--format", "npz",
-                 "-o", str(tmp_path / "out"), "--quiet"])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(err) == 1 and "same output name s.npz" in err[0], err
-    assert not (tmp_path / "out").exists()
+                 "-o", str(tmp_path / "out"), "--quiet", "--summary", str(tmp_path / "sum.csv")])
+    out = capsys.readouterr().out
+    assert code == 0 and "each is named with its parent directories" in out
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a-s.npz", "b-s.npz"]
 
 
 def test_a_session_that_did_not_finish_is_said_so_when_loaded(session, tmp_path, capsys):
