@@ -722,7 +722,7 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
         notes.append(f"the fitted parameters violate a model constraint: {exc}")
     at_bound = bound_report(L, {**params, **L.link_values(shape)}, unc)
     for e in np.flatnonzero(shape_hi):
-        at_bound.setdefault(L.colour[e // 3], {})[CHANNELS[e % 3]] = "upper (the lobe's albedo 1)"
+        at_bound.setdefault(L.colour[e // 3], {})[CHANNELS[e % 3]] = f"upper ({basis.colour_hi_reason})"
     return FitResult(
         model_name=L.name, params=params, uncertainty=unc, loss=lossobj.name, cost=float(cost), rms_rel=rms_rel,
         n_used=len(d), n_params=L.n_params, chi2_red=chi2_red, identifiable=ident, method=method,

@@ -64,4 +64,5 @@ def _abc_smooth_hi(layout, shape) -> np.ndarray | None:
 
 abc_smooth.supports = lambda L: set(L.colour) <= {"kd", "A"}
 abc_smooth.colour_hi = _abc_smooth_hi
+abc_smooth.colour_hi_reason = "the lobe's albedo 1"
 KERNELS_ABC = {"abc-smooth": abc_smooth}

@@ -347,6 +347,10 @@ class Basis:
                 self._offset_static = np.empty(0)
         return True
 
+    @property
+    def colour_hi_reason(self) -> str:
+        return getattr(self.kernel, "colour_hi_reason", "a bound set by the shape parameters")
+
     def colour_hi(self, shape) -> np.ndarray | None:
         """Shape-dependent upper bounds of the colours (the kernel's ``colour_hi``, e.g. a lobe's albedo ≤ 1), or
         None."""
@@ -420,6 +424,25 @@ class SumBasis:
             self.parts.append((sub, b, shape_idx, colour_names))
         self.ref = np.where((layout.colour_lo <= 0) & (layout.colour_hi >= 0), 0.0, layout.colour_lo)
         self.separable = layout.K > 0 and all(b is not None and b.separable for _, b, _, _ in self.parts)
+
+    #: What the shape-dependent colour bound of :meth:`colour_hi` is (for ``at_bound``).
+    colour_hi_reason = "a linked colour (ratio x its source) at its upper bound"
+
+    def colour_hi(self, shape) -> np.ndarray | None:
+        """Upper bounds of the colours at ``shape`` when colours are linked (:func:`linked_lobes`): the source
+        of a link is at most the linked colour's upper bound over the ratio, so ``lobe2.ks`` = w · ``lobe1.ks``
+        stays within its range; None without links."""
+        L = self.layout
+        if not L.links:
+            return None
+        hi = np.array(L.colour_hi, dtype=np.float64)
+        bounds = L.cls.bounds()
+        shape = np.asarray(shape, dtype=np.float64)
+        for dst, src, r in L.links:
+            w = max(float(shape[L.shape.index(r)]), 1e-300)
+            k = L.colour.index(src)
+            hi[k] = min(hi[k], float(bounds[dst][1]) / w)
+        return hi
 
     def __call__(self, shape):
         shape = np.asarray(shape, dtype=np.float64)

@@ -64,3 +64,13 @@ def test_a_fit_ending_on_a_structural_bound_is_searched_again_from_more_starts()
     r = fit(synth("lambert+2ggx", t, n=400), "lambert+2ggx", report=False, n_starts=2, chroma="free")
     assert "lobe2.alpha" in r.at_bound  # equal-width lobes of two colours: the ratio bound is the data's answer
     assert any("searched again from 4 starts" in n and "stays there" in n for n in r.notes)
+
+
+def test_a_linked_colour_stays_within_its_range():
+    # a faint red narrow lobe under a strong blue broad one: one chromaticity fits badly, and w × lobe1.ks
+    # must still be a valid lobe2.ks (it was 2.0: the fit result could not be built)
+    t = {"diffuse.albedo": [0.05, 0.05, 0.05], "lobe1.ks": [0.1, 0.01, 0.01], "lobe1.alpha": 0.05,
+         "lobe2.ks": [0.3, 0.7, 0.95], "lobe2.alpha": 0.4}
+    r = fit(synth("lambert+2ggx", t, n=500), "lambert+2ggx", report=False, n_starts=1, chroma="shared")
+    assert np.all(np.asarray(r.params["lobe2.ks"]) <= 1.0)
+    r.build()  # a valid model
