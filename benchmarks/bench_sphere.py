@@ -1,7 +1,7 @@
 """Sphere versus flat sample at equal lab time (issue 30): on the simulated rig, the default flat session (the
 baseline, measured in the same run) and a sphere session whose plan takes about the same lab time, for a diffuse, a
 plastic, a rough metal and a chrome-like material — MERL cells filled (and per lab minute), the per-cell error
-against the truth (cells binned by :class:`gonio.sphere.binning.CellAccumulator`; the truth binned from the same
+against the truth (cells binned by :class:`gonio.cells.CellAccumulator`; the truth binned from the same
 samples' directions, so both see the same cell extent), how often the truth lies within the cell's 2σ, and the
 fitted GGX α against the truth.
 
@@ -50,7 +50,7 @@ def _session(tmp: Path, name: str, material: dict, plan_name: str, target: str |
 def _cells(samples, truth):
     """Binned measured and true values, cell σ and count (cells with ≥ 1 sample)."""
     from gonio.geometry import half_diff_from_dirs
-    from gonio.sphere.binning import CellAccumulator
+    from gonio.cells import CellAccumulator
 
     th, _, td, pd = half_diff_from_dirs(samples.wi, samples.wo)
     acc, tru = CellAccumulator(), CellAccumulator()

@@ -44,10 +44,6 @@ KNOWN_BACK_EDGES = {
     # linearization, while the pipeline reads frames through gonio.rig.interfaces. Cut by moving the camera file
     # reader into the pipeline (gonio.rig.camera uses it too).
     ("rig", "pipeline"): "rig/calibration.py builds pipeline types",
-    # issue 30: the pipeline builds sphere targets and samples with gonio.sphere (pipeline/target.py,
-    # pipeline/acquire.py), while gonio.sphere uses the pipeline's CameraPose. Cut by moving the sphere's
-    # geometry below the pipeline or the sphere branch of acquire above it.
-    ("pipeline", "sphere"): "pipeline/target.py, pipeline/acquire.py use gonio.sphere",
 }
 #: Circles between two CLI modules, known and not yet cut (issue 31: every command a thin shell over the API).
 KNOWN_CLI_CIRCLES: set = set()

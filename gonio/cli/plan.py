@@ -362,7 +362,7 @@ SIM_FOCAL_PX = 380.0
 
 
 def _print_sphere_coverage(args, plan, rig) -> None:
-    """The sphere plan's coverage of the MERL table (:func:`gonio.sphere.coverage.plan_coverage`)."""
+    """The sphere plan's coverage of the MERL table (:func:`gonio.session.sphere_coverage.plan_coverage`)."""
     from gonio.pipeline.target import TargetLayout, load_target
     from gonio.session.options import DEFAULT_SIM_RESOLUTION, parse_resolution
     from gonio.sphere import Sphere
@@ -381,7 +381,7 @@ def _print_sphere_coverage(args, plan, rig) -> None:
 
         w, h = parse_resolution(args.sim_resolution or DEFAULT_SIM_RESOLUTION)
         calib = CameraCalibration.pinhole(w, h, SIM_FOCAL_PX * w / 320)  # the simulated camera's field of view
-    from gonio.sphere.coverage import plan_coverage
+    from gonio.session.sphere_coverage import plan_coverage
 
     print("\n".join(plan_coverage(plan, rig, calib, layout.sphere).lines()))
 

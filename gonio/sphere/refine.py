@@ -148,7 +148,7 @@ def session_centre(metas, declared: Sphere) -> dict | None:
     """The session's sphere centre: the inverse-covariance weighted mean of its poses' estimates (each pose's
     record meta ``sphere_centre``), with its standard uncertainty and the offset from the declared centre (m);
     None when no pose gave one. The scatter between poses is folded in (Birge ratio, as in
-    :mod:`gonio.sphere.binning`)."""
+    :mod:`gonio.cells`)."""
     cs, ws = [], []
     for m in metas:
         e = (m or {}).get("sphere_centre")

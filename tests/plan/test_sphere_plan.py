@@ -12,7 +12,7 @@ from gonio.cli.main import main
 from gonio.plan.generators import make_plan
 from gonio.rig.kinematics import load_rig
 from gonio.sphere import Sphere
-from gonio.sphere.coverage import cells_of_pose, plan_cells, plan_coverage, valid_cells
+from gonio.session.sphere_coverage import cells_of_pose, plan_cells, plan_coverage, valid_cells
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,6 @@
-"""Per-pixel BRDF samples binned straight into MERL cells, streaming: a session of hundreds of frames adds each
-frame's pixels and keeps only per-cell sums (about 100 MB for the 1,458,000 cells × RGB), never the pixels.
+"""BRDF samples binned straight into MERL cells, streaming (image-based acquisition, issue 30): a session of
+hundreds of frames adds each frame's pixels and keeps only per-cell sums (about 100 MB for the 1,458,000 cells × RGB),
+never the pixels.
 
 Per cell and channel, with each sample's standard uncertainty σ_k and weight w_k = 1/σ_k²:
 
