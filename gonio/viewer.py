@@ -157,14 +157,17 @@ class ViewerServer(ThreadingHTTPServer):
                     victim.shutdown(socket.SHUT_RDWR)  # its thread's read returns at once; it closes it
                 except OSError:
                     pass
-            if len(self._open) >= self.max_connections:  # every one is answering: come back later
-                try:
-                    request.sendall(b"HTTP/1.0 503 Service Unavailable\r\nContent-Length: 0\r\nRetry-After: 1\r\n\r\n")
-                except OSError:
-                    pass
-                self.shutdown_request(request)
-                return
-            self._open[request] = [time.monotonic(), False]
+            full = len(self._open) >= self.max_connections
+            if not full:
+                self._open[request] = [time.monotonic(), False]
+        if full:  # every one is answering: come back later (outside the lock: shutdown_request takes it)
+            try:
+                request.settimeout(1.0)
+                request.sendall(b"HTTP/1.0 503 Service Unavailable\r\nContent-Length: 0\r\nRetry-After: 1\r\n\r\n")
+            except OSError:
+                pass
+            self.shutdown_request(request)
+            return
         super().process_request(request, client_address)
 
     def mark_busy(self, request) -> None:

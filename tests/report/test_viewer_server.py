@@ -162,3 +162,24 @@ def test_a_client_that_goes_away_leaves_no_traceback(server, capfd):
     assert _get(port, "/")[0] == 200  # still serving
     err = capfd.readouterr().err
     assert "Traceback" not in err and "Error" not in err, err
+
+
+def test_when_every_connection_is_answering_a_new_one_gets_503_and_the_server_goes_on(entries):
+    srv = make_server(entries, idle_timeout=2.0, max_connections=2)
+    with serving(srv):
+        port = srv.server_address[1]
+        readers = []
+        for _ in range(2):  # two clients that ask for the page and do not read it: both connections busy
+            s = socket.socket()
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            s.connect(("127.0.0.1", port))
+            s.sendall(f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode())
+            readers.append(s)
+        time.sleep(0.5)
+        try:
+            assert _get(port, "/favicon.ico")[0] == 503  # refused at once, not queued behind them
+        finally:
+            for s in readers:
+                s.close()
+        time.sleep(0.5)
+        assert _get(port, "/favicon.ico")[0] == 204  # and the server still answers (it once deadlocked here)
