@@ -282,7 +282,7 @@ def test_simavr_sessions_are_reproducible_per_seed(built, tmp_path):
     def run(out):
         r = subprocess.run([sys.executable, "-m", "gonio.cli.main", "measure", "--sim", "--sim-controller", "simavr",
                             "--plan", "grid", "--theta-step", "45", "--phi-step", "180", "--theta-max", "45",
-                            "--sim-resolution", "160x120", "--seed", "5", "--out", str(out), "--quiet"],
+                            "--sim-resolution", "320x240", "--seed", "5", "--out", str(out), "--quiet"],
                            capture_output=True, text=True, timeout=300)
         assert r.returncode == 0, r.stderr
         scan = scan_samples(out / "samples.jsonl")
