@@ -100,9 +100,18 @@ def test_status_says_when_the_watchdog_switched_the_light_off(bench, capsys):
 def test_light_stops_in_one_line_when_the_e_stop_is_pressed_while_it_is_on(bench, capsys):
     """E-stop pressed during `gonio controller light`: the command printed photodiode readings of ~0 for the
     rest of --seconds, then 'light off' and exit 0, never naming the E-stop (found by QA, qa-lab)."""
+    code, err, lines = _light_with(bench, capsys, bench.set_estop, True)
+    assert code == 7 and "E-stop pressed" in err and "\n" not in err, (code, err)  # SafetyStop: exit 7
+    assert lines < 15  # it stopped, not after --seconds
+    assert not bench.light_on
+
+
+def _light_with(bench, capsys, event, *args):
+    """Run `gonio controller light` for 3 s with ``event(*args)`` happening 0.35 s in: ``(exit code, stderr,
+    stdout lines)``."""
     import threading
 
-    timer = threading.Timer(0.35, bench.set_estop, args=(True,))
+    timer = threading.Timer(0.35, event, args=args)
     timer.start()
     try:
         code = main(["controller", "light", "--port", bench.path, "--level", "0.5", "--seconds", "3",
@@ -110,10 +119,7 @@ def test_light_stops_in_one_line_when_the_e_stop_is_pressed_while_it_is_on(bench
     finally:
         timer.cancel()
     captured = capsys.readouterr()
-    err = captured.err.strip()
-    assert code == 7 and "E-stop pressed" in err and "\n" not in err, (code, err)  # SafetyStop: exit 7
-    assert len(captured.out.splitlines()) < 15  # it stopped, not after --seconds
-    assert not bench.light_on
+    return code, captured.err.strip(), len(captured.out.splitlines())
 
 
 @pytest.mark.parametrize("baud", ["0", "-5", "123456789012"])
@@ -129,16 +135,6 @@ def test_a_baud_rate_out_of_range_is_one_line_before_the_port_is_opened(bench, c
 def test_light_stops_in_one_line_when_the_lamp_overheats_while_it_is_on(bench, capsys):
     """The heat sink passes the controller's limit during `gonio controller light`: the controller cuts the light
     and the command says why in one line (exit 7), not after --seconds."""
-    import threading
-
-    timer = threading.Timer(0.35, bench.set_heat_sink, args=(82.0,))
-    timer.start()
-    try:
-        code = main(["controller", "light", "--port", bench.path, "--level", "0.5", "--seconds", "3",
-                     "--every", "0.1"])
-    finally:
-        timer.cancel()
-    captured = capsys.readouterr()
-    err = captured.err.strip()
+    code, err, lines = _light_with(bench, capsys, bench.set_heat_sink, 82.0)
     assert code == 7 and "over its temperature limit (82.0 °C)" in err and "\n" not in err, (code, err)
-    assert len(captured.out.splitlines()) < 15 and not bench.light_on
+    assert lines < 15 and not bench.light_on
