@@ -133,6 +133,18 @@ def _stats(errs):
     return float(np.median(e)), float(np.percentile(e, 90))
 
 
+def map_held(fn, held):
+    """``[fn(m) for m in held]`` over ``GONIO_BENCH_WORKERS`` forked processes (default 2; 1: in this process) —
+    the held-out materials are independent, and the forked workers share the module context."""
+    workers = max(1, min(int(os.environ.get("GONIO_BENCH_WORKERS", "2")), len(held)))
+    if workers == 1:
+        return [fn(mi) for mi in held]
+    import multiprocessing as mp
+
+    with mp.get_context("fork").Pool(workers) as pool:
+        return pool.map(fn, held)
+
+
 def run(quick: bool = False) -> list[Table]:
     from gonio.prior.build_default import find_realdata
 
@@ -172,14 +184,7 @@ def _run(src, quick: bool, t: Table) -> list[Table]:
     global _CTX
     _CTX = {"grid": grid, "names": names, "values": values, "weight": weight, "ns": ns, "n_max": n_max, "nets": nets, "mod": mod,
             "eval": (eth, etd, epd, ewi, ewo), "h_eval": h_eval, "cand": cand, "cwi": cwi, "cwo": cwo, "h_cand": h_cand}
-    workers = max(1, min(int(os.environ.get("GONIO_BENCH_WORKERS", "2")), len(held)))
-    if workers > 1:
-        import multiprocessing as mp
-
-        with mp.get_context("fork").Pool(workers) as pool:
-            results = pool.map(_one_material, held)
-    else:
-        results = [_one_material(mi) for mi in held]
+    results = map_held(_one_material, held)
     errs = {key: [] for key in [("ours", n) for n in ns] + [("nielsen", n) for n in ns] +
             [("select", n) for n in SELECT_NS if n in ns] + [("grid floor", 0)]}
     cover, outside, expected = {n: [] for n in ns}, {n: 0 for n in ns}, {n: [] for n in ns}

@@ -94,14 +94,9 @@ def adaptive_rows(ctx) -> list[tuple]:
     held, ns = ctx["held"], ctx["ns"]
     if FIXED_N not in ns or ("ours", FIXED_N) not in ctx["errors"]:
         return []
-    workers = max(1, min(int(os.environ.get("GONIO_BENCH_WORKERS", "2")), len(held)))
-    if workers > 1:
-        import multiprocessing as mp
+    from benchmarks.bench_sparse import map_held
 
-        with mp.get_context("fork").Pool(workers) as pool:
-            results = pool.map(_adaptive_one, held)
-    else:
-        results = [_adaptive_one(mi) for mi in held]
+    results = map_held(_adaptive_one, held)
     fixed20 = float(np.median(ctx["errors"][("ours", FIXED_N)]))
     med = {n: float(np.median([r["errs"][n] for r in results])) for n in range(N_INITIAL, FIXED_N + 1)}
     p90 = {n: float(np.percentile([r["errs"][n] for r in results], 90)) for n in med}

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 from gonio.errors import ConfigError, DataError, HardwareError
 from gonio.session.options import HardwareOptions, SimOptions, check_servo_models, load_material_file
-from gonio.session.recording import (calibration_from_record, calibration_record, checked_sim, manifest_calibration,
+from gonio.session.recording import (calibration_record, checked_sim, manifest_calibration,
                                      manifest_layout, manifest_rig, record_detector, rig_record, target_layout)
 
 __all__ = ["OpenRig", "open_rig", "open_rig_from_manifest", "open_hardware_rig", "open_sim_config",
@@ -386,8 +386,3 @@ def open_rig_from_manifest(manifest: dict, directory, *, rig_file: str | None = 
     devices = open_hardware_devices(rig, manifest["hardware"], _camera_settings(manifest.get("calibration"), where),
                                     RealClock(), size=(calib.width, calib.height))
     return OpenRig(devices=devices, calibration=calib, layout=manifest_layout(manifest), record=manifest, hold=hold)
-
-
-def calibration_of(record: dict, where: str):
-    """The :class:`CameraCalibration` a record's ``calibration`` entry holds."""
-    return calibration_from_record(record.get("calibration"), where)
