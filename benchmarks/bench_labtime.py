@@ -90,7 +90,7 @@ def cost_tables(quick: bool = False) -> list[Table]:
 def _session(plan, timing, cfg: dict, out: Path):
     """Run ``plan`` on a fresh simulated rig with ``timing``: (result, runner, sim rig's dark truth at the end)."""
     from gonio.session.runner import RunnerSettings, SessionRunner, open_devices
-    from gonio.session.store import SessionStore
+    from gonio.store.directory import SessionStore
     from sim.rig import SimRig, SimRigConfig
 
     with SimRig(config=SimRigConfig(**cfg)) as sim:
@@ -122,7 +122,7 @@ def accuracy_table(quick: bool = False) -> Table:
     from gonio.cli.measure import DEFAULT_PLAN, default_plan_params
     from gonio.plan import estimate_plan, make_plan
     from gonio.plan.labtime import MAX_SECONDS, SessionTiming
-    from gonio.session.store import load_session
+    from gonio.store.directory import load_session
     from sim.rig import DEFAULT_MATERIAL
 
     if quick:

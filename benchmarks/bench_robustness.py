@@ -112,7 +112,7 @@ def fault_scenarios(quick: bool, scenarios=None) -> list[dict]:
     from gonio.errors import GonioError
     from gonio.plan.plan import CaptureSettings, Plan
     from gonio.session.runner import SessionRunner, open_devices
-    from gonio.session.store import SessionStore, load_session
+    from gonio.store.directory import SessionStore, load_session
     from sim.faults import LinkFaults
     from sim.rig import SimRig, SimRigConfig
     from sim.servo_bus import HW_OVERLOAD

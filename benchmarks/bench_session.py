@@ -17,7 +17,7 @@ def _session(plan, resolution, out: Path, material=None):
     """Run ``plan`` on a fresh simulated rig (camera ``resolution`` = (w, h), ``material``: BRDF or
     material dict, default the simulator's) into a new store at ``out``: ``(RunResult, wall seconds)``."""
     from gonio.session.runner import SessionRunner, open_devices
-    from gonio.session.store import SessionStore
+    from gonio.store.directory import SessionStore
     from sim.rig import SimRig, SimRigConfig
 
     w, h = resolution
@@ -103,7 +103,7 @@ def exposure_table(quick: bool = False) -> Table:
     from gonio.brdf import make
     from gonio.cli.measure import DEFAULT_SIM_RESOLUTION
     from gonio.plan import estimate_plan
-    from gonio.session.store import load_session
+    from gonio.store.directory import load_session
     from sim.rig import DEFAULT_MATERIAL
 
     plan = _default_plan(quick)  # its capture is the default: automatic exposure
@@ -156,7 +156,7 @@ def _adaptive_session(candidates, settings, fit, resolution, out: Path, material
     """An adaptive session (gonio.session.adaptive) on a fresh simulated rig: ``(result, wall s, samples)``."""
     from gonio.session.adaptive import AdaptiveSession, new_adaptive_manifest
     from gonio.session.runner import open_devices
-    from gonio.session.store import SessionStore, load_session
+    from gonio.store.directory import SessionStore, load_session
     from sim.rig import SimRig, SimRigConfig
 
     w, h = resolution
@@ -186,7 +186,7 @@ def adaptive_table(quick: bool = False) -> Table:
     from gonio.rig.kinematics import load_rig
     from gonio.session.adaptive import FitSpec
     from gonio.session.runner import RunnerSettings
-    from gonio.session.store import load_session
+    from gonio.store.directory import load_session
     from sim.rig import DEFAULT_MATERIAL
 
     rig = load_rig()

@@ -56,7 +56,7 @@ t_import = time.perf_counter()
 from gonio.cli.measure import DEFAULT_SIM_RESOLUTION, default_plan_params
 from gonio.plan.generators import make_plan
 from gonio.session.runner import SessionRunner, open_devices
-from gonio.session.store import SessionStore, load_session
+from gonio.store.directory import SessionStore, load_session
 from sim.rig import SimRig, SimRigConfig
 kw = default_plan_params(gen)
 kw.update({k: np.radians(v) for k, v in params.items()})

@@ -36,7 +36,7 @@ def _session(tmp: Path, name: str, material: dict, plan_name: str, target: str |
              **plan_params):
     import gonio
     from gonio.plan.generators import make_plan
-    from gonio.session.material import material_from_dict
+    from gonio.io.material_toml import material_from_dict
 
     mat = material_from_dict(material, source=name)
     with gonio.open_rig(sim=gonio.SimOptions(seed=1, resolution=resolution), material=mat, target=target) as rig:

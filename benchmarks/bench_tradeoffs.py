@@ -52,7 +52,7 @@ def eval_directions(n: int = 20_000, theta_max_deg: float = THETA_MAX_DEG, seed:
 def simulate(plan, out: Path):
     """Run ``plan`` on the simulated rig rendering :data:`MATERIAL`: ``(RunResult, wall s, SampleSet)``."""
     from benchmarks.bench_session import _session
-    from gonio.session.store import load_session
+    from gonio.store.directory import load_session
 
     result, wall = _session(plan, RESOLUTION, out, material=MATERIAL)
     return result, wall, load_session(out)[1]

@@ -12,7 +12,7 @@ from gonio.errors import GonioError
 from gonio.pipeline.target import load_target
 from gonio.rig.calibration import load_camera_calibration
 from gonio.rig.kinematics import load_rig
-from gonio.session.material import load_material
+from gonio.io.material_toml import load_material
 
 CAMERA = ("width = 320\nheight = 240\nfocal_px = 380.0\ndist = [0.0, 0.0, 0.0, 0.0, 0.0]\n[noise]\n"
           "dn_per_electron = 0.2\nread_noise_e = 3.0\nfull_well_e = 20000\n[camera]\nlinear = true\n"

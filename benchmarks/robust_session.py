@@ -72,7 +72,7 @@ def _cli(*args) -> tuple[int, str, bool]:
 
 
 def _poses(d: Path) -> dict:
-    from gonio.session.store import load_session
+    from gonio.store.directory import load_session
 
     manifest, samples = load_session(d)
     return {int(k): samples.subset(samples.pose == k) for k in np.unique(samples.pose)}
@@ -85,7 +85,7 @@ def run_kill_resume(n: int = 20, quick: bool = False, *, seed: int = 1) -> list[
     with ``gonio resume`` in a process of its own, or (``quick``) through :func:`gonio.cli.main.main` in this
     process (:func:`_cli`, which counts an escaping exception as a traceback): the resume reads only the killed
     run's directory, so the same check without an interpreter start-up (imports, numba cache) per resume."""
-    from gonio.session.store import scan_samples
+    from gonio.store.directory import scan_samples
 
     rng = random.Random(seed)
     tmp = Path(tempfile.mkdtemp(prefix="gonio-kill-"))
@@ -204,7 +204,7 @@ def run_mutated_session_files(n: int = 200, quick: bool = False, *, seed: int = 
     ``gonio status``, ``export``, ``repair`` and ``resume`` (in-process through ``gonio.cli.main``)."""
     import warnings
 
-    from gonio.session.store import scan_samples
+    from gonio.store.directory import scan_samples
 
     rng = random.Random(seed)
     tmp = Path(tempfile.mkdtemp(prefix="gonio-mutate-"))

@@ -130,7 +130,7 @@ def _session(args, out) -> dict:
     import io
 
     from gonio.cli.main import main
-    from gonio.session.store import load_session
+    from gonio.store.directory import load_session
 
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
         code = main(["measure", "--sim", "--quiet", *args, "--out", str(out)])

@@ -296,7 +296,7 @@ def summary_html(entry: Entry) -> str:
         rig = m.get("rig") if isinstance(m.get("rig"), dict) else {}
         runs = [r.get("lab_time_s") for r in m.get("runs") or [] if isinstance(r, dict)]
         lab = sum(t for t in runs if isinstance(t, (int, float)))
-        from gonio.session.material import describe_material
+        from gonio.io.material_toml import describe_material
 
         items += [("material", describe_material(m.get("material"))), ("rig", str(rig.get("name", "–"))),
                   ("plan", f"{plan.get('generator', '–')}, {plan.get('n_poses', '–')} poses"),

@@ -35,16 +35,7 @@ def test_the_simulator_is_found_through_the_entry_points():
 #: Imports between subpackages that point the wrong way and close a circle, known and not yet cut, each with what
 #: cuts it. Without them the subpackage graph must have no circle; a listed one that is gone fails the test too
 #: (remove it from the list then).
-KNOWN_BACK_EDGES = {
-    # issue 31: io reads session directories through gonio.session.store (io/source.py, io/csv.py), while the
-    # session API reads plan files, loads its own result and opens material files through io. Cut by moving the
-    # session store's reader into io (or those readers out of it).
-    ("io", "session"): "io/source.py, io/csv.py read the session store",
-    # issue 31: rig/calibration.py (the camera file) builds gonio.pipeline's CameraCalibration and uses its HDR
-    # linearization, while the pipeline reads frames through gonio.rig.interfaces. Cut by moving the camera file
-    # reader into the pipeline (gonio.rig.camera uses it too).
-    ("rig", "pipeline"): "rig/calibration.py builds pipeline types",
-}
+KNOWN_BACK_EDGES: dict[tuple[str, str], str] = {}  # empty since issue 31 cut io → session and rig → pipeline
 #: Circles between two CLI modules, known and not yet cut (issue 31: every command a thin shell over the API).
 KNOWN_CLI_CIRCLES: set = set()
 

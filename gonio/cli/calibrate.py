@@ -212,7 +212,7 @@ def finish_from_directory(d, manifest, *, rig_file=None) -> int:
     from pathlib import Path
 
     from gonio.session.recording import manifest_rig
-    from gonio.session.store import MANIFEST
+    from gonio.store.directory import MANIFEST
 
     if "check" in manifest["geocal"]:
         return report_check(d, manifest_rig(manifest, str(Path(d) / MANIFEST), rig_file), manifest)

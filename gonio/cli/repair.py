@@ -16,7 +16,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from gonio.session.store import QUARANTINE, SessionStore
+    from gonio.store.directory import QUARANTINE, SessionStore
 
     repaired = SessionStore.repair(Path(args.dir))
     if repaired is None:

@@ -15,7 +15,7 @@ def session_status(directory) -> dict:
     """The facts ``gonio status`` prints, as a dict (read-only; nothing in DIR changes)."""
     from pathlib import Path
 
-    from gonio.session.store import (_killed_run, _read_manifest, _samples_path, missing_poses, plan_pose_count,
+    from gonio.store.directory import (_killed_run, _read_manifest, _samples_path, missing_poses, plan_pose_count,
                                      poses_beyond_plan, scan_samples)
 
     d = Path(directory)
@@ -86,7 +86,7 @@ def _failed_poses(manifest) -> list[tuple[int, str]]:
 
 
 def run(args) -> int:
-    from gonio.session.material import describe_material
+    from gonio.io.material_toml import describe_material
 
     s = session_status(args.dir)
     print(f"session {args.dir}: material {describe_material(s['material'])}, plan {s['plan'] or 'unknown'}")

@@ -71,8 +71,8 @@ def read_csv(path) -> SampleSet:
 
 def _integer_columns():
     """The integer columns (index into COLUMNS) and their ranges: a flag bit mask, pixels averaged, the plan pose
-    (−1: none; up to :data:`gonio.session.records.MAX_POSE`, the largest a record holds)."""
-    from gonio.session.records import MAX_POSE
+    (−1: none; up to :data:`gonio.store.records.MAX_POSE`, the largest a record holds)."""
+    from gonio.store.records import MAX_POSE
 
     return ((10, 0, 2**31 - 1), (11, 0, 10**9), (12, -1, MAX_POSE))
 

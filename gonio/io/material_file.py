@@ -1,6 +1,6 @@
 """Measured materials on the simulated rig: a MERL ``.binary``, an RGL ``.bsdf``, a gonio NPZ export or a
 fit JSON (``gonio fit --json``) as the sample the simulator renders, besides the TOML of an analytic model
-(:mod:`gonio.session.material`). :func:`open_material` (``--material``) and :func:`material_from_record` (a
+(:mod:`gonio.io.material_toml`). :func:`open_material` (``--material``) and :func:`material_from_record` (a
 manifest's ``material``) take either; the file's content decides.
 
 What is rendered:
@@ -52,7 +52,7 @@ def file_sha256(path: Path) -> str:
 @dataclass(frozen=True)
 class MaterialFile:
     """A material that is a data file (module docstring); the same interface as
-    :class:`gonio.session.material.Material` (``brdf()``, ``to_dict()``, ``defaults_note()``, ``label``)."""
+    :class:`gonio.io.material_toml.Material` (``brdf()``, ``to_dict()``, ``defaults_note()``, ``label``)."""
 
     path: str
     kind: str
@@ -161,9 +161,9 @@ def material_file_from_dict(data: Mapping[str, Any], source: str = "manifest mat
 
 
 def open_material(path):
-    """``--material PATH``: a TOML file of an analytic model (:func:`gonio.session.material.load_material`), or
+    """``--material PATH``: a TOML file of an analytic model (:func:`gonio.io.material_toml.load_material`), or
     a data file (:func:`load_material_file`); the content decides (a material TOML may have another suffix)."""
-    from gonio.session.material import load_material
+    from gonio.io.material_toml import load_material
 
     p = Path(path)
     if p.suffix.lower() == ".toml" or not p.exists():
@@ -187,8 +187,8 @@ def _kind_or_text(p: Path) -> str:
 def material_from_record(data, source: str = "manifest material", *, complete: bool = False):
     """The material a session manifest recorded: a data file's record (``file``, ``kind``, ``sha256``: the same
     file, unchanged, :func:`material_file_from_dict`) or an analytic model's (``model``, ``params``:
-    :func:`gonio.session.material.material_from_dict`)."""
-    from gonio.session.material import material_from_dict
+    :func:`gonio.io.material_toml.material_from_dict`)."""
+    from gonio.io.material_toml import material_from_dict
 
     if isinstance(data, Mapping) and "file" in data:
         return material_file_from_dict(data, source)

@@ -1,5 +1,5 @@
 """Open whatever the data commands are pointed at: a session directory (through
-:func:`gonio.session.store.load_session`), an NPZ export (:mod:`gonio.io.npz`), a gonio CSV export
+:func:`gonio.store.directory.load_session`), an NPZ export (:mod:`gonio.io.npz`), a gonio CSV export
 (:mod:`gonio.io.csv`), an RGL material ``.bsdf`` (:mod:`gonio.io.powitacq`) or a MERL binary
 (:mod:`gonio.io.merl`, with its sidecar :mod:`gonio.io.merl_sidecar` when present).
 
@@ -120,7 +120,7 @@ def _warn_if_unfinished(path: Path, manifest: dict, samples) -> None:
     exported or shown is then a part of the plan, and ``gonio resume`` measures the rest."""
     import warnings
 
-    from gonio.session.store import missing_poses
+    from gonio.store.directory import missing_poses
 
     done = len(set(samples.pose.tolist())) if samples is not None and getattr(samples, "pose", None) is not None else None
     damaged = manifest.get("damaged_records") if isinstance(manifest.get("damaged_records"), list) else []
@@ -162,9 +162,9 @@ def load_source(path) -> Measured:
     p = Path(path)
     if p.is_dir():
         try:
-            from gonio.session.store import load_session
+            from gonio.store.directory import load_session
         except ImportError:
-            raise DataError(f"{p}: cannot read session directories: gonio.session.store is not installed") from None
+            raise DataError(f"{p}: cannot read session directories: gonio.store.directory is not installed") from None
         manifest, samples = load_session(p)
         _warn_if_unfinished(p, manifest, samples)
         return Measured(p, "session", dict(manifest), samples, None)

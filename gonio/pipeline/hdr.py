@@ -13,6 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
+from gonio.camera_model import lookup_response
 from gonio.errors import HardwareError
 from gonio.pipeline.target import CameraCalibration, NoiseModel
 from gonio.rig.interfaces import Frame
@@ -185,7 +186,6 @@ def calibrate_response(images: Sequence[np.ndarray], exposures: Sequence[float],
 
 
 def linearize(pixels: np.ndarray, response: np.ndarray) -> np.ndarray:
-    """Map 8-bit values through an inverse response from :func:`calibrate_response` (per channel)."""
-    lut = response.reshape(256, -1).astype(np.float64)
-    px = pixels if pixels.ndim == 3 else pixels[..., None]
-    return np.stack([lut[px[..., c], min(c, lut.shape[1] - 1)] for c in range(px.shape[2])], axis=-1)
+    """Map 8-bit values through an inverse response from :func:`calibrate_response` (per channel;
+    :func:`gonio.camera_model.lookup_response`)."""
+    return lookup_response(pixels, response)

@@ -160,9 +160,9 @@ class ResponseCurve:
         Value ``v`` → ``round(65535 · E(v) / E(255))`` per channel (E = the inverse response), so a
         saturated 8-bit value stays at the saturation level and the pipeline's saturation test
         holds. The black level becomes the mapped value of 0 (mean over channels). Uses
-        :func:`gonio.pipeline.hdr.linearize` for the per-channel lookup.
+        :func:`gonio.camera_model.lookup_response` for the per-channel lookup.
         """
-        from gonio.pipeline.hdr import linearize
+        from gonio.camera_model import lookup_response as linearize
 
         px = frame.pixels
         if not isinstance(px, np.ndarray) or px.dtype != np.uint8 or frame.bit_depth != 8:
@@ -365,7 +365,7 @@ class CameraDescription:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], source: str | None = None) -> "CameraDescription":
         """From a manifest's ``calibration`` (sessions recorded before ``camera`` existed: defaults)."""
-        from gonio.pipeline.target import CameraCalibration, NoiseModel
+        from gonio.camera_model import CameraCalibration, NoiseModel
 
         try:
             noise = NoiseModel(**_noise_fields(d.get("noise", {}), source))
@@ -455,7 +455,7 @@ def load_camera_calibration(path, *, for_session: bool = True) -> CameraDescript
     here, before a session starts (:meth:`CameraSettings.check_session`).
     """
     from gonio.config import read_toml
-    from gonio.pipeline.target import CameraCalibration, NoiseModel
+    from gonio.camera_model import CameraCalibration, NoiseModel
 
     src = str(path)
     data = read_toml(path, "--calibration")

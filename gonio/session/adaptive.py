@@ -195,7 +195,7 @@ class AdaptiveSession:
     """Run (or resume) the adaptive session of ``store`` on ``devices``; see the module docstring.
 
     Parameters are those of :class:`~gonio.session.runner.SessionRunner`; ``store`` is an open
-    :class:`~gonio.session.store.SessionStore` whose manifest has an ``adaptive`` section
+    :class:`~gonio.store.directory.SessionStore` whose manifest has an ``adaptive`` section
     (:func:`new_adaptive_manifest`).
     """
 
@@ -248,7 +248,7 @@ class AdaptiveSession:
     # -- samples --------------------------------------------------------------------------------
     def _round_samples(self) -> list[SampleSet]:
         """The stored samples of each round, ``pose`` = candidate index."""
-        from gonio.session.store import load_session
+        from gonio.store.directory import load_session
 
         _, samples = load_session(self.store.directory)
         out = []

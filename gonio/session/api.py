@@ -10,7 +10,7 @@ The command line (``gonio measure``, ``gonio resume``, ``gonio calibrate``) is a
         result = gonio.resume("my-session")
     fit = gonio.fit(gonio.load("my-session"), "lambert+ggx")
 
-A session is a directory (:mod:`gonio.session.store`): created by :func:`measure` with a manifest saying what,
+A session is a directory (:mod:`gonio.store.directory`): created by :func:`measure` with a manifest saying what,
 why and how (plan, rig, material, target, camera, simulator or hardware), appended one pose at a time, and ended
 with its exit status. Ctrl-C and SIGTERM finish the pose in flight, switch the light off and record the session
 as ``interrupted`` (the runner's signal handlers, when called from the main thread); :func:`resume` measures the
@@ -145,7 +145,7 @@ def measure(rig: OpenRig, plan, out: str | Path | None = None, *, seed: int | No
     >>> r.ok, r.poses_done == r.poses_total                                    # doctest: +SKIP
     (True, True)
     """
-    from gonio.session.store import SessionStore
+    from gonio.store.directory import SessionStore
 
     out = str(out) if out is not None else default_session_dir()
     plan = make_session_plan(plan, rig.rig, seed=seed or 0)
@@ -233,7 +233,7 @@ def _record_sphere_centre(store, rig: OpenRig) -> None:
     sph = getattr(rig.layout, "sphere", None)
     if sph is None:
         return
-    from gonio.session.store import scan_samples, _samples_path
+    from gonio.store.directory import scan_samples, _samples_path
     from gonio.sphere.refine import session_centre
 
     scan = scan_samples(_samples_path(store.directory, store.manifest))
@@ -261,7 +261,7 @@ def resume(directory, *, rig: OpenRig | None = None, rig_file: str | None = None
     True
     """
     from gonio.plan.plan import Plan
-    from gonio.session.store import MANIFEST, SessionStore, _read_manifest, _samples_path, scan_samples
+    from gonio.store.directory import MANIFEST, SessionStore, _read_manifest, _samples_path, scan_samples
 
     d = Path(directory)
     if not (d / MANIFEST).is_file():

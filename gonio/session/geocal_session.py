@@ -199,7 +199,7 @@ def observations_from_store(directory, rig):
     """``(cams, highs, refused)`` from the records of the calibration session in ``directory``: every board
     pose is a camera observation, every kept highlight a highlight observation; ``refused``: ``(pose, reason)``."""
     from gonio.errors import DataError
-    from gonio.session.store import _read_manifest, _samples_path, poses_beyond_plan, scan_samples
+    from gonio.store.directory import _read_manifest, _samples_path, poses_beyond_plan, scan_samples
     from pathlib import Path
 
     d = Path(directory)

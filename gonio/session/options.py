@@ -150,7 +150,7 @@ def check_session_dir(out: str, option: str = "--out") -> None:
     """Refuse, before anything starts, a directory holding a session or one that cannot be created
     (one line naming ``option``, the option that chose the directory)."""
     from gonio.io.outputs import session_root
-    from gonio.session.store import MANIFEST, SAMPLES
+    from gonio.store.directory import MANIFEST, SAMPLES
 
     d = Path(out)
     if d.exists() and not d.is_dir():
@@ -198,7 +198,7 @@ def default_material():
     """The simulated sample's material when none is given (the shipped ``sim/materials/default.toml``)."""
     from importlib import resources
 
-    from gonio.session.material import load_material
+    from gonio.io.material_toml import load_material
 
     res = resources.files("sim") / "materials" / "default.toml"
     with resources.as_file(res) as p:
@@ -206,7 +206,7 @@ def default_material():
 
 
 def load_material_file(path: str | None):
-    """The material of ``--material FILE`` — a material TOML (:func:`gonio.session.material.load_material`) or a
+    """The material of ``--material FILE`` — a material TOML (:func:`gonio.io.material_toml.load_material`) or a
     measured material or fit JSON (:func:`gonio.io.material_file.open_material`) — or the default."""
     from gonio.io.material_file import open_material
 

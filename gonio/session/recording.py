@@ -253,7 +253,7 @@ def check_plan_against_records(d, manifest, plan, scan) -> None:
     import numpy as np
 
     from gonio.errors import DataError
-    from gonio.session.store import MANIFEST, SAMPLES
+    from gonio.store.directory import MANIFEST, SAMPLES
 
     if "adaptive" in manifest:  # an adaptive session's plan is rebuilt from its rounds as it grows
         return

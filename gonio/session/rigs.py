@@ -111,7 +111,7 @@ def open_rig(rig="default", *, sim: SimOptions | bool | None = None, hardware: H
         driven through the real dynamixel-sdk and pyserial, a rendering camera, a simulated clock.
     hardware : :class:`HardwareOptions`: a real rig's ports, camera and CAMERA.toml.
     material : the simulated sample's material file (a TOML, or a measured one: MERL, RGL .bsdf, gonio NPZ, fit JSON,
-        :mod:`gonio.io.material_file`), or a loaded :class:`gonio.session.material.Material`;
+        :mod:`gonio.io.material_file`), or a loaded :class:`gonio.io.material_toml.Material`;
         on a rig only its label is recorded.
     target : TARGET.toml (default: the standard board, flat sample).
     camera, calibration, clock : a mixed rig: real ports (``hardware.servo_port``/``controller_port``) with a

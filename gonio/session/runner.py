@@ -68,7 +68,7 @@ from gonio.plan.labtime import SessionTiming, dark_exposures, session_lab_time
 from gonio.rig.geocov import light_position_covariance
 from gonio.rig.interfaces import Frame
 from gonio.session.usability import Usability, sample_cause
-from gonio.session.records import MAX_POSE
+from gonio.store.records import MAX_POSE
 
 __all__ = ["RunnerSettings", "Devices", "RunResult", "SessionRunner", "PoseEvent", "open_devices", "format_lab_time",
            "SAFETY_STOP"]
@@ -303,7 +303,7 @@ class SessionRunner:
     Parameters
     ----------
     plan : gonio.plan.Plan
-    store : gonio.session.store.SessionStore (``append``, ``done_poses``, ``remaining``, ``finish``)
+    store : gonio.store.directory.SessionStore (``append``, ``done_poses``, ``remaining``, ``finish``)
     devices : Devices
     calibration, layout : what the pipeline needs (gonio.pipeline.target)
     settings : RunnerSettings
