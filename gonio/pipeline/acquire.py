@@ -32,6 +32,8 @@ __all__ = ["PipelineSettings", "PoseResult", "BoardNotFound", "Pipeline"]
 #: contrast and at most √1.5 ≈ 1.22× the shot-noise SNR: not a better view, a reshoot hoping for luckier noise
 #: (the frames and the lab time of up to ``meter_tries`` such reshoots at a pose whose board is out of sight).
 BOARD_REMETER_FACTOR = 1.5
+#: pixels merged around a sphere's projected box: room for its silhouette's edge search (gonio.sphere.refine)
+SPHERE_PAD_PX = 10
 
 
 def _used_index(roi, used: np.ndarray, width: int) -> np.ndarray:
@@ -131,6 +133,9 @@ class Pipeline:
         self._board = layout.charuco.board()
         self._next_exposure = self.settings.initial_exposure
         self._signal = SignalCheck(calibration.noise, self._limit)
+        #: a sphere: the record metas (their ``sphere_centre``) of the poses stored before this one, in pose order —
+        #: the runner sets it (:func:`gonio.sphere.pose.sphere_pose_samples` refines the centre from them)
+        self.sphere_history: list = []
 
     def check_frame(self, frame: Frame) -> np.ndarray:
         """:func:`gonio.pipeline.hdr.check_frame`, and until the first frame of the calibrated size (the
@@ -332,11 +337,12 @@ class Pipeline:
         reference's pixels metered and merged as a flat sample's are, then one sample per sphere pixel
         (:func:`gonio.sphere.pixels.sphere_frame_samples`), wi and wo in each pixel's normal frame; the pose's
         pixel counts (used, silhouette, terminator, saturated, dark) in :attr:`PoseResult.sphere_counts`."""
-        from gonio.sphere.pixels import sphere_box, sphere_frame_samples, white_box
+        from gonio.sphere.pixels import sphere_box, white_box
+        from gonio.sphere.pose import sphere_pose_samples
 
         c = self.calib
         sph = self.layout.sphere
-        box, wbox = sphere_box(c, cam_pose, sph), white_box(c, cam_pose, self.layout)
+        box, wbox = sphere_box(c, cam_pose, sph, pad=SPHERE_PAD_PX), white_box(c, cam_pose, self.layout)
         if box is None or wbox is None:
             raise BoardNotFound("camera frame: the sphere or the white patch is outside the image at this pose",
                                 device="camera")
@@ -353,9 +359,9 @@ class Pipeline:
         rate[used], var[used] = hdr.rate[:, 0], hdr.var[:, 0]
         try:
             perturb = board.perturbed() if (board is not None and self.settings.pose_uncertainty) else []
-            fs = sphere_frame_samples(rate.reshape(c.height, c.width, C), var.reshape(c.height, c.width, C), c,
-                                      cam_pose, sph, light_position, self.layout, min_snr=self.settings.min_snr,
-                                      pose_perturbations=perturb)
+            fs = sphere_pose_samples(rate.reshape(c.height, c.width, C), var.reshape(c.height, c.width, C), c,
+                                     cam_pose, sph, light_position, self.layout, history=self.sphere_history,
+                                     min_snr=self.settings.min_snr, pose_perturbations=perturb)
         except DataError as exc:  # the white reference unusable at this pose: no sample, the pose is skipped
             raise BoardNotFound(f"camera frame: {exc}", device="camera") from None
         n = len(fs.f)
@@ -363,11 +369,6 @@ class Pipeline:
                             pose=np.full(n, pose_index))
         self._next_exposure = plan.exposures[0]
         counts = dict(fs.counts)
-        from gonio.sphere.refine import refine_centre
-
-        est = refine_centre(rate.reshape(c.height, c.width, C), c, cam_pose, sph)  # the centre its silhouette says
-        if est is not None:
-            counts["centre"] = {"centre_m": est.centre.tolist(), "sigma_m": est.sigma.tolist(), "edges": est.n_edges}
         return PoseResult(samples, plan, board, cam_pose, lights, times, source, sphere_counts=counts)
 
     def _meter(self, frame: Frame, px: np.ndarray, level: float, used: np.ndarray, gain: float,

@@ -228,18 +228,20 @@ def run_session(store, plan, rig: OpenRig, *, on_pose=None, progress: TextIO | b
 
 
 def _record_sphere_centre(store, rig: OpenRig) -> None:
-    """A sphere session: the centre its poses' silhouettes say (:func:`gonio.sphere.refine.session_centre`),
-    recorded in the manifest (``sphere_centre``) after every run."""
+    """A sphere session: the centre its poses' silhouettes say (:func:`gonio.sphere.refine.session_centre`) and
+    the one the last pose's samples used (``used_m``, ``used_sigma_m``: with the declared centre as a prior,
+    :func:`gonio.sphere.refine.centre_in_use`), recorded in the manifest (``sphere_centre``) after every run."""
     sph = getattr(rig.layout, "sphere", None)
     if sph is None:
         return
     from gonio.store.directory import scan_samples, _samples_path
-    from gonio.sphere.refine import session_centre
+    from gonio.sphere.refine import centre_in_use, session_centre
 
     scan = scan_samples(_samples_path(store.directory, store.manifest))
-    found = session_centre((meta for _, meta in scan.records.values()), sph)
+    found = session_centre((scan.records[k][1] for k in sorted(scan.records)), sph)
     if found is not None:
-        store.update_manifest(sphere_centre=found)
+        used, sigma = centre_in_use(found, sph)
+        store.update_manifest(sphere_centre={**found, "used_m": list(used.centre), "used_sigma_m": sigma.tolist()})
 
 
 def resume(directory, *, rig: OpenRig | None = None, rig_file: str | None = None, servo_port: str | None = None,

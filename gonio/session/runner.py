@@ -358,6 +358,8 @@ class SessionRunner:
         #: exception it raises is said in one line and does not stop the session
         self.on_pose: Callable[[PoseEvent], None] | None = None
         self._light_used = False  #: this run switched the light on (a watchdog trip is then unsafe)
+        #: a sphere: the stored poses' silhouette centres by pose index (:meth:`_stored_sphere_centres`); else None
+        self._sphere_history: dict | None = None
 
     # -- messages -------------------------------------------------------------------------------
     def _say(self, msg: str) -> None:
@@ -529,6 +531,19 @@ class SessionRunner:
         return None if board is None else (self._camera_key(rig.camera_pose(planned), rig.camera_pose(measured)),
                                            board, confirm, origin)
 
+    def _stored_sphere_centres(self) -> dict | None:
+        """A sphere session: the stored poses' silhouette centres (``sphere_centre`` of their metas) by pose index,
+        read back from the file — what a resumed run continues from; None for a flat sample."""
+        if getattr(self.pipeline.layout, "sphere", None) is None:
+            return None
+        from gonio.store.directory import _samples_path, scan_samples
+
+        path = _samples_path(self.store.directory, self.store.manifest)
+        if not path.exists():
+            return {}
+        return {int(k): {"sphere_centre": m["sphere_centre"]} for k, (_, m) in scan_samples(path).records.items()
+                if isinstance(m, dict) and isinstance(m.get("sphere_centre"), dict)}
+
     def _dark_meta(self) -> dict:
         """The dark model's state for the pose's meta (modelled darks only): scale k of the dark current
         and the sensor temperature it was predicted at."""
@@ -558,6 +573,8 @@ class SessionRunner:
         key = self._camera_key(planned_pose, (position, R))
         prev = self._board_prev if self._board_prev is not None and self._board_prev[0] == key else None
         cam_w, cam_l, frames = self.camera.wall, self.camera.lab, self.camera.frames
+        if self._sphere_history is not None:  # the centre found by the poses stored so far (gonio.sphere.pose)
+            self.pipeline.sphere_history = [self._sphere_history[k] for k in sorted(self._sphere_history)]
         lcov = light_position_covariance(rig, joints)  # the geometric calibration's, at this pose (or None)
         # meter every pose at the expected bracket's shortest exposure, not at the previous pose's: a pose's
         # bracket then depends on the pose only, so a resumed session measures what an uninterrupted one does
@@ -605,6 +622,7 @@ class SessionRunner:
         if res.sphere_counts is not None:  # a sphere's pose: its pixels used and rejected (gonio.sphere.pixels)
             counts = dict(res.sphere_counts)
             centre = counts.pop("centre", None)
+            meta["sphere_centre_used"] = counts.pop("centre_used", None)  # the centre its samples used, and σ
             meta["sphere_pixels"] = counts
             if centre is not None:  # the centre this pose's silhouette says (gonio.sphere.refine)
                 meta["sphere_centre"] = centre
@@ -652,6 +670,7 @@ class SessionRunner:
         brackets: dict[str, int] = {}
         if self._board_prev is None:
             self._board_prev = self._board_entry(getattr(self.store, "last_meta", None), confirm=True)
+        self._sphere_history = self._stored_sphere_centres()
         old_handler = old_term = None
         if threading.current_thread() is threading.main_thread():
             old_handler = signal.signal(signal.SIGINT, self._on_sigint)
@@ -694,6 +713,8 @@ class SessionRunner:
                     self.store.append(k, samples, meta)
                     usable.add(self.unusable_cause(samples, meta))
                     self._board_prev = self._board_entry(meta, confirm=False)  # what the next pose may reuse
+                    if self._sphere_history is not None and isinstance(meta.get("sphere_centre"), dict):
+                        self._sphere_history[k] = {"sphere_centre": meta["sphere_centre"]}
                     done.add(k)
                     result.measured += 1
                     result.samples += len(samples)

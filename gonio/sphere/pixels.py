@@ -25,8 +25,8 @@ import numpy as np
 from gonio.errors import DataError
 from gonio.sphere.geometry import Sphere, sphere_hits
 
-__all__ = ["SphereFrameSamples", "sphere_frame_samples", "white_scale", "white_box", "pixel_rays_world",
-           "sphere_box"]
+__all__ = ["SphereFrameSamples", "sphere_frame_samples", "centre_perturbations", "white_scale", "white_box",
+           "pixel_rays_world", "sphere_box"]
 
 
 @dataclass
@@ -146,12 +146,14 @@ def white_scale(rate, var, calib, pose, layout, light_position, sphere: Sphere |
 
 
 def _geometry_variance(f, px, hits, box, calib, pose, sphere, light_position, perturbations) -> np.ndarray:
-    """Variance (n, 3) of the hit pixels' f from the camera pose's uncertainty (``perturbations``: poses one σ
-    along each principal axis of its covariance, :meth:`gonio.pipeline.markers.BoardPose.perturbed`; linear
-    propagation, JCGM 101 / GUM §5.1.2). A pose off by δ moves the surface point a pixel sees: the sample's angles
-    belong to a point the image shows ``δuv = project_q(x) − u`` pixels away, so its value is off by ``∇f · δuv``
-    (the image gradient of f, central differences over the sphere's pixels), and the irradiance assumed there is off
-    by ``δ ln E`` (E recomputed at the point the pixel's ray meets under the perturbed pose)."""
+    """Variance (n, 3) of the hit pixels' f from the geometry's uncertainty (``perturbations``: ``(camera pose,
+    sphere)`` pairs one σ along each principal axis of a covariance — the camera pose's,
+    :meth:`gonio.pipeline.markers.BoardPose.perturbed`, with the sphere as used, and the sphere's centre's, with the
+    camera pose as used; linear propagation, JCGM 101 / GUM §5.1.2). A pose off by δ, or a centre off by δP, moves
+    the surface point with a pixel's normal: the sample's angles belong to a point the image shows
+    ``δuv = project_q(x + δP) − u`` pixels away, so its value is off by ``∇f · δuv`` (the image gradient of f,
+    central differences over the sphere's pixels), and the irradiance assumed there is off by ``δ ln E`` (E
+    recomputed at the point the pixel's ray meets under the perturbed geometry)."""
     var = np.zeros_like(f)
     if not perturbations or len(f) == 0:
         return var
@@ -164,11 +166,11 @@ def _geometry_variance(f, px, hits, box, calib, pose, sphere, light_position, pe
     gx, gy = np.nan_to_num(gx[r, c]), np.nan_to_num(gy[r, c])
     lnE = np.log(np.clip(hits.cos_i, 1e-12, None) / hits.r2)
     uv = px[:, ::-1].astype(np.float64)  # (u = col, v = row)
-    for q in perturbations:
-        duv = q.project(hits.x, calib) - uv
+    for q, sq in perturbations:
+        duv = q.project(hits.x + (sq.P - sphere.P), calib) - uv
         dq = calib.rays(uv[:, 0], uv[:, 1]) @ q.R
         dq /= np.linalg.norm(dq, axis=-1, keepdims=True)
-        hq, hit_q = sphere_hits(q.centre, dq, sphere, light_position)
+        hq, hit_q = sphere_hits(q.centre, dq, sq, light_position)
         dlnE = np.zeros(len(f))
         if hit_q.any():
             dlnE[hit_q] = np.log(np.clip(hq.cos_i, 1e-12, None) / hq.r2) - lnE[hit_q]
@@ -177,12 +179,28 @@ def _geometry_variance(f, px, hits, box, calib, pose, sphere, light_position, pe
     return var
 
 
+def centre_perturbations(pose, sphere: Sphere, centre_sigma) -> list:
+    """``(pose, sphere)`` pairs with the centre one σ off along each axis whose σ is positive (independent axes:
+    a diagonal covariance's principal axes)."""
+    if centre_sigma is None:
+        return []
+    out = []
+    for k, s in enumerate(np.asarray(centre_sigma, dtype=np.float64).reshape(3)):
+        if s > 0 and np.isfinite(s):
+            c = np.array(sphere.centre)
+            c[k] += s
+            out.append((pose, Sphere(tuple(c), sphere.radius)))
+    return out
+
+
 def sphere_frame_samples(rate, var, calib, pose, sphere: Sphere, light_position, layout, *,
-                         grazing_deg: float = 80.0, min_snr: float = 5.0, pose_perturbations=()) -> SphereFrameSamples:
+                         grazing_deg: float = 80.0, min_snr: float = 5.0, pose_perturbations=(),
+                         centre_sigma=None) -> SphereFrameSamples:
     """Per-pixel BRDF samples of ``sphere`` in one merged frame (``rate``/``var`` (H, W, 3), NaN where saturated
     in every exposure), with the camera ``pose`` and the light at ``light_position`` (sample frame, metres);
-    ``pose_perturbations`` (the board pose's, :meth:`~gonio.pipeline.markers.BoardPose.perturbed`) add the
-    geometry's variance (:func:`_geometry_variance`) to each σ."""
+    ``pose_perturbations`` (the board pose's, :meth:`~gonio.pipeline.markers.BoardPose.perturbed`) and the sphere
+    centre's standard uncertainty ``centre_sigma`` ((3,) metres, per axis) add the geometry's variance
+    (:func:`_geometry_variance`) to each σ."""
     rate = np.asarray(rate, dtype=np.float64)
     var = np.asarray(var, dtype=np.float64)
     box = sphere_box(calib, pose, sphere)
@@ -208,9 +226,10 @@ def sphere_frame_samples(rate, var, calib, pose, sphere: Sphere, light_position,
         snr = np.min(np.abs(f) / sf, axis=1)
     dark = ~sil & ~term & ~sat & ~(snr >= min_snr)
     use = ~(sil | term | sat | dark)
-    if pose_perturbations:
+    perturb = [(q, sphere) for q in pose_perturbations] + centre_perturbations(pose, sphere, centre_sigma)
+    if perturb:
         geo = _geometry_variance(np.where(use[:, None], f, np.nan), px, hits, box, calib, pose, sphere,
-                                 light_position, pose_perturbations)
+                                 light_position, perturb)
         sf = np.sqrt(sf ** 2 + geo)
     counts.update(hit=int(hit.sum()), silhouette=int(sil.sum()), terminator=int(term.sum()), saturated=int(sat.sum()),
                   dark=int(dark.sum()), used=int(use.sum()))

@@ -21,7 +21,11 @@ import numpy as np
 
 from gonio.sphere.geometry import Sphere
 
-__all__ = ["CentreEstimate", "refine_centre", "session_centre", "centre_note"]
+__all__ = ["CentreEstimate", "refine_centre", "session_centre", "centre_in_use", "centre_note", "DECLARED_SIGMA_M"]
+
+#: The declared centre's standard uncertainty in x and y before any silhouette is seen (m): a ball set on the board by
+#: hand, its position read off a ruler. Its height rests on the board (z = radius, exact).
+DECLARED_SIGMA_M = 2e-3
 
 
 @dataclass(frozen=True)
@@ -92,9 +96,19 @@ def edge_points(rate, calib, pose, sphere: Sphere, *, n_rays: int = 180, search_
     if not ok_rows.any():
         return np.zeros((0, 2))
     g = np.where(np.isfinite(g), g, 0.0)
-    k = np.argmax(g, axis=1)
+    # the step nearest the predicted silhouette among the strong local maxima of each profile (the sample patch's
+    # or the board's edges near the rim are other steps: the nearest one is the rim when the prediction is within
+    # a pixel or two, and the search is repeated around each new estimate, :func:`refine_centre`)
+    interior = np.zeros_like(g, dtype=bool)
+    interior[:, 1:-1] = (g[:, 1:-1] >= g[:, :-2]) & (g[:, 1:-1] > g[:, 2:])
+    rowmax = g.max(axis=1, keepdims=True)
+    cand = interior & (g >= 0.3 * rowmax) & (rowmax > 0)
+    mid = (g.shape[1] - 1) / 2.0
+    dist = np.where(cand, np.abs(np.arange(g.shape[1])[None, :] - mid), np.inf)
+    k = np.argmin(dist, axis=1)
+    has = np.isfinite(dist[np.arange(len(g)), k])
     peak = g[np.arange(len(g)), k]
-    strong = ok_rows & (peak >= 0.1 * peak[ok_rows].max()) & (k > 0) & (k < g.shape[1] - 1)
+    strong = ok_rows & has & (peak >= 0.1 * peak[ok_rows & has].max(initial=0.0)) & (k > 0) & (k < g.shape[1] - 1)
     idx = np.flatnonzero(strong)
     k = k[idx]
     gm, g0, gp = g[idx, k - 1], g[idx, k], g[idx, k + 1]
@@ -105,10 +119,26 @@ def edge_points(rate, calib, pose, sphere: Sphere, *, n_rays: int = 180, search_
     return uv[idx] + pos[:, None] * dirs[idx]
 
 
-def refine_centre(rate, calib, pose, sphere: Sphere, *, on_board: bool = True, min_edges: int = 20
-                  ) -> CentreEstimate | None:
+def refine_centre(rate, calib, pose, sphere: Sphere, *, on_board: bool = True, min_edges: int = 20,
+                  iterations: int = 3) -> CentreEstimate | None:
     """The sphere's centre from its silhouette in ``rate`` (a merged frame, NaN where not measured); None when
-    fewer than ``min_edges`` edge points are found (see the module docstring)."""
+    fewer than ``min_edges`` edge points are found (see the module docstring). The edges are searched around the
+    silhouette ``sphere`` predicts, then again around the one the fit found while it moves by more than a tenth of
+    a pixel (a centre a few pixels off is found as well as one a fraction of a pixel off)."""
+    est, cur = None, sphere
+    for _ in range(max(int(iterations), 1)):
+        e = _fit_edges(rate, calib, pose, cur, on_board=on_board, min_edges=min_edges)
+        if e is None:
+            return est
+        moved = pose.project(np.stack([cur.P, e.centre]), calib)
+        est, cur = e, Sphere(tuple(e.centre), sphere.radius)
+        if np.linalg.norm(moved[1] - moved[0]) < 0.1:
+            break
+    return est
+
+
+def _fit_edges(rate, calib, pose, sphere: Sphere, *, on_board: bool, min_edges: int) -> CentreEstimate | None:
+    """One robust least-squares fit of the centre to the edge points found around ``sphere``'s silhouette."""
     from scipy.optimize import least_squares
 
     uv = edge_points(rate, calib, pose, sphere)
@@ -174,6 +204,27 @@ def session_centre(metas, declared: Sphere) -> dict | None:
             "declared_m": list(declared.centre)}
 
 
+def centre_in_use(found: dict | None, declared: Sphere, prior_sigma: float = DECLARED_SIGMA_M
+                  ) -> tuple[Sphere, np.ndarray]:
+    """The centre the samples use and its standard uncertainty per axis (m): the declared centre (σ ``prior_sigma``
+    in x and y, z exact) and the silhouettes' (``found``, :func:`session_centre`) combined by inverse variance
+    (GUM, JCGM 100:2008, §4.2 for a weighted mean of independent estimates)."""
+    P0 = declared.P
+    s0 = np.array([prior_sigma, prior_sigma, 0.0])
+    if not found:
+        return declared, s0
+    c = np.asarray(found["centre_m"], dtype=np.float64)
+    s = np.asarray(found["sigma_m"], dtype=np.float64)
+    fitted = s > 0
+    w0 = np.where(s0 > 0, 1.0 / np.where(s0 > 0, s0, 1.0) ** 2, 0.0)
+    w1 = np.where(fitted, 1.0 / np.where(fitted, s, 1.0) ** 2, 0.0)
+    sw = w0 + w1
+    ok = sw > 0
+    mean = np.where(ok, (w0 * P0 + w1 * c) / np.where(ok, sw, 1.0), P0)
+    sigma = np.where(ok, 1.0 / np.sqrt(np.where(ok, sw, 1.0)), 0.0)
+    return Sphere(tuple(float(x) for x in mean), declared.radius), sigma
+
+
 def centre_note(found: dict | None) -> str:
     """One line when the centre found differs from the declared one by more than 3σ and 0.1 mm ('' otherwise)."""
     if not found:
@@ -186,5 +237,6 @@ def centre_note(found: dict | None) -> str:
     return (f"gonio: warning: the sphere's centre was found {np.linalg.norm(off) * 1e3:.2f} mm from the declared one "
             f"(x {off[0] * 1e3:+.2f} ± {sg[0] * 1e3:.2f}, y {off[1] * 1e3:+.2f} ± {sg[1] * 1e3:.2f}, z "
             f"{off[2] * 1e3:+.2f} ± {sg[2] * 1e3:.2f} mm, from {found['poses']} poses' silhouettes): the samples used "
-            f"the declared centre; declare centre = [{c[0] / 1e3:.5f}, {c[1] / 1e3:.5f}, {c[2] / 1e3:.5f}] in the "
-            "target file's [sphere] and measure again")
+            f"the centre found (each pose the estimate of the poses before it and its own, its uncertainty in every "
+            f"sample's σ); declare centre = [{c[0] / 1e3:.5f}, {c[1] / 1e3:.5f}, {c[2] / 1e3:.5f}] in the target "
+            "file's [sphere] for the next session")

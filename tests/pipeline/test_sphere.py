@@ -186,32 +186,48 @@ def test_a_sphere_session_on_the_simulated_rig_gives_per_pixel_samples_of_the_ma
     assert np.median(rel) < 0.01 and np.percentile(rel, 95) < 0.05
 
 
-def test_a_sphere_declared_off_its_true_centre_is_found_from_its_silhouette_and_said(tmp_path, capsys):
-    """The simulated sphere stands 0.7 mm, −0.7 mm from where the target file says: every pose's silhouette gives
-    the centre, the session's estimate is within 0.1 mm of the truth, recorded and said in one line; a sphere where
-    declared is not reported."""
+def test_a_sphere_declared_off_its_true_centre_is_found_from_its_silhouette_used_and_said(tmp_path, capsys):
+    """The simulated sphere stands 1 mm, −1 mm from where the target file says: the poses' silhouettes give the
+    centre (the session's estimate within 0.1 mm of the truth), the samples use it (their values match the material
+    as a sphere declared where it is gives them; with the declared centre every normal would be off by ~3°), it is
+    recorded and said in one line; a sphere where declared is not reported."""
     import json
 
     from gonio.cli.main import main
+    from gonio.session.store import load_session, scan_samples
 
     target = tmp_path / "sphere.toml"
     target.write_text("[sphere]\nradius = 0.02\n")
     args = ["measure", "--sim", "--target", str(target), "--plan", "in_plane", "--theta-i", "30", "--theta-o-step",
             "40", "--quiet"]
-    assert main([*args, "--sim-sphere-offset", "0.7,-0.7,0", "--out", str(tmp_path / "off")]) == 0
+    assert main([*args, "--sim-sphere-offset", "1,-1,0", "--out", str(tmp_path / "off")]) == 0
     err = capsys.readouterr().err
     m = json.loads((tmp_path / "off" / "manifest.json").read_text())
     found = np.asarray(m["sphere_centre"]["centre_m"])
-    assert np.all(np.abs(found - [0.0007, -0.0007, 0.02]) < 1e-4), found
-    assert m["sim"]["sphere_offset_m"] == [0.0007, -0.0007, 0.0]  # the as-built sphere is recorded for a resume
-    assert err.count("sphere's centre was found") == 1 and "declare centre = [0.000" in err
+    assert np.all(np.abs(found - [0.001, -0.001, 0.02]) < 1e-4), found
+    assert np.all(np.abs(np.asarray(m["sphere_centre"]["used_m"]) - [0.001, -0.001, 0.02]) < 1e-4)
+    assert m["sim"]["sphere_offset_m"] == [0.001, -0.001, 0.0]  # the as-built sphere is recorded for a resume
+    assert err.count("sphere's centre was found") == 1 and "samples used the centre found" in err
+    recs = scan_samples(tmp_path / "off" / "samples.jsonl").records
+    sig_used = {k: max(meta["sphere_centre_used"]["sigma_m"][:2]) for k, (_, meta) in recs.items()}
+    assert max(sig_used.values()) < 2e-3 and min(sig_used.values()) < 1e-4
+    _, s = load_session(tmp_path / "off")
+    model = make("microfacet", kd=[0.3, 0.12, 0.06], ks=0.8, alpha=0.25, f0=0.04, distribution="ggx")
+    truth = model.eval(s.wi, s.wo)
+    rel = np.abs(s.f / truth - 1)
+    # once a pose's silhouette pins the centre to 0.1 mm, the samples are as good as with the centre declared right
+    sharp = np.isin(s.pose, [k for k, v in sig_used.items() if v < 1e-4])
+    assert np.median(rel[sharp]) < 0.01 and np.percentile(rel[sharp], 95) < 0.03
+    # before that each σ carries the centre's uncertainty: honest everywhere
+    assert np.mean(np.abs(s.f - truth) <= 2 * s.sigma) > 0.9
     assert main([*args, "--out", str(tmp_path / "ok")]) == 0
     assert "sphere's centre was found" not in capsys.readouterr().err
 
 
 def test_a_resumed_sphere_session_is_bit_identical_to_an_uninterrupted_one(tmp_path):
-    """Every random source is per pose (sim.seeding), the sphere's samples depend on the pose's frames only: a
-    session stopped after pose 1 and resumed stores, pose by pose, the same bits as one run through."""
+    """Every random source is per pose (sim.seeding); a pose's samples depend on its frames and on the centre the
+    poses stored before it found (read back from the file on a resume): a session of a sphere standing 1 mm off its
+    declared centre, stopped after pose 1 and resumed, stores, pose by pose, the same bits as one run through."""
     from gonio.pipeline.target import TargetLayout
     from gonio.plan.plan import CaptureSettings, Plan
     from gonio.session.runner import SessionRunner, open_devices
@@ -224,7 +240,7 @@ def test_a_resumed_sphere_session_is_bit_identical_to_an_uninterrupted_one(tmp_p
                 capture=CaptureSettings(), generator="custom")
 
     def run(d, *, stop_after=None, resume=False):
-        with SimRig(config=SimRigConfig(**CONFIG), layout=layout) as sim:
+        with SimRig(config=SimRigConfig(**CONFIG, sphere_offset_m=(0.001, -0.001, 0.0)), layout=layout) as sim:
             devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
             try:
                 store = SessionStore.open(d) if resume else SessionStore.create(d, {"plan": plan, "mode": "test"})
@@ -245,3 +261,8 @@ def test_a_resumed_sphere_session_is_bit_identical_to_an_uninterrupted_one(tmp_p
     assert run(tmp_path / "cut", stop_after=1).status == "interrupted"
     assert run(tmp_path / "cut", resume=True).status == "completed"
     assert_bit_identical(tmp_path / "ref", tmp_path / "cut")
+    from gonio.session.store import scan_samples
+
+    recs = scan_samples(tmp_path / "ref" / "samples.jsonl").records
+    used = [recs[k][1]["sphere_centre_used"]["centre_m"] for k in sorted(recs)]
+    assert used[-1] != used[0] and abs(used[-1][0] - 0.001) < 3e-4  # the resumed poses went on from the found centre
