@@ -73,6 +73,9 @@ def register(sub) -> None:
                    help="with --sim-camera gige: the GenICam pixel format (RGB12 by default, 12 bits like the default "
                         "camera; RGB8, Mono8, Mono12, Mono16, BayerRG8/12, ...: what the simulated GigE camera offers); "
                         "the simulated sensor takes its bit depth; recorded in the manifest's sim.pixel_format")
+    p.add_argument("--keep-pixels", action="store_true",
+                   help="a sphere target: keep each pose's per-pixel samples and footprints in OUT/pixels/*.npz "
+                        "(for a footprint-aware fit of a lobe narrower than a pixel)")
     p.add_argument("--sim-sphere-offset", metavar="X,Y,Z", default=None,
                    help="a sphere target as built: its true centre this far (mm) from the declared one")
     p.add_argument("--sim-as-built", metavar="SEED|ERRORS.toml", default="",
@@ -155,7 +158,7 @@ def run_measure(args) -> int:
             _say_plan(plan, store, args.quiet, rig)
 
         result = measure(opened, plan, out, seed=args.seed, timing=timing, adaptive=adaptive, on_start=started,
-                         progress=None if args.quiet else sys.stderr)
+                         progress=None if args.quiet else sys.stderr, keep_pixels=getattr(args, "keep_pixels", False))
     return print_outcome(result)
 
 

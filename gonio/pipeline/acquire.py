@@ -98,6 +98,8 @@ class PoseResult:
     board_source: str | None = None
     #: a sphere's pose: its pixels used and rejected (:func:`gonio.sphere.pixels.sphere_frame_samples`); else None
     sphere_counts: dict | None = None
+    #: a sphere's pose: its per-pixel samples (:class:`gonio.sphere.pixels.SphereFrameSamples`); else None
+    sphere_frame: object = None
 
 
 class Pipeline:
@@ -369,7 +371,7 @@ class Pipeline:
                             pose=np.full(n, pose_index))
         self._next_exposure = plan.exposures[0]
         counts = dict(fs.counts)
-        return PoseResult(samples, plan, board, cam_pose, lights, times, source, sphere_counts=counts)
+        return PoseResult(samples, plan, board, cam_pose, lights, times, source, sphere_counts=counts, sphere_frame=fs)
 
     def _meter(self, frame: Frame, px: np.ndarray, level: float, used: np.ndarray, gain: float,
                n_min: int) -> CapturePlan:

@@ -120,7 +120,8 @@ def _command() -> list | None:
 def measure(rig: OpenRig, plan, out: str | Path | None = None, *, seed: int | None = None,
             timing: TimingOptions | dict | None = None, adaptive: dict | None = None, geocal: dict | None = None,
             on_pose: Callable[[PoseEvent], None] | None = None, on_start: Callable[[object, object], None] | None = None,
-            progress: TextIO | bool | None = True, out_option: str = "--out") -> SessionResult:
+            progress: TextIO | bool | None = True, out_option: str = "--out", keep_pixels: bool = False
+            ) -> SessionResult:
     """Measure ``plan`` on the opened ``rig`` into the new session directory ``out``.
 
     Parameters
@@ -137,6 +138,8 @@ def measure(rig: OpenRig, plan, out: str | Path | None = None, *, seed: int | No
     on_start : called with ``(store, plan)`` once the session directory exists, before the first move.
     progress : where the progress line and the runner's notes go: True (default) stderr, a stream, or None/False
         (silent).
+    keep_pixels : a sphere target: keep each pose's per-pixel samples (with each pixel's footprint of normals) in
+        ``out/pixels/pose-NNNNN.npz`` (:func:`gonio.sphere.pose.load_pixels`), recorded so a resume keeps them too.
 
     Returns a :class:`SessionResult`; the devices stay open (close the rig, or leave its ``with`` block).
 
@@ -163,6 +166,8 @@ def measure(rig: OpenRig, plan, out: str | Path | None = None, *, seed: int | No
         manifest["adaptive"] = adaptive
     if geocal is not None:
         manifest["geocal"] = geocal
+    if keep_pixels:
+        manifest["keep_pixels"] = True
     manifest = _ordered(manifest)
     store = SessionStore.create(out, manifest)
     if on_start is not None:
@@ -217,6 +222,8 @@ def run_session(store, plan, rig: OpenRig, *, on_pose=None, progress: TextIO | b
                                settings=RunnerSettings(timing=manifest_timing(store.manifest)), **common)
     if kind != "adaptive":
         runner.on_pose = on_pose
+    if store.manifest.get("keep_pixels") is True and kind == "plan":
+        runner.keep_pixels_dir = Path(store.directory) / "pixels"
     result = runner.run()
     _record_sphere_centre(store, rig)
     total = store.manifest["plan"] if kind == "adaptive" else plan

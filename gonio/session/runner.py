@@ -360,6 +360,8 @@ class SessionRunner:
         self._light_used = False  #: this run switched the light on (a watchdog trip is then unsafe)
         #: a sphere: the stored poses' silhouette centres by pose index (:meth:`_stored_sphere_centres`); else None
         self._sphere_history: dict | None = None
+        #: a sphere: where each pose's per-pixel samples are kept (``--keep-pixels``, gonio.sphere.pose); None: not
+        self.keep_pixels_dir = None
 
     # -- messages -------------------------------------------------------------------------------
     def _say(self, msg: str) -> None:
@@ -626,6 +628,10 @@ class SessionRunner:
             meta["sphere_pixels"] = counts
             if centre is not None:  # the centre this pose's silhouette says (gonio.sphere.refine)
                 meta["sphere_centre"] = centre
+            if self.keep_pixels_dir is not None and res.sphere_frame is not None:
+                from gonio.sphere.pose import save_pixels
+
+                save_pixels(self.keep_pixels_dir, index, res.sphere_frame)
         return res.samples, meta, timing
 
     def _recover(self, exc: HardwareError) -> None:

@@ -45,6 +45,8 @@ class SphereFrameSamples:
     counts: dict = field(default_factory=dict)
     wi_local: np.ndarray = None  #: wi, wo in each pixel's per-normal frame (z = the normal)
     wo_local: np.ndarray = None
+    #: (n, 2, 3) ∂n/∂u, ∂n/∂v in each pixel's normal frame (:func:`gonio.sphere.footprint.pixel_footprint`)
+    footprint: np.ndarray = None
 
 
 def pixel_rays_world(calib, pose, rows: slice, cols: slice) -> tuple[np.ndarray, np.ndarray]:
@@ -233,5 +235,8 @@ def sphere_frame_samples(rate, var, calib, pose, sphere: Sphere, light_position,
         sf = np.sqrt(sf ** 2 + geo)
     counts.update(hit=int(hit.sum()), silhouette=int(sil.sum()), terminator=int(term.sum()), saturated=int(sat.sum()),
                   dark=int(dark.sum()), used=int(use.sum()))
+    from gonio.sphere.footprint import pixel_footprint
+
     return SphereFrameSamples(hits.theta_h[use], hits.theta_d[use], hits.phi_d[use], f[use], sf[use], px[use],
-                              hits.wi[use], hits.wo[use], counts, hits.wi_local[use], hits.wo_local[use])
+                              hits.wi[use], hits.wo[use], counts, hits.wi_local[use], hits.wo_local[use],
+                              pixel_footprint(calib, pose, sphere, px[use], light_position))

@@ -16,7 +16,10 @@ from gonio.sphere.geometry import Sphere
 from gonio.sphere.pixels import SphereFrameSamples, sphere_frame_samples
 from gonio.sphere.refine import centre_in_use, refine_centre, session_centre
 
-__all__ = ["sphere_pose_samples"]
+__all__ = ["sphere_pose_samples", "save_pixels", "load_pixels", "PIXEL_KEYS"]
+
+#: What a kept pose's NPZ holds per used pixel (``gonio measure --keep-pixels``; docs/formats.md)
+PIXEL_KEYS = ("pixels", "wi_local", "wo_local", "f", "sigma", "footprint")
 
 
 def sphere_pose_samples(rate, var, calib, cam_pose, declared: Sphere, light_position, layout, *, history=(),
@@ -39,3 +42,48 @@ def sphere_pose_samples(rate, var, calib, cam_pose, declared: Sphere, light_posi
         fs.counts["centre"] = mine
     fs.counts["centre_used"] = {"centre_m": list(used.centre), "sigma_m": np.asarray(sigma).tolist()}
     return fs
+
+
+def save_pixels(directory, index: int, fs: SphereFrameSamples) -> None:
+    """Keep pose ``index``'s per-pixel samples in ``directory/pose-NNNNN.npz`` (:data:`PIXEL_KEYS`; written to a
+    temporary name and renamed, so a file there is whole). A resume writes the same pose's file again."""
+    import os
+    from pathlib import Path
+
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    tmp = d / f".pose-{index:05d}.npz.tmp"
+    with open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **{k: np.asarray(getattr(fs, k)) for k in PIXEL_KEYS})
+    os.replace(tmp, d / f"pose-{index:05d}.npz")
+
+
+def load_pixels(directory) -> dict:
+    """The kept per-pixel samples of a session's ``pixels`` directory (or the directory itself), concatenated in
+    pose order, with ``pose`` (n,); a file that is not a kept pose's is refused in one line naming it."""
+    from pathlib import Path
+
+    from gonio.errors import DataError
+
+    d = Path(directory)
+    if (d / "pixels").is_dir():
+        d = d / "pixels"
+    files = sorted(d.glob("pose-*.npz"))
+    if not files:
+        raise DataError(f"{d}: no kept per-pixel samples (measure with --keep-pixels)")
+    parts = {k: [] for k in (*PIXEL_KEYS, "pose")}
+    shapes = {"pixels": (2,), "wi_local": (3,), "wo_local": (3,), "f": (3,), "sigma": (3,), "footprint": (5, 3)}
+    for fp in files:
+        try:
+            idx = int(fp.stem.split("-")[1])
+            with np.load(fp, allow_pickle=False) as z:
+                arrs = {k: np.asarray(z[k]) for k in PIXEL_KEYS}
+        except (OSError, ValueError, KeyError, IndexError) as exc:
+            raise DataError(f"{fp}: not a kept pose's per-pixel samples ({type(exc).__name__})") from None
+        n = len(arrs["f"])
+        for k, shp in shapes.items():
+            if arrs[k].shape != (n, *shp) or arrs[k].dtype.kind not in "fiu":
+                raise DataError(f"{fp}: field {k!r} has shape {arrs[k].shape}, expected {(n, *shp)}")
+            parts[k].append(arrs[k].astype(np.int64 if k == "pixels" else np.float64))
+        parts["pose"].append(np.full(n, idx, dtype=np.int64))
+    return {k: np.concatenate(v) for k, v in parts.items()}
