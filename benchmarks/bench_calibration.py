@@ -260,4 +260,4 @@ def run(quick: bool = False, jobs: int | None = None, seeds: int | None = None, 
     n_h = (1 if quick else 20) if honesty is None else int(honesty)
     if n_h <= 0:
         return [t]
-    return [t, honesty_table(n_h, fit=(not quick) if fit is None else fit, jobs=jobs, quick=quick)]
+    return [t, *honesty_table(n_h, fit=(not quick) if fit is None else fit, jobs=jobs, quick=quick, per_parameter=True)]

@@ -113,7 +113,7 @@ def summary(rows: list[dict]) -> dict:
     wi = np.array([r["wi_p95"] for r in rows])
     over = wi > 0.25
     flagged = np.array([not r["check_ok"] for r in rows])
-    out = {"runs": len(rows), "n_params": int(allz.size), "within_3sigma": float(np.mean(np.abs(allz) < 3)),
+    out = {"runs": len(rows), "n_params": int(allz.size), "z": zs, "within_3sigma": float(np.mean(np.abs(allz) < 3)),
            "within_1sigma": float(np.mean(np.abs(allz) < 1)), "bias": bias,
            "worst_bias": max(bias.items(), key=lambda kv: abs(kv[1])) if bias else ("", math.nan),
            "outside_3sigma": sorted(((r["run"], n, float(z)) for r in rows for n, z in r["z"].items() if abs(z) >= 3),
@@ -125,12 +125,30 @@ def summary(rows: list[dict]) -> dict:
     if fits:
         a = np.array(fits)
         k = np.abs(a[:, 0] - ALPHA) / a[:, 1]
-        out.update(alpha_within_2sigma=float(np.mean(k < 2)), alpha_z=k, alpha=a)
+        out.update(alpha_within_2sigma=float(np.mean(k < 2)), alpha_z=k, alpha=a,
+                   alpha_bias=float(np.mean(a[:, 0] - ALPHA)), alpha_bias_sigma=float(np.mean((a[:, 0] - ALPHA) / a[:, 1])),
+                   alpha_bias_se=float(np.std(a[:, 0], ddof=1) / np.sqrt(len(a))) if len(a) > 1 else math.nan)
     return out
 
 
-def table(runs: int, *, fit: bool, jobs: int, quick: bool = False):
-    """The benchmark table over ``runs`` runs (rigs 0, 1, ... × noise seeds 0, 1: two noise seeds per rig)."""
+def parameter_table(s: dict):
+    """Per calibration parameter over the runs: mean signed error in σ units (the bias the goal bounds by 0.5σ),
+    its standard error (the spread over √runs), the rms of the z-scores, the share within 3σ."""
+    from benchmarks.common import Table
+
+    t = Table(f"calibration parameters' error in units of their stated σ over {s['runs']} runs",
+              ["parameter", "mean (bias)", "± s.e.", "rms", "within 3σ", "|bias| ≤ 0.5σ"])
+    for n in sorted(s["z"], key=lambda n: -abs(s["bias"][n])):
+        z = s["z"][n]
+        t.add(n, f"{np.mean(z):+.2f}", f"{np.std(z, ddof=1) / np.sqrt(len(z)):.2f}" if len(z) > 1 else "—",
+              f"{np.sqrt(np.mean(z ** 2)):.2f}", f"{100 * np.mean(np.abs(z) < 3):.0f} %",
+              "yes" if abs(np.mean(z)) <= 0.5 else "no")
+    return t
+
+
+def table(runs: int, *, fit: bool, jobs: int, quick: bool = False, per_parameter: bool = False):
+    """The benchmark table over ``runs`` runs (rigs 0, 1, ... × noise seeds 0, 1: two noise seeds per rig); with
+    ``per_parameter`` also :func:`parameter_table` (a list of the two tables is returned then)."""
     import time
 
     from benchmarks.common import Table
@@ -175,6 +193,9 @@ def table(runs: int, *, fit: bool, jobs: int, quick: bool = False):
                    f"over all runs; the calibrations' own wi bound (p95, gonio.rig.geocov.wi_error_p95): "
                    + ", ".join(f"{r['bound']:.3f}" for r in rows))
     if "alpha" in s:
-        t.notes.append("fitted α ± σ per run: " + ", ".join(f"{a:.5f} ± {e:.5f}" for a, e in s["alpha"]))
+        t.notes.append("fitted α ± σ per run (σ includes the calibration's error shared by all poses, "
+                       "gonio.fit.geometry): " + ", ".join(f"{a:.5f} ± {e:.5f}" for a, e in s["alpha"]))
+        t.notes.append(f"α bias over the runs: mean α − {ALPHA} = {s['alpha_bias']:+.6f} ± {s['alpha_bias_se']:.6f} "
+                       f"(s.e.), mean (α − {ALPHA})/σ = {s['alpha_bias_sigma']:+.2f}")
     t.notes.append(f"this run: {time.perf_counter() - t0:.0f} s wall, {jobs} worker process(es)")
-    return t
+    return [t, parameter_table(s)] if per_parameter else t

@@ -42,6 +42,31 @@ def load(path):
     return load_source(path)
 
 
+def calibration_modes(data):
+    """A session's geometric-calibration error per pose (:func:`gonio.session.calibration_modes.session_modes`:
+    what a fit propagates into its σ), or None (not a session, or its rig file has no calibration covariance).
+    ``data``: a session directory or its :func:`load` result."""
+    if isinstance(data, (str, Path)) and Path(data).is_dir():
+        data = load(data)
+    if getattr(data, "kind", None) != "session" or not getattr(data, "pose_meta", None):
+        return None
+    from gonio.session.calibration_modes import session_modes
+
+    return session_modes(data.manifest, data.pose_meta, str(data.path))
+
+
+def _with_geometry(data, options: dict):
+    """``(samples, options)``: a session's calibration error (:func:`calibration_modes`) added to the fit's options
+    as ``geometry`` (propagated into its σ: :mod:`gonio.fit.geometry`), unless given."""
+    if isinstance(data, (str, Path)) and Path(data).is_dir():
+        data = load(data)
+    if "geometry" not in options:
+        g = calibration_modes(data)
+        if g is not None:
+            options = {**options, "geometry": g}
+    return as_samples(data), options
+
+
 def as_samples(data):
     """The :class:`gonio.samples.SampleSet` behind ``data``: a SampleSet itself, a
     :class:`~gonio.io.source.Measured`, or a path that :func:`load` reads."""
@@ -77,7 +102,8 @@ def fit(data, model: str = "microfacet", *, fix: dict | None = None, **options):
         if options.get("fixed") is not None:
             raise ConfigError.field(None, "fix", fix, "give fix or fixed, not both")
         options["fixed"] = fix
-    return fit_samples(as_samples(data), model, **options)
+    samples, options = _with_geometry(data, options)
+    return fit_samples(samples, model, **options)
 
 
 def select(data, candidates: Sequence[str] | None = None, **options):
@@ -87,4 +113,5 @@ def select(data, candidates: Sequence[str] | None = None, **options):
     ``.model``, ``.params``, ``.uncertainty``, ``.errors``)."""
     from gonio.fit.select import select as select_samples
 
-    return select_samples(as_samples(data), tuple(candidates) if candidates else None, **options)
+    samples, options = _with_geometry(data, options)
+    return select_samples(samples, tuple(candidates) if candidates else None, **options)

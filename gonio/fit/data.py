@@ -7,7 +7,7 @@ below the horizon, and by default grazing directions beyond 80°) and says how m
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -43,6 +43,8 @@ class FitData:
         The plan pose of each sample (a session's): samples of one pose share the geometry's error.
     sigma_pose : ndarray (N, 3) or None
         The part of ``sigma`` shared by the samples of a pose (:class:`gonio.samples.SampleSet`); ``None``: none.
+    geometry : :class:`gonio.fit.geometry.CalibrationModes` or None
+        The geometric calibration's error, shared by all poses (per pose; propagated into the fit's σ).
     """
 
     wi: np.ndarray
@@ -53,6 +55,7 @@ class FitData:
     dropped: dict = field(default_factory=dict)
     pose: np.ndarray | None = None
     sigma_pose: np.ndarray | None = None
+    geometry: object | None = None
 
     def __len__(self) -> int:
         return self.y.shape[0]
@@ -108,7 +111,7 @@ class FitData:
         sub = FitData(self.wi[index], self.wo[index], self.y[index],
                       None if self.sigma is None else self.sigma[index], self.source, dict(self.dropped),
                       None if self.pose is None else self.pose[index],
-                      None if self.sigma_pose is None else self.sigma_pose[index])
+                      None if self.sigma_pose is None else self.sigma_pose[index], self.geometry)
         for name in _GEOMETRY:
             if name in self.__dict__ and self.__dict__[name] is not None:
                 sub.__dict__[name] = self.__dict__[name][index]
@@ -123,8 +126,9 @@ _GEOMETRY = ("cos_i", "cos_o", "half", "cos_h", "cos_d")
 
 
 def prepare(data, *, max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG, use_flagged: bool = False,
-            source: str | None = None) -> FitData:
-    """Reduce ``data`` to the samples a fit may use.
+            source: str | None = None, geometry=None) -> FitData:
+    """Reduce ``data`` to the samples a fit may use (``geometry``: a session's
+    :class:`gonio.fit.geometry.CalibrationModes`, kept with the poses).
 
     Parameters
     ----------
@@ -143,7 +147,7 @@ def prepare(data, *, max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG, use_fl
         Malformed arrays, or no usable sample left (the message says how many were dropped and why).
     """
     if isinstance(data, FitData):
-        return data
+        return data if geometry is None or data.pose is None else replace(data, geometry=geometry)
     flags = pose = sigma_pose = None
     if isinstance(data, SampleSet):
         wi, wo, f, sigma, flags = data.wi, data.wo, data.f, data.sigma, data.flags
@@ -210,4 +214,4 @@ def prepare(data, *, max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG, use_fl
         sigma_pose = sigma_pose[keep]
         if sigma is None or not (np.isfinite(sigma_pose).all() and np.any(sigma_pose > 0)):
             sigma_pose = None
-    return FitData(wi, wo, f, sigma, source, dropped, pose, sigma_pose)
+    return FitData(wi, wo, f, sigma, source, dropped, pose, sigma_pose, geometry if pose is not None else None)

@@ -29,6 +29,7 @@ from gonio.errors import ConfigError, DataError, GonioError
 from gonio.fit.bounds import NEAR_BOUND, ON_BOUND, bound_flags, bound_report, ratio_flags
 from gonio.fit.data import DEFAULT_MAX_THETA_DEG, FitData, prepare
 from gonio.fit.correlated import pose_covariance
+from gonio.fit.geometry import calibration_covariance
 from gonio.fit.kernels import jacobian_for, profile_for
 from gonio.fit.layout import (CHANNELS, Basis, Layout, SubSpace, auto_tied, linked_lobes, make_basis, model_class,
                               resolve_fixed, separated)
@@ -415,6 +416,10 @@ def _uncertainty(prob: _Problem, p: np.ndarray, cost: float, notes: list[str], A
             sd = np.sqrt(np.clip(np.diag(pc[0]), 1e-300, None))
             cov = pc[0] / np.outer(sd, sd) * np.sqrt(np.outer(v, v))
             notes.append(pc[1])
+        gc = calibration_covariance(prob, p, idx)
+        if gc is not None:  # the calibration's error, shared by every pose (gonio.fit.geometry)
+            cov = cov + gc[0]
+            notes.append(gc[1])
         err[idx] = np.sqrt(np.clip(np.diag(cov), 0, None))
     redundancy = None
     if idx.size and getattr(L.cls, "PARTS", None):
@@ -438,7 +443,8 @@ def _uncertainty(prob: _Problem, p: np.ndarray, cost: float, notes: list[str], A
 def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = None,
         free: tuple[str, ...] = (), max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG, n_starts: int = 3, seed: int = 0,
         method: str = "auto", kernel: str | None = "auto", use_flagged: bool = False,
-        max_nfev: int | None = None, report: bool = True, start: dict | None = None, chroma: str = "auto") -> FitResult:
+        max_nfev: int | None = None, report: bool = True, start: dict | None = None, chroma: str = "auto",
+        geometry=None) -> FitResult:
     """Fit the model ``model`` to ``data``.
 
     Parameters
@@ -477,6 +483,9 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
         Parameters of an earlier fit of the same model (e.g. on a subset of these data): the shape search
         is replaced by a local refinement from them (a warm start; :func:`gonio.fit.select.select` refits
         its winner on all samples this way).
+    geometry : :class:`gonio.fit.geometry.CalibrationModes` or None
+        A session's geometric calibration error (:func:`gonio.session.calibration_modes.session_modes`):
+        propagated into the parameters' σ (:func:`gonio.fit.geometry.calibration_covariance`).
     report : bool
         Also compute the error measures of :mod:`gonio.fit.metrics` and the directional-albedo check of
         :mod:`gonio.fit.energy` (about a second on a full MERL table; selection skips them for losers).
@@ -495,7 +504,7 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
     t0 = time.perf_counter()
     if method not in METHODS:
         raise ConfigError.field("--method", "method", method, f"must be one of {', '.join(METHODS)}")
-    d = prepare(data, max_theta_deg=max_theta_deg, use_flagged=use_flagged)
+    d = prepare(data, max_theta_deg=max_theta_deg, use_flagged=use_flagged, geometry=geometry)
     cls = model_class(model) if isinstance(model, str) else model
     fixed = resolve_fixed(cls, dict(fixed or {}))
     tied = auto_tied(cls, fixed, free)

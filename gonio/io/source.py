@@ -39,6 +39,8 @@ class Measured:
     filled: np.ndarray | None = None
     #: an evaluable measured BRDF that is neither samples nor a table (an RGL ``.bsdf`` material), or None
     brdf: object = None
+    #: a session's per-pose record metadata (``{pose: meta}``: joints, board pose, ...), or None
+    pose_meta: dict | None = None
 
     @property
     def metadata(self) -> dict:
@@ -162,12 +164,12 @@ def load_source(path) -> Measured:
     p = Path(path)
     if p.is_dir():
         try:
-            from gonio.store.directory import load_session
+            from gonio.store.directory import load_session_records
         except ImportError:
             raise DataError(f"{p}: cannot read session directories: gonio.store.directory is not installed") from None
-        manifest, samples = load_session(p)
+        manifest, samples, meta = load_session_records(p)
         _warn_if_unfinished(p, manifest, samples)
-        return Measured(p, "session", dict(manifest), samples, None)
+        return Measured(p, "session", dict(manifest), samples, None, pose_meta=meta)
     if not p.exists():
         raise DataError(f"{p}: no such session directory or data file")
     from gonio.io.sniff import KIND_NAMES, sniff

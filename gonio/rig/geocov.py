@@ -25,7 +25,7 @@ import numpy as np
 
 from gonio.errors import ConfigError
 
-__all__ = ["GeometryCovariance", "light_position_covariance", "wi_covariance_sigma_deg", "wi_error_p95",
+__all__ = ["GeometryCovariance", "light_jacobian", "light_position_covariance", "wi_covariance_sigma_deg", "wi_error_p95",
            "workspace_joints", "WI_GOAL_DEG", "with_calibration", "goal_line"]
 
 #: The wi goal after calibration (README, issue 15: 0.25° on the 95th percentile over the reachable poses).
@@ -99,6 +99,12 @@ def _jacobian(rig, cov: GeometryCovariance, joints, which: int) -> np.ndarray:
         minus = chain_forward(rig, ChainErrors.from_vector(x0 - e), joints)[which]
         cols.append((plus - minus) / (2 * _STEP))
     return np.stack(cols, axis=-1)
+
+
+def light_jacobian(rig, joints) -> np.ndarray:
+    """∂(light position, m)/∂(each parameter of ``rig.geometry_covariance``, per degree or millimetre) at
+    ``joints``: (..., 3, P), central differences of the chain (module docstring)."""
+    return _jacobian(rig, rig.geometry_covariance, np.asarray(joints, dtype=np.float64), 0)
 
 
 def light_position_covariance(rig, joints) -> np.ndarray | None:

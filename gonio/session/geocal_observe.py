@@ -16,7 +16,8 @@ import numpy as np
 
 from gonio.rig.geocal import CameraObservation, HighlightObservation, rotvec
 
-__all__ = ["board_observation", "observe_pose", "metered_board_frame", "calibration_layout", "BOARD_EXPOSURE", "TILE"]
+__all__ = ["board_observation", "observe_pose", "metered_board_frame", "calibration_layout", "BOARD_EXPOSURE", "TILE",
+           "TILE_F0", "EMITTER_RADIUS_M"]
 
 #: First exposure (s) of the board frame (then metered: one retake if its 99th percentile is outside 30–85 %
 #: of the range).
@@ -24,6 +25,13 @@ BOARD_EXPOSURE = 0.005
 #: The calibration tile (an 80 mm × 80 mm polished black glass tile or front-surface mirror) centred on
 #: the sample area, in the sample plane (metres): larger hides too many of the board's markers.
 TILE = (-0.04, -0.04, 0.04, 0.04)
+#: The tile's reflectance at normal incidence (Schlick's f0): polished black glass, n ≈ 1.5, ((n − 1)/(n + 1))² =
+#: 0.04 (a front-surface aluminium mirror: ~0.9). With the emitter's size it sets the highlight centroid's offset
+#: from the light's mirror image (:func:`gonio.rig.geocal.extended_source_shift`).
+TILE_F0 = 0.04
+#: Radius (m) of the light's emitting disc (the lamp's exit aperture: its datasheet or a ruler; the simulated
+#: light's is 10 mm).
+EMITTER_RADIUS_M = 0.01
 
 
 def calibration_layout(layout=None):
@@ -61,10 +69,12 @@ def metered_board_frame(camera, exposure: float = BOARD_EXPOSURE, gain: float = 
 
 
 def observe_pose(camera, calibration, layout, joints, *, highlight: bool, tile=None, board_exposure: float = BOARD_EXPOSURE,
-                 gain: float = 1.0, bit_depth: int | None = None, min_exposure: float = 1e-5):
+                 gain: float = 1.0, bit_depth: int | None = None, min_exposure: float = 1e-5,
+                 tile_f0: float = TILE_F0, emitter_radius_m: float = EMITTER_RADIUS_M):
     """``(CameraObservation | None, HighlightObservation | None, reason)`` at the rig's current pose
     (``joints``: the measured joint angles, rad). ``tile``: the tile's rectangle in the sample plane
-    (default: the layout's sample patch)."""
+    (default: the layout's sample patch); ``tile_f0``, ``emitter_radius_m``: the tile's reflectance and the
+    light's emitting disc (:data:`TILE_F0`, :data:`EMITTER_RADIUS_M`), recorded with the highlight."""
     from gonio.pipeline.highlight import clear_of_edges, find_highlight
     from gonio.pipeline.markers import detect_board_pose, to_gray8
 
@@ -82,4 +92,5 @@ def observe_pose(camera, calibration, layout, joints, *, highlight: bool, tile=N
     why = clear_of_edges(hl, bp.pose, calibration, tile if tile is not None else layout.sample)
     if why:
         return cam, None, why
-    return cam, HighlightObservation(cam.joints, hl.xy, cam.position, cam.R, hl.cov_xy), ""
+    return cam, HighlightObservation(cam.joints, hl.xy, cam.position, cam.R, hl.cov_xy, f0=tile_f0,
+                                     source_radius_m=emitter_radius_m), ""

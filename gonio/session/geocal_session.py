@@ -186,7 +186,8 @@ class CalibrationRunner(SessionRunner):
             "joints_rad": {k: float(v) for k, v in measured.items()},
             "board": None if cam is None else {"position_m": cam.position.tolist(), "R": cam.R.tolist(),
                                                "cov": None if cam.cov is None else cam.cov.tolist()},
-            "highlight": None if hl is None else {"xy": hl.xy.tolist(), "cov": hl.cov.tolist()},
+            "highlight": None if hl is None else {"xy": hl.xy.tolist(), "cov": hl.cov.tolist(), "f0": hl.f0,
+                                                  "source_radius_m": hl.source_radius_m},
             "reason": why,
             "exposures_s": [], "frames": [],
             "lab_time_s": float(self.clock.now()),
@@ -195,10 +196,19 @@ class CalibrationRunner(SessionRunner):
         return SampleSet.empty(), meta, timing
 
 
+def _bounded(x, lo: float, hi: float) -> float:
+    """A recorded number within [lo, hi] (ValueError otherwise: the record is refused in one line)."""
+    v = float(x)
+    if not lo <= v <= hi:
+        raise ValueError(f"{v!r} outside [{lo:g}, {hi:g}]")
+    return v
+
+
 def observations_from_store(directory, rig):
     """``(cams, highs, refused)`` from the records of the calibration session in ``directory``: every board
     pose is a camera observation, every kept highlight a highlight observation; ``refused``: ``(pose, reason)``."""
     from gonio.errors import DataError
+    from gonio.session.geocal_observe import EMITTER_RADIUS_M, TILE_F0
     from gonio.store.directory import _read_manifest, _samples_path, poses_beyond_plan, scan_samples
     from pathlib import Path
 
@@ -220,8 +230,12 @@ def observations_from_store(directory, rig):
                 cams.append(CameraObservation(j, np.asarray(b["position_m"], np.float64).reshape(3),
                                               np.asarray(b["R"], np.float64).reshape(3, 3), cov))
                 if h is not None:
+                    # a record before the reflector and emitter were recorded: the calibration tile and light's
                     highs.append(HighlightObservation(j, np.asarray(h["xy"], np.float64).reshape(2), cams[-1].position,
-                                                      cams[-1].R, np.asarray(h["cov"], np.float64).reshape(2, 2)))
+                                                      cams[-1].R, np.asarray(h["cov"], np.float64).reshape(2, 2),
+                                                      f0=_bounded(h.get("f0", TILE_F0), 0.0, 1.0),
+                                                      source_radius_m=_bounded(h.get("source_radius_m", EMITTER_RADIUS_M),
+                                                                               0.0, 0.1)))
             if meta.get("reason"):
                 refused.append((pose, str(meta["reason"])))
         except (KeyError, TypeError, ValueError) as exc:

@@ -283,6 +283,12 @@ def load_session(path) -> tuple[dict, SampleSet]:
 
     Samples are in pose order, one record per pose. Raises :class:`DataError` naming the file.
     """
+    manifest, samples, _ = load_session_records(path)
+    return manifest, samples
+
+
+def load_session_records(path) -> tuple[dict, SampleSet, dict]:
+    """:func:`load_session` plus each pose's record metadata (``{pose: meta}``: joints, board pose, ...)."""
     d = Path(path)
     if d.is_file() and d.name == MANIFEST:
         d = d.parent
@@ -304,7 +310,7 @@ def load_session(path) -> tuple[dict, SampleSet]:
         warnings.warn(f"{_samples_path(d, manifest)}: {len(beyond)} record(s) of poses the plan does not have "
                       f"(pose {', '.join(map(str, beyond[:5]))}{' …' if len(beyond) > 5 else ''}; the plan has "
                       f"{plan_pose_count(manifest)}) left out: not this session's measurements", stacklevel=2)
-    return manifest, scan.samples()
+    return manifest, scan.samples(), {p: meta for p, (_, meta) in scan.records.items()}
 
 
 # -- the writer ------------------------------------------------------------------------------------

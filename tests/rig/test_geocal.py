@@ -173,6 +173,22 @@ def test_a_session_on_the_calibrated_rig_records_its_uncertainties(calibrated_7,
     _, samples = load_session(d)
     ok = np.isfinite(samples.sigma).all(axis=1)
     assert np.all(samples.sigma_pose[ok] > 0) and np.all(samples.sigma_pose[ok] <= samples.sigma[ok])
+    # ... and, shared by every pose, the fit's σ (gonio.fit.geometry): gonio fit prints it and its JSON says so
+    capsys.readouterr()
+    assert main(["fit", str(d), "--model", "lambert", "--json", str(tmp_path / "fit.json")]) == 0
+    said = capsys.readouterr().out
+    assert "geometric calibration's error shared by all" in said and "JCGM 100" in said
+    notes = json.loads((tmp_path / "fit.json").read_text())["notes"]
+    assert any("geometric calibration's error shared by all" in n for n in notes)
+    from gonio.api import calibration_modes
+
+    modes = calibration_modes(d)
+    assert modes.offsets.shape == (len(cal.geometry_covariance.names), len(metas), 3)
+    # the offsets along the principal axes hold the light position's covariance at every pose
+    for k, m in metas.items():
+        i = list(modes.pose).index(k)
+        C = np.einsum("ki,kj->ij", modes.offsets[:, i], modes.offsets[:, i])
+        assert np.allclose(C, m["light_cov_m2"], rtol=1e-6, atol=1e-14)
     assert main(["calibrate", "rig", "--rig", str(out), "--sim", "--estimate"]) != 0
     assert "already calibrated" in capsys.readouterr().err
 
