@@ -186,7 +186,9 @@ def _cv_score(d, model, loss, k, seed, fit_kw, bar=None, start=None) -> tuple[fl
     def one(j: int) -> float:
         test = folds[j]
         train = np.concatenate([folds[i] for i in range(k) if i != j])
-        r = fit(d.subset(train), model, loss=loss.name, seed=seed, start=start, **fit_kw)  # warm start
+        sub = d.subset(train)
+        object.__setattr__(sub, "geometry", None)  # a fold's score needs no σ: not the calibration's propagation
+        r = fit(sub, model, loss=loss.name, seed=seed, start=start, **{k: v for k, v in fit_kw.items() if k != "geometry"})
         m = r.build().eval(d.wi[test], d.wo[test])
         sigma = None if d.sigma is None else d.sigma[test]
         res = loss.residual(m, d.y[test], d.cos_i[test], sigma)

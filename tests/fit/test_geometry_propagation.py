@@ -96,3 +96,24 @@ def test_modes_of_poses_the_data_do_not_have_add_nothing():
     other = CalibrationModes(np.arange(len(S)) + 100, S, dS[None], None)
     r = fit(nominal, "microfacet", geometry=other, report=False, n_starts=1)
     assert not any("geometric calibration" in n for n in r.notes)
+
+
+def test_select_propagates_it_into_the_winner_not_into_each_fold(monkeypatch):
+    import sys
+
+    from gonio.fit.select import select
+
+    fit_module = sys.modules["gonio.fit.fit"]
+    dS = _offset()
+    propagated = []
+    real = fit_module.calibration_covariance
+
+    def spy(*a, **k):
+        out = real(*a, **k)
+        propagated.append(out is not None)
+        return out
+
+    monkeypatch.setattr(fit_module, "calibration_covariance", spy)
+    sel = select(_session(np.zeros_like(dS)), ("microfacet",), criterion="cv", folds=3, geometry=_modes(dS))
+    assert any("geometric calibration's error" in n for n in sel.winner.notes)
+    assert 1 <= sum(propagated) <= 2  # the candidate's fit (and a refit of the winner), never the 3 folds
