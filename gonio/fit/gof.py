@@ -4,7 +4,8 @@ Two tests, on the residuals of the fit's loss (:mod:`gonio.fit.losses`):
 
 * **χ² test** (samples with stated uncertainties): χ² = Σ ((f_m − f)/σ)² against the χ² distribution
   with m − k degrees of freedom (Press et al., *Numerical Recipes*, 3rd ed., §15.1.1, "goodness of fit";
-  ``scipy.stats.chi2.sf``). With thousands of residuals the test detects an excess of a few per cent, far
+  ``scipy.special.chdtrc``, what ``scipy.stats.chi2.sf`` computes, without importing ``scipy.stats``, which
+  costs about a second per process). With thousands of residuals the test detects an excess of a few per cent, far
   below what a mis-stated σ does; a model is said not to fit when the excess is *both* significant
   (p < :data:`P_MIN`) and material (χ²_red > :data:`MAX_RATIO`, the threshold of the error inflation of
   :mod:`gonio.fit.select`).
@@ -47,7 +48,7 @@ def goodness_of_fit(model_values: np.ndarray, data, loss, n_params: int, seed: i
     """The two tests of the module docstring for model values (N, 3) at the samples of ``data``
     (:class:`gonio.fit.data.FitData`) under ``loss`` (:class:`gonio.fit.losses.Loss`):
     ``{"fits", "ratio", "test", "rho", "rho_p", "chi2", "dof", "chi2_red", "chi2_p"}``."""
-    from scipy.stats import chi2 as chi2_dist, norm
+    from scipy.special import chdtrc, ndtr  # the χ² and normal survival functions of scipy.stats, imported cheaply
 
     from gonio.fit.metrics import _hd_coords, data_tree
 
@@ -57,7 +58,7 @@ def goodness_of_fit(model_values: np.ndarray, data, loss, n_params: int, seed: i
     if data.sigma is not None:
         dof = max(3 * n - n_params, 1)
         c2 = float(np.sum(((m - data.y) / data.sigma) ** 2))
-        out.update(chi2=c2, dof=dof, chi2_red=c2 / dof, chi2_p=float(chi2_dist.sf(c2, dof)))
+        out.update(chi2=c2, dof=dof, chi2_red=c2 / dof, chi2_p=float(chdtrc(dof, c2)))
     res = loss.residual(m, data.y, data.cos_i, data.sigma)
     idx = np.arange(n)
     if n > GOF_N:
@@ -76,7 +77,7 @@ def goodness_of_fit(model_values: np.ndarray, data, loss, n_params: int, seed: i
         den = np.sqrt(np.sum(a * a) * np.sum(b * b)) if ok.sum() >= 10 else 0.0
         if den > 0:
             rho = float(np.sum(a * b) / den)
-            rho_p = float(norm.sf(rho * np.sqrt(a.size)))
+            rho_p = float(ndtr(-rho * np.sqrt(a.size)))
     out.update(rho=rho, rho_p=rho_p)
     if data.sigma is not None:
         ratio, p = out["chi2_red"], out["chi2_p"]

@@ -64,35 +64,70 @@ def bounded_lsq(G: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) ->
 def bounded_lsq_batch(G: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """:func:`bounded_lsq` for a stack of problems: G (..., K, K), b (..., K) -> a (..., K).
 
-    The same exact method, vectorized over the stack: every active set (each variable free, at its lower
-    or at its upper bound; Lawson & Hanson 1974, ch. 23) is solved for all problems at once (pseudo-inverse
-    of the free block), and each problem keeps its feasible candidate of least ½ aᵀGa − bᵀa.
+    The same exact method, vectorized over the stack and over the active sets: every active set (each variable
+    free, at its lower or at its upper bound; Lawson & Hanson 1974, ch. 23) of every problem is one K×K system —
+    the free rows of G a = b with each bound variable's row replaced by aₖ = its bound, which is the free block's
+    system with the bound variables moved to the right-hand side — and all of them are solved in one call; each
+    problem keeps its feasible candidate of least ½ aᵀGa − bᵀa (the first in active-set order on a tie).
     """
     K = b.shape[-1]
-    best = np.zeros(b.shape)
-    best_val = np.full(b.shape[:-1], np.inf)
-    options = [["free"] + (["lo"] if np.isfinite(lo[k]) else []) + (["hi"] if np.isfinite(hi[k]) else [])
-               for k in range(K)]
-    for combo in itertools.product(*options):
-        free = np.array([c == "free" for c in combo])
-        x = np.zeros(b.shape)
-        for k, c in enumerate(combo):
-            if c != "free":
-                x[..., k] = lo[k] if c == "lo" else hi[k]
-        ok = np.ones(b.shape[:-1], dtype=bool)
-        if free.any():
-            Gff = G[..., free, :][..., :, free]
-            rhs = b[..., free] - np.einsum("...ij,...j->...i", G[..., free, :][..., :, ~free], x[..., ~free])
-            try:
-                xf = np.linalg.solve(Gff, rhs[..., None])[..., 0]
-            except np.linalg.LinAlgError:  # a singular free block somewhere in the stack: minimum-norm solutions
-                xf = np.einsum("...ij,...j->...i", np.linalg.pinv(Gff), rhs)
-            x[..., free] = xf
-            ok = np.all((xf >= lo[free] - 1e-12) & (xf <= hi[free] + 1e-12), axis=-1)
-        val = 0.5 * np.einsum("...i,...ij,...j->...", x, G, x) - np.einsum("...i,...i->...", b, x)
-        take = ok & (val < best_val)
-        best[take], best_val[take] = x[take], val[take]
-    return np.clip(best, lo, hi)
+    free, fixval = _active_sets(tuple(np.isfinite(lo)), tuple(np.isfinite(hi)), lo, hi)  # (C, K) each
+    stack = b.shape[:-1]
+    Gs = np.asarray(G, dtype=np.float64).reshape((-1, K, K))
+    bs = np.asarray(b, dtype=np.float64).reshape((-1, K))
+    eye = np.eye(K)
+    A = np.where(free[:, None, :, None], Gs[None], eye)  # (C, P, K, K): free rows of G, unit rows for bound ones
+    rhs = np.where(free[:, None, :], bs[None], fixval[:, None, :])  # (C, P, K)
+    try:
+        x = np.linalg.solve(A, rhs[..., None])[..., 0]
+    except np.linalg.LinAlgError:  # a singular free block somewhere: the minimum-norm solution of each free block
+        x = _solve_free_blocks(Gs, bs, free, fixval)
+    with np.errstate(invalid="ignore"):
+        ok = np.all(~free[:, None, :] | ((x >= lo - 1e-12) & (x <= hi + 1e-12)), axis=-1)  # (C, P)
+        val = 0.5 * np.einsum("cpi,pij,cpj->cp", x, Gs, x) - np.einsum("pi,cpi->cp", bs, x)
+    val = np.where(ok & ~np.isnan(val), val, np.inf)
+    j = np.argmin(val, axis=0)  # the first of the least (the enumeration order of bounded_lsq)
+    best = x[j, np.arange(x.shape[1])]
+    best[~np.isfinite(val[j, np.arange(x.shape[1])])] = 0.0
+    return np.clip(best.reshape(stack + (K,)), lo, hi)
+
+
+_ACTIVE_SETS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _active_sets(lo_finite: tuple, hi_finite: tuple, lo: np.ndarray, hi: np.ndarray):
+    """Every active set of :func:`bounded_lsq_batch` in :func:`bounded_lsq`'s order (itertools.product of
+    free / lower / upper per variable): ``free`` (C, K) bool and the bound values ``fixval`` (C, K) (0 where free)."""
+    key = (lo_finite, hi_finite, tuple(np.where(lo_finite, lo, 0.0).tolist()), tuple(np.where(hi_finite, hi, 0.0).tolist()))
+    hit = _ACTIVE_SETS.get(key)
+    if hit is None:
+        options = [["free"] + (["lo"] if lf else []) + (["hi"] if hf else []) for lf, hf in zip(lo_finite, hi_finite)]
+        combos = list(itertools.product(*options))
+        free = np.array([[c == "free" for c in combo] for combo in combos], dtype=bool).reshape(len(combos), len(options))
+        fixval = np.array([[lo[k] if c == "lo" else hi[k] if c == "hi" else 0.0 for k, c in enumerate(combo)]
+                           for combo in combos], dtype=np.float64).reshape(len(combos), len(options))
+        if len(_ACTIVE_SETS) > 64:
+            _ACTIVE_SETS.clear()
+        _ACTIVE_SETS[key] = hit = (free, fixval)
+    return hit
+
+
+def _solve_free_blocks(G: np.ndarray, b: np.ndarray, free: np.ndarray, fixval: np.ndarray) -> np.ndarray:
+    """x (C, P, K) of every active set of :func:`bounded_lsq_batch`, the free block solved by its pseudo-inverse
+    (minimum-norm least squares) where it is singular."""
+    C, P, K = free.shape[0], G.shape[0], G.shape[-1]
+    x = np.broadcast_to(fixval[:, None, :], (C, P, K)).copy()
+    for c in range(C):
+        f = free[c]
+        if not f.any():
+            continue
+        Gff = G[:, f][:, :, f]
+        rhs = b[:, f] - np.einsum("pij,j->pi", G[:, f][:, :, ~f], fixval[c, ~f])
+        try:
+            x[c][:, f] = np.linalg.solve(Gff, rhs[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            x[c][:, f] = np.einsum("pij,pj->pi", np.linalg.pinv(Gff), rhs)
+    return x
 
 
 class Projection:
@@ -101,6 +136,12 @@ class Projection:
     ``__call__(shape)`` returns ``(cost, colour (K, 3))`` with cost = ½ Σ w (f₀ + Σ aₖBₖ − y)²
     minimized over the bounded colours a. The Gram matrices are formed per channel, so one evaluation
     costs one basis evaluation plus O(N K²) flops.
+
+    The cost is summed from the residuals themselves, not expanded as c₀ − 2bᵀa + aᵀGa: that expansion
+    cancels (c₀ = Σ w y² is 10⁴–10⁶ × the cost of a χ² fit), leaving the cost noisy at ~10⁻¹² of its value,
+    which is what the finite-difference gradients of the shape search see (its line searches then fail and
+    the search crawls for hundreds of evaluations without progress); the normal equations lose accuracy
+    the same way (Björck, *Numerical Methods for Least Squares Problems*, SIAM 1996, §2.2.1).
     """
 
     def __init__(self, basis, w: np.ndarray, y: np.ndarray, lo: np.ndarray, hi: np.ndarray):
@@ -112,7 +153,7 @@ class Projection:
         self._wT = self._yT = None  # channels-first copies of w and y, made on first use
 
     def normal_equations(self, shape):
-        f0, cols = self.basis(shape)
+        f0, cols = self._last = self.basis(shape)
         if self.w1 is not None and all(B.ndim == 1 for B in cols) and getattr(f0, "is_zero", False):
             # Shared Gram matrix; w·Bₖ is cached for bases that did not change (a Lambert term).
             wb = []
@@ -177,8 +218,25 @@ class Projection:
                 a, ok = np.zeros_like(b), np.zeros(3, dtype=bool)
         if not ok.all():  # exact active-set solution where a bound is active (Lawson & Hanson 1974)
             a[~ok] = bounded_lsq_batch(G[~ok], b[~ok], self.lo, hi)
-        q = c0 - 2.0 * np.einsum("ck,ck->c", b, a) + np.einsum("ck,ckl,cl->c", a, G, a)
-        return float(0.5 * np.maximum(q, 0.0).sum()), a.T.copy()
+        return self._cost(a), a.T.copy()
+
+    def _cost(self, a: np.ndarray) -> float:
+        """½ Σ w (f₀ + Σ aₖBₖ − y)² at colours ``a`` (3, K), from the residuals of the basis of the last
+        :meth:`normal_equations` (see the class docstring for why not from the Gram matrices)."""
+        f0, cols = self._last
+        if all(B.ndim == 1 for B in cols):  # channels first, as in normal_equations
+            if self._wT is None:
+                self._wT, self._yT = np.ascontiguousarray(self.w.T), np.ascontiguousarray(self.y.T)
+            r = -self._yT if getattr(f0, "is_zero", False) else np.asarray(f0).T - self._yT
+            for k, B in enumerate(cols):
+                r = r + a[:, k, None] * B
+            w = self._wT if self.w1 is None else self.w1
+        else:
+            r = -self.y if getattr(f0, "is_zero", False) else np.asarray(f0) - self.y
+            for k, B in enumerate(cols):
+                r = r + (B[:, None] if B.ndim == 1 else B) * a[:, k]
+            w = self.w
+        return float(0.5 * np.sum(w * r * r))
 
 
 def weighted_gram(elems, w: np.ndarray, yT: np.ndarray | None = None):

@@ -79,6 +79,41 @@ def test_batched_bounded_lsq_equals_the_scalar_one():
     assert np.any(got == 0.0) and np.any(got == 1.0)  # bounds were active in some problems
 
 
+
+def test_batched_bounded_lsq_with_singular_free_blocks_equals_the_scalar_one():
+    # two identical columns: every active set that frees both is singular (the minimum-norm fallback)
+    rng = np.random.default_rng(5)
+    lo, hi = np.array([0.0, 0.0, 0.0]), np.array([1.0, 1.0, 2.0])
+    A = rng.normal(size=(50, 6, 3))
+    A[..., 1] = A[..., 0]
+    G = np.einsum("nij,nik->njk", A, A)
+    b = rng.normal(scale=2.0, size=(50, 3))
+    got = bounded_lsq_batch(G, b, lo, hi)
+    want = np.stack([bounded_lsq(G[i], b[i], lo, hi) for i in range(50)])
+    val = lambda a: 0.5 * np.einsum("ni,nij,nj->n", a, G, a) - np.einsum("ni,ni->n", b, a)  # noqa: E731
+    assert np.all((got >= lo) & (got <= hi))
+    # at least as low as the scalar solver's (whose least-squares solutions of the singular blocks may miss a
+    # feasible point of the null space), and no lower than any point of a grid over the box
+    assert np.all(val(got) <= val(want) + 1e-9)
+    grid = np.stack(np.meshgrid(*[np.linspace(0, h, 21) for h in hi], indexing="ij"), -1).reshape(-1, 3)
+    brute = (0.5 * np.einsum("gi,nij,gj->ng", grid, G, grid) - b @ grid.T).min(axis=1)
+    assert np.all(val(got) <= brute + 1e-9)
+
+
+def test_projected_cost_is_the_residual_cost_to_rounding_when_the_data_dwarf_the_misfit():
+    # chi2 weights of 1e-5 relative noise: sum(w y^2) is ~1e10 x the cost, where c0 - 2 b.a + a.G.a cancelled to
+    # ~1e-6 of the cost -- noise the shape search's finite-difference gradients then chased
+    s = synth("microfacet", TRUTH, n=600, noise=1e-5)
+    d = prepare(s)
+    L = Layout("microfacet", {"f0": TRUTH["f0"]})  # the true model: a misfit at the noise level
+    w = LOSSES["chi2"].weight(d.y, d.cos_i, d.sigma)
+    proj = Projection(make_basis(L, d), np.ascontiguousarray(w), d.y, L.colour_lo, L.colour_hi)
+    for alpha in (0.15, 0.2, 0.2 + 1e-7):
+        cost, colour = proj(np.array([alpha]))
+        m = L.eval(colour, np.array([alpha]), d.wi, d.wo)
+        direct = 0.5 * float(np.sum(w * (m - d.y) ** 2))
+        assert cost == pytest.approx(direct, rel=1e-11)
+
 SUM_TRUTH = {"diffuse.albedo": TRUTH["kd"], "lobe1.ks": TRUTH["ks"], "lobe1.alpha": TRUTH["alpha"],
              "lobe1.f0": TRUTH["f0"]}
 
