@@ -350,14 +350,14 @@ def canonical_order(L: Layout, p: np.ndarray) -> np.ndarray:
 
 
 def _shape_dependent_bounds(basis, L: Layout, p: np.ndarray) -> np.ndarray:
-    """Entries of the packed ``p`` on a colour bound that depends on the shape (``basis.colour_hi``: a lobe's
-    albedo ≤ 1, :func:`gonio.fit.kernels_abc.abc_smooth_albedo`), within :data:`gonio.fit.bounds.ON_BOUND`."""
+    """Entries of the packed ``p`` on a colour bound that depends on the shape (:func:`colour_upper`: a linked
+    colour's range, a lobe's albedo ≤ 1, :func:`gonio.fit.kernels_abc.abc_smooth_albedo`), within
+    :data:`gonio.fit.bounds.ON_BOUND`."""
     out = np.zeros(p.size, dtype=bool)
-    hook = getattr(basis, "colour_hi", None)
     colour, shape = L.unpack(p)
-    hi = hook(shape) if hook is not None else None
-    if hi is not None:
-        out[:3 * L.K] = (colour >= hi[:, None] * (1 - 1e-6)).ravel() & np.isfinite(np.repeat(hi, 3))
+    hi = colour_upper(L, basis, shape)
+    dependent = np.isfinite(hi) & (hi < L.colour_hi)
+    out[:3 * L.K] = ((colour >= hi[:, None] * (1 - 1e-6)) & dependent[:, None]).ravel()
     return out
 
 
@@ -647,6 +647,45 @@ def add_report(r: FitResult, d: FitData) -> None:
 TIED_MAX_SE = 0.2
 
 
+def colour_upper(L: Layout, basis, shape) -> np.ndarray:
+    """Upper bounds (K,) of the colours at ``shape``: the model's, the links' (:meth:`Layout.linked_colour_hi`)
+    and the basis's shape-dependent ones (``basis.colour_hi``: a lobe's albedo ≤ 1)."""
+    hi = L.linked_colour_hi(shape)
+    hook = getattr(basis, "colour_hi", None)
+    extra = hook(shape) if hook is not None else None
+    return hi if extra is None else np.minimum(hi, extra)
+
+
+def within_bounds(prob: _Problem, L: Layout, basis, lossobj: Loss, p: np.ndarray, cost: float,
+                  notes: list[str]) -> tuple[np.ndarray, float]:
+    """``(p, cost)`` of a solver's answer made feasible: every fitting path (variable projection, a warm-started
+    refinement, ``scipy.optimize.least_squares`` with its box bounds, a known optimum) ends here, so no fit
+    returns a parameter outside its range. A box-bounded solver cannot see the bounds that depend on other
+    parameters (a linked colour ``lobe2.ks`` = w · ``lobe1.ks`` ≤ its upper bound, a lobe's albedo ≤ 1): a point
+    beyond them is projected back — shapes clipped to their ranges, then the colours solved again at that shape
+    by the bounded linear least squares of :class:`gonio.fit.solve.Projection` (exact for a linear loss on a
+    separable model; else clipped) — and a note says so. A feasible ``p`` is returned unchanged."""
+    colour, shape = L.unpack(p)
+    shape2 = np.clip(shape, L.shape_lo, L.shape_hi)
+    hi = colour_upper(L, basis, shape2)
+    tol = 1e-9 * np.maximum(np.abs(hi), 1.0)
+    if (np.array_equal(shape2, shape) and np.all(colour >= L.colour_lo[:, None])
+            and np.all(colour <= (hi + tol)[:, None])):
+        return p, cost
+    beyond = [f"{L.colour[k]} = {colour[k].max():.4g} > {hi[k]:.4g}" for k in range(L.K) if np.any(colour[k] > hi[k] + tol[k])]
+    beyond += [f"{L.colour[k]} = {colour[k].min():.4g} < {L.colour_lo[k]:.4g}" for k in range(L.K)
+               if np.any(colour[k] < L.colour_lo[k])]
+    beyond += [f"{n} = {shape[j]:.4g}" for j, n in enumerate(L.shape) if shape2[j] != shape[j]]
+    colour2 = np.clip(colour, L.colour_lo[:, None], hi[:, None])
+    if basis is not None and basis.separable and lossobj.linear:
+        w = (lossobj.weight or LOSSES["cosine"].weight)(prob.d.y, prob.d.cos_i, prob.d.sigma)
+        _, colour2 = Projection(basis, np.ascontiguousarray(w), prob.d.y, L.colour_lo, L.colour_hi)(shape2)
+        colour2 = np.clip(colour2, L.colour_lo[:, None], hi[:, None])
+    q = L.pack(colour2, shape2)
+    notes.append(f"the solver ended outside the parameters' ranges ({'; '.join(beyond)}): projected back onto them")
+    return q, float(prob.cost(q))
+
+
 def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method, kernel, max_nfev,
                 optimum: tuple[np.ndarray, np.ndarray] | None = None, start: dict | None = None) -> FitResult:
     """One fit of the layout ``L`` (free, tied and fixed parameters decided) to prepared data.
@@ -710,6 +749,7 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
             cost = prob.cost(p)
     else:
         p, cost = _plain(prob, _starts(prob, rng, n_starts, heur), max_nfev)
+    p, cost = within_bounds(prob, L, basis, lossobj, p, cost, notes)
     p = p if L.links else canonical_order(L, p)  # linked lobes are ordered by the link itself
     shape_hi = _shape_dependent_bounds(basis, L, p)
     err, ident, redundancy = _uncertainty(prob, p, cost, notes, extra_bound=shape_hi)
@@ -731,7 +771,8 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
         notes.append(f"the fitted parameters violate a model constraint: {exc}")
     at_bound = bound_report(L, {**params, **L.link_values(shape)}, unc)
     for e in np.flatnonzero(shape_hi):
-        at_bound.setdefault(L.colour[e // 3], {})[CHANNELS[e % 3]] = f"upper ({basis.colour_hi_reason})"
+        reason = getattr(basis, "colour_hi_reason", None) or "a linked colour (ratio x its source) at its upper bound"
+        at_bound.setdefault(L.colour[e // 3], {})[CHANNELS[e % 3]] = f"upper ({reason})"
     return FitResult(
         model_name=L.name, params=params, uncertainty=unc, loss=lossobj.name, cost=float(cost), rms_rel=rms_rel,
         n_used=len(d), n_params=L.n_params, chi2_red=chi2_red, identifiable=ident, method=method,
@@ -741,4 +782,4 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
     )
 
 
-__all__ = ["fit", "resolve_loss", "heuristics", "bound_report", "NEAR_BOUND", "METHODS", "CHANNELS"]
+__all__ = ["fit", "within_bounds", "colour_upper", "resolve_loss", "heuristics", "bound_report", "NEAR_BOUND", "METHODS", "CHANNELS"]

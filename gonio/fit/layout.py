@@ -217,6 +217,20 @@ class Layout(_SearchMap):
         """The :class:`~gonio.brdf.base.Param` of a free parameter (a link's ratio included)."""
         return self.extra.get(name) or self.cls.PARAMS[name]
 
+    def linked_colour_hi(self, shape) -> np.ndarray:
+        """Upper bounds (K,) of the colours at ``shape``: the model's, and for the source of a link
+        (:func:`linked_lobes`) the linked colour's upper bound over the ratio, so that ``lobe2.ks`` = w ·
+        ``lobe1.ks`` stays within its range whatever the solver."""
+        hi = np.array(self.colour_hi, dtype=np.float64)
+        if self.links:
+            bounds = self.cls.bounds()
+            shape = np.asarray(shape, dtype=np.float64)
+            for dst, src, r in self.links:
+                w = max(float(shape[self.shape.index(r)]), 1e-300)
+                k = self.colour.index(src)
+                hi[k] = min(hi[k], float(bounds[dst][1]) / w)
+        return hi
+
     def link_values(self, shape) -> dict[str, float]:
         """The fitted ratios of the links (``{"lobe2.ks/lobe1.ks": w}``)."""
         return {r: float(shape[self.shape.index(r)]) for _, _, r in self.links}
@@ -429,20 +443,9 @@ class SumBasis:
     colour_hi_reason = "a linked colour (ratio x its source) at its upper bound"
 
     def colour_hi(self, shape) -> np.ndarray | None:
-        """Upper bounds of the colours at ``shape`` when colours are linked (:func:`linked_lobes`): the source
-        of a link is at most the linked colour's upper bound over the ratio, so ``lobe2.ks`` = w · ``lobe1.ks``
-        stays within its range; None without links."""
-        L = self.layout
-        if not L.links:
-            return None
-        hi = np.array(L.colour_hi, dtype=np.float64)
-        bounds = L.cls.bounds()
-        shape = np.asarray(shape, dtype=np.float64)
-        for dst, src, r in L.links:
-            w = max(float(shape[L.shape.index(r)]), 1e-300)
-            k = L.colour.index(src)
-            hi[k] = min(hi[k], float(bounds[dst][1]) / w)
-        return hi
+        """Upper bounds of the colours at ``shape`` when colours are linked (:meth:`Layout.linked_colour_hi`);
+        None without links."""
+        return self.layout.linked_colour_hi(shape) if self.layout.links else None
 
     def __call__(self, shape):
         shape = np.asarray(shape, dtype=np.float64)
