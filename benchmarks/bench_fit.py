@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from benchmarks.common import Table
+from benchmarks.common import Size, Table, size
 
 TRUTH = {"kd": [0.2, 0.3, 0.1], "ks": [0.5, 0.4, 0.6], "alpha": 0.12}
 
@@ -24,7 +24,8 @@ def _data(quick: bool, seed: int = 0):
     wi, wo, above = cell_directions()
     wi, wo = wi[above], wo[above]
     if quick:  # every 32nd cell (~28,000): the same rows and columns, each fit a few tenths of a second
-        wi, wo = wi[::32], wo[::32]
+        step = 256 if size(quick) is Size.SMOKE else 32  # smoke (gonio bench --smoke): ~3,500 cells
+        wi, wo = wi[::step], wo[::step]
     f = make("microfacet", **TRUTH).eval(wi, wo)
     rng = np.random.default_rng(seed)
     y = f * (1.0 + 0.01 * rng.standard_normal(f.shape))

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import Table, time_call
+from benchmarks.common import Size, Table, size, time_call
 
 #: The simulated sample of the plan and capture trades: Lambert + a broad and a narrow GGX lobe.
 MATERIAL = {"model": "lambert+2ggx",
@@ -29,6 +29,13 @@ RESOLUTION = (320, 240)
 #: Largest zenith angle of the plans and of the directions the BRDF error is averaged over.
 THETA_MAX_DEG = 70.0
 _D = math.radians
+
+
+def fitted_model(quick=False) -> str:
+    """The model the plan table fits (and its adaptive sessions plan with): :data:`MATERIAL`'s; at the smoke
+    size (``gonio bench --smoke``) one lobe fewer, whose fits take a tenth of the time (a smoke run checks that
+    the table is made, its errors mean little)."""
+    return "lambert+ggx" if size(quick) is Size.SMOKE else MATERIAL["model"]
 
 
 def truth():
@@ -49,13 +56,27 @@ def eval_directions(n: int = 20_000, theta_max_deg: float = THETA_MAX_DEG, seed:
     return wi, wo
 
 
+#: Sessions already simulated in this process, by plan (:func:`simulate`): the trades that run the same plan
+#: (the plan table's 30°/30° in-plane row is the capture table's automatic-exposure row) measure it once.
+_SIMULATED: dict[tuple, tuple] = {}
+
+
+def _plan_key(plan) -> tuple:
+    return plan.generator, np.asarray(plan.poses).tobytes(), repr(plan.capture)
+
+
 def simulate(plan, out: Path):
-    """Run ``plan`` on the simulated rig rendering :data:`MATERIAL`: ``(RunResult, wall s, SampleSet)``."""
+    """Run ``plan`` on the simulated rig rendering :data:`MATERIAL`: ``(RunResult, wall s, SampleSet)``.
+    The simulator is seeded, so a plan simulated before in this process is not run again: its result, wall
+    time (of the run that measured it) and samples are returned again."""
     from benchmarks.bench_session import _session
     from gonio.store.directory import load_session
 
-    result, wall = _session(plan, RESOLUTION, out, material=MATERIAL)
-    return result, wall, load_session(out)[1]
+    key = _plan_key(plan)
+    if key not in _SIMULATED:
+        result, wall = _session(plan, RESOLUTION, out, material=MATERIAL)
+        _SIMULATED[key] = (result, wall, load_session(out)[1])
+    return _SIMULATED[key]
 
 
 def overhead_lab(result) -> float:
@@ -63,13 +84,14 @@ def overhead_lab(result) -> float:
     return result.lab_time - sum(t["move_lab"] + t["dark_lab"] + t["capture_lab"] for t in result.timings)
 
 
-def fit_error(samples, wi, wo, f_true, n_starts: int = 4) -> tuple[float, float]:
-    """Fit :data:`MATERIAL`'s model to ``samples``: ``(relative RMS error over (wi, wo), fit seconds)``."""
+def fit_error(samples, wi, wo, f_true, n_starts: int = 4, model: str = MATERIAL["model"]) -> tuple[float, float]:
+    """Fit ``model`` (default :data:`MATERIAL`'s) to ``samples``: ``(relative RMS error over (wi, wo), fit
+    seconds)``."""
     from gonio.fit import fit
     from gonio.plan.adaptive import relative_rms
 
     t0 = time.perf_counter()
-    res = fit(samples, MATERIAL["model"], n_starts=n_starts)
+    res = fit(samples, model, n_starts=n_starts)
     secs = time.perf_counter() - t0
     return relative_rms(res.model.eval(wi, wo), f_true), secs
 
@@ -122,7 +144,7 @@ def _uniform_plans(quick: bool) -> list[tuple[str, str, dict, bool]]:
             ("isotropic", "20°/45°", {"theta_step": _D(20), "phi_step": _D(45), "theta_max": t}, False)]
     # the default's parameters appear once (as the default row)
     rows = [r for r in rows if r[3] or not (r[0] == DEFAULT_PLAN and _same_params(r[2], deflt))]
-    return rows[:3] if quick else rows
+    return rows[:2] if size(quick) is Size.SMOKE else rows[:3] if quick else rows
 
 
 def _same_params(a: dict, b: dict) -> bool:
@@ -141,13 +163,14 @@ def _params_label(kind: str, p: dict) -> str:
 
 def adaptive_args(lab_budget: float, target_error: float, quick: bool = False):
     """The parsed options of ``gonio measure --sim --plan adaptive`` fitting :data:`MATERIAL`'s model with
-    ``--lab-budget`` / ``--target-error`` (everything else the CLI's defaults; quick: a small session)."""
+    ``--lab-budget`` / ``--target-error`` (everything else the CLI's defaults; quick: a small session, smoke:
+    one round after the coarse one)."""
     from gonio.cli.main import build_parser
 
-    argv = ["measure", "--sim", "--plan", "adaptive", "--model", MATERIAL["model"],
+    argv = ["measure", "--sim", "--plan", "adaptive", "--model", fitted_model(quick),
             "--lab-budget", repr(float(lab_budget)), "--target-error", repr(float(target_error))]
     if quick:
-        argv += ["--coarse", "6", "--batch", "6", "--max-rounds", "2"]
+        argv += ["--coarse", "6", "--batch", "6", "--max-rounds", "1" if size(quick) is Size.SMOKE else "2"]
     return build_parser().parse_args(argv)
 
 
@@ -175,8 +198,9 @@ def _adaptive_runs(default: PlanRow, overhead: float, quick: bool) -> list[tuple
 
     budget = max(default.lab - overhead, 1.0)
     if quick:
-        return [(f"budget 1× default's ({budget:.0f} s), coarse 6, 6 a round, ≤ 2 rounds",
-                 adaptive_args(budget, 0.0, quick=True))]
+        rounds = 1 if size(quick) is Size.SMOKE else 2
+        return [(f"budget 1× default's ({budget:.0f} s), coarse 6, 6 a round, ≤ {rounds} round{'s' * (rounds > 1)}",
+                 adaptive_args(budget, 0.0, quick=quick))]
     return [(f"budget 1× default's ({budget:.0f} s)", adaptive_args(budget, 0.0)),
             (f"budget 1.5× default's ({1.5 * budget:.0f} s)", adaptive_args(1.5 * budget, 0.0)),
             (f"target error {ADAPTIVE_TARGET:g}, budget ≤ 3× default's", adaptive_args(3 * budget, ADAPTIVE_TARGET))]
@@ -244,11 +268,12 @@ def why_default(rows: list[PlanRow]) -> str:
     return text
 
 
-def _session_row(kind, label, n, result, wall, s, wi, wo, f_true, f_truth, default=False, n_starts=4) -> PlanRow:
+def _session_row(kind, label, n, result, wall, s, wi, wo, f_true, f_truth, default=False, n_starts=4,
+                 model=MATERIAL["model"]) -> PlanRow:
     from gonio.plan.adaptive import relative_rms
 
     good = s.good()
-    err, fit_s = fit_error(s, wi, wo, f_true, n_starts)
+    err, fit_s = fit_error(s, wi, wo, f_true, n_starts, model)
     return PlanRow(kind, label, n, result.lab_time, wall, len(good),
                    relative_rms(good.f, f_truth.eval(good.wi, good.wo)), err, fit_s, default)
 
@@ -261,8 +286,9 @@ def plan_table(quick: bool = False) -> Table:
     f_truth = truth()
     wi, wo = eval_directions()
     f_true = f_truth.eval(wi, wo)
+    model = fitted_model(quick)
     t = Table(f"plan density and kind: lab time vs BRDF error ({MATERIAL['model']} with a narrow lobe, "
-              f"simulated sessions at {RESOLUTION[0]}×{RESOLUTION[1]}, fitted {MATERIAL['model']})",
+              f"simulated sessions at {RESOLUTION[0]}×{RESOLUTION[1]}, fitted {model})",
               ["plan", "parameters", "poses", "lab s", "lab vs default", "wall s", "usable samples",
                "sample rel RMS err", "BRDF rel RMS err", "err vs default", "fit s"], baseline=1, default=1)
     rows: list[PlanRow] = []
@@ -273,7 +299,7 @@ def plan_table(quick: bool = False) -> Table:
             try:
                 result, wall, s = simulate(plan, Path(tmp) / f"p{i}")
                 rows.append(_session_row(kind, label, len(plan), result, wall, s, wi, wo, f_true, f_truth, is_default,
-                                         starts))
+                                         starts, model))
             except Exception as exc:  # a crashing session is a finding: say so, keep the other rows
                 if is_default:
                     raise  # the default session is every row's baseline
@@ -288,7 +314,7 @@ def plan_table(quick: bool = False) -> Table:
                 result, wall, s = simulate_adaptive(args, Path(tmp) / f"a{j}", n_starts=1 if quick else None)
                 n = sum(r["n_poses"] for r in result.rounds)
                 rows.append(_session_row("adaptive", f"{label}: {len(result.rounds)} rounds, stop: {result.stop}",
-                                         n, result, wall, s, wi, wo, f_true, f_truth, n_starts=starts))
+                                         n, result, wall, s, wi, wo, f_true, f_truth, n_starts=starts, model=model))
             except Exception as exc:
                 t.notes.append(f"adaptive {label}: the session failed, no row: {type(exc).__name__}: {exc}")
     rows.sort(key=lambda r: (r.kind != base.kind, r.kind == "adaptive", r.kind, r.lab))
@@ -298,14 +324,14 @@ def plan_table(quick: bool = False) -> Table:
               r.err / base.err, r.fit_s)
     t.why_default = why_default(rows)
     t.notes.append("BRDF error: ‖fitted − true‖ / ‖true‖ over 20,000 random direction pairs with θi, θo ≤ "
-                   f"{THETA_MAX_DEG:g}° (uniform in solid angle) of {MATERIAL['model']} fitted to all of a session's "
+                   f"{THETA_MAX_DEG:g}° (uniform in solid angle) of {model} fitted to all of a session's "
                    f"samples (gonio.fit, {starts} starts); sample error: the session's unflagged samples against the true "
                    "BRDF at their directions. Lab time: the session's simulated clock, including device checks, "
                    f"darks and the light's warm-up ({overhead:.0f} s of the default session). One seed per row: fits "
                    "of the two-lobe model have local minima, so neighbouring densities can differ by more than "
                    "their sampling explains.")
     t.notes.append("adaptive rows: `gonio measure --sim --plan adaptive --model "
-                   f"{MATERIAL['model']} --lab-budget S --target-error E` (gonio.cli.plan.adaptive_from_args + "
+                   f"{model} --lab-budget S --target-error E` (gonio.cli.plan.adaptive_from_args + "
                    "gonio.session.adaptive.AdaptiveSession; CLI defaults otherwise: the isotropic 10°/30° "
                    "candidates, a coarse round of 24, 16 poses a round, each round fitted with "
                    f"{'1 start (quick run; the CLI: 3)' if quick else '3 starts'}). The budget "
@@ -329,7 +355,7 @@ def _brackets(quick: bool):
             ("fixed: 5 exposures (1–256 ms) × 2 frames", fixed(exposures=(0.001, 0.004, 0.016, 0.064, 0.256),
                                                               frames=2)),
             ("automatic exposure per pose", CaptureSettings())]
-    return [rows[0], rows[3], rows[6]] if quick else rows
+    return [rows[0], rows[6]] if size(quick) is Size.SMOKE else [rows[0], rows[3], rows[6]] if quick else rows
 
 
 def capture_table(quick: bool = False) -> Table:
@@ -383,7 +409,7 @@ def merl_table(quick: bool = False) -> Table:
     from gonio.plan.adaptive import relative_rms
     from sim.rig import DEFAULT_MATERIAL
 
-    n = 100_000 if quick else 1_000_000
+    n = 20_000 if size(quick) is Size.SMOKE else 100_000 if quick else 1_000_000
     wi, wo = eval_directions(n, 80.0, seed=1)
     cwi, cwo, above = cell_directions()
     t = Table(f"MERL lookup: nearest vs trilinear ({n:,} random direction pairs, θ ≤ 80°)",

@@ -2,10 +2,32 @@
 
 from __future__ import annotations
 
+import enum
 import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
+
+
+class Size(enum.IntEnum):
+    """How big a benchmark run is. The runs' ``quick`` argument takes one (or a bool: ``False`` is
+    :attr:`FULL`, ``True`` :attr:`QUICK`); :attr:`SMOKE` is true like :attr:`QUICK`, so a benchmark that
+    has no smaller size runs its quick size.
+
+    - ``FULL``: the published numbers;
+    - ``QUICK`` (``--quick``): small sizes whose tables still say something (CI, a first look);
+    - ``SMOKE`` (``gonio bench --smoke``, the test suite): each benchmark at its smallest size, seconds:
+      every table and plot is made by the same code, the numbers mean little.
+    """
+
+    FULL = 0
+    QUICK = 1
+    SMOKE = 2
+
+
+def size(quick) -> Size:
+    """``quick`` (a bool or a :class:`Size`) as a :class:`Size`."""
+    return Size(int(quick)) if not isinstance(quick, Size) else quick
 
 
 @dataclass

@@ -1,42 +1,69 @@
-"""`gonio bench --quick -o DIR`: completes and writes the report's tables and plots (no timing asserted:
-speed targets live in the report itself)."""
+"""`gonio bench -o DIR`: completes and writes the report's tables and plots (no timing asserted: speed
+targets live in the report itself). The whole report runs at its smoke size (`--smoke`: every trade's own
+code at its smallest size, seconds instead of minutes); each trade's quick and full sizes are its own
+benchmark's business."""
 
 from __future__ import annotations
+
+import re
 
 import pytest
 
 from benchmarks.common import Table
+from benchmarks.report import TRADES as REPORT_TRADES
 from benchmarks.report import Trade, write_report
 from gonio.cli.main import main
 
-TRADES = ["plans", "capture", "brdf", "merl", "fit"]
+#: The trades with a plot and a marked default: all but the real materials, which need $GONIO_REALDATA
+#: (unset here: tests never depend on /work/shared/realdata) and then say so in a note.
+TRADES = [tr.name for tr in REPORT_TRADES if tr.name != "realdata"]
 
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
-    code = main(["bench", "--quick", "-o", str(out)])
+    with pytest.MonkeyPatch.context() as mp:
+        mp.delenv("GONIO_REALDATA", raising=False)
+        code = main(["bench", "--smoke", "-o", str(out)])
     return code, out
 
 
-def test_quick_report_completes_with_every_table(report):
+def _sections(text: str) -> dict[str, str]:
+    """Each trade's part of the report, by trade name (a section ends with the line of its seconds)."""
+    parts = {}
+    for tr in REPORT_TRADES:
+        start = text.index(f"## {tr.title}\n")
+        end = text.index(f"\n_{tr.name}: ", start)
+        parts[tr.name] = text[start:text.index("\n", end + 1)]
+    return parts
+
+
+def test_report_completes_with_every_table(report):
     code, out = report
     assert code == 0
     text = (out / "REPORT.md").read_text(encoding="utf-8")
-    assert "quick run" in text and "| cores |" in text and "| numpy |" in text
+    assert "smoke run" in text and "`gonio bench --smoke`" in text and "**Smoke run:**" in text
+    assert "| cores |" in text and "| numpy |" in text
     for heading in ("lab time vs BRDF error", "lab time vs noise", "evaluations/s vs error",
-                    "MERL lookup", "fit time vs parameter error"):
+                    "MERL lookup", "fit time vs parameter error", "declared vs calibrated geometry",
+                    "light and dark strategies"):
         assert heading in text
-    # every trade produced at least one table with a marked default and its reason
-    assert text.count("**default**") >= len(TRADES)
-    assert text.count("\nDefault: ") >= len(TRADES)
+    sections = _sections(text)
     assert "This trade failed" not in text
+    # every trade says how long it took, in its section and in the run's summary line
+    for name, part in sections.items():
+        assert re.search(rf"\n_{name}: \d+\.\d s_$", part), name
+        assert re.search(rf"\b{name} \d+ s\b", text.split("\n| machine", 1)[0]), name
+    # every trade produced at least one table with a marked default and its reason
+    for name in TRADES:
+        assert "**default**" in sections[name] and "\nDefault: " in sections[name], name
+    assert "GONIO_REALDATA" in sections["realdata"]
     # the plan table's rows are all sessions: an adaptive session row, no planner-callback rows
     assert "| adaptive | budget" in text and "planner callback" not in text
     assert "Pareto front" in text
 
 
-def test_quick_report_writes_a_png_per_trade(report):
+def test_report_writes_a_png_per_trade(report):
     _, out = report
     text = (out / "REPORT.md").read_text(encoding="utf-8")
     try:
@@ -76,6 +103,7 @@ def test_report_without_matplotlib_and_with_a_failing_trade(tmp_path, monkeypatc
     path, failed = write_report(tmp_path, quick=True, trades=trades, stream=sys.stderr)
     text = path.read_text(encoding="utf-8")
     assert failed == ["broken"]
+    assert "(quick run)" in text and "`gonio bench --quick`" in text and "Smoke run" not in text
     assert "**No plots:**" in text and "| matplotlib | not installed" in text
     assert "### tiny" in text and "Default: because" in text
     assert "RuntimeError: boom" in text and "**Failed trades:** broken" in text
@@ -139,3 +167,14 @@ def test_bench_robustness_writes_the_robustness_tables(tmp_path, monkeypatch, ca
     text = (tmp_path / "r" / "ROBUSTNESS.md").read_text()
     assert asked == [False] and "full scale" in text and "Frames fuzzed per decoder" in text and "| python" in text
     assert "ROBUSTNESS.md" in capsys.readouterr().out
+
+
+def test_sizes_order_and_the_smoke_size_runs_the_quick_code_where_a_trade_has_no_smaller_one():
+    from benchmarks.bench_tradeoffs import _brackets, _uniform_plans, fitted_model
+    from benchmarks.common import Size, size
+
+    assert [size(False), size(True), size(Size.SMOKE)] == [Size.FULL, Size.QUICK, Size.SMOKE]
+    assert not Size.FULL and Size.QUICK and Size.SMOKE  # `if quick:` takes the quick branch at the smoke size
+    assert len(_uniform_plans(Size.SMOKE)) < len(_uniform_plans(True)) < len(_uniform_plans(False))
+    assert len(_brackets(Size.SMOKE)) < len(_brackets(True)) < len(_brackets(False))
+    assert fitted_model(True) == fitted_model(False) == "lambert+2ggx" != fitted_model(Size.SMOKE)

@@ -18,7 +18,11 @@ def register(sub) -> None:
                        description="Measure each speed/accuracy trade against a baseline from the same run and "
                                    "write DIR/REPORT.md with tables (default marked, with its reason), the date, "
                                    "the machine and the run's duration, and one PNG plot per trade.")
-    p.add_argument("--quick", action="store_true", help="small sizes (for CI): well under two minutes")
+    size = p.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="small sizes (for CI): well under two minutes")
+    size.add_argument("--smoke", action="store_true",
+                      help="every trade at its smallest size, seconds: checks that the report runs end to end on "
+                           "this machine (its numbers mean little)")
     p.add_argument("--robustness", action="store_true",
                    help="instead: the robustness benchmark (fuzzed frames and status packets, mutated configs and "
                         "session files, kill -9 + resume, fault scenarios), at full scale unless --quick; "
@@ -40,12 +44,14 @@ def run(args) -> int:
 
     t0 = time.perf_counter()
     if args.robustness:
-        path = plugin("benchmarks.report").write_robustness(out, quick=args.quick, stream=sys.stdout)
+        path = plugin("benchmarks.report").write_robustness(out, quick=args.quick or args.smoke, stream=sys.stdout)
         print(f"{path} ({time.perf_counter() - t0:.0f} s)")
         return 0
     write_report = plugin("benchmarks.report").write_report
+    sizes = plugin("benchmarks.report").Size  # benchmarks.common.Size
 
-    path, failed = write_report(out, quick=args.quick, stream=sys.stderr)
+    size = sizes.SMOKE if args.smoke else sizes.QUICK if args.quick else sizes.FULL
+    path, failed = write_report(out, quick=size, stream=sys.stderr)
     print(f"{path} ({time.perf_counter() - t0:.0f} s)")
     if failed:
         print(f"gonio bench: error: {len(failed)} trade(s) failed: {', '.join(failed)} (see {path})", file=sys.stderr)
