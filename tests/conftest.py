@@ -56,6 +56,30 @@ def copy_small_session(small_session_measured):
     return copy
 
 
+@pytest.fixture(autouse=True)
+def _writes_nothing_into_the_working_directory():
+    """Tests write under ``tmp_path`` only: a file or directory that appears in the working directory (the
+    checkout, where pytest runs) during a test fails it, naming what appeared, and is removed — e.g. a batch
+    command run without ``--summary`` writes ``./gonio-COMMAND-summary-DATE.csv``, which was committed by
+    mistake twice. Dot files (pytest's and tools' caches) are not counted. Under xdist a stray written by a test
+    on another worker at the same moment fails this test too: either way the run is red and names the file."""
+    cwd = os.getcwd()
+    before = set(os.listdir(cwd))
+    yield
+    new = sorted(n for n in set(os.listdir(cwd)) - before if not n.startswith("."))
+    for name in new:
+        path = os.path.join(cwd, name)
+        if os.path.isdir(path):
+            shutil.rmtree(path, ignore_errors=True)
+        elif os.path.lexists(path):
+            try:
+                os.remove(path)
+            except FileNotFoundError:  # removed by the same check on another worker
+                pass
+    if new:
+        pytest.fail(f"the test wrote into the working directory {cwd} (removed): {', '.join(new)}; write under tmp_path")
+
+
 def pytest_addoption(parser):
     parser.addoption("--port", default=None, help="serial port of a real Dynamixel bus (enables hardware tests)")
     parser.addoption("--controller-port", default=None, help="serial port of a real rig controller")
