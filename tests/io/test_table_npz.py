@@ -64,7 +64,7 @@ def test_filled_cells_stay_filled_through_an_npz(tmp_path):
     from gonio.samples import SampleSet
 
     keep = np.zeros(ok.shape, bool)
-    keep[::7, ::5, ::9] = True
+    keep[:14:7, :20:5, ::9] = True  # a patch near the specular peak: ~80,000 holes within 5° to fill, not 10⁶
     keep &= ok
     s = SampleSet(wi[keep], wo[keep], values[keep], 0.01 * values[keep])
     from gonio.io.npz import build_metadata, write_npz
