@@ -80,6 +80,18 @@ def _writes_nothing_into_the_working_directory():
         pytest.fail(f"the test wrote into the working directory {cwd} (removed): {', '.join(new)}; write under tmp_path")
 
 
+@pytest.fixture(scope="session")
+def default_session_measured(tmp_path_factory):
+    """The quick start's session (`gonio measure --sim` with every default: the default plan, material and
+    camera), measured once per test run (per xdist worker; the modules that use it share a group,
+    :data:`SAME_WORKER`). Read-only: copy it (shutil.copytree) to change it."""
+    from gonio.cli.main import main
+
+    d = tmp_path_factory.mktemp("default-session") / "s"
+    assert main(["measure", "--sim", "--out", str(d), "--quiet"]) == 0
+    return d
+
+
 def pytest_addoption(parser):
     parser.addoption("--port", default=None, help="serial port of a real Dynamixel bus (enables hardware tests)")
     parser.addoption("--controller-port", default=None, help="serial port of a real rig controller")
@@ -98,6 +110,13 @@ SHARED_FIXTURE_MODULES = (
     "tests/test_end_to_end.py",
     "tests/rig/test_camera_cli.py",
 )
+
+
+#: Modules that share a session-scoped fixture with a grouped module run in that module's group (on the same
+#: worker), so the fixture is made once: module -> the module whose group it joins.
+SAME_WORKER = {
+    "tests/api/test_readme.py": "tests/fit/test_session.py",  # default_session_measured
+}
 
 
 def _uses_a_module_fixture(item) -> bool:
@@ -154,7 +173,9 @@ def pytest_collection_modifyitems(config, items):
         return item.nodeid.split("::", 1)[0]
 
     grouped = {module(item) for item in items if module(item) in SHARED_FIXTURE_MODULES or _uses_a_module_fixture(item)}
+    grouped |= set(SAME_WORKER.values())
     for item in items:
-        if module(item) in grouped:
-            item.add_marker(pytest.mark.xdist_group(module(item)))
+        group = SAME_WORKER.get(module(item), module(item))
+        if group in grouped:
+            item.add_marker(pytest.mark.xdist_group(group))
     items.sort(key=lambda item: rank.get(module(item), len(SLOW_FIRST)))  # stable: the rest keeps its order

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import doctest
 import re
+import shutil
 from pathlib import Path
-
-from gonio.cli.main import main
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
@@ -19,9 +18,8 @@ def _python_api_block() -> str:
     return blocks[0]
 
 
-def test_readme_python_api_example_runs(tmp_path, capsys):
-    demo = tmp_path / "gonio-demo"
-    assert main(["measure", "--sim", "--out", str(demo), "--quiet"]) == 0  # the quick start's session
+def test_readme_python_api_example_runs(default_session_measured, tmp_path, capsys):
+    demo = shutil.copytree(default_session_measured, tmp_path / "gonio-demo")  # the quick start's session
     capsys.readouterr()
     source = _python_api_block().replace("/tmp/gonio-demo", str(demo))
     test = doctest.DocTestParser().get_doctest(source, {}, "README Python API", str(README), 0)

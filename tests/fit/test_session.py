@@ -15,10 +15,9 @@ KD, KS, ALPHA, F0 = [0.3, 0.12, 0.06], 0.8, 0.25, 0.04
 
 
 @pytest.fixture(scope="module")
-def session(tmp_path_factory):
-    out = tmp_path_factory.mktemp("sess") / "s"
-    assert main(["measure", "--sim", "--out", str(out), "--quiet"]) == 0
-    return load_source(str(out))
+def session(default_session_measured):
+    """The quick start's session (tests/conftest.py, shared with tests/api/test_readme.py)."""
+    return load_source(str(default_session_measured))
 
 
 def test_selection_on_the_default_session_is_one_lobe_with_the_true_parameters(session):
