@@ -234,6 +234,23 @@ def _plot_labtime(ax, tables) -> bool:
     return True
 
 
+def _sphere(q):
+    from benchmarks import bench_sphere
+
+    return bench_sphere.trade(q)
+
+
+def _plot_sphere(ax, tables) -> bool:
+    t = _find(tables, "camera", "cells / lab min")
+    if t is None or not t.rows:
+        return False
+    names = [str(c) for c in _col(t, "camera")]
+    ax.bar(range(len(names)), _col(t, "cells / lab min").astype(float))
+    ax.set_xticks(range(len(names)), names, rotation=15, ha="right", fontsize=7)
+    ax.set(ylabel="MERL cells filled per lab minute", yscale="log", title="Sphere vs flat sample (geometry)")
+    return True
+
+
 TRADES = [
     Trade("plans", "Plan density and kind → lab time vs BRDF error", _plans, _plot_plans),
     Trade("capture", "Exposure brackets and frames averaged → lab time vs noise", _capture, _plot_capture),
@@ -246,6 +263,7 @@ TRADES = [
           _plot_calibration),
     Trade("labtime", "Light warm-up and dark frames → lab time vs its lower bound vs accuracy", _labtime,
           _plot_labtime),
+    Trade("sphere", "Sphere vs flat sample → MERL cells per lab minute", _sphere, _plot_sphere),
 ]
 
 

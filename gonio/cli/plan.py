@@ -286,6 +286,12 @@ def register(sub) -> None:
     s.add_argument("--sim-resolution", metavar="WxH", default=None,
                    help="the camera: the simulated one at this resolution (default 320x240)")
     s.add_argument("--calibration", metavar="CAMERA.toml", help="the camera: a rig's camera file")
+    s.add_argument("--fill", type=float, default=None, metavar="F",
+                   help="choose the light positions greedily for the cells they fill per lab second until this "
+                        "fraction of the reachable cells is filled (e.g. 0.9); candidates every --theta-i-step and "
+                        "--phi-i-step (default 2.5 and 10 deg)")
+    s.add_argument("--fill-budget", type=float, default=None, metavar="S",
+                   help="with --fill: stop at this much lab time (seconds, default 1200)")
     p.set_defaults(func=run)
 
 
@@ -304,11 +310,13 @@ def run(args) -> int:
     plan = plan_from_args(args, args.name, rig, where="NAME", source=None, time_budget=args.time_budget)
     if args.name == "adaptive":
         return _print_adaptive(args, plan, rig)
-    for o in ("target", "sim_resolution", "calibration"):
+    for o in ("target", "sim_resolution", "calibration", "fill", "fill_budget"):
         if getattr(args, o, None) is not None and args.name != "sphere":
             from gonio.errors import ConfigError
 
             raise ConfigError.field(f"--{o.replace('_', '-')}", "option", getattr(args, o), "only for plan sphere")
+    if args.name == "sphere" and (getattr(args, "fill", None) is not None or getattr(args, "fill_budget", None)):
+        plan = _greedy_sphere(args, plan, rig)
     if args.name == "sparse":
         p = plan.params
         print(f"plan sparse (n = {p['n']}, prior {p['prior']}) on rig {rig.name!r}: {len(plan)} poses chosen among "
@@ -361,8 +369,34 @@ def run(args) -> int:
 SIM_FOCAL_PX = 380.0
 
 
-def _print_sphere_coverage(args, plan, rig) -> None:
-    """The sphere plan's coverage of the MERL table (:func:`gonio.session.sphere_coverage.plan_coverage`)."""
+def _greedy_sphere(args, plan, rig):
+    """``--fill``: the sphere plan chosen for cells per lab second (:func:`gonio.session.sphere_plan.greedy_sphere_plan`),
+    its candidates the given sphere plan's parameters (denser defaults)."""
+    import math
+
+    from gonio.errors import ConfigError
+    from gonio.session.sphere_plan import greedy_sphere_plan
+
+    fill = 0.9 if args.fill is None else args.fill
+    if not (0.0 < fill <= 1.0):
+        raise ConfigError.field("--fill", "option", fill, "must be a fraction in (0, 1]")
+    budget = 1200.0 if args.fill_budget is None else args.fill_budget
+    if not (math.isfinite(budget) and budget > 0):
+        raise ConfigError.field("--fill-budget", "option", budget, "must be positive seconds")
+    sphere, calib = _sphere_camera(args)
+    p = plan.params
+    steps = {k: (p[k] if getattr(args, f"plan_{k}", None) is not None else math.radians(d))
+             for k, d in (("theta_i_step", 2.5), ("phi_i_step", 10.0))}
+    greedy, info = greedy_sphere_plan(rig, calib, sphere, theta_o=p["theta_o"], theta_max=p["theta_max"],
+                                      coverage=fill, budget=budget, capture=plan.capture, seed=args.seed, **steps)
+    print(f"greedy: {info['poses']} of {info['candidates']} candidate light positions fill {info['filled']} of the "
+          f"{info['reachable']} cells they reach ({100 * info['filled'] / max(info['reachable'], 1):.1f} %) in "
+          f"{info['lab_s'] / 60:.1f} lab min (estimated)")
+    return greedy
+
+
+def _sphere_camera(args):
+    """The declared sphere and the camera of ``gonio plan sphere`` (--target, --sim-resolution, --calibration)."""
     from gonio.pipeline.target import TargetLayout, load_target
     from gonio.session.options import DEFAULT_SIM_RESOLUTION, parse_resolution
     from gonio.sphere import Sphere
@@ -381,9 +415,15 @@ def _print_sphere_coverage(args, plan, rig) -> None:
 
         w, h = parse_resolution(args.sim_resolution or DEFAULT_SIM_RESOLUTION)
         calib = CameraCalibration.pinhole(w, h, SIM_FOCAL_PX * w / 320)  # the simulated camera's field of view
+    return layout.sphere, calib
+
+
+def _print_sphere_coverage(args, plan, rig) -> None:
+    """The sphere plan's coverage of the MERL table (:func:`gonio.session.sphere_coverage.plan_coverage`)."""
     from gonio.session.sphere_coverage import plan_coverage
 
-    print("\n".join(plan_coverage(plan, rig, calib, layout.sphere).lines()))
+    sphere, calib = _sphere_camera(args)
+    print("\n".join(plan_coverage(plan, rig, calib, sphere).lines()))
 
 
 def _print_adaptive(args, plan, rig) -> int:

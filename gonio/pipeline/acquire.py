@@ -34,6 +34,9 @@ __all__ = ["PipelineSettings", "PoseResult", "BoardNotFound", "Pipeline"]
 BOARD_REMETER_FACTOR = 1.5
 #: pixels merged around a sphere's projected box: room for its silhouette's edge search (gonio.sphere.refine)
 SPHERE_PAD_PX = 10
+#: a sphere's bracket: the pixels a MERL cell averages (its samples from this frame and the frames of neighbouring
+#: light positions), so a pixel's SNR target is the sample target over √9 (1 % per pixel at the default 300)
+SPHERE_PIXELS_PER_CELL = 9
 
 
 def _used_index(roi, used: np.ndarray, width: int) -> np.ndarray:
@@ -339,7 +342,7 @@ class Pipeline:
         reference's pixels metered and merged as a flat sample's are, then one sample per sphere pixel
         (:func:`gonio.sphere.pixels.sphere_frame_samples`), wi and wo in each pixel's normal frame; the pose's
         pixel counts (used, silhouette, terminator, saturated, dark) in :attr:`PoseResult.sphere_counts`."""
-        from gonio.sphere.pixels import sphere_box, white_box
+        from gonio.sphere.pixels import sphere_box, sphere_lit_pixels, white_box
         from gonio.sphere.pose import sphere_pose_samples
 
         c = self.calib
@@ -352,8 +355,10 @@ class Pipeline:
         mask[box] = True
         mask[wbox] = True
         used = np.flatnonzero(mask)
-        if plan is None:
-            plan = self._meter(frame, px, level, used, gain, 1)
+        if plan is None:  # metered on what gives samples: the sphere's lit, seen pixels and the white patch
+            lit = sphere_lit_pixels(c, cam_pose, sph, light_position, box)
+            lit[wbox] = True
+            plan = self._meter(frame, px, level, np.flatnonzero(lit), gain, SPHERE_PIXELS_PER_CELL, every_pixel=True)
         hdr, lights, times, flags = self._capture_merge(plan, used, flags)
         C = hdr.rate.shape[-1]
         rate = np.full((c.height * c.width, C), np.nan)
@@ -374,10 +379,13 @@ class Pipeline:
         return PoseResult(samples, plan, board, cam_pose, lights, times, source, sphere_counts=counts, sphere_frame=fs)
 
     def _meter(self, frame: Frame, px: np.ndarray, level: float, used: np.ndarray, gain: float,
-               n_min: int) -> CapturePlan:
+               n_min: int, *, every_pixel: bool = False) -> CapturePlan:
         """Find signal rates of the sample and white pixels (``used``: their :func:`_used_index`); re-meter
         (bounded) when saturated or dark. ``n_min``: the fewest pixels a sample averages (the bracket's SNR
-        target is per sample)."""
+        target is per sample). ``every_pixel``: each pixel is a sample (a sphere): the brightest pixel, not the
+        99.9th percentile, sets the shortest exposure, and one saturated pixel re-meters (a chrome-like sphere's
+        highlight is a pixel or two, and it is the peak of the lobe)."""
+        q_hi, sat_tol = (100.0, 0.0) if every_pixel else (99.9, 0.001)
         st, es = self.settings, self.settings.exposure
         t = frame.exposure
         for _ in range(st.meter_tries):
@@ -386,8 +394,8 @@ class Pipeline:
             vals = _take(px, used).astype(np.float64) - frame.black_level
             sat = vals >= (1 - SATURATION_MARGIN) * rng
             frac_sat = sat.any(axis=-1).mean()
-            bright = float(np.percentile(vals, 99.9))
-            if frac_sat > 0.001 and t > es.min_exposure:
+            bright = float(np.percentile(vals, q_hi))
+            if frac_sat > sat_tol and t > es.min_exposure:
                 t = max(t / es.step**2, es.min_exposure)
             elif bright < 0.05 * rng and t < es.max_exposure:
                 t = min(t * es.step**2, es.max_exposure)
@@ -397,7 +405,7 @@ class Pipeline:
         scale = frame.exposure * frame.gain * max(level, 1e-12)
         vals = np.maximum(_take(px, used).astype(np.float64) - frame.black_level, 0.5) / scale
         # both percentiles in one call (float64 values: each is the one a call of its own gives)
-        hi, lo = (float(v) for v in np.percentile(vals, [99.9, 2.0]))
-        rate_bright = hi * (1.0 if frac_sat <= 0.001 else 4.0)
+        hi, lo = (float(v) for v in np.percentile(vals, [q_hi, 2.0]))
+        rate_bright = hi * (1.0 if frac_sat <= sat_tol else 4.0)
         rate_dim = lo
         return plan_bracket(rate_bright, rate_dim, rng, n_min, self.calib.noise, es, gain)

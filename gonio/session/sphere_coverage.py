@@ -20,7 +20,7 @@ from gonio.io.merl_index import half_diff_index
 from gonio.sphere.geometry import Sphere, sphere_hits
 from gonio.sphere.pixels import sphere_box
 
-__all__ = ["cells_of_pose", "plan_cells", "valid_cells", "Coverage", "plan_coverage"]
+__all__ = ["cells_of_pose", "flat_cells_of_pose", "plan_cells", "valid_cells", "Coverage", "plan_coverage"]
 
 
 def cells_of_pose(rig, joints, calib, sphere: Sphere, *, grazing_deg: float = 80.0, stride: int = 1) -> np.ndarray:
@@ -40,6 +40,27 @@ def cells_of_pose(rig, joints, calib, sphere: Sphere, *, grazing_deg: float = 80
     c = math.cos(math.radians(grazing_deg))
     ok = (h.cos_o >= c) & (h.cos_i >= c)
     ih, idd, ip = half_diff_index(h.theta_h[ok], h.theta_d[ok], h.phi_d[ok])
+    return np.unique(ip + 180 * (idd + 90 * ih))
+
+
+def flat_cells_of_pose(rig, joints, layout, *, n: int = 6) -> np.ndarray:
+    """Flat MERL cell indices a *flat* sample fills at one pose, from the geometry alone: the (wi, wo) of an
+    ``n × n`` grid of tile centres over ``layout.sample`` (normal +z; the pipeline's tiles, :mod:`gonio.pipeline.roi`,
+    are about this many on the default board) — the baseline a sphere's cells are compared with before measuring."""
+    from gonio.geometry import half_diff_from_dirs
+
+    r = layout.sample
+    g = (np.arange(n) + 0.5) / n
+    X, Y = np.meshgrid(r.x0 + g * (r.x1 - r.x0), r.y0 + g * (r.y1 - r.y0), indexing="ij")
+    x = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], axis=-1)
+    cam, _ = rig.camera_pose(joints)
+    wi = np.asarray(rig.light_position(joints), dtype=np.float64) - x
+    wo = np.asarray(cam, dtype=np.float64) - x
+    wi /= np.linalg.norm(wi, axis=-1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
+    ok = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+    th, _, td, pd = half_diff_from_dirs(wi[ok], wo[ok])
+    ih, idd, ip = half_diff_index(th, td, pd)
     return np.unique(ip + 180 * (idd + 90 * ih))
 
 

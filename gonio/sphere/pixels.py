@@ -26,6 +26,7 @@ from gonio.errors import DataError
 from gonio.sphere.geometry import Sphere, sphere_hits
 
 __all__ = ["SphereFrameSamples", "sphere_frame_samples", "centre_perturbations", "white_scale", "white_box",
+           "sphere_lit_pixels",
            "pixel_rays_world", "sphere_box"]
 
 
@@ -74,6 +75,21 @@ def sphere_box(calib, pose, sphere: Sphere, pad: int = 2) -> tuple[slice, slice]
     if rows.stop <= rows.start or cols.stop <= cols.start:
         return None
     return rows, cols
+
+
+def sphere_lit_pixels(calib, pose, sphere: Sphere, light_position, box, grazing_deg: float = 80.0) -> np.ndarray:
+    """(H, W) bool: the pixels of ``box`` whose centre sees the sphere lit and not grazing (θi and θo below
+    ``grazing_deg``): the pixels that give samples, whose range the bracket must cover (a sphere's frame also
+    holds its dark side, its shadow and the board, which give none)."""
+    rows, cols = box
+    d, rc = pixel_rays_world(calib, pose, rows, cols)
+    hits, hit = sphere_hits(pose.centre, d, sphere, light_position)
+    c = math.cos(math.radians(grazing_deg))
+    ok = (hits.cos_i >= c) & (hits.cos_o >= c)
+    out = np.zeros((calib.height, calib.width), dtype=bool)
+    px = rc[hit][ok]
+    out[px[:, 0], px[:, 1]] = True
+    return out
 
 
 def white_box(calib, pose, layout) -> tuple[slice, slice] | None:
