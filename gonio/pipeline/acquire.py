@@ -35,8 +35,8 @@ BOARD_REMETER_FACTOR = 1.5
 #: pixels merged around a sphere's projected box: room for its silhouette's edge search (gonio.sphere.refine)
 SPHERE_PAD_PX = 10
 #: a sphere's bracket: the pixels a MERL cell averages (its samples from this frame and the frames of neighbouring
-#: light positions), so a pixel's SNR target is the sample target over √9 (1 % per pixel at the default 300)
-SPHERE_PIXELS_PER_CELL = 9
+#: light positions), so a pixel's SNR target is the sample target over √4 (150 at the default 300)
+SPHERE_PIXELS_PER_CELL = 4
 
 
 def _used_index(roi, used: np.ndarray, width: int) -> np.ndarray:
