@@ -334,11 +334,13 @@ class SimRig:
 
     # -- device paths ---------------------------------------------------------------------------
     def _true_sphere(self, cfg):
-        """The layout's sphere where it really is (``cfg.sphere_offset_m`` from the declared centre)."""
-        sph = self.layout.sphere
+        """The layout's sphere (or cylinder) where it really is (``cfg.sphere_offset_m`` from the declared centre)."""
+        sph = self.layout.curved
         if sph is None or cfg.sphere_offset_m is None:
             return sph
-        return type(sph)(tuple(np.asarray(sph.centre) + np.asarray(cfg.sphere_offset_m, dtype=float)), sph.radius)
+        from dataclasses import replace
+
+        return replace(sph, centre=tuple(np.asarray(sph.centre) + np.asarray(cfg.sphere_offset_m, dtype=float)))
 
     @property
     def servo_port(self) -> str:

@@ -6,7 +6,8 @@ box filter over the pixel, the sensor's fill factor taken as 1) are traced to th
 point light), each miss the board's rate at that pixel; the pixel's rate is their mean — so a highlight smaller
 than a pixel is integrated over the pixel's footprint of normals, as a real camera integrates it, not sampled at
 the pixel centre. The BRDF is evaluated in a per-normal frame (Duff et al. 2017's tangent: irrelevant for an
-isotropic material). The sphere's shadow on the board (the white reference included) is cast: a board point whose
+isotropic material; a cylinder's frame has its tangent along the axis, so an anisotropic material is rendered
+in its orientation, :mod:`gonio.sphere.cylinder`). The sphere's shadow on the board (the white reference included) is cast: a board point whose
 segment to the light meets the sphere gets no direct light.
 """
 
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio.sphere.geometry import _local, sphere_hits
+from gonio.sphere.geometry import sphere_hits
 from gonio.sphere.pixels import sphere_box
 
 
@@ -26,14 +27,9 @@ def _board_shadow(cam, rate, px, py, hit) -> None:
     X = np.stack([px.astype(np.float64), py.astype(np.float64), np.zeros(px.shape)], axis=-1)
     to_s = S - X
     dist = np.linalg.norm(to_s, axis=-1)
-    d = to_s / np.maximum(dist, 1e-12)[..., None]
-    oc = X - sph.P
-    b = np.einsum("...i,...i->...", d, oc)
-    c = np.einsum("...i,...i->...", oc, oc) - sph.radius ** 2
-    disc = b * b - c
+    t, blocked = sph.intersect(X, to_s / np.maximum(dist, 1e-12)[..., None])
     with np.errstate(invalid="ignore"):
-        t = -b - np.sqrt(np.where(disc >= 0, disc, np.nan))
-    shadow = hit & (disc >= 0) & (t > 0) & (t < dist)
+        shadow = hit & blocked & (t < dist)
     rate[shadow] = 0.0
 
 
@@ -57,10 +53,7 @@ def shade_sphere(cam, rate: np.ndarray, px, py, hit) -> None:
     hits, mask = sphere_hits(cam._pose.centre, d, sph, cam._light_pos)
     if not mask.any():
         return
-    frame = _local(hits.n)
-    wi = np.einsum("nij,nj->ni", frame, hits.wi)
-    wo = np.einsum("nij,nj->ni", frame, hits.wo)
-    f = s.material.eval(wi, wo)
+    f = s.material.eval(hits.wi_local, hits.wo_local)  # in each point's frame (a cylinder's: t along its axis)
     irr = s.light_intensity * np.clip(hits.cos_i, 0.0, None) / hits.r2
     contrib = np.zeros(mask.shape + (3,))
     contrib[mask] = f * irr[:, None] * np.asarray(cam.sensor.responsivity)

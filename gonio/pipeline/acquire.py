@@ -278,7 +278,7 @@ class Pipeline:
                                 "camera pose given", device="camera")
         if board is None:
             flags |= S.NO_BOARD
-        if self.layout.sphere is not None:  # image-based: one sample per pixel of the sphere (gonio.sphere)
+        if self.layout.curved is not None:  # image-based: one sample per pixel of the sphere or cylinder
             return self._measure_sphere(frame, px, level, gain, plan, cam_pose, board, source, flags, light_position,
                                         pose_index)
         roi = build_roi(cam_pose, self.calib, self.layout, light_position, margin_px=st.margin_px,
@@ -346,7 +346,7 @@ class Pipeline:
         from gonio.sphere.pose import sphere_pose_samples
 
         c = self.calib
-        sph = self.layout.sphere
+        sph = self.layout.curved
         box, wbox = sphere_box(c, cam_pose, sph, pad=SPHERE_PAD_PX), white_box(c, cam_pose, self.layout)
         if box is None or wbox is None:
             raise BoardNotFound("camera frame: the sphere or the white patch is outside the image at this pose",

@@ -270,6 +270,14 @@ class TargetLayout:
     #: a sphere coated with the material (:class:`gonio.sphere.Sphere`, sample frame) measured instead of the flat
     #: patch, one sample per pixel (image-based acquisition, :mod:`gonio.sphere`); None: the flat sample
     sphere: object = None
+    #: a cylinder lying on the board instead (:class:`gonio.sphere.cylinder.Cylinder`): its axis gives anisotropic
+    #: slices; None: no cylinder
+    cylinder: object = None
+
+    @property
+    def curved(self):
+        """The curved sample measured per pixel (the sphere or the cylinder), or None for the flat patch."""
+        return self.sphere if self.sphere is not None else self.cylinder
 
     def __post_init__(self):
         w, h = self.charuco.size
@@ -296,6 +304,13 @@ class TargetLayout:
             wy = min(max(y, self.white.y0), self.white.y1)
             if (wx - x) ** 2 + (wy - y) ** 2 < sp.radius ** 2:
                 raise ConfigError.field(None, "sphere.centre", list(sp.centre), "the sphere stands on the white patch")
+        if self.cylinder is not None:
+            from gonio.sphere.cylinder import check_on_board
+
+            if self.sphere is not None:
+                raise ConfigError.field(None, "cylinder", "[cylinder]", "a target holds a [sphere] or a [cylinder], "
+                                        "not both")
+            check_on_board(self.cylinder, board, self.white)
 
     def sample_corners(self) -> np.ndarray:
         """The sample patch's 4 corners in the sample (board-centred) frame, through the mount (4, 3)."""
@@ -311,14 +326,17 @@ class TargetLayout:
                 "white": [self.white.x0, self.white.y0, self.white.x1, self.white.y1],
                 "white_albedo": [float(a) for a in self.white_albedo], "mount": self.mount.to_dict(),
                 **({"sphere": {"radius": self.sphere.radius, "centre": list(self.sphere.centre)}}
-                   if self.sphere is not None else {})}
+                   if self.sphere is not None else {}),
+                **({"cylinder": {"radius": self.cylinder.radius, "length": self.cylinder.length,
+                                 "axis": list(self.cylinder.axis), "centre": list(self.cylinder.centre)}}
+                   if self.cylinder is not None else {})}
 
     @classmethod
     def from_dict(cls, d, source: str | None = None) -> "TargetLayout":
         """Inverse of :meth:`to_dict`; missing keys take the defaults; errors name ``source`` and the field."""
         if not isinstance(d, dict):
             raise ConfigError.field(source, "target", d, "needs a table")
-        unknown = set(d) - {"charuco", "sample", "white", "white_albedo", "mount", "sphere"}
+        unknown = set(d) - {"charuco", "sample", "white", "white_albedo", "mount", "sphere", "cylinder"}
         if unknown:
             k = sorted(unknown)[0]
             raise ConfigError.field(source, f"target.{k}", d[k], "unknown key")
@@ -335,6 +353,10 @@ class TargetLayout:
                 kw["mount"] = SampleMount.from_dict(d["mount"])
             if "sphere" in d:
                 kw["sphere"] = _sphere(d["sphere"])
+            if "cylinder" in d:
+                from gonio.sphere.cylinder import cylinder_from_table
+
+                kw["cylinder"] = cylinder_from_table(d["cylinder"], _number)
             return cls(**kw)
         except ConfigError as exc:
             raise ConfigError(f"{source}: {exc}" if source else str(exc)) from None

@@ -42,7 +42,7 @@ def pixel_footprint(calib, pose, sphere: Sphere, pixels, light=None) -> np.ndarr
         d /= np.linalg.norm(d, axis=-1, keepdims=True)
         t, _ = ray_sphere(C, d, sphere)
         x = C + t[:, None] * d
-        n = (x - sphere.P) / sphere.radius
+        n = sphere.normal(x)
         if light is None:
             return n, n
         wi = np.asarray(light, dtype=np.float64) - x
@@ -58,7 +58,8 @@ def pixel_footprint(calib, pose, sphere: Sphere, pixels, light=None) -> np.ndarr
     mpm, mmp = at(u + h, v - h)[1], at(u - h, v + h)[1]
     d = [(mp0 - mm0) / (2 * h), (m0p - m0m) / (2 * h), (mp0 - 2 * m00 + mm0) / h ** 2,
          (mpp - mpm - mmp + mmm) / (4 * h * h), (m0p - 2 * m00 + m0m) / h ** 2]
-    frame = _local(n0 / np.linalg.norm(n0, axis=-1, keepdims=True))
+    n0 = n0 / np.linalg.norm(n0, axis=-1, keepdims=True)
+    frame = sphere.frames(None, n0)  # the pixel centre's frame (a cylinder's: t along its axis)
     return np.stack([np.einsum("nij,nj->ni", frame, x) for x in d], axis=1)
 
 

@@ -55,6 +55,32 @@ class Sphere:
         """Outward unit normals ``(X − P)/r`` at points on the sphere (``(..., 3)``)."""
         return (np.asarray(points, dtype=np.float64) - self.P) / self.radius
 
+    def intersect(self, origin, dirs) -> tuple[np.ndarray, np.ndarray]:
+        """``(t, hit)`` of unit rays ``origin + t·dirs`` (origins (3,) or one per ray): the nearer root of the module
+        docstring's quadratic, NaN where the ray misses."""
+        d = np.asarray(dirs, dtype=np.float64)
+        oc = np.asarray(origin, dtype=np.float64) - self.P
+        b = np.einsum("...i,...i->...", d, oc)
+        c = np.einsum("...i,...i->...", oc, oc) - self.radius ** 2
+        disc = b * b - c
+        hit = disc >= 0.0
+        with np.errstate(invalid="ignore"):
+            t = -b - np.sqrt(np.where(hit, disc, np.nan))
+        hit &= t > 0.0
+        return np.where(hit, t, np.nan), hit
+
+    def frames(self, points, n) -> np.ndarray:
+        """Per-point frames (..., 3, 3), rows (t, b, n): any tangent serves an isotropic BRDF (:func:`_local`)."""
+        return _local(n)
+
+    def corners(self) -> np.ndarray:
+        """(8, 3): the corners of a box holding the sphere."""
+        return self.P + self.radius * np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], float)
+
+    def grown(self, by: float) -> "Sphere":
+        """The same sphere ``by`` metres larger in radius."""
+        return Sphere(self.centre, self.radius + by)
+
     def silhouette_angle(self, eye) -> float:
         """Half-angle (rad) of the cone the sphere subtends from ``eye``: ``asin(r/|C − P|)``."""
         d = float(np.linalg.norm(np.asarray(eye, dtype=np.float64) - self.P))
@@ -64,18 +90,10 @@ class Sphere:
 
 
 def ray_sphere(origin, dirs, sphere: Sphere) -> tuple[np.ndarray, np.ndarray]:
-    """Distance ``t`` along unit rays ``origin + t·dirs`` to their first hit of ``sphere`` and whether they hit
-    (``t`` is NaN where they miss). Vectorized over ``dirs`` (..., 3); ``origin`` (3,)."""
-    d = np.asarray(dirs, dtype=np.float64)
-    oc = np.asarray(origin, dtype=np.float64) - sphere.P
-    b = d @ oc
-    c = float(oc @ oc) - sphere.radius ** 2
-    disc = b * b - c
-    hit = disc >= 0.0
-    with np.errstate(invalid="ignore"):
-        t = -b - np.sqrt(np.where(hit, disc, np.nan))
-    hit &= t > 0.0
-    return np.where(hit, t, np.nan), hit
+    """Distance ``t`` along unit rays ``origin + t·dirs`` to their first hit of ``sphere`` (or any curved target with
+    an ``intersect`` method, :class:`gonio.sphere.cylinder.Cylinder`) and whether they hit (``t`` is NaN where they
+    miss). Vectorized over ``dirs`` (..., 3); ``origin`` (3,) or one per ray."""
+    return sphere.intersect(origin, dirs)
 
 
 @dataclass(frozen=True)
@@ -94,8 +112,9 @@ class SphereHits:
     theta_h: np.ndarray
     theta_d: np.ndarray
     phi_d: np.ndarray
-    wi_local: np.ndarray = None  #: wi in the per-normal frame (t, b, n) of :func:`_local`
+    wi_local: np.ndarray = None  #: wi in the per-normal frame (t, b, n) of the target's ``frames``
     wo_local: np.ndarray = None
+    phi_h: np.ndarray = None  #: the half vector's azimuth from the tangent t (a cylinder: from its axis)
 
 
 def _local(n: np.ndarray) -> np.ndarray:
@@ -125,9 +144,9 @@ def sphere_hits(eye, dirs, sphere: Sphere, light) -> tuple[SphereHits, np.ndarra
     r2 = np.einsum("ij,ij->i", to_light, to_light)
     wi = to_light / np.sqrt(r2)[:, None]
     wo = -d
-    frame = _local(n)
+    frame = sphere.frames(x, n)
     wi_l = np.einsum("nij,nj->ni", frame, wi)
     wo_l = np.einsum("nij,nj->ni", frame, wo)
-    th, _, td, pd = half_diff_from_dirs(wi_l, wo_l)
+    th, ph, td, pd = half_diff_from_dirs(wi_l, wo_l)
     return SphereHits(x=x, n=n, wi=wi, wo=wo, cos_i=wi_l[:, 2], cos_o=wo_l[:, 2], r2=r2, theta_h=th,
-                      theta_d=td, phi_d=pd, wi_local=wi_l, wo_local=wo_l), hit
+                      theta_d=td, phi_d=pd, wi_local=wi_l, wo_local=wo_l, phi_h=ph), hit

@@ -11,7 +11,8 @@ height above it); their inverse-variance mean is the frame's ``kI``. Per sphere 
 
 (GUM, JCGM 100:2008, eq. 10, independent inputs). Pixels are rejected, and counted, where the BRDF sample would
 not be what the formula says: ``silhouette`` (θo above ``grazing_deg``: the pixel's footprint spans many normals
-and the background), ``terminator`` (θi above ``grazing_deg``), ``saturated`` (no exposure left unsaturated),
+and the background; or the footprint leaves the target, :func:`gonio.sphere.footprint.pixel_footprint` — a
+cylinder's ends), ``terminator`` (θi above ``grazing_deg``), ``saturated`` (no exposure left unsaturated),
 ``dark`` (SNR below ``min_snr``).
 """
 
@@ -62,8 +63,7 @@ def pixel_rays_world(calib, pose, rows: slice, cols: slice) -> tuple[np.ndarray,
 def sphere_box(calib, pose, sphere: Sphere, pad: int = 2) -> tuple[slice, slice] | None:
     """Pixel box (rows, cols) holding the sphere's projection (its bounding cube's corners), padded; None if
     it is not in view."""
-    r = sphere.radius
-    corners = sphere.P + r * np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], dtype=float)
+    corners = sphere.corners()
     pc = corners @ pose.R.T + pose.t
     if (pc[:, 2] <= 0).any():
         return None
@@ -128,24 +128,17 @@ def white_scale(rate, var, calib, pose, layout, light_position, sphere: Sphere |
     inside &= layout.white.contains(p[..., 0] + 1e-3, p[..., 1] + 1e-3) & layout.white.contains(
         p[..., 0] - 1e-3, p[..., 1] - 1e-3)
     if sphere is not None:
-        from gonio.sphere.geometry import ray_sphere
-
         # grown by 3 pixel footprints at the sphere's distance: a pixel straddling its silhouette or its shadow's
         # edge mixes the sphere (or the shade) into the white
-        grow = 3.0 * float(np.linalg.norm(C - sphere.P)) / float(calib.K[0, 0])
-        sphere = Sphere(sphere.centre, sphere.radius + grow)
-        _, hidden = ray_sphere(C, d, sphere)  # the camera sees the sphere, not the white, through these pixels
+        grow = 3.0 * float(np.linalg.norm(C - np.mean(sphere.corners(), axis=0))) / float(calib.K[0, 0])
+        big = sphere.grown(grow)
+        _, hidden = big.intersect(C, d)  # the camera sees the sphere, not the white, through these pixels
         inside &= ~hidden
         to_s = S - p
         dist = np.linalg.norm(to_s, axis=-1)
-        oc = p - sphere.P
-        dd = to_s / np.maximum(dist, 1e-12)[..., None]
-        b = np.einsum("...i,...i->...", dd, oc)
-        cc = np.einsum("...i,...i->...", oc, oc) - sphere.radius ** 2
-        disc = b * b - cc
+        t_s, shade = big.intersect(p, to_s / np.maximum(dist, 1e-12)[..., None])
         with np.errstate(invalid="ignore"):
-            t_s = -b - np.sqrt(np.where(disc >= 0, disc, np.nan))
-        inside &= ~((disc >= 0) & (t_s > 0) & (t_s < dist))  # in the sphere's shadow
+            inside &= ~(shade & (t_s < dist))  # in the sphere's shadow
     r_w = rate[rows, cols][inside]
     v_w = var[rows, cols][inside]
     ok = np.all(np.isfinite(r_w) & np.isfinite(v_w) & (v_w > 0), axis=1)
@@ -185,7 +178,7 @@ def _geometry_variance(f, px, hits, box, calib, pose, sphere, light_position, pe
     lnE = np.log(np.clip(hits.cos_i, 1e-12, None) / hits.r2)
     uv = px[:, ::-1].astype(np.float64)  # (u = col, v = row)
     for q, sq in perturbations:
-        duv = q.project(hits.x + (sq.P - sphere.P), calib) - uv
+        duv = q.project(hits.x + (np.mean(sq.corners(), axis=0) - np.mean(sphere.corners(), axis=0)), calib) - uv
         dq = calib.rays(uv[:, 0], uv[:, 1]) @ q.R
         dq /= np.linalg.norm(dq, axis=-1, keepdims=True)
         hq, hit_q = sphere_hits(q.centre, dq, sq, light_position)
@@ -200,7 +193,7 @@ def _geometry_variance(f, px, hits, box, calib, pose, sphere, light_position, pe
 def centre_perturbations(pose, sphere: Sphere, centre_sigma) -> list:
     """``(pose, sphere)`` pairs with the centre one σ off along each axis whose σ is positive (independent axes:
     a diagonal covariance's principal axes)."""
-    if centre_sigma is None:
+    if centre_sigma is None or not isinstance(sphere, Sphere):
         return []
     out = []
     for k, s in enumerate(np.asarray(centre_sigma, dtype=np.float64).reshape(3)):
@@ -235,6 +228,11 @@ def sphere_frame_samples(rate, var, calib, pose, sphere: Sphere, light_position,
     v_px = var[px[:, 0], px[:, 1]]
     cos_lim = math.cos(math.radians(grazing_deg))
     sil = hits.cos_o < cos_lim
+    from gonio.sphere.footprint import pixel_footprint
+
+    foot = np.full((len(px), 5, 3), np.nan)
+    foot[~sil] = pixel_footprint(calib, pose, sphere, px[~sil], light_position)
+    sil |= ~np.all(np.isfinite(foot), axis=(1, 2))  # the pixel's footprint leaves the target (a cylinder's ends)
     term = ~sil & (hits.cos_i < cos_lim)
     sat = ~sil & ~term & ~np.all(np.isfinite(r_px), axis=1)
     E = np.clip(hits.cos_i, 0.0, None) / hits.r2
@@ -251,8 +249,5 @@ def sphere_frame_samples(rate, var, calib, pose, sphere: Sphere, light_position,
         sf = np.sqrt(sf ** 2 + geo)
     counts.update(hit=int(hit.sum()), silhouette=int(sil.sum()), terminator=int(term.sum()), saturated=int(sat.sum()),
                   dark=int(dark.sum()), used=int(use.sum()))
-    from gonio.sphere.footprint import pixel_footprint
-
     return SphereFrameSamples(hits.theta_h[use], hits.theta_d[use], hits.phi_d[use], f[use], sf[use], px[use],
-                              hits.wi[use], hits.wo[use], counts, hits.wi_local[use], hits.wo_local[use],
-                              pixel_footprint(calib, pose, sphere, px[use], light_position))
+                              hits.wi[use], hits.wo[use], counts, hits.wi_local[use], hits.wo_local[use], foot[use])

@@ -27,6 +27,9 @@ def sphere_pose_samples(rate, var, calib, cam_pose, declared: Sphere, light_posi
     """The pose's samples (``rate``/``var`` (H, W, C), NaN where not measured); ``history``: the earlier poses'
     record metas (their ``sphere_centre``), in pose order. The counts get ``centre`` (this pose's silhouette
     estimate, when found) and ``centre_used`` (the centre and σ its samples used)."""
+    if not isinstance(declared, Sphere):  # a cylinder: its declared pose (the silhouette refinement is a sphere's)
+        return sphere_frame_samples(rate, var, calib, cam_pose, declared, light_position, layout, min_snr=min_snr,
+                                    pose_perturbations=pose_perturbations)
     history = list(history)
     prior = session_centre(history, declared)
     current, _ = centre_in_use(prior, declared)
