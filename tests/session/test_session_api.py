@@ -5,6 +5,7 @@ camera object of the caller's); the rig's context manager leaves the light off a
 
 from __future__ import annotations
 
+import math
 import re
 import runpy
 import sys
@@ -94,9 +95,13 @@ def test_a_callback_that_fails_is_said_and_the_session_goes_on(tmp_path, capsys)
         calls.append(event.index)
         raise RuntimeError("plot window closed")
 
+    from gonio.plan.generators import make_plan
+
+    plan = make_plan("in_plane", theta_i_step=math.radians(30), theta_o_step=math.radians(30),
+                     theta_max=math.radians(60))  # 12 poses (the generator's defaults: 56): each callback fails
     with gonio.open_rig(sim=gonio.SimOptions(seed=2)) as rig:
-        run = gonio.measure(rig, "in_plane", tmp_path / "s", on_pose=bad, progress=None)
-    assert run.ok and len(calls) == run.poses_total
+        run = gonio.measure(rig, plan, tmp_path / "s", on_pose=bad, progress=None)
+    assert run.ok and len(calls) == run.poses_total == len(plan) > 1
     err = capsys.readouterr().err
     assert "on_pose callback failed (RuntimeError: plot window closed); the pose is stored" in err
 
