@@ -134,8 +134,21 @@ def _uses_a_module_fixture(item) -> bool:
 #: a worker busy while the other has nothing left to do. Measured with one BLAS thread per worker; only the
 #: order changes, every test still runs.
 SLOW_FIRST = (
+    # the largest groups and single tests of a --durations run (2026-11-27, after bench --smoke)
+    "tests/prior/test_sparse_adaptive.py",
+    "tests/fit/test_select.py",
+    "tests/fit/test_session.py",
+    "tests/api/test_readme.py",  # in tests/fit/test_session.py's group (SAME_WORKER)
+    "tests/report/test_hostile_names.py",
+    "tests/session/test_session_api.py",
+    "tests/io/test_table_npz.py",
+    "tests/protocol/test_simavr.py",
     "tests/test_bench_cli.py",
     "tests/session/test_adaptive_session.py",
+    "tests/io/test_tabulate.py",
+    "tests/api/test_batch.py",
+    "tests/pipeline/test_sphere.py",
+    "tests/session/test_measured_material.py",
     "tests/session/test_reliability.py",
     "tests/session/test_robust_session.py",
     "tests/report/test_render_and_report.py",
@@ -145,7 +158,6 @@ SLOW_FIRST = (
     "tests/rig/test_camera_characterise.py",
     "tests/session/test_lab_time_estimate.py",
     "tests/io/test_exports_and_plots.py",
-    "tests/api/test_batch.py",
     "tests/session/test_frame_faults.py",
     "tests/fit/test_real_data.py",
     "tests/api/test_api.py",
@@ -153,7 +165,6 @@ SLOW_FIRST = (
     "tests/rig/test_geocal.py",
     "tests/io/test_read_back_and_sniff.py",
     "tests/protocol/test_controller_pty.py",
-    "tests/fit/test_select.py",
     "tests/rig/test_rig_kinematics_turntable_session.py",
 )
 
