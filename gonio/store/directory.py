@@ -67,10 +67,36 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
+_SCALARS = (str, int, float, bool, type(None))
+_ENCODER = json.JSONEncoder(allow_nan=False)
+
+
+def _encode(obj: Any, level: int = 0) -> str:
+    """``obj`` as indented JSON (one space a level; a list of scalars or of rows of them on one line): what
+    ``json.dumps(obj, indent=1, allow_nan=False)`` reads back as, but the lists are written by the json module's
+    C encoder — with ``indent`` the module encodes in Python, which took seconds per write for a manifest holding
+    thousands of candidate poses (an adaptive session rewrites its manifest every round)."""
+    if isinstance(obj, dict):
+        if not obj:
+            return "{}"
+        if not all(isinstance(k, str) for k in obj):
+            return json.dumps(obj, indent=1, allow_nan=False)  # keys json converts itself: its own rules
+        pad = "\n" + " " * (level + 1)
+        items = (json.dumps(k) + ": " + _encode(v, level + 1) for k, v in obj.items())
+        return "{" + pad + ("," + pad).join(items) + "\n" + " " * level + "}"
+    if isinstance(obj, (list, tuple)):
+        if all(isinstance(x, _SCALARS) or (isinstance(x, (list, tuple)) and all(isinstance(y, _SCALARS) for y in x))
+               for x in obj):  # scalars, or rows of them (poses, a covariance): one line, one call of the C encoder
+            return _ENCODER.encode(obj)
+        pad = "\n" + " " * (level + 1)
+        return "[" + pad + ("," + pad).join(_encode(x, level + 1) for x in obj) + "\n" + " " * level + "]"
+    return _ENCODER.encode(obj)
+
+
 def write_json_atomic(path: Path, obj: Mapping[str, Any]) -> None:
     """Write ``obj`` as JSON to ``path`` atomically: a temporary file, fsync, rename, fsync the directory."""
     tmp = path.with_name(f".{path.name}.tmp")
-    data = (json.dumps(_jsonable(obj), indent=1, allow_nan=False) + "\n").encode()
+    data = (_encode(_jsonable(obj)) + "\n").encode()
     _write_new_file(tmp, data)
     try:
         os.replace(tmp, path)  # replaces a link itself, never its target

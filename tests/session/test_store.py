@@ -1,6 +1,7 @@
 """The session store: append/reopen, exact floats, torn and corrupted records, refusals, SIGKILL."""
 
 import json
+import math
 import os
 import random
 import subprocess
@@ -273,3 +274,28 @@ def test_pose_without_samples_still_counts_as_done(tmp_path):
     store.close()
     assert len(load_session(tmp_path / "s")[1]) == 0
     assert scan_samples(tmp_path / "s" / SAMPLES).records[3][1] == {"photodiode": "nan"}  # standard JSON
+
+
+def test_manifest_json_reads_back_as_the_indented_json_module_output_and_refuses_nan():
+    """write_json_atomic's encoder (lists of numbers and rows of them on one line, by the C encoder) gives the
+    document json.dumps(indent=1) gives, read back: nested dicts and lists, empty ones, escapes, big ints."""
+    from gonio.store.directory import _encode
+
+    rng = random.Random(0)
+
+    def value(depth=0):
+        r = rng.random()
+        if depth > 4 or r < 0.4:
+            return rng.choice([1, -2.5, 1e-300, 0.1 + 0.2, "é\"x\n\u2028", True, False, None, 10**20, ""])
+        if r < 0.7:
+            return [value(depth + 1) for _ in range(rng.randint(0, 4))]
+        return {rng.choice("abé\"\\"): value(depth + 1) for _ in range(rng.randint(0, 4))}
+
+    for _ in range(2000):
+        doc = {"x": value(), "poses": [[rng.random() for _ in range(4)] for _ in range(rng.randint(0, 3))]}
+        assert json.loads(_encode(doc)) == json.loads(json.dumps(doc, indent=1))
+    assert _encode({"a": {"b": [[1, 2], [3, 4]], "c": [{"d": []}]}}) == \
+        '{\n "a": {\n  "b": [[1, 2], [3, 4]],\n  "c": [\n   {\n    "d": []\n   }\n  ]\n }\n}'
+    for bad in ({"a": [float("nan")]}, {"a": float("inf")}, {"a": [[1.0, float("nan")]]}, {"a": [{"b": [-math.inf]}]}):
+        with pytest.raises(ValueError):
+            _encode(bad)
