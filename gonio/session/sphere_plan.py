@@ -6,8 +6,8 @@ the geometry alone (:func:`gonio.session.sphere_coverage.cells_of_pose`, valid c
 are their union. From the rig's rest position, the plan takes, again and again, the candidate with the most cells
 not yet filled per lab second it costs — its capture and settle (:func:`gonio.plan.labtime.pose_capture_time`) plus
 the move from the pose taken last (:class:`gonio.plan.ordering.MotionModel`) — until ``coverage`` of the reachable
-cells are filled or the lab-time ``budget`` is spent. This is the greedy algorithm for weighted (budgeted) set
-cover (Chvátal 1979, "A greedy heuristic for the set-covering problem", Math. Oper. Res. 4(3); within ``ln n`` of
+cells are filled or no pose fits in what is left of the lab-time ``budget``. This is the greedy algorithm for
+weighted (budgeted) set cover (Chvátal 1979, "A greedy heuristic for the set-covering problem", Math. Oper. Res. 4(3); within ``ln n`` of
 the fewest seconds), evaluated lazily: a candidate's count of new cells only falls as cells fill, so a stale count
 is an upper bound (Minoux 1978, "Accelerated greedy algorithms for maximizing submodular set functions"). The poses
 taken are then ordered for lab time as any plan is (:func:`gonio.plan.ordering.optimize_order`).
@@ -62,11 +62,14 @@ def greedy_sphere_plan(rig, calib, sphere: Sphere, *, theta_o: float = math.radi
     taken, spent, n_cov = [], 0.0, 0
     current = None  # the first pose: no move counted (the rig comes from wherever it stands)
     open_ = np.ones(len(cells), dtype=bool)
-    while n_cov < need and spent < budget and open_.any():
+    while n_cov < need and open_.any():
         cost = per_pose + (0.0 if current is None else model.move_time(np.broadcast_to(current, joints.shape), joints))
         cost = np.broadcast_to(np.asarray(cost, dtype=np.float64), gain.shape)
+        can = open_ & (spent + cost <= budget)  # never past the budget
+        if not can.any():
+            break
         while True:
-            ratio = np.where(open_, gain / cost, -np.inf)
+            ratio = np.where(can, gain / cost, -np.inf)
             i = int(np.argmax(ratio))
             true = float(np.count_nonzero(~covered[cells[i]]))
             gain[i] = true
@@ -81,6 +84,8 @@ def greedy_sphere_plan(rig, calib, sphere: Sphere, *, theta_o: float = math.radi
         taken.append(i)
         open_[i] = False
         current = joints[i]
+    if not taken:
+        raise ConfigError.field(None, "--fill-budget", budget, f"less than one pose's lab time ({per_pose:.2f} s)")
     plan = cand.reordered(np.array(taken + [k for k in range(len(cand)) if k not in set(taken)]), "raster")
     from dataclasses import replace
 

@@ -59,3 +59,34 @@ def test_plan_sphere_prints_its_coverage_and_refuses_what_does_not_fit(tmp_path,
     assert err.count("\n") == 1 and "declares no [sphere]" in err
     assert main(["plan", "in_plane", "--target", str(flat)]) == 2
     assert "only for plan sphere" in capsys.readouterr().err
+
+
+def test_the_greedy_plan_fills_what_it_is_asked_in_fewer_poses_than_its_candidates(rig):
+    """gonio.session.sphere_plan: the fraction asked of the cells its candidates reach, each pose taken for the most
+    new cells per lab second — fewer poses than the candidates, and its own count of cells is the geometry's."""
+    from gonio.pipeline.target import CameraCalibration
+    from gonio.session.sphere_plan import greedy_sphere_plan
+
+    calib = CameraCalibration.pinhole(160, 120, 190.0)
+    sph = Sphere((0.0, 0.0, 0.02), 0.02)
+    plan, info = greedy_sphere_plan(rig, calib, sph, theta_i_step=math.radians(10), phi_i_step=math.radians(45),
+                                    coverage=0.8)
+    assert info["filled"] >= 0.8 * info["reachable"] and 0 < len(plan) < info["candidates"]
+    assert np.allclose(plan.poses[:, 2], math.radians(60)) and plan.order == "optimized"
+    assert plan_cells(plan, rig, calib, sph)[valid_cells()].sum() == info["filled"]
+    first, _ = greedy_sphere_plan(rig, calib, sph, theta_i_step=math.radians(10), phi_i_step=math.radians(45),
+                                  coverage=0.8, budget=1.0)
+    assert len(first) == 1  # a budget below two poses' lab time: the single best pose
+
+
+@pytest.mark.parametrize("opts, field", [(["--fill", "1.5"], "--fill"), (["--fill", "0"], "--fill"),
+                                         (["--fill", "0.5", "--fill-budget", "-3"], "--fill-budget")])
+def test_plan_sphere_fill_refuses_bad_values_in_one_line(opts, field, capsys):
+    assert main(["plan", "sphere", *opts]) != 0
+    err = capsys.readouterr().err.strip()
+    assert field in err and "\n" not in err
+
+
+def test_fill_is_only_for_plan_sphere(capsys):
+    assert main(["plan", "in_plane", "--fill", "0.5"]) != 0
+    assert "only for plan sphere" in capsys.readouterr().err
