@@ -7,8 +7,8 @@ are their union. From the rig's rest position, the plan takes, again and again, 
 not yet filled per lab second it costs — its capture and settle (:func:`gonio.plan.labtime.pose_capture_time`) plus
 the move from the pose taken last (:class:`gonio.plan.ordering.MotionModel`) — until ``coverage`` of the reachable
 cells are filled or no pose fits in what is left of the lab-time ``budget``. This is the greedy algorithm for
-weighted (budgeted) set cover (Chvátal 1979, "A greedy heuristic for the set-covering problem", Math. Oper. Res. 4(3); within ``ln n`` of
-the fewest seconds), evaluated lazily: a candidate's count of new cells only falls as cells fill, so a stale count
+weighted (budgeted) set cover (Chvátal 1979, "A greedy heuristic for the set-covering problem", Math. Oper.
+Res. 4(3); within ``ln n`` of the fewest seconds), evaluated lazily: a candidate's count of new cells only falls as cells fill, so a stale count
 is an upper bound (Minoux 1978, "Accelerated greedy algorithms for maximizing submodular set functions"). The poses
 taken are then ordered for lab time as any plan is (:func:`gonio.plan.ordering.optimize_order`).
 """
