@@ -383,12 +383,13 @@ def _greedy_sphere(args, plan, rig):
     budget = 1200.0 if args.fill_budget is None else args.fill_budget
     if not (math.isfinite(budget) and budget > 0):
         raise ConfigError.field("--fill-budget", "option", budget, "must be positive seconds")
-    sphere, calib = _sphere_camera(args)
+    sphere, calib, layout = _sphere_camera(args)
     p = plan.params
     steps = {k: (p[k] if getattr(args, f"plan_{k}", None) is not None else math.radians(d))
              for k, d in (("theta_i_step", 2.5), ("phi_i_step", 10.0))}
     greedy, info = greedy_sphere_plan(rig, calib, sphere, theta_o=p["theta_o"], theta_max=p["theta_max"],
-                                      coverage=fill, budget=budget, capture=plan.capture, seed=args.seed, **steps)
+                                      coverage=fill, budget=budget, capture=plan.capture, seed=args.seed,
+                                      layout=layout, **steps)
     print(f"greedy: {info['poses']} of {info['candidates']} candidate light positions fill {info['filled']} of the "
           f"{info['reachable']} cells they reach ({100 * info['filled'] / max(info['reachable'], 1):.1f} %) in "
           f"{info['lab_s'] / 60:.1f} lab min (estimated)")
@@ -415,14 +416,14 @@ def _sphere_camera(args):
 
         w, h = parse_resolution(args.sim_resolution or DEFAULT_SIM_RESOLUTION)
         calib = CameraCalibration.pinhole(w, h, SIM_FOCAL_PX * w / 320)  # the simulated camera's field of view
-    return layout.sphere, calib
+    return layout.sphere, calib, layout
 
 
 def _print_sphere_coverage(args, plan, rig) -> None:
     """The sphere plan's coverage of the MERL table (:func:`gonio.session.sphere_coverage.plan_coverage`)."""
     from gonio.session.sphere_coverage import plan_coverage
 
-    sphere, calib = _sphere_camera(args)
+    sphere, calib, _ = _sphere_camera(args)
     print("\n".join(plan_coverage(plan, rig, calib, sphere).lines()))
 
 

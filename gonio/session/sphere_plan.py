@@ -1,7 +1,8 @@
 """A sphere's plan chosen for the cells it fills per lab second (issue 30): greedy weighted set cover.
 
 Candidates are the light positions of a dense ``sphere`` plan (the camera fixed at ``theta_o``; every pose the rig
-reaches without collision or shadow, :func:`gonio.plan.generators.make_plan`). Each candidate's MERL cells come from
+reaches without collision or shadow, :func:`gonio.plan.generators.make_plan`) whose frame shows the white reference
+(not in the sphere's shadow: :data:`MIN_WHITE_PIXELS`). Each candidate's MERL cells come from
 the geometry alone (:func:`gonio.session.sphere_coverage.cells_of_pose`, valid cells only); the *reachable* cells
 are their union. From the rig's rest position, the plan takes, again and again, the candidate with the most cells
 not yet filled per lab second it costs — its capture and settle (:func:`gonio.plan.labtime.pose_capture_time`) plus
@@ -24,13 +25,17 @@ from gonio.io.merl import N_CELLS
 from gonio.session.sphere_coverage import cells_of_pose, valid_cells
 from gonio.sphere.geometry import Sphere
 
-__all__ = ["greedy_sphere_plan"]
+__all__ = ["greedy_sphere_plan", "MIN_WHITE_PIXELS"]
+
+#: A candidate whose frame shows fewer white-reference pixels than this (the sphere's shadow on the patch, the sphere
+#: in front of it: :func:`gonio.sphere.pixels.white_seen`) is not planned: the frame could not be calibrated
+MIN_WHITE_PIXELS = 16
 
 
 def greedy_sphere_plan(rig, calib, sphere: Sphere, *, theta_o: float = math.radians(60),
                        theta_i_step: float = math.radians(2.5), phi_i_step: float = math.radians(10),
                        theta_max: float = math.radians(89), coverage: float = 0.9, budget: float = 1200.0,
-                       capture=None, stride: int = 1, seed: int = 0):
+                       capture=None, stride: int = 1, seed: int = 0, layout=None):
     """``(plan, info)``: the greedy plan of the module docstring and what it expects (``reachable`` and ``filled``
     cell counts, ``lab_s`` estimated for the poses taken, ``candidates``)."""
     from gonio.plan.generators import make_plan
@@ -45,9 +50,18 @@ def greedy_sphere_plan(rig, calib, sphere: Sphere, *, theta_o: float = math.radi
     capture = capture or CaptureSettings()
     cand = make_plan("sphere", rig=rig, capture=capture, order="raster", theta_o=theta_o, theta_i_step=theta_i_step,
                      phi_i_step=phi_i_step, theta_max=theta_max)
+    from gonio.pipeline.target import CameraPose, TargetLayout
+    from gonio.sphere.pixels import white_seen
+
+    layout = layout or TargetLayout(sphere=sphere)
     valid = valid_cells()
     cells = []
     for j in cand.joints:
+        position, R = rig.camera_pose(j)
+        seen = white_seen(calib, CameraPose(R, -R @ position), layout, rig.light_position(j), sphere)
+        if seen is None or int(seen[2].sum()) < MIN_WHITE_PIXELS:  # the white patch shadowed or hidden
+            cells.append(np.zeros(0, dtype=np.intp))
+            continue
         c = cells_of_pose(rig, j, calib, sphere, stride=stride)
         cells.append(c[valid[c]])
     reach = np.zeros(N_CELLS, dtype=bool)

@@ -27,7 +27,7 @@ from gonio.errors import DataError
 from gonio.sphere.geometry import Sphere, sphere_hits
 
 __all__ = ["SphereFrameSamples", "sphere_frame_samples", "centre_perturbations", "white_scale", "white_box",
-           "sphere_lit_pixels",
+           "sphere_lit_pixels", "white_seen",
            "pixel_rays_world", "sphere_box"]
 
 
@@ -108,15 +108,15 @@ def white_box(calib, pose, layout) -> tuple[slice, slice] | None:
     return rows, cols
 
 
-def white_scale(rate, var, calib, pose, layout, light_position, sphere: Sphere | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """``(kI, σ_kI)`` per channel from the white reference's pixels in the frame (see the module docstring);
-    one line naming the reason when no white pixel is usable. With ``sphere``, white pixels the sphere hides from
-    the camera, or whose point lies in its shadow, are left out."""
+def white_seen(calib, pose, layout, light_position, sphere=None):
+    """The white reference's pixels a frame can use, from the geometry alone: ``(box, points (h, w, 3), mask)`` —
+    inside the patch clear of its edges, not hidden by the sphere (or cylinder) and not in its shadow (both grown by
+    3 pixel footprints: a pixel straddling the silhouette or the shadow's edge mixes them in); None when the patch
+    is not in view. A plan uses it to leave out light positions that shadow the white (gonio.session.sphere_plan)."""
     S = np.asarray(light_position, dtype=np.float64)
     box = white_box(calib, pose, layout)
     if box is None:
-        raise DataError("sphere frame: the white reference is not in view")
+        return None
     rows, cols = box
     d, _ = pixel_rays_world(calib, pose, rows, cols)
     C = pose.centre
@@ -139,6 +139,19 @@ def white_scale(rate, var, calib, pose, layout, light_position, sphere: Sphere |
         t_s, shade = big.intersect(p, to_s / np.maximum(dist, 1e-12)[..., None])
         with np.errstate(invalid="ignore"):
             inside &= ~(shade & (t_s < dist))  # in the sphere's shadow
+    return box, p, inside
+
+
+def white_scale(rate, var, calib, pose, layout, light_position, sphere: Sphere | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """``(kI, σ_kI)`` per channel from the white reference's pixels in the frame (see the module docstring);
+    one line naming the reason when no white pixel is usable. With ``sphere``, white pixels the sphere hides from
+    the camera, or whose point lies in its shadow, are left out."""
+    S = np.asarray(light_position, dtype=np.float64)
+    seen = white_seen(calib, pose, layout, light_position, sphere)
+    if seen is None:
+        raise DataError("sphere frame: the white reference is not in view")
+    (rows, cols), p, inside = seen
     r_w = rate[rows, cols][inside]
     v_w = var[rows, cols][inside]
     ok = np.all(np.isfinite(r_w) & np.isfinite(v_w) & (v_w > 0), axis=1)
