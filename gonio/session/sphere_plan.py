@@ -98,6 +98,9 @@ def greedy_sphere_plan(rig, calib, sphere: Sphere, *, theta_o: float = math.radi
         taken.append(i)
         open_[i] = False
         current = joints[i]
+    if not reach.any():
+        raise ConfigError.field(None, "plan sphere", f"{len(cand)} candidates",
+                                f"no light position shows the sphere and {MIN_WHITE_PIXELS} white-reference pixels")
     if not taken:
         raise ConfigError.field(None, "--fill-budget", budget, f"less than one pose's lab time ({per_pose:.2f} s)")
     plan = cand.reordered(np.array(taken + [k for k in range(len(cand)) if k not in set(taken)]), "raster")

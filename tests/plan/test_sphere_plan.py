@@ -67,7 +67,7 @@ def test_the_greedy_plan_fills_what_it_is_asked_in_fewer_poses_than_its_candidat
     from gonio.pipeline.target import CameraCalibration
     from gonio.session.sphere_plan import greedy_sphere_plan
 
-    calib = CameraCalibration.pinhole(160, 120, 190.0)
+    calib = CameraCalibration.pinhole(320, 240, 380.0)
     sph = Sphere((0.0, 0.0, 0.02), 0.02)
     plan, info = greedy_sphere_plan(rig, calib, sph, theta_i_step=math.radians(10), phi_i_step=math.radians(45),
                                     coverage=0.8)
