@@ -48,6 +48,12 @@ QUICK_MATERIALS = ("chrome", "red-plastic", "green-latex", "nickel", "acrylic_fe
 ROW_HOOKS: list = []
 
 
+def skipped() -> set[str]:
+    """Parts of the study left out of this run: ``$GONIO_SPARSE_SKIP``, comma-separated among ``nielsen``,
+    ``select``, ``adaptive``, ``rig`` (e.g. to repeat the adaptive rows alone over the 63 materials)."""
+    return {x.strip() for x in os.environ.get("GONIO_SPARSE_SKIP", "").split(",") if x.strip()}
+
+
 def _eval_cells(n: int, seed: int = 0):
     """``(θh, θd, φd, wi, wo)`` of ``n`` random MERL cell centres above the horizon."""
     from gonio.geometry import dirs_from_half_diff
@@ -96,9 +102,13 @@ def _one_material(mi: int) -> dict:
     truth = mod.evaluate(net, eth, etd, epd)
     prior = build_prior(values[tr], [names[i] for i in tr], grid, weight=c["weight"])
     design = select_directions(prior, cwi, cwo, c["n_max"], samples_per_pose=SAMPLES_PER_POSE)
-    nmod = nl.build_nielsen(values[tr], grid)
-    n_order = nl.select_condition(nmod, h_cand, c["n_max"])
-    etas = nl.choose_eta(values[tr], grid, h_cand, n_order, ns)
+    skip = skipped()
+    if "nielsen" not in skip:
+        nmod = nl.build_nielsen(values[tr], grid)
+        n_order = nl.select_condition(nmod, h_cand, c["n_max"])
+        etas = nl.choose_eta(values[tr], grid, h_cand, n_order, ns)
+    else:
+        etas = {}
     out = {"floor": cbrt_error(nl.interpolate(values[mi].T, h_eval), truth, ewi[:, 2]), "ours": {}, "nielsen": {},
            "select": {}, "cover": {}, "outside": {}, "expected": {}, "select_s": [], "etas": etas}
     everywhere = np.ones(len(eth), dtype=bool)
@@ -113,13 +123,15 @@ def _one_material(mi: int) -> dict:
         out["cover"][n] = float(np.mean(np.abs(fp - truth) <= 2 * sp))
         out["outside"][n] = bool(post.quality().out_of_span)
         out["expected"][n] = float(design.errors[n])
-        if n in SELECT_NS:
+        if n in SELECT_NS and "select" not in skip:
             from gonio.fit.select import select
 
             c0 = time.process_time()
             sel = select(SampleSet(swi, swo, f, np.full_like(f, np.nan)))
             out["select_s"].append(time.process_time() - c0)
             out["select"][n] = cbrt_error(sel.model.eval(ewi, ewo), truth, ewi[:, 2])
+        if "nielsen" in skip:
+            continue
         # Nielsen 2015: their directions, the same budget and sample pattern
         nwi, nwo = _pose_samples(cand.poses[n_order[:n]], SAMPLES_PER_POSE, math.radians(JITTER_DEG), mi)
         th, _, td, pd = half_diff_from_dirs(nwi, nwo)
@@ -185,15 +197,17 @@ def _run(src, quick: bool, t: Table) -> list[Table]:
     _CTX = {"grid": grid, "names": names, "values": values, "weight": weight, "ns": ns, "n_max": n_max, "nets": nets, "mod": mod,
             "eval": (eth, etd, epd, ewi, ewo), "h_eval": h_eval, "cand": cand, "cwi": cwi, "cwo": cwo, "h_cand": h_cand}
     results = map_held(_one_material, held)
-    errs = {key: [] for key in [("ours", n) for n in ns] + [("nielsen", n) for n in ns] +
-            [("select", n) for n in SELECT_NS if n in ns] + [("grid floor", 0)]}
+    skip = skipped()
+    errs = {key: [] for key in [("ours", n) for n in ns] + [("nielsen", n) for n in ns if "nielsen" not in skip] +
+            [("select", n) for n in SELECT_NS if n in ns and "select" not in skip] + [("grid floor", 0)]}
     cover, outside, expected = {n: [] for n in ns}, {n: 0 for n in ns}, {n: [] for n in ns}
     select_s, etas_used = [], {}
     for mi, r in zip(held, results):
         errs[("grid floor", 0)].append(r["floor"])
         for n in ns:
             errs[("ours", n)].append(r["ours"][n])
-            errs[("nielsen", n)].append(r["nielsen"][n])
+            if ("nielsen", n) in errs:
+                errs[("nielsen", n)].append(r["nielsen"][n])
             cover[n].append(r["cover"][n])
             outside[n] += r["outside"][n]
             expected[n].append(r["expected"][n])
@@ -201,13 +215,13 @@ def _run(src, quick: bool, t: Table) -> list[Table]:
                 errs[("select", n)].append(r["select"][n])
         select_s += r["select_s"]
         etas_used[mi] = r["etas"]
-    nielsen_med = {n: _stats(errs[("nielsen", n)])[0] for n in ns}
+    nielsen_med = {n: _stats(errs[("nielsen", n)])[0] if ("nielsen", n) in errs else math.nan for n in ns}
     for n in ns:
         m, p = _stats(errs[("ours", n)])
         t.add("ours: prior + A-optimal poses", n, m, p, m / nielsen_med[n],
               f"σ coverage (truth within 2σ) {np.median(cover[n]):.2f}; {outside[n]} of {len(held)} said outside the "
               f"span; expected log-RMS {np.median(expected[n]):.3g}")
-    for n in ns:
+    for n in ns if "nielsen" not in skip else ():
         m, p = _stats(errs[("nielsen", n)])
         ks = [etas_used[mi][n][1] for mi in etas_used]
         t.add("Nielsen et al. 2015 (same data, candidates)", n, m, p, 1.0,
@@ -224,6 +238,9 @@ def _run(src, quick: bool, t: Table) -> list[Table]:
     ctx = {"names": names, "held": held, "ns": ns, "errors": errs, "grid": grid, "values": values, "nets": nets,
            "module": mod, "eval": (eth, etd, epd, ewi, ewo), "candidates": cand, "quick": quick}
     for hook in ROW_HOOKS:
+        if getattr(hook, "part", None) in skip:
+            t.notes.append(f"{hook.part} rows left out of this run (GONIO_SPARSE_SKIP)")
+            continue
         for row in hook(ctx):
             method, n, med, p90, note = row
             t.add(method, n, med, p90, med / nielsen_med.get(n, math.nan) if isinstance(n, int) else math.nan, note)

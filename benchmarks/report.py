@@ -251,6 +251,26 @@ def _plot_sphere(ax, tables) -> bool:
     return True
 
 
+def _sparse(q):
+    from benchmarks.sparse_trade import trade_tables
+
+    return trade_tables(q)
+
+
+def _plot_sparse(ax, tables) -> bool:
+    t = _find(tables, "method", "lab s", "median cbrt")
+    if t is None or not t.rows:
+        return False
+    keep = [i for i, v in enumerate(_col(t, "lab s")) if not isinstance(v, str)]
+    x, y = _col(t, "lab s")[keep].astype(float), _col(t, "median cbrt")[keep].astype(float)
+    ax.plot(x, np.maximum(y, 1e-3), "o-", label="median over the held-out materials")
+    for xi, yi, n in zip(x, y, _col(t, "poses")[keep]):
+        ax.annotate(f"{n} poses", (xi, max(yi, 1e-3)), textcoords="offset points", xytext=(6, 4), fontsize=8)
+    ax.set(xlabel="lab time (s)", ylabel="cube-root error of the whole table (0 plotted at 1e-3)", xscale="log",
+           yscale="log", title="Sparse measurement under a prior vs a dense table")
+    return True
+
+
 TRADES = [
     Trade("plans", "Plan density and kind → lab time vs BRDF error", _plans, _plot_plans),
     Trade("capture", "Exposure brackets and frames averaged → lab time vs noise", _capture, _plot_capture),
@@ -261,6 +281,8 @@ TRADES = [
     Trade("realdata", "Real measured materials → selected fit and time vs published fits", _realdata, _plot_realdata),
     Trade("calibration", "Rig geometric calibration → lab time vs wi/wo and lobe error on as-built rigs", _calibration,
           _plot_calibration),
+    Trade("sparse", "Sparse poses under a data-driven prior → lab time vs the whole table's error", _sparse,
+          _plot_sparse),
     Trade("labtime", "Light warm-up and dark frames → lab time vs its lower bound vs accuracy", _labtime,
           _plot_labtime),
     Trade("sphere", "Sphere vs flat sample → MERL cells per lab minute", _sphere, _plot_sphere),
