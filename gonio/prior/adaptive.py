@@ -10,11 +10,15 @@ manifest record and resume, :class:`gonio.session.adaptive.AdaptiveSession`) who
 * after each round — the posterior of every usable sample so far (:class:`gonio.prior.Posterior`), its expected
   error (:meth:`~gonio.prior.Posterior.expected_error`, the RMS error of u = ln(f·cosθi·cosθo + ε) over the MERL
   cells: about a relative error), and the candidate that minimises the expected error *after* it
-  (:meth:`~gonio.prior.Posterior.expected_error_after`, the exact per-channel rank-one update — active learning
+  (:meth:`~gonio.prior.Posterior.error_reduction`, the exact per-channel rank-one update — active learning
   by expected error reduction, Roy & McCallum, ICML 2001, in its closed Gaussian form; the A-optimal criterion
-  of Chaloner & Verdinelli 1995 applied sequentially). The candidate's noise in the mapped domain is predicted
-  from the posterior's own value there: σ_u = σ_rel·f̂/(f̂ + ε) (delta method, :mod:`gonio.prior.mapping`),
-  so the choice depends on what was measured, not only on where; and a candidate counts the usable samples
+  of Chaloner & Verdinelli 1995 applied sequentially). In a linear-Gaussian model the posterior *covariance*
+  does not depend on the measured values, so a criterion of the covariance alone is a fixed design measured in
+  turn; what makes the choice adaptive is the error it targets: the cube-root error of the whole table
+  (:meth:`~gonio.prior.Posterior.cbrt_weight`: each node weighted by (f̂ + ε)^⅔·cos^⅔θi, f̂ the posterior's
+  value — where the material measured so far is bright, errors count more), and the candidate's noise in the
+  mapped domain, predicted per channel from the posterior's value there: σ_u = σ_rel·f̂/(f̂ + ε) (delta method,
+  :mod:`gonio.prior.mapping`); and a candidate counts the usable samples
   the nearest measured pose gave (within :data:`NEAR`): where the rig returned nothing usable (the board out of
   view at grazing angles, a shadow) the next pose is not chosen. ``batch`` > 1 picks that many greedily
   (:func:`select_directions` started from the posterior).
@@ -201,10 +205,9 @@ class PosteriorPlanner(AdaptivePlanner):
                                   start=post)
             return left[d.indices]
         f, _ = post.predict(wi, wo)
-        f = f.mean(axis=1)
         sigma_u = sigma_to_mapped(f, s.sigma_rel * f, self.prior.eps)
-        after = post.expected_error_after(wi, wo, sigma_u, n_samples=np.maximum(n_eff, 1))
-        return left[[int(np.argmin(after))]]
+        gain = post.error_reduction(wi, wo, sigma_u, n_samples=np.maximum(n_eff, 1), node_weight=post.cbrt_weight())
+        return left[[int(np.argmax(gain))]]
 
 
 def prior_record(prior_arg) -> tuple[Prior, dict]:

@@ -166,12 +166,19 @@ class Posterior:
 
     # -- reconstruction ----------------------------------------------------------------------------
     def node_mapped(self) -> tuple[np.ndarray, np.ndarray]:
-        """Posterior mean and standard deviation of u at every node, each (3, G)."""
+        """Posterior mean and standard deviation of u at every node, each (3, G) (computed once per posterior)."""
+        cached = self.__dict__.get("_node_cache")
+        if cached is not None:
+            return cached
         pr = self.prior
         mean = pr.node_mapped(self.coefficients)
         linv = np.linalg.inv(self._chol())  # S = L⁻ᵀ L⁻¹ → diag(B S Bᵀ) = ‖L⁻¹ Bᵀ‖² per node
         var = np.stack([np.sum((linv[c] @ pr.basis.T) ** 2, axis=0) for c in range(3)]) + pr.residual[None, :]
-        return mean, np.sqrt(var)
+        out = (mean, np.sqrt(var))
+        for a in out:
+            a.setflags(write=False)
+        object.__setattr__(self, "_node_cache", out)
+        return out
 
     def predict(self, wi, wo) -> tuple[np.ndarray, np.ndarray]:
         """Posterior BRDF (1/sr) and its standard uncertainty at direction pairs, each (n, 3); both 0 below
@@ -221,20 +228,48 @@ class Posterior:
         the candidates ``wi``, ``wo`` (n, 3): the rank-one update of S (Sherman–Morrison), vectorized.
         ``sigma_u``: the candidate's expected noise in the mapped domain (scalar or (n,)); ``n_samples``: how
         many samples one candidate gives (their noise averages, the residual does not)."""
-        pr = self.prior
-        h, a, _ = observation_rows(pr, wi, wo)
-        v = np.asarray(sigma_u, dtype=np.float64) ** 2 / n_samples + h @ pr.residual
         m = self._error_matrix()
         cov = self.covariance
-        q = pr.weight
-        base = np.sum(q * pr.residual)
+        q = self.prior.weight
+        total = sum(np.sum(m * cov[c]) for c in range(3))
+        out = total - self.error_reduction(wi, wo, sigma_u, n_samples=n_samples)
+        return np.sqrt((out / 3 + np.sum(q * self.prior.residual)) / np.sum(q))
+
+    def cbrt_weight(self) -> np.ndarray:
+        """Per-channel node weights (3, G) that turn an error of u into the cube-root error of
+        :func:`gonio.fit.metrics.cbrt_error` (Ngan et al. 2005's cube-root cosine-weighted RMS): linearised,
+        δ∛(f·cos θi) = ⅓·cos^⅓θi·f^(−⅔)·(f + ε)·δu ≈ ⅓·cos^⅓θi·(f + ε)^⅓·δu where f ≫ ε, so a node weighs its share
+        of the MERL cells × cos^⅔θi × (f̂ + ε)^⅔ with f̂ the posterior's value there (:meth:`node_mapped`, mapped
+        back) — bright directions (a specular peak) count more than dark ones, and *which* are bright is learnt
+        from the samples. cos θi is the node's own (φh = 0)."""
+        pr = self.prior
+        cached = pr.__dict__.get("_cos_i_23")
+        if cached is None:
+            wi, _ = pr.grid.node_directions()
+            cached = np.clip(wi[:, 2], 0.0, None) ** (2.0 / 3.0)
+            object.__setattr__(pr, "_cos_i_23", cached)
+        mean, _ = self.node_mapped()
+        f = from_mapped(mean, pr.f_ref[None, :], pr.eps)
+        return pr.weight[None, :] * cached[None, :] * (f + pr.eps) ** (2.0 / 3.0)
+
+    def error_reduction(self, wi, wo, sigma_u, *, n_samples=1, node_weight=None) -> np.ndarray:
+        """For each candidate direction pair (n, 3): how much adding it reduces the expected weighted squared
+        error Σ_c Σ_g w_cg·Var(u_cg) (exact rank-one update per channel, as :meth:`expected_error_after`);
+        ``node_weight`` (3, G), default the cells' shares (:meth:`expected_error`'s measure), e.g.
+        :meth:`cbrt_weight`. ``sigma_u`` scalar, (n,) or (n, 3)."""
+        pr = self.prior
+        h, a, _ = observation_rows(pr, wi, wo)
+        su = np.broadcast_to(np.asarray(sigma_u, dtype=np.float64).reshape(-1, 1) if np.ndim(sigma_u) == 1
+                             else np.asarray(sigma_u, dtype=np.float64), (len(a), 3))
+        v = su ** 2 / np.reshape(n_samples, (-1, 1)) + (h @ pr.residual)[:, None]
+        w = np.broadcast_to(pr.weight, (3, pr.grid.size)) if node_weight is None else np.asarray(node_weight)
+        cov = self.covariance
         out = np.zeros(len(a))
         for c in range(3):
+            m = pr.basis.T @ (pr.basis * w[c][:, None])
             ps = a @ cov[c]
-            num = np.sum((ps @ m) * ps, axis=1)
-            den = v + np.sum(ps * a, axis=1)
-            out += np.sum(m * cov[c]) - num / np.maximum(den, 1e-300)
-        return np.sqrt((out / 3 + base) / np.sum(q))
+            out += np.sum((ps @ m) * ps, axis=1) / np.maximum(v[:, c] + np.sum(ps * a, axis=1), 1e-300)
+        return out
 
     def quality(self) -> Quality:
         """The consistency χ² of the samples with the prior (module docstring)."""

@@ -121,3 +121,40 @@ def test_leave_one_out_calibration_widens_the_variances():
     cal = build_prior(v, [n for n, _ in mats], GRID, weight=w, n_components=5)
     raw = build_prior(v, [n for n, _ in mats], GRID, weight=w, n_components=5, calibrate=False)
     assert np.all(cal.variance >= raw.variance) and np.sum(cal.residual) > np.sum(raw.residual)
+
+
+def test_error_reduction_is_the_exact_drop_of_the_weighted_error(synthetic_prior):
+    # adaptive measuring ranks candidates by error_reduction: it must equal what adding the sample really does to
+    # Σ w·Var(u) (the posterior after the update, computed the long way), with the cube-root weights
+    pr = synthetic_prior
+    wi, wo = _directions(6, 11)
+    f = _in_span(pr, np.full((3, pr.n_components), 0.3), wi, wo)
+    post = Posterior.start(pr).update(wi, wo, f, 0.01 * f + 1e-4)
+    w = post.cbrt_weight()
+    assert w.shape == (3, pr.grid.size) and np.all(w >= 0)
+    cwi, cwo = _directions(5, 12)
+    fc = _in_span(pr, np.full((3, pr.n_components), 0.3), cwi, cwo)
+    su = 0.02
+    red = post.error_reduction(cwi, cwo, su, node_weight=w)
+    var0 = post.node_mapped()[1] ** 2
+    for j in range(len(cwi)):
+        after = post.update(cwi[j:j + 1], cwo[j:j + 1], fc[j:j + 1], su * (fc[j:j + 1] + pr.eps))
+        brute = float(np.sum(w * (var0 - after.node_mapped()[1] ** 2)))
+        assert red[j] == pytest.approx(brute, rel=1e-6, abs=1e-12)
+    # the default weights give expected_error_after
+    e = post.expected_error_after(cwi, cwo, su)
+    for j in range(2):
+        after = post.update(cwi[j:j + 1], cwo[j:j + 1], fc[j:j + 1], su * (fc[j:j + 1] + pr.eps))
+        assert e[j] == pytest.approx(after.expected_error(), rel=1e-9)
+
+
+def test_the_cube_root_weights_follow_what_was_measured(synthetic_prior):
+    # the same poses, two materials: the weights (and so the next pose) depend on the values measured, which a
+    # criterion of the posterior covariance alone cannot (it does not depend on them)
+    pr = synthetic_prior
+    wi, wo = _directions(8, 13)
+    k = pr.n_components
+    bright, dark = (_in_span(pr, np.full((3, k), c), wi, wo) for c in (1.0, -1.0))
+    wb = Posterior.start(pr).update(wi, wo, bright, 0.01 * bright + 1e-4).cbrt_weight()
+    wd = Posterior.start(pr).update(wi, wo, dark, 0.01 * dark + 1e-4).cbrt_weight()
+    assert not np.allclose(wb / wb.sum(), wd / wd.sum(), rtol=0.05)
