@@ -84,9 +84,13 @@ def load_entries(sources: Sequence[str], fit_files: Sequence[str] = (), *, fit_m
             e.fits = {label: (model, scored_on(model, rep, data)) for label, model, rep in given}
         elif fit_models:
             samples = preview_samples(data, e.notes)
+            from gonio.api import calibration_modes
+
+            geometry = calibration_modes(data)  # the calibration's error in the fits' σ, as gonio fit has it
+            kw = {**({"geometry": geometry} if geometry is not None else {}), **(fit_kw or {})}
             for m in fit_models:
                 try:
-                    r = gonio.fit(samples, m, **(fit_kw or {}))
+                    r = gonio.fit(samples, m, **kw)
                     e.fits[m] = (r.model, {**r.to_dict(), "uncertainty": r.uncertainty})
                 except Exception as exc:  # noqa: BLE001 - a failed fit is shown, not fatal to the report
                     e.notes.append(f"fit of {m} failed: {exc}")

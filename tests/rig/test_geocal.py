@@ -181,7 +181,10 @@ def test_a_session_on_the_calibrated_rig_records_its_uncertainties(calibrated_7,
     notes = json.loads((tmp_path / "fit.json").read_text())["notes"]
     assert any("geometric calibration's error shared by all" in n for n in notes)
     from gonio.api import calibration_modes
+    from gonio.report import load_entries
 
+    fitted = load_entries([str(d)], fit_models=("lambert",))[0].fits["lambert"][1]  # gonio report's fits too
+    assert any("geometric calibration's error shared by all" in n for n in fitted["notes"])
     modes = calibration_modes(d)
     assert modes.offsets.shape == (len(cal.geometry_covariance.names), len(metas), 3)
     # the offsets along the principal axes hold the light position's covariance at every pose
