@@ -114,6 +114,6 @@ def test_select_propagates_it_into_the_winner_not_into_each_fold(monkeypatch):
         return out
 
     monkeypatch.setattr(fit_module, "calibration_covariance", spy)
-    sel = select(_session(np.zeros_like(dS)), ("microfacet",), criterion="cv", folds=3, geometry=_modes(dS))
+    sel = select(_session(np.zeros_like(dS)), ("microfacet",), criterion="cv", folds=3, geometry=_modes(dS), n_starts=1)
     assert any("geometric calibration's error" in n for n in sel.winner.notes)
     assert 1 <= sum(propagated) <= 2  # the candidate's fit (and a refit of the winner), never the 3 folds
