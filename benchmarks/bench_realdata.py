@@ -194,13 +194,15 @@ SPLIT_CHROMA = 0.1
 
 def lobe_f0s(params: dict) -> list[float]:
     """Normal-incidence Fresnel reflectance of every specular lobe of a fit (mean over channels): ``f0`` as
-    fitted (Schlick), ``((η − 1)/(η + 1))²`` for an index η (ABC), or from a complex index (n, k)
+    fitted (Schlick), a tabulated Fresnel's first row (dupuy2015), ``((η − 1)/(η + 1))²`` for an index η (ABC), or from a complex index (n, k)
     ((n − 1)² + k²)/((n + 1)² + k²) (Born & Wolf §14.2)."""
     out = []
     for k, v in params.items():
         base = k.rsplit(".", 1)[-1]
         if base == "f0":
             out.append(float(np.mean(v)))
+        elif base == "fresnel":  # a tabulated Fresnel factor (dupuy2015): its normal-incidence row
+            out.append(float(np.mean(np.asarray(v, dtype=float)[0])))
         elif base == "eta" and not any(x.rsplit(".", 1)[-1] == "k" for x in params):
             out.append(float(np.mean(((np.asarray(v) - 1) / (np.asarray(v) + 1)) ** 2)))
         elif base == "k":
@@ -231,7 +233,10 @@ def _short(params: dict) -> str:
     for k, v in params.items():
         if isinstance(v, str):
             continue
-        v = np.atleast_1d(v)
+        v = np.atleast_1d(np.asarray(v, dtype=float))
+        if v.ndim > 1 or v.size > 3:  # a table (dupuy2015): its size and first row
+            out.append(f"{k}=table{list(v.shape)}[0]=" + "/".join(f"{x:.3g}" for x in np.atleast_1d(v[0])))
+            continue
         out.append(f"{k}=" + "/".join(f"{x:.3g}" for x in v))
     return " ".join(out)
 

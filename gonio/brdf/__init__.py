@@ -14,6 +14,7 @@ from gonio.brdf.ashikhmin_shirley import AshikhminShirley
 from gonio.brdf.base import BRDF, Param
 from gonio.brdf.blinn_phong import BlinnPhong
 from gonio.brdf.cook_torrance import CookTorrance
+from gonio.brdf.dupuy import Dupuy2015, Dupuy2015Conductor
 from gonio.brdf.gtr import GTR
 from gonio.brdf.lafortune import Lafortune
 from gonio.brdf.lambert import Lambert
@@ -30,6 +31,7 @@ MODELS: dict[str, type[BRDF]] = {
     for cls in (Lambert, Phong, BlinnPhong, CookTorrance, Microfacet, Ward, Lafortune, OrenNayar, AshikhminShirley)
 }
 MODELS.update({cls.name: cls for cls in (ABCMicrofacet, ABCSmooth, GTR)})  # models for real measurements (issue 14)
+MODELS.update({c.name: c for c in (Dupuy2015, Dupuy2015Conductor)})  # data-driven microfacet (Dupuy et al. 2015)
 MODELS.update({name: lobe_sum(name) for name in PRESETS})
 
 

@@ -45,9 +45,11 @@ class Param:
 
     Attributes
     ----------
-    kind : {"rgb", "scalar", "choice"}
+    kind : {"rgb", "scalar", "choice", "table"}
         ``rgb`` accepts a scalar or 3 values and is stored as shape ``(3,)``; ``scalar`` is one
-        float; ``choice`` is one of ``choices`` (a string, not fitted).
+        float; ``choice`` is one of ``choices`` (a string, not fitted); ``table`` is a tabulated function
+        (a data-driven model's, :mod:`gonio.brdf.dupuy`): ``cols == 0`` a list of 2 to :data:`TABLE_MAX`
+        values, ``cols == 3`` a list of as many rows of R, G, B.
     lo, hi : float
         Valid closed range (also the fitting bounds); ``hi`` may be ``inf``.
     default : object
@@ -62,6 +64,7 @@ class Param:
     default: Any = None
     choices: tuple[str, ...] = ()
     doc: str = ""
+    cols: int = 0
 
     def coerce(self, model: str, name: str, value: Any, source: str | None = None) -> Any:
         """Validate and convert ``value``; raise :class:`ConfigError` naming model, field and value."""
@@ -76,6 +79,17 @@ class Param:
             arr = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError):
             raise ConfigError.field(source, field, value, "must be a number") from None
+        if self.kind == "table":
+            want = (1,) if self.cols == 0 else (2, self.cols)
+            if arr.ndim != len(want) or (self.cols and arr.shape[1] != self.cols) or not 2 <= len(arr) <= TABLE_MAX:
+                rows = "numbers" if self.cols == 0 else f"rows of {self.cols} numbers"
+                raise ConfigError.field(source, field, _short(value), f"must be a list of 2 to {TABLE_MAX} {rows}")
+            if not np.all(np.isfinite(arr)) or np.any(arr < self.lo) or np.any(arr > self.hi):
+                raise ConfigError.field(source, field, _short(value), f"every entry must be finite and in "
+                                                                      f"[{self.lo:g}, {self.hi:g}]")
+            arr = arr.copy()
+            arr.setflags(write=False)
+            return arr
         if self.kind == "rgb":
             if arr.ndim == 0:
                 arr = np.full(3, float(arr))
@@ -90,6 +104,16 @@ class Param:
             arr.setflags(write=False)
             return arr
         return float(arr)
+
+
+#: Most entries of a ``table`` parameter.
+TABLE_MAX = 1024
+
+
+def _short(value: Any) -> str:
+    """A table value for a one-line message (its start)."""
+    text = str(value.tolist() if isinstance(value, np.ndarray) else value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _not_numeric(value: Any) -> bool:
@@ -174,7 +198,7 @@ class BRDF:
     @classmethod
     def bounds(cls) -> dict[str, tuple[float, float]]:
         """Fitting bounds ``(lo, hi)`` of every numeric parameter."""
-        return {k: (p.lo, p.hi) for k, p in cls.PARAMS.items() if p.kind != "choice"}
+        return {k: (p.lo, p.hi) for k, p in cls.PARAMS.items() if p.kind not in ("choice", "table")}
 
     def eval(self, wi, wo, dtype=np.float64, backend: str = "auto") -> np.ndarray:
         """BRDF value f(wi, wo) in 1/sr, RGB on the last axis, shape ``broadcast(wi, wo)[:-1] + (3,)``.

@@ -28,6 +28,9 @@ def register(sub) -> None:
                         "criterion's choice at every sample (default 0.01: 1 %%, about a gonioreflectometer's accuracy; "
                         "0: the criterion alone)")
     p.add_argument("--loss", default="auto", help="auto, cosine, chi2, log, cbrt (auto: chi2 with uncertainties)")
+    p.add_argument("--image-weight", type=float, default=None, metavar="W",
+                   help="--model dupuy2015 only: weight of the squared relative image error (rendered spheres) beside "
+                        "the loss's in what is minimized (default 4; 0: the loss alone)")
     p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                    help="hold a parameter fixed (repeatable), e.g. distribution=beckmann or f0=0.9,0.6,0.5")
     p.add_argument("--max-theta", type=float, default=80.0, help="grazing cutoff for θi, θo in degrees (default 80)")
@@ -83,11 +86,15 @@ def _options(args) -> dict:
 
         resolve_fixed(model_class(args.model), fixed)
     cands = tuple(c.strip() for c in args.candidates.split(",")) if args.candidates else None
+    if args.image_weight is not None and (args.select or args.model != "dupuy2015"):
+        raise ConfigError.field("--image-weight", "image_weight", args.image_weight,
+                                "applies to --model dupuy2015 only (for --select use --criterion image)")
     if args.equivalence is not None and not args.select:
         raise ConfigError.field("--equivalence", "equivalence", args.equivalence, "applies to --select only")
     return {"select": args.select, "model": args.model, "candidates": cands, "criterion": args.criterion,
             **({} if args.equivalence is None else {"equivalence": args.equivalence}),
             "loss": args.loss, "fixed": fixed, "seed": args.seed,
+            **({} if args.image_weight is None else {"image_weight": args.image_weight}),
             "max_theta_deg": None if args.all_angles else args.max_theta, "force": args.force}
 
 
@@ -104,6 +111,8 @@ def fit_one(source: str, opts: dict):
         sel = api.select(source, opts["candidates"], criterion=opts["criterion"],
                          progress=opts.get("progress", False) and sys.stderr.isatty(), **kw)
         return sel.winner, sel
+    if "image_weight" in opts:
+        kw["image_weight"] = opts["image_weight"]
     return api.fit(source, opts["model"], fixed=opts["fixed"], **kw), None
 
 

@@ -4,8 +4,8 @@
 computed at the incidence angles :data:`THETAS_DEG` with :data:`NODES` Gauss-Legendre nodes in θo (2×
 in φo). A lobe narrower than the node spacing (α ≲ 0.01) is integrated to ~10-20 %, so for models
 whose albedo is bounded analytically the bound is used as well: a normalized microfacet lobe (GGX,
-Beckmann, GTR with the Smith G, Walter et al. 2007) reflects at most ks·max F ≤ ks, so
-ρ ≤ kd + Σ ks per channel.
+Beckmann, GTR with the Smith G, Walter et al. 2007; a tabulated D with the Smith G1 it implies, Dupuy et al.
+2015) reflects at most ks·max F ≤ ks, so ρ ≤ kd + Σ ks (kd + max F for the tabulated model) per channel.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ TOLERANCE = 0.01
 
 def _analytic_bound(model) -> np.ndarray | None:
     """kd + Σ ks per channel where every term is a Lambertian or a normalized microfacet lobe, else None."""
+    from gonio.brdf.dupuy import Dupuy2015
     from gonio.brdf.gtr import GTR
     from gonio.brdf.lambert import Lambert
     from gonio.brdf.lobes import Sum
@@ -36,6 +37,9 @@ def _analytic_bound(model) -> np.ndarray | None:
             total = total + np.asarray(p.albedo)
         elif isinstance(p, Microfacet) or (isinstance(p, GTR) and p.gamma == 2.0):
             total = total + np.asarray(p.kd) + np.asarray(p.ks)
+        elif isinstance(p, Dupuy2015):  # normalized D with its own Smith G1 (Dupuy et al. 2015): ρ ≤ kd + max F
+            f_max = np.asarray(p.ks) if "ks" in p.PARAMS else np.asarray(p.fresnel).max(axis=0)  # conductor: F ≤ 1
+            total = total + np.asarray(p.kd) + f_max
         else:
             return None
     return total

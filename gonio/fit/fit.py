@@ -444,7 +444,7 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
         free: tuple[str, ...] = (), max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG, n_starts: int = 3, seed: int = 0,
         method: str = "auto", kernel: str | None = "auto", use_flagged: bool = False,
         max_nfev: int | None = None, report: bool = True, start: dict | None = None, chroma: str = "auto",
-        geometry=None) -> FitResult:
+        geometry=None, image_weight: float | None = None) -> FitResult:
     """Fit the model ``model`` to ``data``.
 
     Parameters
@@ -471,6 +471,10 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
         For a sum repeating a lobe: ``shared`` fits the lobes with one chromaticity (the later copies' ``ks`` a
         ratio times the first's, :func:`gonio.fit.layout.linked_lobes`), ``free`` each with its own colour,
         ``auto`` both and keeps the shared one unless the data demand otherwise (:func:`_shared_or_free`).
+    image_weight : float or None
+        The data-driven model (``dupuy2015``) only: weight of the squared relative image error (rendered spheres,
+        :func:`gonio.fit.metrics.image_error`) beside the loss's in what is minimized (None: its default
+        :data:`gonio.fit.dupuy.IMAGE_WEIGHT`; 0: the loss alone; :func:`gonio.fit.dupuy.fit_dupuy`).
     max_theta_deg : float or None
         Grazing cutoff for θi and θo (default 80°); None keeps all samples above the horizon.
     n_starts : int
@@ -506,6 +510,12 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
         raise ConfigError.field("--method", "method", method, f"must be one of {', '.join(METHODS)}")
     d = prepare(data, max_theta_deg=max_theta_deg, use_flagged=use_flagged, geometry=geometry)
     cls = model_class(model) if isinstance(model, str) else model
+    if getattr(cls, "name", "").startswith("dupuy2015"):  # tabulated D: its own solver (gonio.fit.dupuy)
+        return _fit_data_driven(d, cls, loss, fixed, free, report, t0, image_weight)
+    if image_weight is not None:
+        raise ConfigError.field("--image-weight", "image_weight", image_weight,
+                                "only the data-driven model dupuy2015 is fitted in the image error; for the others "
+                                "use --select --criterion image")
     fixed = resolve_fixed(cls, dict(fixed or {}))
     tied = auto_tied(cls, fixed, free)
     if chroma not in CHROMA:
@@ -517,6 +527,35 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
     if links and chroma == "auto":  # the lobes' own colours only where the data demand them
         free_fit = _fit_tied(d, cls, fixed, tied, (), lossobj, kw)
         r = _shared_or_free(r, _restart_at_bound(free_fit, d, cls, fixed, tied, (), lossobj, kw))
+    if r.at_bound:
+        r.notes.append("at or near a bound of its range: " + "; ".join(
+            f"{k} ({', '.join(f'{c} {w}' for c, w in v.items())})" for k, v in r.at_bound.items()))
+    if report:
+        add_report(r, d)
+    r.seconds = time.perf_counter() - t0
+    return r
+
+
+def _fit_data_driven(d: FitData, cls, loss: str, fixed, free, report: bool, t0: float,
+                     image_weight: float | None) -> FitResult:
+    """:func:`fit` of the data-driven model of Dupuy et al. 2015 (:mod:`gonio.fit.dupuy`; its conductor variant
+    :mod:`gonio.fit.dupuy_conductor`): no parameter of its tables can be held fixed or freed (one line saying so)."""
+    from gonio.fit.dupuy import fit_dupuy
+
+    if fixed or free:
+        raise ConfigError.field("--fix", f"{cls.name}.{next(iter(fixed or free))}", "fixed" if fixed else "free",
+                                f"the tables of {cls.name} are fitted together; none can be fixed or freed")
+    from gonio.fit.dupuy import IMAGE_WEIGHT
+
+    if image_weight is not None and not (isinstance(image_weight, (int, float)) and 0 <= image_weight < np.inf):
+        raise ConfigError.field("--image-weight", "image_weight", image_weight, "must be a number >= 0")
+    image = IMAGE_WEIGHT if image_weight is None else float(image_weight)
+    if cls.name == "dupuy2015":
+        r = fit_dupuy(d, resolve_loss(loss, d), image=image)
+    else:
+        from gonio.fit.dupuy_conductor import fit_dupuy_conductor
+
+        r = fit_dupuy_conductor(d, resolve_loss(loss, d), image=image)
     if r.at_bound:
         r.notes.append("at or near a bound of its range: " + "; ".join(
             f"{k} ({', '.join(f'{c} {w}' for c, w in v.items())})" for k, v in r.at_bound.items()))

@@ -21,7 +21,7 @@ import numpy as np
 
 from gonio.geometry import frame_from_normal, half_diff_from_dirs, to_local
 
-__all__ = ["cbrt_error", "image_error", "delta_e", "sphere_pixels", "metrics", "IMAGE_ANGLES_DEG", "IMAGE_PIXELS", "IMAGE_MAX_GAP"]
+__all__ = ["cbrt_error", "image_error", "delta_e", "sphere_pixels", "sphere_targets", "metrics", "IMAGE_ANGLES_DEG", "IMAGE_PIXELS", "IMAGE_MAX_GAP"]
 
 #: Light–view angles of the rendered spheres (degrees).
 IMAGE_ANGLES_DEG = (0.0, 30.0, 60.0)
@@ -101,12 +101,14 @@ def delta_e(model, data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS
     return float(np.mean(np.linalg.norm(_lab(lm, white) - _lab(ld, white), axis=-1)))
 
 
-def sphere_pixels(model, data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS, _tree=None):
-    """``(L_model, L_data)`` (P, 3) of the sphere pixels of :func:`image_error` that have a measured sample
-    within :data:`IMAGE_MAX_GAP`, over all ``angles_deg``; ``None`` when there is none."""
+def sphere_targets(data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS, _tree=None):
+    """The sphere pixels of :func:`image_error` that have a measured sample within :data:`IMAGE_MAX_GAP`, over
+    all ``angles_deg``, as samples: ``(wi, wo, f)`` (P, 3) each, ``f`` the nearest measured sample's value at
+    the pixel's own geometry — what the rendering of the measurement shows there; ``None`` when there is none.
+    A least-squares fit to them with weights cos²θi minimizes the image error itself (:mod:`gonio.fit.dupuy`)."""
     tree = _tree if _tree is not None else data_tree(data)
     cmin = float(min(data.cos_i.min(), data.cos_o.min()))
-    out_m, out_d = [], []
+    out = []
     for angle in angles_deg:
         wi, wo, _ = sphere_geometry(angle, pixels)
         ok = (wi[:, 2] >= cmin) & (wo[:, 2] >= cmin)
@@ -115,14 +117,22 @@ def sphere_pixels(model, data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_
             continue
         dist, idx = tree.query(_hd_coords(wi, wo), distance_upper_bound=IMAGE_MAX_GAP)
         hit = np.isfinite(dist)
-        if not hit.any():
-            continue
-        c = wi[hit, 2][:, None]
-        out_m.append(model.eval(wi[hit], wo[hit]) * c)
-        out_d.append(data.y[idx[hit]] * c)
-    if not out_m:
+        if hit.any():
+            out.append((wi[hit], wo[hit], data.y[idx[hit]]))
+    if not out:
         return None
-    return np.concatenate(out_m), np.concatenate(out_d)
+    return tuple(np.concatenate(a) for a in zip(*out))
+
+
+def sphere_pixels(model, data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS, _tree=None):
+    """``(L_model, L_data)`` (P, 3) of the sphere pixels of :func:`image_error` that have a measured sample
+    within :data:`IMAGE_MAX_GAP` (:func:`sphere_targets`), L = f cos θi; ``None`` when there is none."""
+    t = sphere_targets(data, angles_deg, pixels, _tree)
+    if t is None:
+        return None
+    wi, wo, f = t
+    c = wi[:, 2][:, None]
+    return model.eval(wi, wo) * c, f * c
 
 
 def data_tree(data):

@@ -289,8 +289,14 @@ class FitResult:
         })
 
 def _fmt(v) -> str:
-    """A parameter value for a table: 5 significant digits, lists comma-separated, inf, '-' for nan."""
+    """A parameter value for a table: 5 significant digits, lists comma-separated, inf, '-' for nan; a table
+    (a data-driven model's, more than 3 entries or rows) as its size and range (the JSON has every entry)."""
     if isinstance(v, (list, tuple, np.ndarray)):
+        if len(v) > 3 or (len(v) and isinstance(v[0], (list, tuple, np.ndarray))):
+            a = np.asarray(v, dtype=np.float64)
+            fin = a[np.isfinite(a)]
+            span = f"{fin.min():.4g} .. {fin.max():.4g}" if fin.size else "-"
+            return f"table {'x'.join(str(n) for n in a.shape)}: {span}"
         return ", ".join(_fmt(x) for x in v)
     if isinstance(v, (float, np.floating)):
         return "inf" if math.isinf(v) else ("-" if math.isnan(v) else f"{v:.5g}")

@@ -213,13 +213,16 @@ def _cv_score(d, model, loss, k, seed, fit_kw, bar=None, start=None) -> tuple[fl
 #: ABC model, whose lobe is a function of the projected deviation ‖wi⊥ + wo⊥‖ = 2 cos θd sin θh from the
 #: mirror direction (Rayleigh–Rice scattering), so it widens in θh towards grazing θd as the narrow peaks of
 #: polished metals and the lobes of paints do, where a microfacet lobe keeps its width in θh
-#: (``python -m benchmarks realdata``).
-LARGE_TABLE_CANDIDATES = ("gtr", "abc-smooth")
+#: (``python -m benchmarks realdata``); and the data-driven microfacet model of Dupuy et al. 2015 (tabulated D and
+#: Fresnel, :mod:`gonio.fit.dupuy`), which fits where analytic lobes fail and a full table determines its tables,
+#: and its variant with a conductor's Fresnel of complex index (:mod:`gonio.fit.dupuy_conductor`; metals physical).
+LARGE_TABLE_CANDIDATES = ("gtr", "abc-smooth", "dupuy2015", "dupuy2015-conductor")
 #: Width parameters of the terms of a sum: one on a bound means the term has no shape the data determine.
 _WIDTHS = ("alpha", "roughness", "exponent", "alpha_x", "alpha_y", "sigma")
 #: Candidates added when no candidate fits the data (:mod:`gonio.fit.gof`): a rough diffuse surface (Oren &
-#: Nayar 1994, alone and under a GGX lobe) and an anisotropic lobe (Ward 1992).
-WIDEN_CANDIDATES = ("oren-nayar", "oren-nayar+ggx", "ward")
+#: Nayar 1994, alone and under a GGX lobe), an anisotropic lobe (Ward 1992) and the data-driven microfacet model
+#: (Dupuy et al. 2015).
+WIDEN_CANDIDATES = ("oren-nayar", "oren-nayar+ggx", "ward", "dupuy2015")
 #: Candidates added when the data are anisotropic (:func:`gonio.tabulate.check_isotropy`) and none of
 #: the requested ones is.
 ANISOTROPIC_CANDIDATES = ("ward",)

@@ -138,6 +138,9 @@ def closest_lobes(model, target: str):
     ``model`` itself."""
     from gonio.fit.fit import fit
 
+    if callable(getattr(model, "stand_in", None)):  # the model knows its closest analytic form (gonio.brdf.dupuy)
+        stand_in, why = model.stand_in()
+        return stand_in, why.replace("no counterpart", f"no {target} counterpart")
     wi, wo = _fit_pairs(4096)
     r = fit((wi, wo, model.eval(wi, wo)), "lambert+ggx", max_theta_deg=None, report=False, n_starts=1)
     return r.model, (f"{model.name} has no {target} counterpart: exported as the lambert+ggx fitted to it "

@@ -36,6 +36,10 @@ def _value(spec):
     scalar = st.one_of(edge, st.floats(spec.lo, hi, allow_nan=False))
     if spec.kind == "rgb":
         return st.one_of(scalar, st.lists(scalar, min_size=3, max_size=3))
+    if spec.kind == "table":  # a tabulated function (dupuy2015): its default scaled, or every entry at one value > 0
+        shape = np.shape(spec.default)
+        flat = st.floats(max(spec.lo, 1e-3), hi, allow_nan=False).map(lambda v: np.full(shape, v).tolist())
+        return st.one_of(st.just(spec.default), flat)
     return scalar
 
 

@@ -21,7 +21,12 @@ def _edge_models(name):
             if spec.kind == "choice":
                 continue
             v = getattr(spec, end)
-            values[key] = v if np.isfinite(v) else 1e3
+            v = v if np.isfinite(v) else 1e3
+            if spec.kind == "table":  # a tabulated function (dupuy2015): every entry at the end (a zero D is refused)
+                shape = np.shape(spec.default)
+                v = np.where(np.arange(shape[0]).reshape((-1,) + (1,) * (len(shape) - 1)) == 1, max(v, 1e-3), v)
+                v = np.broadcast_to(v, shape).tolist()
+            values[key] = v
         yield build(name, values)
         for key, spec in param_specs(name).items():
             if spec.kind == "choice":

@@ -1,0 +1,177 @@
+"""Fitting the conductor variant of the data-driven microfacet model (:class:`gonio.brdf.dupuy.Dupuy2015Conductor`):
+D tabulated as in Dupuy et al. 2015, the Fresnel factor ks · F(θd; η + ik) of a complex index per RGB channel.
+
+1. The table fit of :mod:`gonio.fit.dupuy` (power iteration, alternating linear least squares, the image term).
+2. Rounds of: per channel, (kd, ks, η, k) minimizing the same weighted squares with D and G fixed — kd and
+   ks in closed form for each (η, k) (variable projection, Golub & Pereyra 1973), (η, k) by a scan (η
+   log-spaced × k) and a bounded polish (L-BFGS-B), on per-θd-bin sums (:class:`_Channel`); then D by the
+   linear step of :mod:`gonio.fit.dupuy` with this Fresnel, normalized, and G1 recomputed from it. The round
+   with the lowest objective is kept.
+
+The conductor Fresnel equations: :func:`gonio.brdf.fresnel.conductor` (Born & Wolf §14.2; pbrt-v4 §9.3
+``FrComplex``). Standard uncertainties of (kd, ks, η, k) are s² (JᵀJ)⁻¹ per channel at the solution (Press et
+al., *Numerical Recipes*, 3rd ed., §15.5), those of D as for the table model; a parameter on a bound has none.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from gonio.brdf.dupuy import ETA_MAX, ETA_MIN, K_MAX, N_FRESNEL, N_NDF, Dupuy2015Conductor, normalization
+from gonio.brdf.fresnel import conductor
+from gonio.errors import DataError
+from gonio.fit.data import FitData
+from gonio.fit.dupuy import (IMAGE_WEIGHT, ITERATIONS, _inverse, _ndf_step, _weights, table_fit)
+from gonio.fit.losses import Loss
+from gonio.fit.result import FitResult
+
+__all__ = ["fit_dupuy_conductor", "ROUNDS"]
+
+#: Rounds of step 2.
+ROUNDS = 2
+#: The scan of step 2: η log-spaced over its range, k uniform.
+_ETAS = np.geomspace(ETA_MIN, ETA_MAX, 32)
+_KS = np.linspace(0.0, K_MAX, 33)
+
+
+#: θd bins of the sufficient statistics of step 3 (F is taken constant within a bin of 0.35°).
+_BINS = 256
+
+
+class _Channel:
+    """Σ w (kd/π + ks F(θd; η, k) S − y)² of one channel, from per-θd-bin sums (F is constant within a bin),
+    so that (η, k) are searched on :data:`_BINS` numbers and kd, ks solved in closed form (variable
+    projection, Golub & Pereyra 1973)."""
+
+    def __init__(self, theta_d, spec, y, w):
+        b = np.minimum((theta_d / (0.5 * np.pi) * _BINS).astype(np.intp), _BINS - 1)
+        self.cos = np.cos((np.arange(_BINS) + 0.5) / _BINS * 0.5 * np.pi)
+        sums = [np.bincount(b, v, _BINS) for v in (w, w * spec, w * spec * spec, w * y, w * spec * y)]
+        self.w, self.ws, self.wss, self.wy, self.wsy = sums
+        self.wyy = float(np.sum(w * y * y))
+
+    def solve(self, eta: float, k: float) -> tuple[float, float, float]:
+        """(objective, kd, ks) at (η, k): the bounded 2×2 least squares in (kd, ks) ∈ [0, 1]²."""
+        f = conductor(self.cos, eta, k)
+        a11 = float(np.sum(self.w)) / np.pi ** 2
+        a12 = float(np.sum(self.ws * f)) / np.pi
+        a22 = float(np.sum(self.wss * f * f))
+        b1, b2 = float(np.sum(self.wy)) / np.pi, float(np.sum(self.wsy * f))
+
+        def obj(kd, ks):
+            return a11 * kd * kd + 2 * a12 * kd * ks + a22 * ks * ks - 2 * (b1 * kd + b2 * ks) + self.wyy
+
+        det = a11 * a22 - a12 * a12
+        cands = []
+        if det > 0:
+            cands.append(((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det))
+        for kd in (0.0, 1.0):  # the edges: one fixed, the other solved
+            cands.append((kd, (b2 - a12 * kd) / a22 if a22 > 0 else 0.0))
+        for ks in (0.0, 1.0):
+            cands.append(((b1 - a12 * ks) / a11 if a11 > 0 else 0.0, ks))
+        cands = [(min(max(kd, 0.0), 1.0), min(max(ks, 0.0), 1.0)) for kd, ks in cands]
+        best = min(cands, key=lambda c: obj(*c))
+        return obj(*best), best[0], best[1]
+
+
+def _channel(ch: _Channel, x0) -> np.ndarray:
+    """(kd, ks, η, k) of one channel: a scan of η (log-spaced) × k, then a bounded polish (L-BFGS-B in
+    (ln η, k)) of the profiled objective :meth:`_Channel.solve`."""
+    from scipy.optimize import minimize
+
+    grid = [(ch.solve(e, k)[0], e, k) for e in _ETAS for k in _KS]
+    if x0 is not None:
+        grid.append((ch.solve(x0[2], x0[3])[0], x0[2], x0[3]))
+    _, e0, k0 = min(grid)
+    res = minimize(lambda u: ch.solve(float(np.clip(np.exp(u[0]), ETA_MIN, ETA_MAX)), float(u[1]))[0], [np.log(e0), k0], method="L-BFGS-B",
+                   bounds=[(np.log(ETA_MIN), np.log(ETA_MAX)), (0.0, K_MAX)])
+    eta, k = float(np.clip(np.exp(res.x[0]), ETA_MIN, ETA_MAX)), float(np.clip(res.x[1], 0.0, K_MAX))
+    _, kd, ks = ch.solve(eta, k)
+    return np.array([kd, ks, eta, k])
+
+
+def _jacobian(cos_d, spec, w, x) -> np.ndarray:
+    """∂(√w · model)/∂(kd, ks, η, k) of one channel at ``x`` (analytic in kd, ks; central differences in η, k)."""
+    sw = np.sqrt(w)
+    f = conductor(cos_d, x[2], x[3])
+    cols = [sw / np.pi, sw * f * spec]
+    for i, (lo, hi) in ((2, (ETA_MIN, ETA_MAX)), (3, (0.0, K_MAX))):
+        h = 1e-5 * max(abs(x[i]), 1.0)
+        a, b = max(x[i] - h, lo), min(x[i] + h, hi)
+        xa, xb = x.copy(), x.copy()
+        xa[i], xb[i] = a, b
+        fa, fb = conductor(cos_d, xa[2], xa[3]), conductor(cos_d, xb[2], xb[3])
+        cols.append(sw * x[1] * spec * (fb - fa) / max(b - a, 1e-300))
+    return np.stack(cols, axis=1)
+
+
+def fit_dupuy_conductor(d: FitData, loss: Loss, *, n_ndf: int = N_NDF, image: float = IMAGE_WEIGHT,
+                        rounds: int = ROUNDS) -> FitResult:
+    """Fit :class:`gonio.brdf.dupuy.Dupuy2015Conductor` to prepared samples ``d`` under ``loss`` (module docstring)."""
+    t0 = time.perf_counter()
+    k_par = n_ndf + 12
+    if 3 * len(d) <= n_ndf + 3 * N_FRESNEL + 3:
+        raise DataError(f"{d.source}: {len(d)} usable samples ({3 * len(d)} values) cannot determine the "
+                        f"tables of dupuy2015-conductor; need at least {(n_ndf + 3 * N_FRESNEL + 3) // 3 + 1} samples")
+    table, _, _, geo, w, n_pix = table_fit(d, loss, n_ndf, N_FRESNEL, ITERATIONS, image)
+    y = np.asarray(d.y, dtype=np.float64)
+    ndf = np.asarray(table._ndf)
+    x = np.zeros((4, 3))
+    cos_d = np.clip(d.cos_d, 0.0, 1.0)
+    best = None
+    for it in range(rounds):
+        g2 = geo.g2(ndf)
+        spec = geo.ndf_at(ndf) * g2 / geo.den
+        for c in range(3):
+            x[:, c] = _channel(_Channel(geo.theta_d, spec, y[:, c], w[:, c]), x[:, c] if it else None)
+        model = Dupuy2015Conductor(kd=x[0], ndf=ndf, ks=x[1], eta=x[2], k=x[3])
+        objective = float(np.sum(w * (model.eval(d.wi, d.wo) - y) ** 2))
+        if best is None or objective < best[0]:
+            best = (objective, model, [_jacobian(cos_d, spec, w[:, c], x[:, c]) for c in range(3)], it)
+        raw, _, _ = _ndf_step(geo, x[0], model.fresnel_at(cos_d), g2, y, w)
+        norm = normalization(raw)
+        if not norm > 0:
+            break
+        ndf = raw / norm
+    _, model, jacs, it_best = best
+    cost = 0.5 * float(np.sum(loss.residual(model.eval(d.wi, d.wo), y, d.cos_i, d.sigma) ** 2))
+    s2 = 1.0 if loss.name == "chi2" else 2.0 * cost / max(3 * len(d) - k_par, 1)
+    wscale = max(float(np.sum(_weights(loss, d) * y * y)), 1e-300)  # the objective's weights were normalized
+    names = ("kd", "ks", "eta", "k")
+    se = np.zeros((4, 3))
+    for c, jac in enumerate(jacs):
+        se[:, c] = np.sqrt(np.maximum(np.diag(_inverse(jac.T @ jac * wscale)), 0.0) * s2)
+    _, nmat, nempty = _ndf_step(geo, np.asarray(model.kd), model.fresnel_at(cos_d), geo.g2(model._ndf), y, w)
+    ndf_se = np.sqrt(np.maximum(np.diag(_inverse(nmat * wscale + np.diag(np.where(nempty[1:], 1.0, 0.0)))), 0.0) * s2)
+    ndf_se = np.concatenate([ndf_se[:1], ndf_se]) / normalization(model.ndf)
+    ndf_se[nempty] = np.nan
+    at_bound: dict = {}
+    lo, hi = (0.0, 0.0, ETA_MIN, 0.0), (1.0, 1.0, ETA_MAX, K_MAX)
+    for i, name in enumerate(names):
+        v = np.asarray(model.params[name], dtype=np.float64)
+        for c, ch in enumerate("rgb"):
+            span = hi[i] - lo[i]
+            if v[c] - lo[i] <= 1e-6 * span or hi[i] - v[c] <= 1e-6 * span:
+                at_bound.setdefault(name, {})[ch] = f"lower {lo[i]:g}" if v[c] - lo[i] <= 1e-6 * span else f"upper {hi[i]:g}"
+                se[i, c] = np.nan
+    if (np.asarray(model.ndf) <= 0).any():
+        at_bound["ndf"] = {"value": "lower 0 at some theta_h nodes"}
+        ndf_se[np.asarray(model.ndf) <= 0] = np.nan
+    f0 = conductor(np.ones(1), np.asarray(model.eta), np.asarray(model.k))[0]
+    notes = [f"Dupuy et al. 2015's tabulated D with a conductor's Fresnel (complex index per channel): "
+             f"normal-incidence reflectance {'/'.join(f'{v:.3g}' for v in f0)} times ks; round {it_best + 1} of "
+             f"{rounds} kept" + (f"; the objective includes {image:g} x the image error" if n_pix else "")]
+    m_val = model.eval(d.wi, d.wo)
+    cw = d.cos_i[:, None]
+    rms_rel = float(np.sqrt(np.sum((cw * (m_val - y)) ** 2) / max(float(np.sum((cw * y) ** 2)), 1e-300)))
+    chi2_red = None
+    if d.sigma is not None:
+        chi2_red = float(np.sum(((m_val - y) / d.sigma) ** 2) / max(3 * len(d) - k_par, 1))
+    unc = {name: se[i].tolist() for i, name in enumerate(names)}
+    unc["ndf"] = ndf_se.tolist()
+    return FitResult(model_name=Dupuy2015Conductor.name, params=model.params, uncertainty=unc, loss=loss.name,
+                     cost=cost, rms_rel=rms_rel, n_used=len(d), n_params=k_par, chi2_red=chi2_red,
+                     method="power iteration + alternating least squares (conductor Fresnel)", n_evals=it_best + 1,
+                     seconds=time.perf_counter() - t0, notes=notes, dropped=dict(d.dropped), at_bound=at_bound)
