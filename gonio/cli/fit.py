@@ -30,7 +30,7 @@ def register(sub) -> None:
     p.add_argument("--loss", default="auto", help="auto, cosine, chi2, log, cbrt (auto: chi2 with uncertainties)")
     p.add_argument("--image-weight", type=float, default=None, metavar="W",
                    help="--model dupuy2015 only: weight of the squared relative image error (rendered spheres) beside "
-                        "the loss's in what is minimized (default 4; 0: the loss alone)")
+                        "the loss's in what is minimized (default 10; 0: the loss alone)")
     p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                    help="hold a parameter fixed (repeatable), e.g. distribution=beckmann or f0=0.9,0.6,0.5")
     p.add_argument("--max-theta", type=float, default=80.0, help="grazing cutoff for θi, θo in degrees (default 80)")

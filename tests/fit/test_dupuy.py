@@ -159,3 +159,12 @@ def test_conductor_variant_gives_a_metal_like_table_a_metal_f0_and_a_complex_ind
     assert np.allclose(np.asarray(r.params["ks"]) * f0, [0.57, 0.384, 0.324], rtol=0.1)
     assert r.rms_rel < 0.05
     assert set(r.uncertainty) >= {"kd", "ks", "eta", "k", "ndf"}
+
+
+def test_the_viewer_and_report_render_it(plastic):
+    from gonio.report import sphere_images  # what the viewer's /sphere.png and the report's panels draw
+
+    d, _ = plastic
+    r = fit(d, "dupuy2015", report=False, image_weight=0)
+    rad, img, _ = sphere_images(r.model, 30.0, size=32)
+    assert np.all(np.isfinite(rad)) and rad.max() > 0 and img.max() > 0
