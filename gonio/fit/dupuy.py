@@ -33,6 +33,7 @@ second-difference penalty) and has none either, said in the notes.
 from __future__ import annotations
 
 import time
+from functools import lru_cache
 
 import numpy as np
 
@@ -104,12 +105,15 @@ def power_iteration(retro: np.ndarray, steps: int = POWER_STEPS) -> np.ndarray:
     return ndf
 
 
+@lru_cache(maxsize=4)
 def _second_difference(n: int) -> np.ndarray:
-    """Dᵀ D of the second-difference matrix D ((n − 2) × n)."""
+    """Dᵀ D of the second-difference matrix D ((n − 2) × n) (read-only, cached)."""
     m = np.zeros((n - 2, n))
     i = np.arange(n - 2)
     m[i, i], m[i, i + 1], m[i, i + 2] = 1.0, -2.0, 1.0
-    return m.T @ m
+    out = m.T @ m
+    out.setflags(write=False)
+    return out
 
 
 def _bounded_normal(ata: np.ndarray, atb: np.ndarray, lo: float, hi: float) -> np.ndarray:
