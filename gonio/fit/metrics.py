@@ -21,7 +21,7 @@ import numpy as np
 
 from gonio.geometry import frame_from_normal, half_diff_from_dirs, to_local
 
-__all__ = ["cbrt_error", "image_error", "delta_e", "sphere_pixels", "sphere_targets", "metrics", "IMAGE_ANGLES_DEG", "IMAGE_PIXELS", "IMAGE_MAX_GAP"]
+__all__ = ["cbrt_error", "image_error", "delta_e", "sphere_pixels", "sphere_targets", "sphere_sample_index", "metrics", "IMAGE_ANGLES_DEG", "IMAGE_PIXELS", "IMAGE_MAX_GAP"]
 
 #: Light–view angles of the rendered spheres (degrees).
 IMAGE_ANGLES_DEG = (0.0, 30.0, 60.0)
@@ -122,6 +122,21 @@ def sphere_targets(data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS
     if not out:
         return None
     return tuple(np.concatenate(a) for a in zip(*out))
+
+
+def sphere_sample_index(data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS) -> np.ndarray:
+    """Indices (sorted, unique) of the samples :func:`image_error`'s spheres show: each pixel's nearest measured
+    sample within :data:`IMAGE_MAX_GAP` (the k-d tree is the one the error measures use, cached on the data)."""
+    tree = data_tree(data)
+    cmin = float(min(data.cos_i.min(), data.cos_o.min()))
+    out = []
+    for angle in angles_deg:
+        wi, wo, _ = sphere_geometry(angle, pixels)
+        ok = (wi[:, 2] >= cmin) & (wo[:, 2] >= cmin)
+        if ok.any():
+            dist, idx = tree.query(_hd_coords(wi[ok], wo[ok]), distance_upper_bound=IMAGE_MAX_GAP)
+            out.append(idx[np.isfinite(dist)])
+    return np.unique(np.concatenate(out)) if out else np.zeros(0, dtype=np.intp)
 
 
 def sphere_pixels(model, data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS, _tree=None):

@@ -20,8 +20,9 @@ Criteria
     prefers the simpler of two candidates that predict the same.
 
 Large tables (more than 2 × :data:`SELECT_N` samples, e.g. a MERL table's 9·10⁵): every candidate is fitted
-once on a seeded random subset of :data:`SELECT_N` samples and ``cv`` scores it on a disjoint subset of the
-same size (hold-out validation, Hastie et al. §7.2; the one-standard-error rule uses the per-sample scatter
+once on a seeded random subset of :data:`SELECT_N` samples — plus the samples the image error's rendered spheres
+show (:func:`gonio.fit.metrics.sphere_sample_index`; a random subset misses most of a razor-thin highlight) —
+and ``cv`` scores it on a disjoint subset of the same size (without those) (hold-out validation, Hastie et al. §7.2; the one-standard-error rule uses the per-sample scatter
 of the held-out loss), so a selection costs a few subset fits instead of (k + 1) full ones; the error
 measures of the winner are computed on all samples. ``python -m benchmarks realdata`` measures the time
 and the resulting fits against published ones on real materials.
@@ -378,10 +379,17 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
     if criterion == "auto":
         criterion = "bic" if lossobj.name == "chi2" else "cv"
     if big:
+        from gonio.fit.metrics import sphere_sample_index
+
         perm = np.random.default_rng(seed).permutation(len(d_all))
-        d, d_val = d_all.subset(np.sort(perm[:SELECT_N])), d_all.subset(np.sort(perm[SELECT_N:2 * SELECT_N]))
-        notes.append(f"candidates fitted on {SELECT_N} of {len(d_all)} samples and scored on another {SELECT_N} "
-                     f"(seed {seed})")
+        # the samples a rendering shows (the image error's sphere pixels) are always among the fitted ones: a
+        # random subset misses most of a razor-thin highlight (issue 29)
+        shown = sphere_sample_index(d_all)
+        fit_idx = np.union1d(perm[:SELECT_N], shown)
+        val_idx = np.setdiff1d(perm[SELECT_N:2 * SELECT_N], shown)
+        d, d_val = d_all.subset(fit_idx), d_all.subset(val_idx)
+        notes.append(f"candidates fitted on {SELECT_N} of {len(d_all)} samples plus the {len(fit_idx) - SELECT_N} "
+                     f"more its rendered spheres show, and scored on {len(val_idx)} others (seed {seed})")
     else:
         d, d_val = d_all, None
     fit_kw = {**fit_kw, "report": False}

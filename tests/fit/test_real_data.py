@@ -155,6 +155,7 @@ def test_large_tables_select_on_a_subset_and_report_on_all_samples():
     sel = select((wi, wo, truth.eval(wi, wo)), ["lambert", "microfacet"])
     assert sel.model_name == "microfacet" and sel.criterion == "cv"
     assert any("20000 of 50000" in n for n in sel.notes)
+    assert any("more its rendered spheres show" in n for n in sel.notes)  # the highlight's samples are fitted (issue 29)
     assert sel.winner.n_used == 50_000  # refitted on all samples (warm-started) below REFIT_MAX
     assert sel.winner.metrics["cbrt_rel"] < 1e-3 and sel.winner.energy["ok"]
     np.testing.assert_allclose(sel.params["kd"], [0.3, 0.2, 0.1], rtol=1e-3)
