@@ -105,7 +105,9 @@ def test_gonio_fit_writes_the_bsdf(tmp_path, capsys):
     model = make("microfacet", kd=[0.3, 0.12, 0.06], ks=0.8, alpha=0.25, f0=1.0, distribution="ggx")
     wi, wo, above = cell_directions()
     path = tmp_path / "m.binary"
-    write_merl(path, MerlTable(np.where(above[..., None], model.eval(wi, wo), np.nan)))
+    sparse = np.zeros_like(above)
+    sparse[:, ::3, ::6] = True  # every θh, a third of θd, a sixth of φd: 1/18 of the cells, each fit ~18× cheaper
+    write_merl(path, MerlTable(np.where((above & sparse)[..., None], model.eval(wi, wo), np.nan)))
     out = tmp_path / "bsdf.xml"
     assert main(["fit", str(path), "--fix", "f0=1", "--mitsuba", str(out)]) == 0
     root = ET.fromstring(out.read_text())
