@@ -38,7 +38,8 @@ def run(args) -> int:
         for name, cls in MODELS.items():
             print(name)
             for pname, spec in cls.PARAMS.items():
-                default = "required" if spec.default is None else f"default {spec.default}"
+                default = ("required" if spec.default is None
+                           else f"default {_fmt(spec.default)}" if spec.kind == "table" else f"default {spec.default}")
                 print(f"    {pname:<14} {spec.kind:<7} {default:<22} {spec.doc}")
         from gonio.brdf.lobes import TERMS
 
@@ -56,3 +57,10 @@ def run(args) -> int:
     for t, row in zip(np.degrees(theta_o), f):
         print(f"{t:11.1f} {row[0]:12.6g} {row[1]:12.6g} {row[2]:12.6g}")
     return 0
+
+
+def _fmt(value) -> str:
+    """A table default as its size and range (:func:`gonio.fit.result._fmt`)."""
+    from gonio.fit.result import _fmt as fmt
+
+    return fmt(value)

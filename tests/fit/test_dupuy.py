@@ -168,3 +168,11 @@ def test_the_viewer_and_report_render_it(plastic):
     r = fit(d, "dupuy2015", report=False, image_weight=0)
     rad, img, _ = sphere_images(r.model, 30.0, size=32)
     assert np.all(np.isfinite(rad)) and rad.max() > 0 and img.max() > 0
+
+
+def test_gonio_models_summarizes_its_tables(capsys):
+    from gonio.cli.main import main
+
+    assert main(["models"]) == 0
+    out = capsys.readouterr().out
+    assert "default table 90: " in out and "default table 10x3: 0.04 .. 0.04" in out
