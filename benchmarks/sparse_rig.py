@@ -85,7 +85,9 @@ def _adaptive_one(mi: int) -> dict:
             break
         rounds.append(d.next)
         samples.append(measure(d.next.candidates, n))
-    return {"errs": errs, "cpu_per_pose": (time.process_time() - wall) / max(n - N_INITIAL, 1)}
+    out = {"errs": errs, "cpu_per_pose": (time.process_time() - wall) / max(n - N_INITIAL, 1)}
+    _log([{"kind": "adaptive-noiseless", "material": ctx["names"][mi], "errs": {str(k): v for k, v in errs.items()}}])
+    return out
 
 
 def adaptive_rows(ctx) -> list[tuple]:
@@ -150,8 +152,10 @@ def rig_materials(names, quick: bool) -> list[str]:
     how = os.environ.get("GONIO_SPARSE_RIG", "").strip()
     if how == "all":
         return list(names)
-    if how == "stratified":
-        return sorted(names)[::3]
+    if how == "stratified":  # in an order that spreads the families, so that a run cut short is still spread
+        every = sorted(names)[::3]
+        step = next(k for k in (8, 7, 5, 3, 2, 1) if math.gcd(k, len(every)) == 1)
+        return [every[(step * i) % len(every)] for i in range(len(every))]
     if how:
         return [m for m in how.split(",") if m in names]
     return [m for m in (RIG_MATERIALS[:1] if quick else RIG_MATERIALS) if m in names]
@@ -200,7 +204,19 @@ def _rig_one(mi: int) -> list[dict]:
                     "cbrt": cbrt_error(fp, truth, ewi[:, 2]), "cover": float(np.mean(np.abs(fp - truth) <= 2 * sp)),
                     "samples": len(s), "poses": len(run["manifest"]["plan"]["poses"])})
     shutil.rmtree(work, ignore_errors=True)
+    _log(out)
     return out
+
+
+def _log(rows: list[dict]) -> None:
+    """Append a held-out material's results to ``$GONIO_SPARSE_LOG`` (JSON lines) as soon as it is done: a long
+    run cut short keeps what it measured."""
+    path = os.environ.get("GONIO_SPARSE_LOG")
+    if path:
+        import json
+
+        with open(path, "a") as fh:
+            fh.write("".join(json.dumps(r) + "\n" for r in rows))
 
 
 def rig_rows(ctx) -> list[tuple]:
