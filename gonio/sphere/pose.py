@@ -2,7 +2,8 @@
 per pixel with the refined centre (issue 30: a sphere declared a millimetre off biases every pixel's normal).
 
 The centre a pose's samples use is the declared one combined with the silhouettes of the poses stored before it and
-its own (:func:`gonio.sphere.refine.centre_in_use`); that centre's uncertainty is carried into every sample's σ
+its own (:func:`gonio.sphere.refine.centre_in_use`) when they contradict the declared centre (more than 3σ and
+:data:`USE_FOUND_M` off), else the declared one; that centre's uncertainty is carried into every sample's σ
 (:func:`gonio.sphere.pixels.sphere_frame_samples`). The poses before it come from the session's records (the
 runner reads them back on a resume), so a resumed session uses, pose by pose, the very centre an uninterrupted one
 used: bit-identical samples.
@@ -14,9 +15,14 @@ import numpy as np
 
 from gonio.sphere.geometry import Sphere
 from gonio.sphere.pixels import SphereFrameSamples, sphere_frame_samples
-from gonio.sphere.refine import centre_in_use, refine_centre, session_centre
+from gonio.sphere.refine import centre_in_use, centre_note, refine_centre, session_centre
 
-__all__ = ["sphere_pose_samples", "save_pixels", "load_pixels", "PIXEL_KEYS"]
+__all__ = ["sphere_pose_samples", "save_pixels", "load_pixels", "PIXEL_KEYS", "USE_FOUND_M"]
+
+#: The samples move to the centre found only when it is this far (and 3σ) from the declared one: one fixed camera's
+#: silhouettes share their errors (the same rim against the same board), a bias of a few tenths of a millimetre at
+#: 320×240 that the poses' scatter does not show (benchmarks sphere: using it below this made the cells worse)
+USE_FOUND_M = 5e-4
 
 #: What a kept pose's NPZ holds per used pixel (``gonio measure --keep-pixels``; docs/formats.md)
 PIXEL_KEYS = ("pixels", "wi_local", "wo_local", "f", "sigma", "footprint")
@@ -38,7 +44,12 @@ def sphere_pose_samples(rate, var, calib, cam_pose, declared: Sphere, light_posi
     if est is not None:
         mine = {"centre_m": est.centre.tolist(), "sigma_m": est.sigma.tolist(), "edges": est.n_edges}
         history.append({"sphere_centre": mine})
-    used, sigma = centre_in_use(session_centre(history, declared) if mine else prior, declared)
+    found = session_centre(history, declared) if mine else prior
+    used, sigma = centre_in_use(found, declared)
+    off = np.abs(np.asarray(found["offset_m"])) if found else np.zeros(3)
+    if not (centre_note(found) and off.max() > USE_FOUND_M):  # the silhouettes do not contradict the declaration
+        used = declared
+        sigma = np.asarray(found["sigma_m"], dtype=np.float64) if found else sigma
     fs = sphere_frame_samples(rate, var, calib, cam_pose, used, light_position, layout, min_snr=min_snr,
                               pose_perturbations=pose_perturbations, centre_sigma=sigma)
     if mine is not None:
