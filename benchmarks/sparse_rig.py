@@ -118,7 +118,8 @@ def adaptive_rows(ctx) -> list[tuple]:
                 note = (f"fixed design's n = {FIXED_N} median {fixed20:.4g} reached at n = {reach if reach else '> 20'} "
                         f"(target ≤ {ADAPTIVE_TARGET_N}: {'met' if ok else 'NOT met'}); per material, poses to reach its "
                         f"own fixed n = {FIXED_N} error: median {own_med:g}; {cpu:.2f} CPU s per decision")
-            rows.append(("(b) adaptive: posterior's expected-error reduction, 1 pose per round", n, med[n], p90[n], note))
+            rows.append(("(b) adaptive: expected cube-root error reduction under the posterior, 1 pose per round", n,
+                         med[n], p90[n], note))
     return rows
 
 
@@ -197,7 +198,7 @@ def _rig_one(mi: int) -> list[dict]:
             run = _session(common + extra, d)
             post, _, s = reconstruct(d, load_prior(prior_path))
         except Exception as exc:  # one failed session is counted and named, not the end of the run
-            out.append({"kind": kind, "material": name, "error": f"{type(exc).__name__}: {str(exc)[:200]}"})
+            out.append({"kind": kind, "material": name, "error": f"{type(exc).__name__}: …{str(exc)[-240:]}"})
             continue
         fp, sp = post._predict(h_eval, everywhere)
         out.append({"kind": kind, "material": name, "lab_s": run["lab_s"], "wall_s": time.perf_counter() - w0,
