@@ -9,7 +9,8 @@ posterior (n = 5, 10, 20; :mod:`gonio.prior`), beside a dense table.
   ``python -m benchmarks sparse`` is the whole study (63 materials, Nielsen 2015, a parametric fit, adaptive
   measuring, the simulated rig with noise); this row is its summary at a fraction of the cost.
 * quick run (and without the real data) — synthetic, well under a second: a prior of :data:`N_TRAIN` analytic
-  Lambert + Blinn–Phong materials on a small grid (in-sample variances), :data:`N_TEST` others held out (one a two-lobe material outside the
+  Lambert + Blinn–Phong materials on a small grid (in-sample variances), :data:`N_TEST` others held out (one a
+  two-lobe material outside the
   prior's family), candidates an isotropic direction grid without the rig, lab time n × the default capture's time
   per pose (moves not counted). It shows the shape of the trade, not the real materials' numbers.
 """
@@ -35,7 +36,8 @@ class _Phong:
     so the quick trade needs no compiled kernel."""
 
     def __init__(self, kd, lobes):
-        self.kd, self.lobes = np.asarray(kd, dtype=np.float64), [(np.asarray(k, dtype=np.float64), float(e)) for k, e in lobes]
+        self.kd = np.asarray(kd, dtype=np.float64)
+        self.lobes = [(np.asarray(k, dtype=np.float64), float(e)) for k, e in lobes]
 
     def eval(self, wi, wo):
         h = wi + wo
@@ -49,9 +51,11 @@ class _Phong:
 def _synthetic(n: int, seed: int):
     """``n`` one-lobe materials (:class:`_Phong`) with random colours and exponents (name, model)."""
     rng = np.random.default_rng(seed)
-    return [(f"synthetic-{seed}-{i}", _Phong(rng.uniform(0.02, 0.3, 3), [(rng.uniform(0.05, 0.5, 3),
-                                                                          float(np.exp(rng.uniform(np.log(5), np.log(300)))))]))
-            for i in range(n)]
+    out = []
+    for i in range(n):
+        kd, ks = rng.uniform(0.02, 0.3, 3), rng.uniform(0.05, 0.5, 3)
+        out.append((f"synthetic-{seed}-{i}", _Phong(kd, [(ks, float(np.exp(rng.uniform(np.log(5), np.log(300)))))])))
+    return out
 
 
 def _random_pairs(n: int, seed: int):
@@ -79,8 +83,8 @@ def _quick_rows(t: Table) -> None:
     train = _synthetic(N_TRAIN, 0)
     prior = build_prior(np.stack([m.eval(wi_n, wo_n) for _, m in train]), [n for n, _ in train], grid,
                         weight=np.full(grid.size, 1.0 / grid.size), calibrate=False)
-    test = _synthetic(N_TEST - 1, 1) + [("two-lobe (outside the family)",
-                                         _Phong([0.1, 0.08, 0.05], [([0.3, 0.25, 0.2], 400.0), ([0.2, 0.2, 0.2], 8.0)]))]
+    two_lobe = _Phong([0.1, 0.08, 0.05], [([0.3, 0.25, 0.2], 400.0), ([0.2, 0.2, 0.2], 8.0)])
+    test = _synthetic(N_TEST - 1, 1) + [("two-lobe (outside the family)", two_lobe)]
     g = np.radians(np.arange(0, 81, 10.0))
     ti, to, po = (a.ravel() for a in np.meshgrid(g, g, np.radians(np.arange(0, 181, 20.0)), indexing="ij"))
     cwi, cwo = dirs_from_angles(ti, np.zeros_like(ti), to, po)
@@ -104,7 +108,8 @@ def _quick_rows(t: Table) -> None:
 
 
 def _real_rows(t: Table, src) -> None:
-    from benchmarks.bench_sparse import JITTER_DEG, N_EVAL, QUICK_MATERIALS, SAMPLES_PER_POSE, _eval_cells, _pose_samples
+    from benchmarks.bench_sparse import (JITTER_DEG, N_EVAL, QUICK_MATERIALS, SAMPLES_PER_POSE, _eval_cells,
+                                         _pose_samples)
     from gonio.fit.metrics import cbrt_error
     from gonio.geometry import half_diff_from_dirs
     from gonio.plan import estimate_plan
@@ -174,7 +179,8 @@ def trade_tables(quick: bool = False) -> list[Table]:
     else:
         _real_rows(t, src)
     t.default = 2  # twenty poses: the issue's budget
-    t.why_default = "twenty poses under the prior (gonio plan sparse's --n): a whole table in under a minute of lab time"
+    t.why_default = ("twenty poses under the prior (gonio plan sparse's --n): a whole table in under a minute of lab "
+                     "time")
     t.baseline = len(t.rows) - 1  # the dense table
     t.columns = list(t.columns) + ["lab ÷ dense"]
     t.rows = [tuple(r) + (float(r[2]) / float(t.rows[t.baseline][2]),) for r in t.rows]
