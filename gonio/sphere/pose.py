@@ -39,7 +39,8 @@ def sphere_pose_samples(rate, var, calib, cam_pose, declared: Sphere, light_posi
     history = list(history)
     prior = session_centre(history, declared)
     current, _ = centre_in_use(prior, declared)
-    est = refine_centre(rate, calib, cam_pose, current)  # the edges searched around the best centre so far
+    # the edges searched around the best centre so far, away from the terminator
+    est = refine_centre(rate, calib, cam_pose, current, light_position=light_position)
     mine = None
     if est is not None:
         mine = {"centre_m": est.centre.tolist(), "sigma_m": est.sigma.tolist(), "edges": est.n_edges}
