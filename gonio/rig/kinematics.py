@@ -441,8 +441,25 @@ class Rig:
         # guard must not depend on its callers: a pole solution of an infinite azimuth is not a pose)
         ok = ok & finite & np.all(np.isfinite(joints), axis=-1)
         code = np.where(ok, self.check_directions(wi, wo), np.int8(1)).astype(np.int8)
+        # The guard also checks the pose as the servos will hold it (each joint on its encoder's tick): a pose
+        # within a tick of a zone's edge would otherwise be commanded inside it.
+        held = self.held_joints(np.where(ok[..., None], joints, 0.0))
+        held_ok = np.all((held >= self.lower - 1e-12) & (held <= self.upper + 1e-12), axis=-1)
+        code_held = np.where(held_ok, self.check_directions(*self.directions(held)), np.int8(1)).astype(np.int8)
+        code = np.where(code == 0, code_held, code).astype(np.int8)
         joints = np.where((code == 0)[..., None], joints, np.nan)
         return joints, code
+
+    def held_joints(self, joints) -> np.ndarray:
+        """Joint angles ``(..., 4)`` as the servos hold them: each rounded to its encoder's tick, the raw position
+        ``zero_offset/360·tpr + direction·gear_ratio·θ·tpr/2π`` rounded to an integer
+        (:meth:`gonio.rig.dynamixel.AxisConfig.ticks_of`; tpr from the model's control table)."""
+        from gonio.rig.control_table import load_control_table
+
+        tpr = np.array([load_control_table(j.model).ticks_per_rev for j in self.joints], dtype=np.float64)
+        off = np.array([j.zero_offset_deg / 360.0 for j in self.joints]) * tpr
+        scale = np.array([j.direction * j.gear_ratio for j in self.joints]) * tpr / (2.0 * math.pi)
+        return (np.rint(off + scale * np.asarray(joints, dtype=np.float64)) - off) / scale
 
     def solve(self, theta_i, phi_i, theta_o, phi_o, current=None, *, isotropic: bool = False) -> dict[str, float]:
         """Joint angles (radians, by name) that put the light at (θi, φi) and the camera at (θo, φo).

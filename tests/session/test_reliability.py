@@ -132,7 +132,9 @@ def test_random_plans_never_command_outside_limits_or_into_collision(tmp_path_fa
         commanded = s.sim.commanded_joints()
     finally:
         s.close()
-    assert result.status == "completed", result.status
+    # The session runs to its end: a random pose may not show the board (issue 28.4: a session whose poses are
+    # mostly unusable ends "unusable: ...", naming the cause), but it never stops on an unsafe target.
+    assert result.status == "completed" or result.status.startswith("unusable: "), result.status
     assert len(commanded) >= len(p)
     slack = np.array([2 * math.pi / 4096 / j.gear_ratio for j in rig.joints])  # one tick of rounding
     assert np.all(commanded >= rig.lower - slack) and np.all(commanded <= rig.upper + slack)
