@@ -527,6 +527,12 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
     if links and chroma == "auto":  # the lobes' own colours only where the data demand them
         free_fit = _fit_tied(d, cls, fixed, tied, (), lossobj, kw)
         r = _shared_or_free(r, _restart_at_bound(free_fit, d, cls, fixed, tied, (), lossobj, kw))
+    return _finish(r, d, report, t0)
+
+
+def _finish(r: FitResult, d: FitData, report: bool, t0: float) -> FitResult:
+    """The last steps of every :func:`fit`: the bounds reached said in a note, the report added on request, the
+    time taken recorded."""
     if r.at_bound:
         r.notes.append("at or near a bound of its range: " + "; ".join(
             f"{k} ({', '.join(f'{c} {w}' for c, w in v.items())})" for k, v in r.at_bound.items()))
@@ -556,13 +562,7 @@ def _fit_data_driven(d: FitData, cls, loss: str, fixed, free, report: bool, t0: 
         from gonio.fit.dupuy_conductor import fit_dupuy_conductor
 
         r = fit_dupuy_conductor(d, resolve_loss(loss, d), image=image)
-    if r.at_bound:
-        r.notes.append("at or near a bound of its range: " + "; ".join(
-            f"{k} ({', '.join(f'{c} {w}' for c, w in v.items())})" for k, v in r.at_bound.items()))
-    if report:
-        add_report(r, d)
-    r.seconds = time.perf_counter() - t0
-    return r
+    return _finish(r, d, report, t0)
 
 
 def _fit_tied(d: FitData, cls, fixed: dict, tied, linked, lossobj: Loss, kw: dict) -> FitResult:
