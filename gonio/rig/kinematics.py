@@ -453,10 +453,18 @@ class Rig:
     def held_joints(self, joints) -> np.ndarray:
         """Joint angles ``(..., 4)`` as the servos hold them: each rounded to its encoder's tick, the raw position
         ``zero_offset/360·tpr + direction·gear_ratio·θ·tpr/2π`` rounded to an integer
-        (:meth:`gonio.rig.dynamixel.AxisConfig.ticks_of`; tpr from the model's control table)."""
-        from gonio.rig.control_table import load_control_table
+        (:meth:`gonio.rig.dynamixel.AxisConfig.ticks_of`; tpr from the model's control table, or a control table's
+        default, 4096, for a model gonio has none for: opening its servo says so, naming the rig file and joint)."""
+        from gonio.errors import ConfigError
+        from gonio.rig.control_table import ControlTable, load_control_table
 
-        tpr = np.array([load_control_table(j.model).ticks_per_rev for j in self.joints], dtype=np.float64)
+        def ticks_per_rev(model: str) -> int:
+            try:
+                return load_control_table(model).ticks_per_rev
+            except ConfigError:
+                return ControlTable.ticks_per_rev
+
+        tpr = np.array([ticks_per_rev(j.model) for j in self.joints], dtype=np.float64)
         off = np.array([j.zero_offset_deg / 360.0 for j in self.joints]) * tpr
         scale = np.array([j.direction * j.gear_ratio for j in self.joints]) * tpr / (2.0 * math.pi)
         return (np.rint(off + scale * np.asarray(joints, dtype=np.float64)) - off) / scale
