@@ -53,15 +53,16 @@ def _synthetic_tables(n: int, where: Path) -> list[Path]:
 def _sources(quick: bool) -> tuple[list[Path], str]:
     from benchmarks.bench_realdata import MATERIALS, QUICK, find_realdata, merl_tables
 
-    src = find_realdata()
-    if src is not None and (not quick or os.environ.get("GONIO_REALDATA")):
+    use_real = not quick or bool(os.environ.get("GONIO_REALDATA"))  # a quick run never reads the folder unasked
+    src = find_realdata() if use_real else None
+    if src is not None:
         names = QUICK if quick else MATERIALS
         tables = merl_tables(src, names)
         return [tables[n] for n in names], f"{len(names)} real MERL materials ({src})"
     where = Path(tempfile.gettempdir()) / "gonio-bench-batch"
     where.mkdir(parents=True, exist_ok=True)
     n = 2 if quick else 6
-    why = "quick run without GONIO_REALDATA" if src is not None else "../shared/realdata not found"
+    why = "quick run without GONIO_REALDATA" if not use_real else "../shared/realdata not found"
     return _synthetic_tables(n, where), f"{n} synthetic full MERL tables ({why})"
 
 

@@ -251,11 +251,11 @@ def run(quick: bool = False) -> list[Table]:
               ["material", "selected", "status", "at bound", "s (wall)", "CPU s", "cbrt", "image", "log",
                "ABC cbrt", "ABC image", "ABC log", "SGD cbrt", "SGD image", "SGD log", "cbrt ratio", "image ratio",
                "log ratio", "≤ best published", "physical", "parameters"])
-    src = find_realdata()
-    if quick and not os.environ.get("GONIO_REALDATA"):
+    if quick and not os.environ.get("GONIO_REALDATA"):  # decided before looking: a quick run never reads the folder
         t.notes.append("quick run: the real materials are measured only with GONIO_REALDATA set (generating the tables "
                        "takes ~3 s and 35 MB each); run `python -m benchmarks realdata` for the full table")
         return [t]
+    src = find_realdata()
     if src is None:
         t.notes.append("../shared/realdata not found (set GONIO_REALDATA): no real materials measured in this run")
         return [t]

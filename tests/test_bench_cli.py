@@ -22,8 +22,16 @@ TRADES = [tr.name for tr in REPORT_TRADES if tr.name != "realdata"]
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
+    def no_realdata(*_a, **_k):
+        raise AssertionError("a smoke run looked for ../shared/realdata (tests never depend on it)")
+
+    import benchmarks.bench_realdata
+    import gonio.prior.build_default
+
     with pytest.MonkeyPatch.context() as mp:
         mp.delenv("GONIO_REALDATA", raising=False)
+        mp.setattr(benchmarks.bench_realdata, "find_realdata", no_realdata)
+        mp.setattr(gonio.prior.build_default, "find_realdata", no_realdata)
         code = main(["bench", "--smoke", "-o", str(out)])
     return code, out
 
