@@ -60,6 +60,17 @@ class FitData:
     def __len__(self) -> int:
         return self.y.shape[0]
 
+    def fit_quality(self, m: np.ndarray, n_params: int) -> tuple[float, float | None]:
+        """``(rms_rel, chi2_red)`` of model values ``m`` (N, 3) against these samples: the cosine-weighted relative
+        RMS ``sqrt(Σ (cos θi (m − y))² / Σ (cos θi y)²)`` and, with σ, the reduced chi-square
+        ``Σ ((m − y)/σ)² / (3N − n_params)`` (Bevington & Robinson, Data Reduction and Error Analysis, §11.1)."""
+        c = self.cos_i[:, None]
+        rms_rel = float(np.sqrt(np.sum((c * (m - self.y)) ** 2) / max(float(np.sum((c * self.y) ** 2)), 1e-300)))
+        chi2_red = None
+        if self.sigma is not None:
+            chi2_red = float(np.sum(((m - self.y) / self.sigma) ** 2) / max(3 * len(self) - n_params, 1))
+        return rms_rel, chi2_red
+
     @cached_property
     def cos_i(self) -> np.ndarray:
         """cos θi, shape (N,)."""

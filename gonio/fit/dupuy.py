@@ -320,12 +320,7 @@ def fit_dupuy(d: FitData, loss: Loss, *, n_ndf: int = N_NDF, n_fresnel: int = N_
                      f"neighbours (no uncertainty)")
     if any(e[1:].any() for _, e in fmats):
         notes.append("no sample at some of F's theta_d nodes: held at the nearest node with samples (no uncertainty)")
-    m_val = model.eval(d.wi, d.wo)
-    cw = d.cos_i[:, None]
-    rms_rel = float(np.sqrt(np.sum((cw * (m_val - y)) ** 2) / max(float(np.sum((cw * y) ** 2)), 1e-300)))
-    chi2_red = None
-    if d.sigma is not None:
-        chi2_red = float(np.sum(((m_val - y) / d.sigma) ** 2) / max(3 * len(d) - k, 1))
+    rms_rel, chi2_red = d.fit_quality(model.eval(d.wi, d.wo), k)
     thin = 4 * k > 3 * len(d)
     if thin:
         notes.append(f"{len(d)} samples for {k} parameters: the tables are barely determined")

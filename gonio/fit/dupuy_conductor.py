@@ -163,12 +163,7 @@ def fit_dupuy_conductor(d: FitData, loss: Loss, *, n_ndf: int = N_NDF, image: fl
     notes = [f"Dupuy et al. 2015's tabulated D with a conductor's Fresnel (complex index per channel): "
              f"normal-incidence reflectance {'/'.join(f'{v:.3g}' for v in f0)} times ks; round {it_best + 1} of "
              f"{rounds} kept" + (f"; the objective includes {image:g} x the image error" if n_pix else "")]
-    m_val = model.eval(d.wi, d.wo)
-    cw = d.cos_i[:, None]
-    rms_rel = float(np.sqrt(np.sum((cw * (m_val - y)) ** 2) / max(float(np.sum((cw * y) ** 2)), 1e-300)))
-    chi2_red = None
-    if d.sigma is not None:
-        chi2_red = float(np.sum(((m_val - y) / d.sigma) ** 2) / max(3 * len(d) - k_par, 1))
+    rms_rel, chi2_red = d.fit_quality(model.eval(d.wi, d.wo), k_par)
     unc = {name: se[i].tolist() for i, name in enumerate(names)}
     unc["ndf"] = ndf_se.tolist()
     return FitResult(model_name=Dupuy2015Conductor.name, params=model.params, uncertainty=unc, loss=loss.name,

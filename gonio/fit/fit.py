@@ -798,12 +798,7 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
     params = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in params.items()}
     unc = {name: ecolour[k].tolist() for k, name in enumerate(L.colour)}
     unc.update({name: float(eshape[j]) for j, name in enumerate(L.shape)})
-    m = prob.values(p)
-    c = d.cos_i[:, None]
-    rms_rel = float(np.sqrt(np.sum((c * (m - d.y)) ** 2) / max(np.sum((c * d.y) ** 2), 1e-300)))
-    chi2_red = None
-    if d.sigma is not None:
-        chi2_red = float(np.sum(((m - d.y) / d.sigma) ** 2) / max(3 * len(d) - L.n_params, 1))
+    rms_rel, chi2_red = d.fit_quality(prob.values(p), L.n_params)
     try:
         L.build(colour, shape)
     except GonioError as exc:
