@@ -240,7 +240,40 @@ class _stop_on_sigterm:
         return False
 
 
+#: The address schemes a Dask distributed scheduler listens on (a bare HOST:PORT means tcp)
+SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+
+
+def scheduler_address(text: str) -> str:
+    """``text`` checked as a Dask scheduler address ``[SCHEME://]HOST:PORT`` and returned as given; a
+    malformed one (no host, no port, a port outside 1..65535, another scheme) is a one-line ConfigError
+    naming it, decided before Dask is imported or any connection or event loop is started (Dask's own
+    refusal of "tcp://localhost" came from inside its loop thread, and under load as an assertion there)."""
+    from urllib.parse import urlsplit
+
+    def bad(why: str) -> ConfigError:
+        return ConfigError.field("--scheduler", "scheduler", text, f"not a scheduler address tcp://HOST:PORT ({why})")
+
+    if not isinstance(text, str) or not text.strip() or any(c.isspace() for c in text):
+        raise bad("empty or has spaces")
+    parts = urlsplit(text if "://" in text else "tcp://" + text)
+    if parts.scheme not in SCHEDULER_SCHEMES:
+        raise bad(f"scheme {parts.scheme!r}: one of {', '.join(SCHEDULER_SCHEMES)}")
+    if parts.path not in ("", "/") or parts.query or parts.fragment or parts.username or parts.password:
+        raise bad("only SCHEME://HOST:PORT")
+    try:
+        port = parts.port
+    except ValueError:
+        raise bad("the port is not a number in 1..65535") from None
+    if not parts.hostname:
+        raise bad("no host")
+    if port is None or not 1 <= port <= 65535:
+        raise bad("no port" if port is None else "the port is not a number in 1..65535")
+    return text
+
+
 def _run_dask(fn, names: list[str], options: dict, scheduler: str, desc: str) -> list[dict]:
+    scheduler_address(scheduler)
     try:
         from distributed import Client, as_completed as dask_completed
     except ImportError:

@@ -104,6 +104,13 @@ class SimavrController(PtyServer):
     ``controller = 'firmware'``, for those).
     """
 
+    #: The reply deadline a host should give this emulator, real seconds. The emulated AVR shares the host's
+    #: CPU: a 255-sample photodiode read is ~26 ms of emulated time but can take longer than the hardware
+    #: default (0.25 s) of real time on a loaded machine, and a retried READ_PHOTODIODE is executed again
+    #: (SPEC.md section 5), drawing new noise, so a seeded session would depend on the machine's load. With no
+    #: link faults here a generous deadline costs nothing.
+    reply_timeout = 5.0
+
     def __init__(self, clock=None, *, faults=None, seed: int = 0, pd_noise: float = 0.002, warmup_depth: float = 0.05,
                  warmup_tau: float = 120.0, name: str = "controller", **_physics):
         from gonio.rig.clock import RealClock

@@ -23,9 +23,11 @@ def add_options(p) -> None:
 def sources(args):
     """The expanded list of sources of ``args.source`` (:func:`gonio.batch.expand_sources`)."""
     from gonio import progress
-    from gonio.batch import expand_sources
+    from gonio.batch import expand_sources, scheduler_address
 
     progress.set_quiet(getattr(args, "quiet", False))
+    if getattr(args, "scheduler", None) is not None:
+        scheduler_address(args.scheduler)  # a malformed address is refused before any source is read
     return expand_sources(args.source)
 
 

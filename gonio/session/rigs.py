@@ -211,7 +211,9 @@ def _start_sim(record, rig, *, material_brdf, config, hold, exposure_range=None,
         camera = sim.camera
         if getattr(config, "camera_link", "direct") == "gige":  # the sim camera behind a real GigE Vision link
             camera = _gige_sim_camera(sim, stack)
-        devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, camera, sim.clock)
+        # an emulator that names its reply deadline gets it (simavr: emulated on this CPU, see its reply_timeout)
+        devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, camera, sim.clock,
+                               controller_timeout=getattr(sim.controller, "reply_timeout", 0.25))
     except BaseException:
         stack.close()
         raise

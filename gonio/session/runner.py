@@ -134,9 +134,10 @@ class Devices:
 
 def open_devices(rig, servo_port: str, controller_port: str, camera, clock, *, latency_timer_ms: float = 50.0,
                  watchdog: float = 30.0, auto_recover: int = 0, scan_attempts: int = 4,
-                 clear_alarms: bool = True) -> Devices:
+                 clear_alarms: bool = True, controller_timeout: float = 0.25) -> Devices:
     """Open the servo bus (scan: every joint's servo must answer; then configure) and the controller
-    (handshake, watchdog period). ``watchdog`` must exceed the longest move plus settle, in lab seconds.
+    (handshake, watchdog period). ``watchdog`` must exceed the longest move plus settle, in lab seconds;
+    ``controller_timeout`` is the controller's reply deadline (real seconds, before a retry).
 
     Servo alarms: a servo found with a hardware error when the session starts is rebooted
     (``clear_alarms``: a person started or resumed the session after the stop told them to remove the
@@ -146,7 +147,7 @@ def open_devices(rig, servo_port: str, controller_port: str, camera, clock, *, l
 
     # the controller first: with the E-stop pressed or the enclosure open not one byte may go to a servo
     # (configuring them writes EEPROM, reboots an alarmed one and switches torque on)
-    controller = RigController.open(controller_port, clock=clock, watchdog=watchdog)
+    controller = RigController.open(controller_port, clock=clock, watchdog=watchdog, timeout=controller_timeout)
     try:
         what = controller.status().stop_reason
         if what:

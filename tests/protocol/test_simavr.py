@@ -255,12 +255,15 @@ def test_the_photodiode_in_simavr_has_seeded_noise_and_the_lamp_warm_up(built):
     def readings(seed):
         clock = SimClock()
         with SimavrController(clock, seed=seed, pd_noise=0.004, warmup_depth=0.05, warmup_tau=100.0) as s:
-            with RigController.open(s.path, clock=clock) as ctl:
+            # the emulator's own reply deadline: the hardware's 0.25 s could retry on a loaded machine, and a
+            # retried read is executed again with new noise (this test failed that way in CI)
+            with RigController.open(s.path, clock=clock, timeout=s.reply_timeout) as ctl:
                 ctl.set_light(True, 1.0)
                 clock.sleep(0.2)  # after the 50 ms soft start
                 first = ctl.read_photodiode(255)
                 ctl.wait(300.0)  # three time constants of warm-up, on the simulated clock
                 late = ctl.read_photodiode(255)
+                assert ctl.retry_count == 0
                 return first, late, s.light_output()
 
     first, late, out = readings(3)
