@@ -240,8 +240,9 @@ class _stop_on_sigterm:
         return False
 
 
-#: The address schemes a Dask distributed scheduler listens on (a bare HOST:PORT means tcp)
-SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+#: The address schemes a Dask distributed scheduler listens on (a bare HOST:PORT means tcp); ``inproc``
+#: (a scheduler in this process, ``inproc://HOST/PID/N``) has no port
+SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
 
 
 def scheduler_address(text: str) -> str:
@@ -259,6 +260,10 @@ def scheduler_address(text: str) -> str:
     parts = urlsplit(text if "://" in text else "tcp://" + text)
     if parts.scheme not in SCHEDULER_SCHEMES:
         raise bad(f"scheme {parts.scheme!r}: one of {', '.join(SCHEDULER_SCHEMES)}")
+    if parts.scheme == "inproc":
+        if not parts.hostname or parts.path.count("/") != 2:
+            raise bad("inproc://HOST/PID/N")
+        return text
     if parts.path not in ("", "/") or parts.query or parts.fragment or parts.username or parts.password:
         raise bad("only SCHEME://HOST:PORT")
     try:

@@ -8,7 +8,8 @@ from gonio.cli.main import main
 
 
 BAD = ["localhost", "tcp://localhost", "tcp://localhost:", "tcp://:8786", "tcp://localhost:abc",
-       "tcp://localhost:70000", "tcp://localhost:0", "http://localhost:8786", "tcp://h:1/path", "", "tcp://a b:1"]
+       "tcp://localhost:70000", "tcp://localhost:0", "http://localhost:8786", "tcp://h:1/path", "", "tcp://a b:1",
+       "inproc://", "inproc://host"]
 
 
 @pytest.mark.parametrize("address", BAD)
@@ -23,7 +24,8 @@ def test_scheduler_without_port_is_one_line(tmp_path, address, capsys):
     assert "Traceback" not in err[0]
 
 
-@pytest.mark.parametrize("address", ["localhost:8786", "tcp://127.0.0.1:8786", "tls://sched.lab:1", "tcp://[::1]:8786"])
+@pytest.mark.parametrize("address", ["localhost:8786", "tcp://127.0.0.1:8786", "tls://sched.lab:1", "tcp://[::1]:8786",
+                                     "inproc://192.0.2.2/25965/1"])
 def test_well_formed_addresses_pass_the_check(address):
     from gonio.batch import scheduler_address
 
