@@ -375,17 +375,27 @@ def capture_table(quick: bool = False) -> Table:
               f"{MATERIAL['model']} with a narrow lobe)",
               ["capture", "capture s/pose", "lab s/pose", "lab s", "lab vs baseline", "usable samples", "flagged %",
                "median σ/f", "σ/f vs baseline", "sample rel RMS err"], baseline=0, default=default)
+    measured = []
     with tempfile.TemporaryDirectory() as tmp:
         for i, (label, cap) in enumerate(rows):
             result, _, s = simulate(replace(plan, capture=cap), Path(tmp) / f"c{i}")
             good = s.good()
-            rel = float(np.median(good.sigma / np.maximum(np.abs(good.f), 1e-12)))
-            if i == 0:
-                lab0, rel0 = result.lab_time, rel
-            per_pose = (result.lab_time - overhead_lab(result)) / max(result.measured, 1)
-            t.add(label, cap.capture_time(), per_pose, result.lab_time, result.lab_time / lab0, len(good),
-                  100.0 * (1 - len(good) / max(len(s), 1)), rel, rel / rel0,
-                  relative_rms(good.f, f_truth.eval(good.wi, good.wo)))
+            if len(good):
+                rel = float(np.median(good.sigma / np.maximum(np.abs(good.f), 1e-12)))
+                err = relative_rms(good.f, f_truth.eval(good.wi, good.wo))
+            else:  # every sample flagged (a single exposure that saturates the white reference): no statistics
+                rel = err = float("nan")
+            measured.append((label, cap, result, len(good), 100.0 * (1 - len(good) / max(len(s), 1)), rel, err))
+    # the baseline is the first row that measured something: ratios against a row with no usable sample are empty
+    t.baseline = next((i for i, m in enumerate(measured) if m[3]), 0)
+    lab0, rel0 = measured[t.baseline][2].lab_time, measured[t.baseline][5]
+    for label, cap, result, n_good, flagged, rel, err in measured:
+        per_pose = (result.lab_time - overhead_lab(result)) / max(result.measured, 1)
+        t.add(label, cap.capture_time(), per_pose, result.lab_time, result.lab_time / lab0, n_good, flagged, rel,
+              rel / rel0, err)
+    if any(not m[3] for m in measured):
+        t.notes.append("rows with 0 usable samples: every pose flagged (e.g. the white reference saturated in the "
+                       "only exposure), so they have no σ/f or error; the baseline is the first row with samples.")
     t.why_default = ("automatic exposure (gonio.pipeline.exposure: a metering frame per pose, a bracket from the "
                      "exposure ladder that keeps the sample and the white reference in the linear range, more frames "
                      "where the SNR is low): fixed brackets either lose the narrow lobe's peak or the diffuse tail "
