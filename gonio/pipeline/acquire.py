@@ -7,7 +7,7 @@ kinematics (sample frame); the camera pose comes from the ChArUco board in the f
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -79,6 +79,12 @@ class PipelineSettings:
     light_position_sigma: float = 4e-4
     #: Propagate the ChArUco pose's covariance into the samples' uncertainty.
     pose_uncertainty: bool = True
+    #: A sphere's (or cylinder's) bracket: at most this many frames per exposure. One HDR frame per light position,
+    #: as the image-based rigs take them (Marschner et al. 1999; Matusik et al. 2003): a MERL cell's value averages
+    #: the pixels of many frames, so the lab time buys more light positions (cells) rather than repeated frames of
+    #: one — a frame costs its readout (50 ms) whatever its exposure. Each pixel's σ is its own (noise model), so
+    #: the cells' σ stay honest (benchmarks sphere measures the truth within 2σ).
+    sphere_max_frames: int = 1
 
 
 @dataclass
@@ -358,7 +364,8 @@ class Pipeline:
         if plan is None:  # metered on what gives samples: the sphere's lit, seen pixels and the white patch
             lit = sphere_lit_pixels(c, cam_pose, sph, light_position, box)
             lit[wbox] = True
-            plan = self._meter(frame, px, level, np.flatnonzero(lit), gain, SPHERE_PIXELS_PER_CELL, every_pixel=True)
+            plan = self._meter(frame, px, level, np.flatnonzero(lit), gain, SPHERE_PIXELS_PER_CELL, every_pixel=True,
+                               max_frames=self.settings.sphere_max_frames)
         hdr, lights, times, flags = self._capture_merge(plan, used, flags)
         C = hdr.rate.shape[-1]
         rate = np.full((c.height * c.width, C), np.nan)
@@ -379,12 +386,13 @@ class Pipeline:
         return PoseResult(samples, plan, board, cam_pose, lights, times, source, sphere_counts=counts, sphere_frame=fs)
 
     def _meter(self, frame: Frame, px: np.ndarray, level: float, used: np.ndarray, gain: float,
-               n_min: int, *, every_pixel: bool = False) -> CapturePlan:
+               n_min: int, *, every_pixel: bool = False, max_frames: int | None = None) -> CapturePlan:
         """Find signal rates of the sample and white pixels (``used``: their :func:`_used_index`); re-meter
         (bounded) when saturated or dark. ``n_min``: the fewest pixels a sample averages (the bracket's SNR
         target is per sample). ``every_pixel``: each pixel is a sample (a sphere): the brightest pixel, not the
         99.9th percentile, sets the shortest exposure, and one saturated pixel re-meters (a chrome-like sphere's
-        highlight is a pixel or two, and it is the peak of the lobe)."""
+        highlight is a pixel or two, and it is the peak of the lobe). ``max_frames``: at most this many frames per
+        exposure (:attr:`PipelineSettings.sphere_max_frames`)."""
         q_hi, sat_tol = (100.0, 0.0) if every_pixel else (99.9, 0.001)
         st, es = self.settings, self.settings.exposure
         t = frame.exposure
@@ -408,4 +416,6 @@ class Pipeline:
         hi, lo = (float(v) for v in np.percentile(vals, [q_hi, 2.0]))
         rate_bright = hi * (1.0 if frac_sat <= sat_tol else 4.0)
         rate_dim = lo
+        if max_frames is not None:
+            es = replace(es, max_frames=max(int(max_frames), 1), min_frames=min(es.min_frames, max(int(max_frames), 1)))
         return plan_bracket(rate_bright, rate_dim, rng, n_min, self.calib.noise, es, gain)

@@ -94,12 +94,15 @@ def footprint_average(model, wi_local, wo_local, footprint, k: int = 4) -> np.nd
 
 
 def fit_footprint(name: str, start: dict, wi_local, wo_local, footprint, f, sigma, *, free=("ks", "alpha"),
-                  k: int = 4) -> tuple[dict, dict]:
+                  k: int = 4, scan: bool = True, scan_per_decade: int = 6) -> tuple[dict, dict]:
     """Refine a fitted model's parameters ``free`` (``start``: all its parameters, e.g. a
     :func:`gonio.fit` result's) so that :func:`footprint_average` matches the pixels' values ``f`` (n, 3) with
     their σ: weighted least squares (``scipy.optimize.least_squares``, trust-region reflective within the
-    parameters' bounds). Returns ``(params, info)``: info holds the standard uncertainty of each free scalar
-    (``sigma``, from ``(JᵀJ)⁻¹``, scaled by the reduced χ² when above 1) and which ended on a bound."""
+    parameters' bounds). With ``alpha`` free and ``scan`` (the default) the local solve starts from the best point of
+    a coarse scan over log α (:func:`_scan_alpha`), not from ``start``'s α: an ordinary fit's α of a lobe narrower
+    than a pixel is several times too wide, and a local solve from it stops in a local minimum. Returns
+    ``(params, info)``: info holds the standard uncertainty of each free scalar (``sigma``, from ``(JᵀJ)⁻¹``, scaled
+    by the reduced χ² when above 1), which ended on a bound, and the scan (``alpha_scan``, None without one)."""
     from scipy.optimize import least_squares
 
     from gonio.brdf import MODELS, make
@@ -137,7 +140,12 @@ def fit_footprint(name: str, start: dict, wi_local, wo_local, footprint, f, sigm
     def resid(x):
         return ((footprint_average(make(name, **params(x)), wi_local, wo_local, footprint, k) - f) / s).ravel()
 
-    fit = least_squares(resid, np.array(x0), bounds=(np.array(lo), np.array(hi)), x_scale="jac")
+    x0 = np.array(x0)
+    scanned = None
+    if scan and "alpha" in free:  # the start from a coarse scan over log α (the module docstring of _scan_alpha)
+        a = [i for i, (p, _) in enumerate(layout) if p == "alpha"][0]
+        x0, scanned = _scan_alpha(resid, x0, np.array(lo), np.array(hi), a, per_decade=scan_per_decade)
+    fit = least_squares(resid, x0, bounds=(np.array(lo), np.array(hi)), x_scale="jac")
     dof = max(fit.fun.size - len(x0), 1)
     chi2 = float(fit.fun @ fit.fun / dof)
     try:
@@ -148,4 +156,47 @@ def fit_footprint(name: str, start: dict, wi_local, wo_local, footprint, f, sigm
     names = [p if i is None else f"{p}[{i}]" for p, i in layout]
     on_bound = [nm for nm, x, a, b in zip(names, fit.x, lo, hi) if x <= a * (1 + 1e-9) or x >= b * (1 - 1e-9)]
     return params(fit.x), {"sigma": dict(zip(names, sig.tolist())), "chi2_reduced": chi2, "on_bound": on_bound,
-                           "n": int(len(f))}
+                           "n": int(len(f)), "alpha_scan": scanned}
+
+
+#: the coarse α scan's lowest value: a lobe this narrow is a point in any camera's pixel (GGX α = 0.001: 0.06°)
+SCAN_ALPHA_MIN = 1e-3
+
+
+def _scan_alpha(resid, x0, lo, hi, a: int, *, per_decade: int = 6) -> tuple[np.ndarray, dict]:
+    """The start of the local solve: χ²(α) profiled on a grid over log α, the other free parameters solved at each α
+    (a short ``least_squares`` with α held; for ks, kd a linear problem, one or two steps).
+
+    The footprint-averaged χ² is not convex in α: a start at a lobe several pixels wide (an ordinary fit of the
+    pixels' values: their footprint averages look like a wider, dimmer lobe) descends to a local minimum near it,
+    and the narrow lobe's basin is a fraction of a decade wide. Profiling the nonlinear parameter over a grid with
+    the others eliminated at each point is the separable least-squares idea (Golub & Pereyra 1973, "The
+    differentiation of pseudo-inverses and nonlinear least squares problems whose variables separate", SIAM J.
+    Numer. Anal. 10(2)); the grid is coarse to fine: ``per_decade`` points a decade from :data:`SCAN_ALPHA_MIN` (or
+    α's lower bound) to its upper bound, and the local solve refines the best. Returns ``(x, info)``: the start
+    and the scan (``alpha``, ``chi2`` at each grid point, ``best``)."""
+    from scipy.optimize import least_squares
+
+    lo_a, hi_a = max(float(lo[a]), SCAN_ALPHA_MIN), float(hi[a])
+    grid = np.geomspace(lo_a, hi_a, max(int(round(per_decade * np.log10(hi_a / lo_a))) + 1, 2))
+    others = np.array([i for i in range(len(x0)) if i != a], dtype=np.intp)
+    best, chi2s = None, []
+    for g in grid:
+        x = x0.copy()
+        x[a] = g
+        if others.size:
+            def sub(y, x=x):
+                z = x.copy()
+                z[others] = y
+                return resid(z)
+
+            r = least_squares(sub, np.clip(x0[others], lo[others], hi[others]), bounds=(lo[others], hi[others]),
+                              x_scale="jac", max_nfev=20)
+            x[others], c = r.x, 2 * r.cost
+        else:
+            rr = resid(x)
+            c = float(rr @ rr)
+        chi2s.append(float(c))
+        if best is None or c < best[0]:
+            best = (c, x)
+    return best[1], {"alpha": grid.tolist(), "chi2": chi2s, "best": float(best[1][a])}
