@@ -390,9 +390,9 @@ def _greedy_sphere(args, plan, rig):
     greedy, info = greedy_sphere_plan(rig, calib, sphere, theta_o=p["theta_o"], theta_max=p["theta_max"],
                                       coverage=fill, budget=budget, capture=plan.capture, seed=args.seed,
                                       layout=layout, **steps)
-    print(f"greedy: {info['poses']} of {info['candidates']} candidate light positions fill {info['filled']} of the "
-          f"{info['reachable']} cells they reach ({100 * info['filled'] / max(info['reachable'], 1):.1f} %) in "
-          f"{info['lab_s'] / 60:.1f} lab min (estimated)")
+    print(f"greedy: {info['poses']} of {info['candidates']} candidate light positions fill {info['filled']} cells, "
+          f"{100 * info['filled'] / max(info['reachable'], 1):.1f} % of the {info['reachable']} the rig can reach "
+          f"(all the candidates: {info['candidates_reach']}), in {info['lab_s'] / 60:.1f} lab min (estimated)")
     return greedy
 
 

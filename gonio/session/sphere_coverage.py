@@ -2,10 +2,17 @@
 kinematics, the sphere's pixels traced (:func:`gonio.sphere.geometry.sphere_hits`), their (θh, θd, φd) cells
 collected — geometry only, no rendering, so a plan is judged in a fraction of a second per pose.
 
-*Valid* cells are the MERL cells whose centre directions (φh = 0) are both above the horizon; *reachable* ones
-those a dense sweep of the light (every ``reach_step`` degrees of zenith and azimuth, within the rig's joint limits
-and collision zones) fills with the same camera: what this camera position can see at all. Coverage is reported
-against both, and per θh and θd band.
+*Valid* cells are the MERL cells whose centre directions (φh = 0) are both above the horizon. *Reachable* ones
+(:func:`reachable_cells`) are those the rig can put a sample in with the camera where the plan keeps it: a valid cell
+whose configuration the pipeline keeps (θi and θo in the normal's frame within the grazing limit, 80°) and whose θd
+lies between the least and the largest θd any pixel sees at a light position the rig reaches (joint limits,
+collision and shadow zones, the white reference in view). Nothing else constrains a cell: on a sphere every normal
+facing the camera is seen, the local θi and θo do not depend on the world's orientation, and for any light at the
+right angle to the camera some normal has the cell's (θh, φd). This is the limit that a sweep of ever finer light
+steps approaches — a sampled sweep's cells are not: at 320×240 a sweep every 5°, 2.5° and 1.25° fills 229,452,
+418,806 and 560,082 cells, the limit is ~890,000 (the sampled count grows with the sweep's density and the camera's
+pixels, so coverage against it says more about the sweep than about the plan). Coverage is reported against the
+valid and the reachable cells, and per θh and θd band.
 """
 
 from __future__ import annotations
@@ -20,7 +27,8 @@ from gonio.io.merl_index import half_diff_index
 from gonio.sphere.geometry import Sphere, sphere_hits
 from gonio.sphere.pixels import sphere_box
 
-__all__ = ["cells_of_pose", "flat_cells_of_pose", "plan_cells", "valid_cells", "Coverage", "plan_coverage"]
+__all__ = ["cells_of_pose", "flat_cells_of_pose", "plan_cells", "valid_cells", "reachable_cells", "theta_d_reach",
+           "theta_d_index_range", "Coverage", "plan_coverage"]
 
 
 def cells_of_pose(rig, joints, calib, sphere: Sphere, *, grazing_deg: float = 80.0, stride: int = 1) -> np.ndarray:
@@ -83,6 +91,31 @@ def valid_cells() -> np.ndarray:
     return (wi[:, 2] > 0) & (wo[:, 2] > 0)
 
 
+def reachable_cells(theta_d_index_range, *, grazing_deg: float = 80.0) -> np.ndarray:
+    """(N_CELLS,) bool: the valid cells the rig can fill (the module docstring): the cell centre's θi and θo (φh = 0;
+    neither depends on φh) within ``grazing_deg`` of the normal, and its θd index within ``theta_d_index_range``
+    (inclusive: the least and the largest θd index the rig's light positions give with this camera)."""
+    from gonio.geometry import dirs_from_half_diff
+    from gonio.io.merl import cell_centres
+
+    th, td, pd = cell_centres()
+    TH, TD, PD = np.meshgrid(th, td, pd, indexing="ij")
+    wi, wo = dirs_from_half_diff(TH.ravel(), 0.0, TD.ravel(), PD.ravel())
+    c = math.cos(math.radians(grazing_deg))
+    lo, hi = (int(x) for x in theta_d_index_range)
+    idd = np.broadcast_to(np.arange(SHAPE[1])[None, :, None], SHAPE).ravel()
+    return valid_cells() & (wi[:, 2] >= c) & (wo[:, 2] >= c) & (idd >= lo) & (idd <= hi)
+
+
+def theta_d_index_range(cells) -> tuple[int, int]:
+    """(least, largest) θd index among flat MERL cell indices ``cells`` (an iterable of index arrays)."""
+    idd = [np.asarray(c, dtype=np.intp) // SHAPE[2] % SHAPE[1] for c in cells if len(c)]
+    if not idd:
+        return 0, -1
+    allc = np.concatenate(idd)
+    return int(allc.min()), int(allc.max())
+
+
 @dataclass
 class Coverage:
     """A sphere plan's coverage: cells filled, valid, reachable, and per band (θh, θd: 9 bands of 10 index rows)."""
@@ -97,7 +130,7 @@ class Coverage:
 
     def lines(self) -> list[str]:
         out = [f"coverage: {self.filled} MERL cells filled, {100 * self.of_reachable:.1f} % of the {self.reachable} "
-               f"this camera can reach, {100 * self.of_valid:.1f} % of the {self.valid} valid cells"]
+               f"the rig can reach with the camera there, {100 * self.of_valid:.1f} % of the {self.valid} valid cells"]
         out.append("  by θh band (index rows of 10): " + " ".join(f"{100 * f:.0f}%" for f in self.theta_h_bands))
         out.append("  by θd band (9° each):          " + " ".join(f"{100 * f:.0f}%" for f in self.theta_d_bands))
         return out
@@ -115,17 +148,48 @@ def _bands(filled, ref, axis) -> list:
     return out
 
 
-def plan_coverage(plan, rig, calib, sphere: Sphere, *, reach_step: float = 5.0, stride: int = 1) -> Coverage:
-    """The :class:`Coverage` of ``plan`` (see the module docstring); pixels every ``stride`` rows and columns."""
+def theta_d_reach(rig, calib, sphere: Sphere, *, theta_o: float, step: float = math.radians(5.0), layout=None,
+                  stride: int = 4) -> tuple[int, int]:
+    """(least, largest) θd index the rig's light positions give with the camera at ``theta_o``: a sweep of the light
+    every ``step`` of zenith (twice that of azimuth, up to 89°), each pose's pixels (every ``stride``-th row and
+    column) traced; an extreme counts only from a pose whose frame shows the white reference
+    (:data:`gonio.session.sphere_plan.MIN_WHITE_PIXELS`; checked on the most extreme poses first, so a handful of
+    checks, not one per pose)."""
+    from gonio.pipeline.target import CameraPose, TargetLayout
     from gonio.plan.generators import make_plan
+    from gonio.session.sphere_plan import MIN_WHITE_PIXELS
+    from gonio.sphere.pixels import white_seen
 
+    dense = make_plan("sphere", rig=rig, order="raster", theta_o=theta_o, theta_i_step=step, phi_i_step=2 * step,
+                      theta_max=math.radians(89))
+    layout = layout or TargetLayout(sphere=sphere)
+    ext = []
+    for j in dense.joints:
+        c = cells_of_pose(rig, j, calib, sphere, stride=stride)
+        idd = c // SHAPE[2] % SHAPE[1]
+        ext.append((int(idd.min()), int(idd.max())) if len(c) else (SHAPE[1], -1))
+    ext = np.asarray(ext).reshape(-1, 2)
+
+    def seen(k):
+        position, R = rig.camera_pose(dense.joints[k])
+        w = white_seen(calib, CameraPose(R, -R @ position), layout, rig.light_position(dense.joints[k]), sphere)
+        return w is not None and int(w[2].sum()) >= MIN_WHITE_PIXELS
+
+    lo = next((int(ext[k, 0]) for k in np.argsort(ext[:, 0], kind="stable") if ext[k, 1] >= 0 and seen(k)), 0)
+    hi = next((int(ext[k, 1]) for k in np.argsort(-ext[:, 1], kind="stable") if ext[k, 1] >= 0 and seen(k)), -1)
+    return lo, hi
+
+
+def plan_coverage(plan, rig, calib, sphere: Sphere, *, reach_step: float = 5.0, stride: int = 1,
+                  layout=None) -> Coverage:
+    """The :class:`Coverage` of ``plan`` (see the module docstring); pixels every ``stride`` rows and columns. The θd
+    range of the reachable cells: :func:`theta_d_reach` with a sweep every ``reach_step`` degrees."""
     filled = plan_cells(plan, rig, calib, sphere, stride=stride)
     theta_o = float(plan.params.get("theta_o", plan.poses[0, 2])) if len(plan) else 0.0
-    dense = make_plan("sphere", rig=rig, order="raster", theta_o=theta_o, theta_i_step=math.radians(reach_step),
-                      phi_i_step=math.radians(2 * reach_step), theta_max=math.radians(89))
-    reach = plan_cells(dense, rig, calib, sphere, stride=stride) | filled
     valid = valid_cells()
-    reach &= valid
     filled &= valid
+    lo, hi = theta_d_reach(rig, calib, sphere, theta_o=theta_o, step=math.radians(reach_step), layout=layout)
+    lo2, hi2 = theta_d_index_range([np.flatnonzero(filled)])
+    reach = reachable_cells((min(lo, lo2), max(hi, hi2))) | filled
     return Coverage(int(filled.sum()), int(valid.sum()), int(reach.sum()), float(filled.sum() / valid.sum()),
                     float(filled.sum() / max(reach.sum(), 1)), _bands(filled, reach, 0), _bands(filled, reach, 1))

@@ -4,7 +4,8 @@ Candidates are the light positions of a dense ``sphere`` plan (the camera fixed 
 reaches without collision or shadow, :func:`gonio.plan.generators.make_plan`) whose frame shows the white reference
 (not in the sphere's shadow: :data:`MIN_WHITE_PIXELS`). Each candidate's MERL cells come from
 the geometry alone (:func:`gonio.session.sphere_coverage.cells_of_pose`, valid cells only); the *reachable* cells
-are their union. From the rig's rest position, the plan takes, again and again, the candidate with the most cells
+are those the rig can fill at all (:func:`gonio.session.sphere_coverage.reachable_cells`, more than the candidates'
+pixels fill: each candidate is one sample of a continuum of light positions). From the rig's rest position, the plan takes, again and again, the candidate with the most cells
 not yet filled per lab second it costs — its capture and settle (:func:`gonio.plan.labtime.pose_capture_time`) plus
 the move from the pose taken last (:class:`gonio.plan.ordering.MotionModel`) — until ``coverage`` of the reachable
 cells are filled or no pose fits in what is left of the lab-time ``budget``. This is the greedy algorithm for
@@ -22,10 +23,11 @@ import numpy as np
 
 from gonio.errors import ConfigError
 from gonio.io.merl import N_CELLS
-from gonio.session.sphere_coverage import cells_of_pose, valid_cells
+from gonio.session.sphere_coverage import (cells_of_pose, reachable_cells, theta_d_index_range, theta_d_reach,
+                                           valid_cells)
 from gonio.sphere.geometry import Sphere
 
-__all__ = ["greedy_sphere_plan", "MIN_WHITE_PIXELS"]
+__all__ = ["greedy_sphere_plan", "sweep_cells", "MIN_WHITE_PIXELS"]
 
 #: A candidate whose frame shows fewer white-reference pixels than this (the sphere's shadow on the patch, the sphere
 #: in front of it: :func:`gonio.sphere.pixels.white_seen`) is not planned: the frame could not be calibrated
@@ -35,10 +37,14 @@ MIN_WHITE_PIXELS = 16
 def greedy_sphere_plan(rig, calib, sphere: Sphere, *, theta_o: float = math.radians(60),
                        theta_i_step: float = math.radians(2.5), phi_i_step: float = math.radians(10),
                        theta_max: float = math.radians(89), coverage: float = 0.9, budget: float = 1200.0,
-                       capture=None, stride: int = 1, seed: int = 0, layout=None):
+                       capture=None, stride: int = 1, seed: int = 0, layout=None, sweep=None,
+                       reach_step: float = math.radians(5.0)):
     """``(plan, info)``: the greedy plan of the module docstring and what it expects (``reachable`` and ``filled``
-    cell counts, ``lab_s`` estimated for the poses taken, ``candidates``)."""
-    from gonio.plan.generators import make_plan
+    cell counts, ``candidates_reach``: the cells all candidates together fill, ``lab_s`` estimated for the poses
+    taken, ``candidates``). It stops at ``coverage`` of the reachable cells, at the ``budget``, or when no
+    candidate adds a cell. ``sweep``: the candidates and their cells, :func:`sweep_cells`'s result with the same
+    arguments (a caller planning twice computes them once). ``reach_step``: the light sweep's step that finds the
+    reachable θd range (:func:`gonio.session.sphere_coverage.theta_d_reach`)."""
     from gonio.plan.labtime import pose_capture_time
     from gonio.plan.ordering import MotionModel, optimize_order
     from gonio.plan.plan import CaptureSettings
@@ -48,25 +54,16 @@ def greedy_sphere_plan(rig, calib, sphere: Sphere, *, theta_o: float = math.radi
     if not (budget > 0 and math.isfinite(budget)):
         raise ConfigError.field(None, "--lab-budget", budget, "must be positive seconds")
     capture = capture or CaptureSettings()
-    cand = make_plan("sphere", rig=rig, capture=capture, order="raster", theta_o=theta_o, theta_i_step=theta_i_step,
-                     phi_i_step=phi_i_step, theta_max=theta_max)
-    from gonio.pipeline.target import CameraPose, TargetLayout
-    from gonio.sphere.pixels import white_seen
-
-    layout = layout or TargetLayout(sphere=sphere)
-    valid = valid_cells()
-    cells = []
-    for j in cand.joints:
-        position, R = rig.camera_pose(j)
-        seen = white_seen(calib, CameraPose(R, -R @ position), layout, rig.light_position(j), sphere)
-        if seen is None or int(seen[2].sum()) < MIN_WHITE_PIXELS:  # the white patch shadowed or hidden
-            cells.append(np.zeros(0, dtype=np.intp))
-            continue
-        c = cells_of_pose(rig, j, calib, sphere, stride=stride)
-        cells.append(c[valid[c]])
+    cand, cells = sweep or sweep_cells(rig, calib, sphere, theta_o=theta_o, theta_i_step=theta_i_step,
+                                       phi_i_step=phi_i_step, theta_max=theta_max, stride=stride, layout=layout,
+                                       capture=capture)
     reach = np.zeros(N_CELLS, dtype=bool)
     for c in cells:
         reach[c] = True
+    n_cand = int(reach.sum())
+    lo, hi = theta_d_index_range(cells)
+    lo2, hi2 = theta_d_reach(rig, calib, sphere, theta_o=theta_o, layout=layout, step=reach_step)  # as plan_coverage counts them
+    reach = reachable_cells((min(lo, lo2), max(hi, hi2))) | reach  # what the rig can fill: more than the candidates
     need = coverage * int(reach.sum())
     model = MotionModel.from_rig(rig)
     per_pose = float(capture.settle) + pose_capture_time(capture)
@@ -112,5 +109,31 @@ def greedy_sphere_plan(rig, calib, sphere: Sphere, *, theta_o: float = math.radi
     perm = optimize_order(sub.joints, model, seed=seed, initial=np.arange(len(sub)))
     sub = sub.reordered(perm, "optimized")
     info = {"reachable": int(reach.sum()), "filled": int(n_cov), "lab_s": spent, "candidates": len(cand),
-            "poses": len(taken)}
+            "poses": len(taken), "candidates_reach": n_cand}
     return sub, info
+
+
+def sweep_cells(rig, calib, sphere: Sphere, *, theta_o: float, theta_i_step: float, phi_i_step: float,
+                theta_max: float, stride: int = 1, layout=None, capture=None):
+    """``(plan, cells)``: a regular sweep of the light (a ``sphere`` plan, raster order) and, per pose, the valid
+    MERL cells its pixels fill (:func:`gonio.session.sphere_coverage.cells_of_pose`); none at a pose whose frame
+    shows fewer than :data:`MIN_WHITE_PIXELS` of the white reference (the patch in the sphere's shadow or behind it:
+    the frame could not be calibrated)."""
+    from gonio.pipeline.target import CameraPose, TargetLayout
+    from gonio.plan.generators import make_plan
+    from gonio.sphere.pixels import white_seen
+
+    cand = make_plan("sphere", rig=rig, capture=capture, order="raster", theta_o=theta_o, theta_i_step=theta_i_step,
+                     phi_i_step=phi_i_step, theta_max=theta_max)
+    layout = layout or TargetLayout(sphere=sphere)
+    valid = valid_cells()
+    cells = []
+    for j in cand.joints:
+        position, R = rig.camera_pose(j)
+        seen = white_seen(calib, CameraPose(R, -R @ position), layout, rig.light_position(j), sphere)
+        if seen is None or int(seen[2].sum()) < MIN_WHITE_PIXELS:  # the white patch shadowed or hidden
+            cells.append(np.zeros(0, dtype=np.intp))
+            continue
+        c = cells_of_pose(rig, j, calib, sphere, stride=stride)
+        cells.append(c[valid[c]])
+    return cand, cells

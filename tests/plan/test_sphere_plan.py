@@ -62,21 +62,58 @@ def test_plan_sphere_prints_its_coverage_and_refuses_what_does_not_fit(tmp_path,
 
 
 def test_the_greedy_plan_fills_what_it_is_asked_in_fewer_poses_than_its_candidates(rig):
-    """gonio.session.sphere_plan: the fraction asked of the cells its candidates reach, each pose taken for the most
-    new cells per lab second — fewer poses than the candidates, and its own count of cells is the geometry's."""
+    """gonio.session.sphere_plan: the fraction asked of the reachable cells, each pose taken for the most new cells
+    per lab second — fewer poses than the candidates, and its own count of cells is the geometry's. Asked for more
+    than its candidates can fill, it takes every candidate that adds a cell, and says how many it reaches."""
     from gonio.pipeline.target import CameraCalibration
     from gonio.session.sphere_plan import greedy_sphere_plan
 
     calib = CameraCalibration.pinhole(320, 240, 380.0)
     sph = Sphere((0.0, 0.0, 0.02), 0.02)
-    plan, info = greedy_sphere_plan(rig, calib, sph, theta_i_step=math.radians(10), phi_i_step=math.radians(45),
-                                    coverage=0.8)
-    assert info["filled"] >= 0.8 * info["reachable"] and 0 < len(plan) < info["candidates"]
+    from gonio.session.sphere_plan import sweep_cells
+
+    kw = dict(theta_i_step=math.radians(10), phi_i_step=math.radians(45))
+    kw["sweep"] = sweep_cells(rig, calib, sph, theta_o=math.radians(60), theta_max=math.radians(89), **kw)
+    plan, info = greedy_sphere_plan(rig, calib, sph, coverage=0.03, **kw)
+    assert info["filled"] >= 0.03 * info["reachable"] and 0 < len(plan) < info["candidates"]
     assert np.allclose(plan.poses[:, 2], math.radians(60)) and plan.order == "optimized"
     assert plan_cells(plan, rig, calib, sph)[valid_cells()].sum() == info["filled"]
-    first, _ = greedy_sphere_plan(rig, calib, sph, theta_i_step=math.radians(10), phi_i_step=math.radians(45),
-                                  coverage=0.8, budget=1.0)
+    every, more = greedy_sphere_plan(rig, calib, sph, coverage=0.9, **kw)
+    assert more["filled"] == more["candidates_reach"] < 0.9 * more["reachable"] and len(every) > len(plan)
+    first, _ = greedy_sphere_plan(rig, calib, sph, coverage=0.8, budget=1.0, **kw)
     assert len(first) == 1  # a budget below two poses' lab time: the single best pose
+
+
+def test_reachable_cells_are_the_limit_of_finer_sweeps_not_a_sweep_s_sample(rig):
+    """gonio.session.sphere_coverage.reachable_cells: a cell is reachable when the pipeline keeps its configuration
+    (θi, θo in the normal's frame within 80°) and its θd is within the rig's range — closed form; every cell a sweep
+    fills is reachable, and finer sweeps fill more of them (a sampled count is not the rig's reach)."""
+    from gonio.geometry import dirs_from_half_diff
+    from gonio.io.merl import cell_centres
+    from gonio.pipeline.target import CameraCalibration
+    from gonio.session.sphere_coverage import reachable_cells
+
+    reach = reachable_cells((4, 77))
+    th, td, pd = cell_centres()
+
+    def cell(i, j, k):
+        return (i * 90 + j) * 180 + k
+
+    for i, j, k in ((10, 30, 90), (40, 20, 10), (60, 60, 45), (5, 50, 170)):
+        wi, wo = dirs_from_half_diff(np.array([th[i]]), 0.0, np.array([td[j]]), np.array([pd[k]]))
+        keep = min(wi[0, 2], wo[0, 2]) >= math.cos(math.radians(80))
+        assert reach[cell(i, j, k)] == keep
+    assert not reach[cell(10, 3, 90)] and not reach[cell(10, 78, 90)] and reach[cell(10, 4, 90)]
+    calib = CameraCalibration.pinhole(320, 240, 380.0)
+    sph = Sphere((0.0, 0.0, 0.02), 0.02)
+    counts = []
+    for step in (20.0, 10.0):
+        sweep = make_plan("sphere", rig=rig, theta_i_step=math.radians(step), phi_i_step=math.radians(2 * step))
+        swept = plan_cells(sweep, rig, calib, sph, stride=2) & valid_cells()
+        counts.append(int(swept.sum()))
+    assert counts[1] > 1.5 * counts[0] > 0
+    inside = reachable_cells((0, 89))[swept].mean()
+    assert inside > 0.98  # the rest: cells at the grazing limit whose centre is just past it
 
 
 @pytest.mark.parametrize("opts, field", [(["--fill", "1.5"], "--fill"), (["--fill", "0"], "--fill"),
