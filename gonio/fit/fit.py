@@ -444,7 +444,7 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
         free: tuple[str, ...] = (), max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG, n_starts: int = 3, seed: int = 0,
         method: str = "auto", kernel: str | None = "auto", use_flagged: bool = False,
         max_nfev: int | None = None, report: bool = True, start: dict | None = None, chroma: str = "auto",
-        geometry=None, image_weight: float | None = None) -> FitResult:
+        geometry=None, image_weight: float | None = None, search_n: int | None = None) -> FitResult:
     """Fit the model ``model`` to ``data``.
 
     Parameters
@@ -483,6 +483,10 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
         Solver (see the module docstring).
     kernel : "auto" or None
         Use a precomputed-geometry kernel of :mod:`gonio.fit.kernels` when one exists for the model.
+    search_n : int or None
+        Above this many samples the global shape search runs on a seeded random subset of this size and only a
+        local refinement on all samples (coarse to fine; default :data:`COARSE_N`). :func:`gonio.fit.select.select`
+        passes a smaller one on large tables (:data:`gonio.fit.select.SEARCH_N`), for time.
     start : dict
         Parameters of an earlier fit of the same model (e.g. on a subset of these data): the shape search
         is replaced by a local refinement from them (a warm start; :func:`gonio.fit.select.select` refits
@@ -522,7 +526,10 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
         raise ConfigError.field("--chroma", "chroma", chroma, f"must be one of {', '.join(CHROMA)}")
     links = tuple((dst, src) for dst, src in linked_lobes(cls) if dst not in free and chroma != "free")
     lossobj = resolve_loss(loss, d)
-    kw = dict(n_starts=n_starts, seed=seed, method=method, kernel=kernel, max_nfev=max_nfev, start=start)
+    if search_n is not None and not (isinstance(search_n, (int, np.integer)) and search_n >= 100):
+        raise ConfigError.field("search_n", "search_n", search_n, "must be an integer >= 100 (samples)")
+    kw = dict(n_starts=n_starts, seed=seed, method=method, kernel=kernel, max_nfev=max_nfev, start=start,
+              search_n=search_n)
     r = _restart_at_bound(_fit_tied(d, cls, fixed, tied, links, lossobj, kw), d, cls, fixed, tied, links, lossobj, kw)
     if links and chroma == "auto":  # the lobes' own colours only where the data demand them
         free_fit = _fit_tied(d, cls, fixed, tied, (), lossobj, kw)
@@ -726,7 +733,8 @@ def within_bounds(prob: _Problem, L: Layout, basis, lossobj: Loss, p: np.ndarray
 
 
 def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method, kernel, max_nfev,
-                optimum: tuple[np.ndarray, np.ndarray] | None = None, start: dict | None = None) -> FitResult:
+                optimum: tuple[np.ndarray, np.ndarray] | None = None, start: dict | None = None,
+                search_n: int | None = None) -> FitResult:
     """One fit of the layout ``L`` (free, tied and fixed parameters decided) to prepared data.
 
     ``optimum = (colour, shape)`` skips the search: the caller knows the minimizer already (a tied
@@ -769,8 +777,8 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
         if start is not None and space.S and all(n in start for n in names):
             s0 = np.array([float(np.mean(start[n])) for n in names])
             shape, colour, cost = _refine(proj, space, space.to_u(s0))
-        elif len(d) > COARSE_N and space.S:
-            idx = np.sort(rng.choice(len(d), COARSE_N, replace=False))
+        elif len(d) > (search_n or COARSE_N) and space.S:
+            idx = np.sort(rng.choice(len(d), search_n or COARSE_N, replace=False))
             proj_s = projection(d.subset(idx), w[idx])
             shape_s, _, _ = _search_shape(proj_s, space, rng, n_starts)
             shape, colour, cost = _refine(proj, space, space.to_u(shape_s))

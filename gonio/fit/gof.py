@@ -50,8 +50,6 @@ def goodness_of_fit(model_values: np.ndarray, data, loss, n_params: int, seed: i
     ``{"fits", "ratio", "test", "rho", "rho_p", "chi2", "dof", "chi2_red", "chi2_p"}``."""
     from scipy.special import chdtrc, ndtr  # the χ² and normal survival functions of scipy.stats, imported cheaply
 
-    from gonio.fit.metrics import _hd_coords, data_tree
-
     m = np.asarray(model_values, dtype=np.float64)
     n = len(data)
     out: dict = {"test": "chi2" if data.sigma is not None else "residual structure"}
@@ -60,21 +58,13 @@ def goodness_of_fit(model_values: np.ndarray, data, loss, n_params: int, seed: i
         c2 = float(np.sum(((m - data.y) / data.sigma) ** 2))
         out.update(chi2=c2, dof=dof, chi2_red=c2 / dof, chi2_p=float(chdtrc(dof, c2)))
     res = loss.residual(m, data.y, data.cos_i, data.sigma)
-    idx = np.arange(n)
-    if n > GOF_N:
-        idx = np.sort(np.random.default_rng(seed).choice(n, GOF_N, replace=False))
     rho = rho_p = None
-    if n >= 10:
-        dist, nb = data_tree(data).query(_hd_coords(data.wi[idx], data.wo[idx]), k=min(4, n))
-        # the nearest other sample whose values differ (a sample listed twice is not a neighbour)
-        same = np.all(data.y[nb] == data.y[idx][:, None, :], axis=-1)
-        same[:, 0] |= nb[:, 0] == idx
-        first = np.argmax(~same, axis=1)
-        ok = ~same[np.arange(idx.size), first]
-        a, b = res[idx[ok]], res[nb[ok, first[ok]]]
-        if ok.sum() >= 10:
+    pairs = _neighbour_pairs(data, seed) if n >= 10 else None
+    if pairs is not None:
+        a, b = res[pairs[0]], res[pairs[1]]
+        if a.shape[0] >= 10:
             a, b = a - a.mean(axis=0), b - b.mean(axis=0)
-        den = np.sqrt(np.sum(a * a) * np.sum(b * b)) if ok.sum() >= 10 else 0.0
+        den = np.sqrt(np.sum(a * a) * np.sum(b * b)) if a.shape[0] >= 10 else 0.0
         if den > 0:
             rho = float(np.sum(a * b) / den)
             rho_p = float(ndtr(-rho * np.sqrt(a.size)))
@@ -93,6 +83,29 @@ def goodness_of_fit(model_values: np.ndarray, data, loss, n_params: int, seed: i
         misfit = False  # no stated noise, and within the accuracy of any instrument (module docstring)
     out["fits"] = not misfit
     return out
+
+
+def _neighbour_pairs(data, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(i, j)``: the samples tested (all, or a seeded :data:`GOF_N` of them) and the nearest other sample of each
+    whose values differ (a sample listed twice is not a neighbour) — the pairs of the residual-structure test. They
+    depend on the data only, so they are found once and cached on the data (a selection tests every candidate on the
+    same samples)."""
+    from gonio.fit.metrics import _hd_coords, data_tree
+
+    cache = data.__dict__.setdefault("_kernel_cache", {})
+    key = ("gof_pairs", int(seed))
+    if key not in cache:
+        n = len(data)
+        idx = np.arange(n)
+        if n > GOF_N:
+            idx = np.sort(np.random.default_rng(seed).choice(n, GOF_N, replace=False))
+        _, nb = data_tree(data).query(_hd_coords(data.wi[idx], data.wo[idx]), k=min(4, n))
+        same = np.all(data.y[nb] == data.y[idx][:, None, :], axis=-1)
+        same[:, 0] |= nb[:, 0] == idx
+        first = np.argmax(~same, axis=1)
+        ok = ~same[np.arange(idx.size), first]
+        cache[key] = (idx[ok], nb[ok, first[ok]])
+    return cache[key]
 
 
 def describe(g: dict) -> str:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from gonio.errors import ConfigError
 from gonio.fit import fit, prepare
 from gonio.fit.fit import _Problem
 from gonio.fit.kernels import _ggx_spec_dalpha, _spec, jacobian_for, profile_for
@@ -158,3 +159,13 @@ def test_f0_on_its_bound_is_held_without_a_second_search():
     assert r.params["alpha"] == pytest.approx(held.params["alpha"], rel=1e-6)
     np.testing.assert_allclose(r.params["ks"], held.params["ks"], rtol=1e-6)
     np.testing.assert_allclose(r.uncertainty["ks"], held.uncertainty["ks"], rtol=1e-3)
+
+
+def test_a_search_on_a_subset_refined_on_all_lands_on_the_whole_data_optimum():
+    big = prepare(synth("microfacet", TRUTH, n=2000))
+    whole = fit(big, "microfacet", n_starts=1, report=False)
+    coarse = fit(big, "microfacet", n_starts=1, report=False, search_n=300)  # searched on 300, refined on all
+    assert coarse.cost <= whole.cost * (1 + 1e-6)
+    assert coarse.params["alpha"] == pytest.approx(whole.params["alpha"], rel=1e-4)
+    with pytest.raises(ConfigError, match="search_n"):
+        fit(big, "microfacet", search_n=5)

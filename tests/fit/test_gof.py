@@ -67,3 +67,15 @@ def test_help_lists_the_candidates_select_uses(capsys):
     for name in DEFAULT_CANDIDATES + LARGE_TABLE_CANDIDATES + WIDEN_CANDIDATES:
         assert name in text, name
     assert ",".join(DEFAULT_CANDIDATES) in text
+
+
+def test_the_neighbour_pairs_are_found_once_and_give_the_uncached_answer():
+    s = _retroreflector(n=600)
+    d = prepare((s.wi, s.wo, s.f))
+    m = fit(d, "lambert", report=False).build().eval(d.wi, d.wo)
+    first = goodness_of_fit(m, d, LOSSES["robust"], 3)
+    assert ("gof_pairs", 0) in d._kernel_cache  # found once, reused by the next candidate on the same data
+    again = goodness_of_fit(m * 1.1, d, LOSSES["robust"], 3)
+    fresh = prepare((s.wi, s.wo, s.f))  # no cache: the pairs found anew
+    assert goodness_of_fit(m * 1.1, fresh, LOSSES["robust"], 3)["rho"] == again["rho"]
+    assert first["rho"] != again["rho"]
