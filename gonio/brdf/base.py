@@ -213,8 +213,9 @@ class BRDF:
         ``backend``: ``"numpy"`` the NumPy reference path; ``"compiled"`` the numba-compiled loop of
         :mod:`gonio.brdf.compiled` (float64 only; numba, a core dependency; ValueError if it
         cannot be used); ``"auto"`` (default) the compiled loop for float64 arrays of
-        ≥ :data:`gonio.brdf.compiled.MIN_PAIRS` pairs when numba is installed and the model has a compiled
-        form, else NumPy. Both give the same values (≤ 1e-12 relative, a test). The environment variable
+        ≥ :data:`gonio.brdf.compiled.MIN_PAIRS` pairs when numba is installed, the model has a compiled
+        form and its loop is already loaded in this process (or the array has ≥
+        :data:`gonio.brdf.compiled.COLD_PAIRS` pairs, which repay loading it), else NumPy. Both give the same values (≤ 1e-12 relative, a test). The environment variable
         ``GONIO_BRDF_BACKEND=numpy`` makes ``"auto"`` mean NumPy.
         """
         dtype = np.dtype(dtype)

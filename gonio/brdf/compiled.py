@@ -47,6 +47,13 @@ MAX_PARAMS = 3
 #: ``backend="auto"`` uses the compiled loop from this many pairs on (below, the call overhead of
 #: either path dominates and NumPy avoids importing numba).
 MIN_PAIRS = 512
+#: ... and, while the model's loop is not yet in this process, from this many pairs on: the first use of a loop
+#: loads numba and the loop's machine code (0.3–0.6 CPU s from the disk cache), which NumPy's ~50 ns a pair repays
+#: only on arrays this large (a selection evaluates each of its candidates once or twice on 2·10⁴ samples: compiling
+#: them cost it ~0.8 s of its 10 s budget; a 512² viewer frame or a MERL table's 9·10⁵ cells still compile).
+COLD_PAIRS = 200_000
+#: Loops already in this process (``kinds`` of :func:`_kernel`): using them again costs nothing.
+_LOADED: set = set()
 _TINY = float(np.finfo(np.float64).tiny)
 
 
@@ -113,7 +120,9 @@ def wanted(model, wi, dtype, backend: str) -> bool:
         return True
     if dtype != np.float64 or wi.size < 3 * MIN_PAIRS or os.environ.get("GONIO_BRDF_BACKEND", "auto") == "numpy":
         return False
-    return available() and supports(model)
+    if not (available() and supports(model)):
+        return False
+    return wi.size >= 3 * COLD_PAIRS or _pack(model)[0] in _LOADED
 
 
 def evaluate(model, wi, wo) -> np.ndarray:
@@ -124,6 +133,7 @@ def evaluate(model, wi, wo) -> np.ndarray:
     out = np.empty(a.shape[0])
     kinds, *arrays = _pack(model)
     _kernel(kinds)(a, b, *arrays, out)
+    _LOADED.add(kinds)
     return out.reshape(shape + (3,))
 
 

@@ -54,26 +54,36 @@ class _Channel:
 
     def solve(self, eta: float, k: float) -> tuple[float, float, float]:
         """(objective, kd, ks) at (η, k): the bounded 2×2 least squares in (kd, ks) ∈ [0, 1]²."""
-        f = conductor(self.cos, eta, k)
+        obj, kd, ks = self.solve_many(np.array([eta], dtype=np.float64), np.array([k], dtype=np.float64))
+        return float(obj[0]), float(kd[0]), float(ks[0])
+
+    def solve_many(self, eta: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`solve` at M points (η, k) at once (arrays (M,)): the Fresnel factors of every bin and point are one
+        (bins, M) array, the normal equations M 2×2 systems; the minimum over the interior solution and the four
+        edges of the box (one of kd, ks at 0 or 1, the other solved, each clipped to [0, 1])."""
+        f = conductor(self.cos, eta, k).reshape(self.cos.size, -1)  # (bins, M)
         a11 = float(np.sum(self.w)) / np.pi ** 2
-        a12 = float(np.sum(self.ws * f)) / np.pi
-        a22 = float(np.sum(self.wss * f * f))
-        b1, b2 = float(np.sum(self.wy)) / np.pi, float(np.sum(self.wsy * f))
-
-        def obj(kd, ks):
-            return a11 * kd * kd + 2 * a12 * kd * ks + a22 * ks * ks - 2 * (b1 * kd + b2 * ks) + self.wyy
-
+        a12 = (self.ws @ f) / np.pi
+        a22 = self.wss @ (f * f)
+        b1, b2 = float(np.sum(self.wy)) / np.pi, self.wsy @ f
         det = a11 * a22 - a12 * a12
-        cands = []
-        if det > 0:
-            cands.append(((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det))
-        for kd in (0.0, 1.0):  # the edges: one fixed, the other solved
-            cands.append((kd, (b2 - a12 * kd) / a22 if a22 > 0 else 0.0))
-        for ks in (0.0, 1.0):
-            cands.append(((b1 - a12 * ks) / a11 if a11 > 0 else 0.0, ks))
-        cands = [(min(max(kd, 0.0), 1.0), min(max(ks, 0.0), 1.0)) for kd, ks in cands]
-        best = min(cands, key=lambda c: obj(*c))
-        return obj(*best), best[0], best[1]
+        safe = np.where(det > 0, det, 1.0)
+        pos22 = np.where(a22 > 0, a22, 1.0)
+        cands = [(0.0 * a12, np.where(a22 > 0, b2 / pos22, 0.0)), (1.0 + 0.0 * a12, np.where(a22 > 0, (b2 - a12) / pos22, 0.0)),
+                 ((b1 - 0.0 * a12) / a11 if a11 > 0 else 0.0 * a12, 0.0 * a12),
+                 ((b1 - a12) / a11 if a11 > 0 else 0.0 * a12, 1.0 + 0.0 * a12)]
+        interior = det > 0
+        cands.insert(0, (np.where(interior, (a22 * b1 - a12 * b2) / safe, np.nan),
+                         np.where(interior, (a11 * b2 - a12 * b1) / safe, np.nan)))
+        best_obj = np.full(a12.shape, np.inf)
+        best_kd, best_ks = np.zeros(a12.shape), np.zeros(a12.shape)
+        for kd, ks in cands:
+            kd, ks = np.clip(kd, 0.0, 1.0), np.clip(ks, 0.0, 1.0)
+            obj = a11 * kd * kd + 2 * a12 * kd * ks + a22 * ks * ks - 2 * (b1 * kd + b2 * ks) + self.wyy
+            better = obj < best_obj  # nan (no interior solution) is never better
+            best_obj, best_kd, best_ks = (np.where(better, obj, best_obj), np.where(better, kd, best_kd),
+                                          np.where(better, ks, best_ks))
+        return best_obj, best_kd, best_ks
 
 
 def _channel(ch: _Channel, x0) -> np.ndarray:
@@ -81,10 +91,11 @@ def _channel(ch: _Channel, x0) -> np.ndarray:
     (ln η, k)) of the profiled objective :meth:`_Channel.solve`."""
     from scipy.optimize import minimize
 
-    grid = [(ch.solve(e, k)[0], e, k) for e in _ETAS for k in _KS]
+    e_grid, k_grid = (a.ravel() for a in np.meshgrid(_ETAS, _KS, indexing="ij"))
     if x0 is not None:
-        grid.append((ch.solve(x0[2], x0[3])[0], x0[2], x0[3]))
-    _, e0, k0 = min(grid)
+        e_grid, k_grid = np.append(e_grid, x0[2]), np.append(k_grid, x0[3])
+    j = int(np.argmin(ch.solve_many(e_grid, k_grid)[0]))
+    e0, k0 = float(e_grid[j]), float(k_grid[j])
     res = minimize(lambda u: ch.solve(float(np.clip(np.exp(u[0]), ETA_MIN, ETA_MAX)), float(u[1]))[0], [np.log(e0), k0], method="L-BFGS-B",
                    bounds=[(np.log(ETA_MIN), np.log(ETA_MAX)), (0.0, K_MAX)])
     eta, k = float(np.clip(np.exp(res.x[0]), ETA_MIN, ETA_MAX)), float(np.clip(res.x[1], 0.0, K_MAX))

@@ -27,7 +27,6 @@ from pathlib import Path
 import numpy as np
 
 from gonio.errors import DataError
-from gonio.geometry import dirs_from_half_diff
 from gonio.io.merl_index import directions_from_angles, half_diff_index, reference_half_diff, reference_index
 from gonio.io.outputs import written_atomically
 from gonio.samples import SampleSet
@@ -104,13 +103,33 @@ def cell_centres() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def cell_directions(phi_h: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Directions of every cell centre at azimuth ``phi_h`` of the half vector.
 
-    Returns ``(wi, wo, above)``: ``wi``, ``wo`` of shape ``(90, 90, 180, 3)`` from
-    :func:`gonio.geometry.dirs_from_half_diff`, and ``above`` (90, 90, 180) bool, True where both
+    Returns ``(wi, wo, above)``: ``wi``, ``wo`` of shape ``(90, 90, 180, 3)`` as
+    :func:`gonio.geometry.dirs_from_half_diff` gives them, and ``above`` (90, 90, 180) bool, True where both
     are above the horizon (independent of ``phi_h``: a rotation about z keeps cos θ).
+
+    The grid is separable, so each component is a product of per-axis factors broadcast over the grid (what
+    :func:`gonio.geometry.dirs_from_half_diff` computes, without its (90, 90, 180)-sized intermediates): with
+    d = (sin θd cos φd, sin θd sin φd, cos θd) and h = (sin θh, 0, cos θh) at φh = 0, wi = R_y(θh) d and
+    wo = 2 (wi·h) h − wi with wi·h = cos θd (Rusinkiewicz 1998); then both are turned by φh about z.
     """
     th, td, pd = cell_centres()
-    TH, TD, PD = np.meshgrid(th, td, pd, indexing="ij")
-    wi, wo = dirs_from_half_diff(TH, np.full_like(TH, phi_h), TD, PD)
+    ct, st = np.cos(th)[:, None, None], np.sin(th)[:, None, None]
+    cd, sd = np.cos(td)[None, :, None], np.sin(td)[None, :, None]
+    dx, dy = sd * np.cos(pd)[None, None, :], sd * np.sin(pd)[None, None, :]
+    wi = np.empty(SHAPE + (3,))
+    wo = np.empty(SHAPE + (3,))
+    wi[..., 0] = ct * dx + st * cd
+    wi[..., 1] = dy
+    wi[..., 2] = ct * cd - st * dx
+    wo[..., 0] = 2.0 * cd * st - wi[..., 0]
+    wo[..., 1] = -dy
+    wo[..., 2] = 2.0 * cd * ct - wi[..., 2]
+    if phi_h:
+        c, s = np.cos(phi_h), np.sin(phi_h)
+        for v in (wi, wo):
+            x = v[..., 0].copy()
+            v[..., 0] = c * x - s * v[..., 1]
+            v[..., 1] = s * x + c * v[..., 1]
     above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
     return wi, wo, above
 

@@ -89,6 +89,20 @@ def test_every_compiled_model_is_compared():
                         "lambert+2cook-torrance"} <= {name for name, _ in COMPILED}
 
 
+def test_auto_loads_a_loop_only_for_an_array_that_repays_it(monkeypatch):
+    if not compiled.available():
+        pytest.skip("numba is not installed: auto is always NumPy")
+    monkeypatch.setattr(compiled, "_LOADED", set())  # as in a new process: no loop loaded yet
+    m = make("microfacet", alpha=0.3)
+    wi, wo = _directions()
+    f64 = np.dtype(np.float64)
+    assert not compiled.wanted(m, wi, f64, "auto")  # 600 pairs: loading the loop would cost more than it saves
+    assert compiled.wanted(m, np.broadcast_to(wi[:1], (compiled.COLD_PAIRS, 3)), f64, "auto")
+    m.eval(wi, wo, backend="compiled")  # now loaded: auto uses it from MIN_PAIRS on
+    assert compiled.wanted(m, wi, f64, "auto")
+    assert not compiled.wanted(m, wi[:10], f64, "auto")
+
+
 def test_backend_choice():
     m = make("ward", kd=0.2)
     assert not compiled.supports(m)

@@ -161,6 +161,31 @@ def test_conductor_variant_gives_a_metal_like_table_a_metal_f0_and_a_complex_ind
     assert set(r.uncertainty) >= {"kd", "ks", "eta", "k", "ndf"}
 
 
+def test_the_conductor_scan_is_the_bounded_least_squares_at_every_point():
+    from gonio.brdf.fresnel import conductor
+    from gonio.fit.dupuy_conductor import _BINS, _Channel
+
+    rng = np.random.default_rng(3)
+    n = 4000
+    theta_d, spec, w = rng.uniform(0, 1.5, n), rng.uniform(0, 2, n), rng.uniform(0.5, 1.5, n)
+    y = 0.02 + 0.3 * spec * rng.uniform(0.8, 1.2, n)
+    ch = _Channel(theta_d, spec, y, w)
+    eta, k = np.array([0.2, 1.5, 3.0, 9.0, 1.0]), np.array([3.0, 0.0, 2.5, 0.1, 0.0])
+    obj, kd, ks = ch.solve_many(eta, k)  # all points at once
+    b = np.minimum((theta_d / (0.5 * np.pi) * _BINS).astype(int), _BINS - 1)
+    g = np.linspace(0, 1, 201)
+    for j in range(eta.size):
+        f = conductor(ch.cos, eta[j], k[j])[b]  # F constant within a theta_d bin, as the channel takes it
+
+        def direct(a, s_):
+            return np.sum(w * (a / np.pi + s_ * f * spec - y) ** 2)
+
+        assert obj[j] == pytest.approx(direct(kd[j], ks[j]), rel=1e-9)
+        assert 0 <= kd[j] <= 1 and 0 <= ks[j] <= 1
+        assert obj[j] <= min(direct(a, s_) for a in g[::10] for s_ in g) * (1 + 1e-9)  # no box point is lower
+        assert ch.solve(eta[j], k[j]) == pytest.approx((obj[j], kd[j], ks[j]), rel=1e-12, abs=1e-15)
+
+
 def test_the_viewer_and_report_render_it(plastic):
     from gonio.report import sphere_images  # what the viewer's /sphere.png and the report's panels draw
 

@@ -209,3 +209,13 @@ def test_bad_table_shape_and_inf():
     v[1, 2, 3, 0] = np.inf
     with pytest.raises(DataError, match="infinite"):
         write_merl("/tmp/never-written.binary", MerlTable(v))
+
+
+@pytest.mark.parametrize("phi_h", [0.0, 0.7])
+def test_cell_directions_are_the_inverse_of_the_half_difference_map_at_every_cell(phi_h):
+    wi, wo, above = cell_directions(phi_h)
+    th, td, pd = np.meshgrid(*cell_centres(), indexing="ij")
+    wi2, wo2 = dirs_from_half_diff(th, np.full_like(th, phi_h), td, pd)
+    np.testing.assert_allclose(wi, wi2, atol=1e-14)
+    np.testing.assert_allclose(wo, wo2, atol=1e-14)
+    assert np.array_equal(above, (wi2[..., 2] > 0) & (wo2[..., 2] > 0))
