@@ -26,8 +26,9 @@ from Arbitrary Materials with Power Iterations", Computer Graphics Forum 34(4) (
 
 Standard uncertainties are those of the last linear steps, s² (XᵀWX)⁻¹ (Press et al., *Numerical Recipes*,
 3rd ed., §15.4), with s² = 2·cost/(m − k) unless the loss is χ² with known σ; an entry on a bound has none
-(NaN) and is named in ``at_bound``; a table node no sample constrains is filled from its neighbours (a
-second-difference penalty) and has none either, said in the notes.
+(NaN) and is named in ``at_bound``; a table node no sample constrains (a sparse measurement, a cross-validation
+fold) is interpolated from the nearest nodes with samples and held beyond them (:func:`fill_empty`: whole empty
+ranges of θh or θd included), has none either, and is named in the notes as not measured (:func:`unmeasured_note`).
 """
 
 from __future__ import annotations
@@ -125,11 +126,20 @@ def _bounded_normal(ata: np.ndarray, atb: np.ndarray, lo: float, hi: float) -> n
     k = ata.shape[0]
     scale = np.sqrt(np.maximum(np.diag(ata), 1e-300))
     a = ata / np.outer(scale, scale) + 1e-12 * np.eye(k)
-    c, _ = cho_factor(a, lower=False)
-    r = np.triu(c)
-    q = solve_triangular(r, atb / scale, trans="T")
+    try:
+        r = np.triu(cho_factor(a, lower=False)[0])
+        q = solve_triangular(r, atb / scale, trans="T")
+    except np.linalg.LinAlgError:  # not positive definite in rounding: the symmetric factor R = Λ^½ Vᵀ instead
+        ev, vec = np.linalg.eigh(a)
+        root = np.sqrt(np.maximum(ev, 1e-12))
+        r = root[:, None] * vec.T
+        q = (vec.T @ (atb / scale)) / root
     res = lsq_linear(r, q, bounds=(lo * scale, hi * scale), method="bvls")
-    return res.x / scale
+    x = res.x / scale
+    if not np.all(np.isfinite(x)):
+        raise DataError("dupuy2015: a table's least-squares step has no finite solution on these samples")
+    # BVLS holds x·scale on the bound; dividing by the scale can round it just past (−5e-29 for 0): clipped back
+    return np.clip(x, lo, hi)
 
 
 class _Geometry:
@@ -143,6 +153,10 @@ class _Geometry:
         self.jd, self.td = hat_weights(self.theta_d / (0.5 * np.pi) * (m - 1), m)
         self.den = 4.0 * np.maximum(self.ci * self.co, 1e-300)
         self.n, self.m = n, m
+        # D's nodes no sample's interpolation weight reaches (the normal node tied to the next, as in _ndf_step)
+        reach = np.bincount(self.jh, 1.0 - self.th, n) + np.bincount(self.jh + 1, self.th, n)
+        reach[:2] = reach[0] + reach[1]
+        self.ndf_empty = reach <= 1e-12 * max(float(reach.max()), 1e-300)
 
     def ndf_at(self, ndf):
         return (1.0 - self.th) * ndf[self.jh] + self.th * ndf[self.jh + 1]
@@ -168,10 +182,7 @@ def _fresnel_step(geo: _Geometry, spec: np.ndarray, y, w):
         empty = np.diag(ata) <= 1e-12 * max(float(np.max(np.diag(ata))), 1e-300)
         ata = ata + np.diag(np.where(empty, 1.0, 0.0))  # a node without samples: held by the fill below
         sol = _bounded_normal(ata, atb, 0.0, 1.0)
-        if empty[1:].any():  # no sample at these θd: the nearest node with samples (constant extrapolation)
-            nodes = np.arange(m)
-            have = ~empty[1:]
-            sol[1:][~have] = np.interp(nodes[~have], nodes[have], sol[1:][have]) if have.any() else 0.0
+        sol[1:] = fill_empty(sol[1:], empty[1:], fresnel_nodes(m))  # θd nodes without samples
         kd[c], fr[:, c] = sol[0], sol[1:]
         mats.append((ata, empty))
     return kd, fr, mats
@@ -207,7 +218,31 @@ def _ndf_step(geo: _Geometry, kd, f_at, g2, y, w):
     reg = SMOOTH * max(float(diag.max()), 1e-300) * _second_difference(n - 1)
     sol = _bounded_normal(ata_t + reg + np.diag(np.where(empty, 1e-6 * float(diag.max() or 1.0), 0.0)), atb_t,
                           0.0, np.inf)
-    return tie @ sol, ata_t, np.concatenate([[empty[0]], empty])
+    full_empty = np.concatenate([[empty[0]], empty])
+    return fill_empty(tie @ sol, full_empty, ndf_nodes(n)), ata_t, full_empty
+
+
+def fill_empty(values: np.ndarray, empty: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+    """A table's ``values`` at the nodes no sample constrains (``empty``) replaced by linear interpolation in
+    the node coordinate ``nodes`` between the nearest nodes with samples, and held at the nearest one beyond
+    them (``numpy.interp``): a whole empty range — a fold with nothing near grazing or at the peak — gets its
+    neighbours' values, not the ridge's zero; all zero when no node has samples. Not measured: the fits give
+    these nodes no uncertainty and name them (:func:`unmeasured_note`)."""
+    out = np.array(values, dtype=np.float64)
+    have = ~np.asarray(empty, dtype=bool)
+    if not have.all():
+        out[~have] = np.interp(nodes[~have], nodes[have], out[have]) if have.any() else 0.0
+    return out
+
+
+def unmeasured_note(table: str, axis: str, empty: np.ndarray, nodes: np.ndarray) -> str:
+    """One note naming the nodes of ``table`` no sample constrains, as ranges of ``axis`` in degrees."""
+    idx = np.flatnonzero(empty)
+    deg = np.degrees(nodes)
+    spans = _nodes(idx, lambda j: f"{deg[j]:.3g}")
+    return (f"not measured: {len(idx)} of {len(nodes)} nodes of {table} ({axis} {spans} deg) have no "
+            f"sample; interpolated from the nearest measured nodes (held beyond them), not identified (no "
+            f"uncertainty)")
 
 
 def _with_image(d: FitData, w: np.ndarray, image: float) -> tuple[np.ndarray, int]:
@@ -247,6 +282,8 @@ def table_fit(d: FitData, loss: Loss, n_ndf: int, n_fresnel: int, iterations: in
     geo = _Geometry(d, n_ndf, n_fresnel)
     floor = np.percentile(d.y, 5, axis=0)
     ndf = power_iteration(_retro_profile(geo.theta_h, geo.theta_d, d.y - floor[None, :], n_ndf))
+    ndf = fill_empty(ndf, geo.ndf_empty, ndf_nodes(n_ndf))  # as every later D step fills them
+    ndf = ndf / normalization(ndf)
     w, n_pix = _with_image(d, _weights(loss, d), image)
     y = np.asarray(d.y, dtype=np.float64)
     best = None
@@ -315,11 +352,10 @@ def fit_dupuy(d: FitData, loss: Loss, *, n_ndf: int = N_NDF, n_fresnel: int = N_
         at_bound["ndf"] = {"value": f"lower 0 at theta_h nodes {_nodes(np.flatnonzero(zero))}"}
         ndf_se[zero] = np.nan
     if nempty.any():
-        deg = np.degrees(ndf_nodes(n_ndf)[nempty])
-        notes.append(f"no sample at D's nodes theta_h {deg.min():.3g}..{deg.max():.3g} deg: filled from their "
-                     f"neighbours (no uncertainty)")
-    if any(e[1:].any() for _, e in fmats):
-        notes.append("no sample at some of F's theta_d nodes: held at the nearest node with samples (no uncertainty)")
+        notes.append(unmeasured_note("D", "theta_h", nempty, ndf_nodes(n_ndf)))
+    fempty = np.any([e[1:] for _, e in fmats], axis=0)
+    if fempty.any():
+        notes.append(unmeasured_note("F", "theta_d", fempty, fresnel_nodes(n_fresnel)))
     rms_rel, chi2_red = d.fit_quality(model.eval(d.wi, d.wo), k)
     thin = 4 * k > 3 * len(d)
     if thin:
@@ -338,13 +374,13 @@ def _inverse(a: np.ndarray) -> np.ndarray:
     return np.linalg.pinv(a / np.outer(s, s), hermitian=True) / np.outer(s, s)
 
 
-def _nodes(idx: np.ndarray) -> str:
-    """Node indices as short ranges: ``0-3, 7``."""
+def _nodes(idx: np.ndarray, label=str) -> str:
+    """Node indices as short ranges: ``0-3, 7`` (each end written by ``label``)."""
     out, start = [], None
     for i, j in enumerate(idx):
         if start is None:
             start = j
         if i + 1 == len(idx) or idx[i + 1] != j + 1:
-            out.append(f"{start}" if start == j else f"{start}-{j}")
+            out.append(label(start) if start == j else f"{label(start)}-{label(j)}")
             start = None
     return ", ".join(out)

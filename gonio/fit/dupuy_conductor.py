@@ -19,11 +19,13 @@ import time
 
 import numpy as np
 
-from gonio.brdf.dupuy import ETA_MAX, ETA_MIN, K_MAX, N_FRESNEL, N_NDF, Dupuy2015Conductor, normalization
+from gonio.brdf.dupuy import (ETA_MAX, ETA_MIN, K_MAX, N_FRESNEL, N_NDF, Dupuy2015Conductor, ndf_nodes,
+                              normalization)
 from gonio.brdf.fresnel import conductor
 from gonio.errors import DataError
 from gonio.fit.data import FitData
-from gonio.fit.dupuy import (IMAGE_WEIGHT, ITERATIONS, _inverse, _ndf_step, _weights, table_fit)
+from gonio.fit.dupuy import (IMAGE_WEIGHT, ITERATIONS, _inverse, _ndf_step, _weights, table_fit,
+                              unmeasured_note)
 from gonio.fit.losses import Loss
 from gonio.fit.result import FitResult
 
@@ -174,6 +176,8 @@ def fit_dupuy_conductor(d: FitData, loss: Loss, *, n_ndf: int = N_NDF, image: fl
     notes = [f"Dupuy et al. 2015's tabulated D with a conductor's Fresnel (complex index per channel): "
              f"normal-incidence reflectance {'/'.join(f'{v:.3g}' for v in f0)} times ks; round {it_best + 1} of "
              f"{rounds} kept" + (f"; the objective includes {image:g} x the image error" if n_pix else "")]
+    if nempty.any():
+        notes.append(unmeasured_note("D", "theta_h", nempty, ndf_nodes(n_ndf)))
     rms_rel, chi2_red = d.fit_quality(model.eval(d.wi, d.wo), k_par)
     unc = {name: se[i].tolist() for i, name in enumerate(names)}
     unc["ndf"] = ndf_se.tolist()

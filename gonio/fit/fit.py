@@ -710,8 +710,14 @@ def within_bounds(prob: _Problem, L: Layout, basis, lossobj: Loss, p: np.ndarray
     parameters (a linked colour ``lobe2.ks`` = w · ``lobe1.ks`` ≤ its upper bound, a lobe's albedo ≤ 1): a point
     beyond them is projected back — shapes clipped to their ranges, then the colours solved again at that shape
     by the bounded linear least squares of :class:`gonio.fit.solve.Projection` (exact for a linear loss on a
-    separable model; else clipped) — and a note says so. A feasible ``p`` is returned unchanged."""
+    separable model; else clipped) — and a note says so. A feasible ``p`` is returned unchanged. A non-finite
+    ``p`` (a solver that diverged on data that do not determine the model) is a one-line DataError, never a
+    model that cannot be built."""
     colour, shape = L.unpack(p)
+    if not np.all(np.isfinite(p)):
+        bad = [n for n, v in zip(L.colour + L.shape, list(colour) + list(shape)) if not np.all(np.isfinite(v))]
+        raise DataError(f"{prob.d.source}: fitting {L.name} gave non-finite parameters ({', '.join(bad)}): these "
+                        f"samples do not determine it")
     shape2 = np.clip(shape, L.shape_lo, L.shape_hi)
     hi = colour_upper(L, basis, shape2)
     tol = 1e-9 * np.maximum(np.abs(hi), 1.0)

@@ -123,3 +123,22 @@ def test_a_point_beyond_a_linked_bound_is_projected_back_with_a_note():
     assert cost == pytest.approx(prob.cost(q)) and "projected back" in notes[0] and "lobe1.ks" in notes[0]
     same: list[str] = []
     assert within_bounds(prob, L, basis, LOSSES["cosine"], q, cost, same)[0] is q and same == []
+
+
+def test_a_diverged_solver_answer_is_a_one_line_data_error_not_an_unbuildable_model():
+    from gonio.errors import DataError
+    from gonio.fit.data import prepare
+    from gonio.fit.fit import _Problem, within_bounds
+    from gonio.fit.layout import auto_tied, linked_lobes, make_basis
+    from gonio.fit.losses import LOSSES
+
+    d = prepare(synth("microfacet", {"kd": [0.3, 0.2, 0.1], "ks": 0.5, "alpha": 0.2}, n=60))
+    cls = model_class("microfacet")
+    L = Layout(cls, {}, auto_tied(cls, {}, ()), linked_lobes(cls))
+    basis = make_basis(L, d)
+    prob = _Problem(d, L, LOSSES["cosine"], basis)
+    colour = np.full((L.K, 3), 0.2)
+    shape = np.array([0.2 if n.endswith("alpha") else 0.5 for n in L.shape])
+    shape[L.shape.index(next(n for n in L.shape if n.endswith("alpha")))] = np.nan
+    with pytest.raises(DataError, match=r"non-finite parameters \(.*alpha\)"):
+        within_bounds(prob, L, basis, LOSSES["cosine"], L.pack(colour, shape), 0.0, [])
