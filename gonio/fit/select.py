@@ -70,7 +70,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from gonio.errors import ConfigError, GonioError
+from gonio.errors import ConfigError, DataError, GonioError
 from gonio.fit.data import DEFAULT_MAX_THETA_DEG, prepare
 from gonio.fit.fit import fit, resolve_loss
 from gonio.fit.gof import goodness_of_fit
@@ -174,11 +174,24 @@ def free_cores() -> int:
     return max(1, min(allowed, int(allowed - busy + 0.5)))
 
 
+#: What one candidate's fit or scoring may raise that makes it a ``failed`` row of the selection, not the end of it:
+#: a gonio error (too few samples for its parameters, a table it cannot build) or a singular linear algebra step.
+CANDIDATE_ERRORS = (GonioError, np.linalg.LinAlgError)
+
+
+def _one_line(exc: BaseException) -> str:
+    """An exception as the one line of a candidate's row (gonio errors as they say it, others with their type)."""
+    text = " ".join(str(exc).split())
+    return text if isinstance(exc, GonioError) else f"{type(exc).__name__}: {text}"
+
+
 def _cv_score(d, model, loss, k, seed, fit_kw, bar=None, start=None) -> tuple[float, float]:
     """Mean held-out ½·mean(r²) over k folds and its standard error; each fold's fit is warm-started from
     ``start`` (the full-data fit: a local refinement instead of a global search) and shares the geometry
     computed on all samples (:meth:`gonio.fit.data.FitData.subset`). The folds run in threads when
-    :func:`free_cores` says cores are free (NumPy releases the GIL in its array operations), else in turn."""
+    :func:`free_cores` says cores are free (NumPy releases the GIL in its array operations), else in turn. A fold
+    whose fit fails (:data:`CANDIDATE_ERRORS`) or predicts non-finite values raises a one-line DataError naming
+    the fold: the candidate then fails as it would on all samples."""
     rng = np.random.default_rng(seed)
     folds = np.array_split(rng.permutation(len(d)), k)
     for name in ("cos_i", "cos_o", "cos_h", "cos_d"):
@@ -189,13 +202,21 @@ def _cv_score(d, model, loss, k, seed, fit_kw, bar=None, start=None) -> tuple[fl
         train = np.concatenate([folds[i] for i in range(k) if i != j])
         sub = d.subset(train)
         object.__setattr__(sub, "geometry", None)  # a fold's score needs no σ: not the calibration's propagation
-        r = fit(sub, model, loss=loss.name, seed=seed, start=start, **{k: v for k, v in fit_kw.items() if k != "geometry"})
-        m = r.build().eval(d.wi[test], d.wo[test])
+        try:
+            r = fit(sub, model, loss=loss.name, seed=seed, start=start,
+                    **{k: v for k, v in fit_kw.items() if k != "geometry"})
+            m = r.build().eval(d.wi[test], d.wo[test])
+        except CANDIDATE_ERRORS as exc:
+            raise DataError(f"its fit on cross-validation fold {j + 1} of {k} failed: {_one_line(exc)}") from exc
         sigma = None if d.sigma is None else d.sigma[test]
         res = loss.residual(m, d.y[test], d.cos_i[test], sigma)
+        score = float(np.mean(res * res))
+        if not np.isfinite(score):
+            raise DataError(f"its fit on cross-validation fold {j + 1} of {k} predicts non-finite values "
+                            f"for the held-out samples")
         if bar is not None:
             bar.update(1)
-        return float(np.mean(res * res))
+        return score
 
     workers = min(k, free_cores())
     if workers > 1:
@@ -348,6 +369,45 @@ def _practically_equivalent(win: dict, eligible: list, ok: list, fits: dict, d, 
     return new
 
 
+def _score_row(r: FitResult, name: str, d, d_val, lossobj, criterion: str, big: bool, folds: int, seed: int,
+               fit_kw: dict, bar) -> dict:
+    """The selection table's row of candidate ``name`` fitted as ``r``: its criterion's score (held-out error
+    over ``folds`` folds or on ``d_val``, AIC/BIC, an image error), what is not identified, whether it fits the
+    data (:func:`gonio.fit.gof.goodness_of_fit`) and conserves energy; raises :data:`CANDIDATE_ERRORS`."""
+    from gonio.fit.energy import albedo_check
+
+    row = {"model": name, "n_params": r.n_params, "loss": r.loss, "cost": r.cost, "rms_rel": r.rms_rel,
+           "chi2_red": r.chi2_red, "aic": r.aic, "bic": r.bic, "identifiable": r.identifiable,
+           "at_bound": r.at_bound}
+    if criterion == "cv":
+        if big:
+            row["cv"], row["cv_se"] = _holdout_score(r, d_val, lossobj)
+        else:
+            row["cv"], row["cv_se"] = _cv_score(d, name, lossobj, folds, seed, {**fit_kw, **_variant(r)}, bar,
+                                                start={**r.params, **r.links})
+    if criterion in IMAGE_CRITERIA:
+        from gonio.fit import metrics as _metrics
+
+        value = getattr(_metrics, IMAGE_CRITERIA[criterion])(r.model, d_val if big else d)
+        row[criterion] = float("inf") if value is None else value
+    row["score"] = row[criterion]
+    unident = sorted(k for k, v in r.uncertainty.items() if np.any(np.isinf(np.asarray(v, dtype=float))))
+    # a shape parameter (shared by R, G, B) on a bound: the term has no shape the data determine
+    # (e.g. a second lobe at α = 1 soaking up residuals), so the model is not identified either
+    unident += sorted(f"{k} (at its {v['value'].split()[0]} bound)" for k, v in r.at_bound.items()
+                      if "value" in v and "." in k and k.rsplit(".", 1)[1] in _WIDTHS)
+    if unident:
+        row["unidentified"] = f"parameters not identified by the data: {', '.join(unident)}"
+    g = goodness_of_fit(r.model.eval(d.wi, d.wo), d, lossobj, r.n_params, seed=seed)
+    row["fits"], row["fit_ratio"] = g["fits"], g["ratio"]
+    energy = albedo_check(r.model)
+    row["albedo_max"] = energy["albedo_max"]
+    if not energy["ok"]:
+        row["unphysical"] = (f"not energy conserving: directional albedo {energy['albedo_max']:.3g} > 1 at "
+                             f"theta_i = {energy['theta_deg']:g} deg")
+    return row
+
+
 def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "auto", loss: str = "auto",
            folds: int = 5, seed: int = 0, max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG,
            progress: bool = False, equivalence: float = EQUIVALENCE, widen: bool = True, _done: dict | None = None,
@@ -410,53 +470,33 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
     from gonio.fit.energy import albedo_check
 
     done = {} if _done is None else _done
+    if criterion == "cv" and not big and len(d) < 2 * folds:
+        bar.close()
+        raise ConfigError.field("--folds", "folds", folds, f"{len(d)} samples are too few for {folds}-fold CV")
     for name in candidates:
         bar.set_postfix_str(name)
         if name in done:  # fitted before widening (the same subsets and seed): not fitted again
             row, r = dict(done[name][0]), done[name][1]
             rows.append(row)
-            fits[name] = r
-            bar.update(1 + (folds if criterion == "cv" and not big else 0))
-            continue
-        try:
-            r = fit(d, name, loss=lossobj.name, seed=seed, **fit_kw)
-        except GonioError as exc:
-            first_error = first_error or exc
-            rows.append({"model": name, "status": "failed", "reason": str(exc)})
-            bar.update(1 + (folds if criterion == "cv" and not big else 0))
-            continue
-        bar.update(1)
-        row = {"model": name, "n_params": r.n_params, "loss": r.loss, "cost": r.cost, "rms_rel": r.rms_rel,
-               "chi2_red": r.chi2_red, "aic": r.aic, "bic": r.bic, "identifiable": r.identifiable,
-               "at_bound": r.at_bound}
-        if criterion == "cv":
-            if big:
-                row["cv"], row["cv_se"] = _holdout_score(r, d_val, lossobj)
+            if r is not None:
+                fits[name] = r
             else:
-                if len(d) < 2 * folds:
-                    raise ConfigError.field("--folds", "folds", folds, f"{len(d)} samples are too few for {folds}-fold CV")
-                row["cv"], row["cv_se"] = _cv_score(d, name, lossobj, folds, seed, {**fit_kw, **_variant(r)}, bar,
-                                                    start={**r.params, **r.links})
-        if criterion in IMAGE_CRITERIA:
-            from gonio.fit import metrics as _metrics
-
-            value = getattr(_metrics, IMAGE_CRITERIA[criterion])(r.model, d_val if big else d)
-            row[criterion] = float("inf") if value is None else value
-        row["score"] = row[criterion]
-        unident = sorted(k for k, v in r.uncertainty.items() if np.any(np.isinf(np.asarray(v, dtype=float))))
-        # a shape parameter (shared by R, G, B) on a bound: the term has no shape the data determine
-        # (e.g. a second lobe at α = 1 soaking up residuals), so the model is not identified either
-        unident += sorted(f"{k} (at its {v['value'].split()[0]} bound)" for k, v in r.at_bound.items()
-                          if "value" in v and "." in k and k.rsplit(".", 1)[1] in _WIDTHS)
-        if unident:
-            row["unidentified"] = f"parameters not identified by the data: {', '.join(unident)}"
-        g = goodness_of_fit(r.model.eval(d.wi, d.wo), d, lossobj, r.n_params, seed=seed)
-        row["fits"], row["fit_ratio"] = g["fits"], g["ratio"]
-        energy = albedo_check(r.model)
-        row["albedo_max"] = energy["albedo_max"]
-        if not energy["ok"]:
-            row["unphysical"] = (f"not energy conserving: directional albedo {energy['albedo_max']:.3g} > 1 at "
-                                 f"theta_i = {energy['theta_deg']:g} deg")
+                first_error = first_error or DataError(f"{name}: {row['reason']}")
+            bar.update(1 + (folds if criterion == "cv" and not big else 0))
+            continue
+        r = None
+        try:  # a candidate that fails on all samples or in a fold is a failed row, never the end of the selection
+            r = fit(d, name, loss=lossobj.name, seed=seed, **fit_kw)
+            bar.update(1)
+            row = _score_row(r, name, d, d_val, lossobj, criterion, big, folds, seed, fit_kw, bar)
+        except CANDIDATE_ERRORS as exc:
+            whole = r is None and isinstance(exc, GonioError)  # its fit on all samples: its own message
+            first_error = first_error or (exc if whole else DataError(f"{name}: {_one_line(exc)}"))
+            row = {"model": name, "status": "failed", "reason": _one_line(exc)}
+            rows.append(row)
+            done[name] = (dict(row), None)
+            bar.update(1 + (folds if criterion == "cv" and not big else 0))
+            continue
         rows.append(row)
         fits[name] = r
         done[name] = (dict(row), r)

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
-from gonio.errors import ConfigError
+from gonio.errors import ConfigError, DataError
 from gonio.fit.select import select
 
 from .conftest import synth
@@ -109,3 +110,21 @@ def test_a_second_lobe_above_the_equivalence_margin_is_kept():
 def test_equivalence_must_be_a_relative_difference(bad):
     with pytest.raises(ConfigError, match="equivalence"):
         select(synth("lambert", {"albedo": 0.4}, n=50), ("lambert",), equivalence=bad)
+
+
+def test_a_candidate_whose_cross_validation_fold_fails_is_a_failed_row():
+    """20 sparse poses, a few samples each (issue 27's benchmark): dupuy2015's tables are determined by all 45
+    samples but not by a fold's 36, so its fold fit raises. That candidate is a failed row with its one-line
+    reason, exactly like a failure on all samples; the traceback escaped `select` before."""
+    rng = np.random.default_rng(3)
+    s = synth("microfacet", {"kd": [0.3, 0.2, 0.1], "ks": 0.5, "alpha": 0.2}, n=200, noise=0.0)
+    poses = rng.choice(len(s), 20, replace=False)
+    idx = np.concatenate([poses, rng.choice(len(s), 25, replace=False)])  # ~2 samples per pose
+    sel = select((s.wi[idx], s.wo[idx], s.f[idx]), ("lambert", "microfacet", "dupuy2015"), folds=5)
+    rows = {r["model"]: r for r in sel.candidates}
+    assert sel.criterion == "cv" and _chosen(sel) == "microfacet"
+    bad = rows["dupuy2015"]
+    assert bad["status"] == "failed" and "fold" in bad["reason"] and "\n" not in bad["reason"]
+    assert "usable samples" in bad["reason"]  # the fold's own one line: too few samples for its tables
+    with pytest.raises(DataError, match="dupuy2015: its fit on cross-validation fold 1 of 5 failed"):
+        select((s.wi[idx], s.wo[idx], s.f[idx]), ("dupuy2015",), folds=5)
