@@ -140,8 +140,9 @@ def _one_material(mi: int) -> dict:
         out["nielsen"][n] = cbrt_error(nl.interpolate(nl.predict_nodes(nmod, coef), h_eval), truth, ewi[:, 2])
     from benchmarks.sparse_rig import _log
 
-    _log([{"kind": "fixed-noiseless", "material": names[mi], "ours": {str(k): v for k, v in out["ours"].items()},
-           "cover": {str(k): v for k, v in out["cover"].items()}}])
+    _log([{"kind": "fixed-noiseless", "material": names[mi],
+           **{key: {str(k): v for k, v in out[key].items()} for key in ("ours", "cover", "nielsen", "select")},
+           "select_s": out["select_s"]}])
     return out
 
 
