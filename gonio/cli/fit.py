@@ -27,6 +27,11 @@ def register(sub) -> None:
                    help="--select keeps the simplest candidate whose predictions are within REL (relative) of the "
                         "criterion's choice at every sample (default 0.01: 1 %%, about a gonioreflectometer's accuracy; "
                         "0: the criterion alone)")
+    p.add_argument("--metal", action="store_true",
+                   help="--select: the sample is a metal (a conductor), which the data alone cannot tell from a dark "
+                        "dielectric: among candidates whose held-out error is within one standard error of the best, "
+                        "one with a metal's Fresnel (normal-incidence reflectance >= 0.5, or a complex index) is "
+                        "preferred; large tables also get dupuy2015-conductor")
     p.add_argument("--loss", default="auto", help="auto, cosine, chi2, log, cbrt (auto: chi2 with uncertainties)")
     p.add_argument("--image-weight", type=float, default=None, metavar="W",
                    help="--model dupuy2015 only: weight of the squared relative image error (rendered spheres) beside "
@@ -89,10 +94,13 @@ def _options(args) -> dict:
     if args.image_weight is not None and (args.select or args.model != "dupuy2015"):
         raise ConfigError.field("--image-weight", "image_weight", args.image_weight,
                                 "applies to --model dupuy2015 only (for --select use --criterion image)")
+    if args.metal and not args.select:
+        raise ConfigError.field("--metal", "metal", True, "applies to --select only")
     if args.equivalence is not None and not args.select:
         raise ConfigError.field("--equivalence", "equivalence", args.equivalence, "applies to --select only")
     return {"select": args.select, "model": args.model, "candidates": cands, "criterion": args.criterion,
             **({} if args.equivalence is None else {"equivalence": args.equivalence}),
+            **({"metal": True} if args.metal else {}),
             "loss": args.loss, "fixed": fixed, "seed": args.seed,
             **({} if args.image_weight is None else {"image_weight": args.image_weight}),
             "max_theta_deg": None if args.all_angles else args.max_theta, "force": args.force}
@@ -108,6 +116,8 @@ def fit_one(source: str, opts: dict):
 
         if "equivalence" in opts:
             kw["equivalence"] = opts["equivalence"]
+        if opts.get("metal"):
+            kw["metal"] = True
         sel = api.select(source, opts["candidates"], criterion=opts["criterion"],
                          progress=opts.get("progress", False) and sys.stderr.isatty(), **kw)
         return sel.winner, sel

@@ -9,7 +9,11 @@ Criteria
 ``cv``
     Seeded k-fold cross-validation: mean held-out squared residual of the loss. The winner is the
     simplest candidate within one standard error of the best (the one-standard-error rule, Hastie,
-    Tibshirani & Friedman, *The Elements of Statistical Learning*, 2nd ed., §7.10).
+    Tibshirani & Friedman, *The Elements of Statistical Learning*, 2nd ed., §7.10), an energy-conserving one
+    before one that is not. Physical plausibility is a tie-break among candidates the data cannot tell apart,
+    never a reason to accept a worse prediction: on a large table the conductor variant of the data-driven model
+    (a complex index, a metal's Fresnel) is among the candidates and has fewer parameters than the free F table, so
+    it is chosen whenever its held-out error is within one standard error of the best.
 ``auto``
     ``bic`` when every sample has an uncertainty (χ² loss), else ``cv``.
 ``image`` / ``delta-e`` (on request)
@@ -237,9 +241,16 @@ def _cv_score(d, model, loss, k, seed, fit_kw, bar=None, start=None) -> tuple[fl
 #: polished metals and the lobes of paints do, where a microfacet lobe keeps its width in θh
 #: (``python -m benchmarks realdata``); and the data-driven microfacet model of Dupuy et al. 2015 (tabulated D and
 #: Fresnel, :mod:`gonio.fit.dupuy`), which fits where analytic lobes fail and a full table determines its tables.
-#: Its conductor variant (``dupuy2015-conductor``, complex-index Fresnel) is a candidate only when named: it won
-#: none of the 12 real materials by held-out error and costs ~2 CPU s a table.
+#: Its conductor variant (``dupuy2015-conductor``: ks times the exact Fresnel factor of a complex index η + ik per
+#: channel) is added for a sample declared a metal (``metal=True``, :data:`METAL_CANDIDATES`): the data alone cannot
+#: tell a metal whose table reflects little (the MERL metals' specular albedo is 0.05–0.3) from a dark dielectric.
 LARGE_TABLE_CANDIDATES = ("gtr", "abc-smooth", "dupuy2015")
+#: Added on a large table when the sample is declared a metal (``metal=True``): a complex-index Fresnel.
+METAL_CANDIDATES = ("dupuy2015-conductor",)
+#: A conductor's normal-incidence reflectance is at least this at every visible wavelength (Palik, *Handbook of
+#: Optical Constants of Solids*, 1985: silver, aluminium, chrome, nickel, iron, gold, copper alloys in red and green);
+#: a dielectric's is below 0.1 (index below 1.9).
+METAL_F0_MIN = 0.5
 #: Width parameters of the terms of a sum: one on a bound means the term has no shape the data determine.
 _WIDTHS = ("alpha", "roughness", "exponent", "alpha_x", "alpha_y", "sigma")
 #: Candidates added when no candidate fits the data (:mod:`gonio.fit.gof`): a rough diffuse surface (Oren &
@@ -266,6 +277,62 @@ SEARCH_N = 6_000
 #: it the subset fit is the result, said in its notes (a full MERL table has 9·10⁵ samples: refitting would
 #: cost more than the whole selection); its error measures are computed on all samples.
 REFIT_MAX = 200_000
+
+
+def lobe_f0s(params: dict) -> list[float]:
+    """Normal-incidence Fresnel reflectance of every specular term of fitted ``params`` (mean over channels):
+    ``f0`` as fitted (Schlick), a tabulated Fresnel factor's first row (``dupuy2015``), ((η − 1)/(η + 1))² for a
+    real index η, ((n − 1)² + k²)/((n + 1)² + k²) for a complex one n + ik (Born & Wolf, *Principles of Optics*,
+    §14.2). Empty for a model without a Fresnel factor."""
+    out = []
+    for k, v in params.items():
+        base = k.rsplit(".", 1)[-1]
+        if base == "f0":
+            out.append(float(np.mean(v)))
+        elif base == "fresnel":
+            out.append(float(np.mean(np.asarray(v, dtype=float)[0])))
+        elif base == "eta" and not any(x.rsplit(".", 1)[-1] == "k" for x in params):
+            out.append(float(np.mean(((np.asarray(v) - 1) / (np.asarray(v) + 1)) ** 2)))
+        elif base == "k":
+            n = np.asarray(params[k.rsplit(".", 1)[0] + ".eta" if "." in k else "eta"], dtype=float)
+            kk = np.asarray(v, dtype=float)
+            out.append(float(np.mean(((n - 1) ** 2 + kk ** 2) / ((n + 1) ** 2 + kk ** 2))))
+    return out
+
+
+def _not_a_metal(params: dict) -> str:
+    """Why fitted ``params`` are not a metal's (a specular term's normal-incidence reflectance below
+    :data:`METAL_F0_MIN`), or ``""``."""
+    f0s = lobe_f0s(params)
+    if f0s and min(f0s) < METAL_F0_MIN:
+        return (f"not a metal's Fresnel: normal-incidence reflectance {min(f0s):.3g} < {METAL_F0_MIN:g} (the sample "
+                f"was declared a metal)")
+    return ""
+
+
+def one_se_choice(rows: list[dict]) -> tuple[dict, float, list[dict]]:
+    """The one-standard-error rule (Hastie, Tibshirani & Friedman, *The Elements of Statistical Learning*, 2nd ed.,
+    §7.10) on scored rows (``score``: held-out error, ``cv_se``: its standard error, ``n_params``): among the rows
+    within one standard error of the lowest score, a physical one (no ``unphysical`` key: energy conserving, a
+    declared metal's Fresnel) before one that is not, then the fewest parameters, then the lowest score. Physical
+    sense only breaks ties the held-out error cannot: a row beyond the limit is never chosen, however physical.
+    ``(chosen row, limit, rows within it)``."""
+    best = min(rows, key=lambda r: r["score"])
+    limit = best["score"] + best["cv_se"]
+    within = [r for r in rows if r["score"] <= limit]
+    return min(within, key=lambda r: ("unphysical" in r, r["n_params"], r["score"])), limit, within
+
+
+def large_table_split(d_all, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``(fit, held-out)`` sample indices of a large table's selection: a seeded random :data:`SELECT_N` plus the
+    samples the image error's rendered spheres show (:func:`gonio.fit.metrics.sphere_sample_index`: a random subset
+    misses most of a razor-thin highlight, issue 29) to fit on, and the next :data:`SELECT_N` of the same
+    permutation without those to score on."""
+    from gonio.fit.metrics import sphere_sample_index
+
+    perm = np.random.default_rng(seed).permutation(len(d_all))
+    shown = sphere_sample_index(d_all)
+    return np.union1d(perm[:SELECT_N], shown), np.setdiff1d(perm[SELECT_N:2 * SELECT_N], shown)
 
 
 def check_candidates(candidates: Sequence[str]) -> tuple[str, ...]:
@@ -410,8 +477,8 @@ def _score_row(r: FitResult, name: str, d, d_val, lossobj, criterion: str, big: 
 
 def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "auto", loss: str = "auto",
            folds: int = 5, seed: int = 0, max_theta_deg: float | None = DEFAULT_MAX_THETA_DEG,
-           progress: bool = False, equivalence: float = EQUIVALENCE, widen: bool = True, _done: dict | None = None,
-           **fit_kw) -> Selection:
+           progress: bool = False, equivalence: float = EQUIVALENCE, widen: bool = True, metal: bool = False,
+           _done: dict | None = None, **fit_kw) -> Selection:
     """Fit every candidate model and choose one (criteria in the module docstring).
 
     ``candidates`` default to :data:`DEFAULT_CANDIDATES` (plus :data:`LARGE_TABLE_CANDIDATES` on large tables).
@@ -425,6 +492,12 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
     energy is chosen only if no other remains (and says so). The criterion's choice gives way to the simplest
     candidate within ``equivalence`` of its predictions at every sample (module docstring). ``progress`` shows
     a tqdm bar on stderr.
+
+    ``metal``: the sample is known to be a metal (a conductor). Prior knowledge the data cannot supply (a MERL metal's
+    table reflects as little as a dark dielectric's): a candidate whose specular term has a normal-incidence
+    reflectance below :data:`METAL_F0_MIN` is then not physical, so the one-standard-error rule prefers a physical
+    one among those the held-out error cannot tell apart — never one the data put further behind — and on a large
+    table :data:`METAL_CANDIDATES` (a complex-index Fresnel) are added. A winner that stays unphysical says so.
     """
     if criterion not in CRITERIA:
         raise ConfigError.field("--criterion", "criterion", criterion, f"must be one of {', '.join(CRITERIA)}")
@@ -436,6 +509,8 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
         candidates = DEFAULT_CANDIDATES + (LARGE_TABLE_CANDIDATES if big else ())
     candidates = check_candidates(candidates)
     notes: list[str] = []
+    if metal and big:
+        candidates = candidates + tuple(c for c in METAL_CANDIDATES if c not in candidates)
     iso = _anisotropy(data)
     if iso is not None and iso.anisotropic:
         from gonio.fit.layout import model_class
@@ -447,14 +522,7 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
     if criterion == "auto":
         criterion = "bic" if lossobj.name == "chi2" else "cv"
     if big:
-        from gonio.fit.metrics import sphere_sample_index
-
-        perm = np.random.default_rng(seed).permutation(len(d_all))
-        # the samples a rendering shows (the image error's sphere pixels) are always among the fitted ones: a
-        # random subset misses most of a razor-thin highlight (issue 29)
-        shown = sphere_sample_index(d_all)
-        fit_idx = np.union1d(perm[:SELECT_N], shown)
-        val_idx = np.setdiff1d(perm[SELECT_N:2 * SELECT_N], shown)
+        fit_idx, val_idx = large_table_split(d_all, seed)
         d, d_val = d_all.subset(fit_idx), d_all.subset(val_idx)
         notes.append(f"candidates fitted on {SELECT_N} of {len(d_all)} samples plus the {len(fit_idx) - SELECT_N} "
                      f"more its rendered spheres show, and scored on {len(val_idx)} others (seed {seed})")
@@ -497,6 +565,8 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
             done[name] = (dict(row), None)
             bar.update(1 + (folds if criterion == "cv" and not big else 0))
             continue
+        if metal and "unphysical" not in row and _not_a_metal(r.params):
+            row["unphysical"] = _not_a_metal(r.params)
         rows.append(row)
         fits[name] = r
         done[name] = (dict(row), r)
@@ -534,15 +604,16 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
     eligible = [r for r in ok if "redundant" not in r] or ok
     best = min(eligible, key=lambda r: r["score"])
     if criterion == "cv":
-        limit = best["score"] + best["cv_se"]
-        within = [r for r in eligible if r["score"] <= limit]
-        win = min(within, key=lambda r: (r["n_params"], r["score"]))
+        win, limit, within = one_se_choice(eligible)
+        passed = any("unphysical" in r for r in within) and "unphysical" not in win
         for r in ok:
             if r is win:
-                r["reason"] = (f"simplest model whose held-out error {r['score']:.4g} is within one standard "
-                               f"error of the best ({best['score']:.4g} + {best['cv_se']:.2g})")
+                r["reason"] = (f"simplest {'physical ' if passed else ''}model whose held-out error {r['score']:.4g} "
+                               f"is within one standard error of the best ({best['score']:.4g} + {best['cv_se']:.2g})")
             elif r not in eligible:
                 r["reason"] = r["redundant"]
+            elif r["score"] <= limit and "unphysical" in r and "unphysical" not in win:
+                r["reason"] = f"held-out error within one SE of the best but {r['unphysical']}"
             elif r["score"] <= limit:
                 r["reason"] = f"held-out error within one SE of the best but {r['n_params']} parameters > {win['n_params']}"
             else:
@@ -583,7 +654,7 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
                        f"{win['fit_ratio']:.3g}x the noise): added {', '.join(extra)}")
                 sel = select(data, candidates + extra, criterion=criterion, loss=loss, folds=folds, seed=seed,
                              max_theta_deg=max_theta_deg, progress=progress, equivalence=equivalence, widen=False,
-                             _done=done, **{k: v for k, v in fit_kw.items() if k != "report"})
+                             metal=metal, _done=done, **{k: v for k, v in fit_kw.items() if k != "report"})
                 sel.notes.insert(0, why)
                 sel.winner.notes.insert(0, why)
                 return sel
@@ -591,6 +662,12 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
         win["reason"] += f"; chosen although {win['redundant']} (no other candidate remains)"
     if "unphysical" in win:
         win["reason"] += f"; {win['unphysical']}"
+        phys = [r for r in eligible if "unphysical" not in r]
+        if metal and criterion == "cv" and phys:
+            near = min(phys, key=lambda r: r["score"])
+            notes.append(f"declared a metal, but no candidate with a metal's Fresnel predicts held-out data as well: the "
+                         f"nearest, {near['model']}, is {(near['score'] - best['score']) / max(best['cv_se'], 1e-300):.3g} "
+                         f"standard errors behind the best (the data reject it; {win['model']} kept)")
     if win.get("at_bound"):
         win["reason"] += "; parameters at a bound: " + ", ".join(win["at_bound"])
     for r in ok:

@@ -44,3 +44,5 @@ def test_fit_errors_are_one_line(tmp_path, capsys):
     assert "--max-theta: max_theta = 200.0: must be in (0, 90] degrees" in capsys.readouterr().err
     assert main(["fit", str(bad), "--equivalence", "0.05"]) == 2  # a --select option without --select
     assert "--equivalence: equivalence = 0.05: applies to --select only" in capsys.readouterr().err
+    assert main(["fit", str(bad), "--metal"]) == 2
+    assert "--metal: metal = True: applies to --select only" in capsys.readouterr().err

@@ -51,3 +51,34 @@ def test_abc_smooth_lobe_albedo_matches_numerical_integration():
     for B, C in ((3.0, 0.5), (68.0, 1.9), (1e4, 1.0)):
         num = np.pi * quad(lambda u: (1 + B * u) ** -C, 0, 1, points=[1 / B])[0]
         assert abc_smooth_albedo(B, C) == pytest.approx(num, rel=1e-8)
+
+
+def test_the_one_se_rule_prefers_a_physical_row_only_among_those_the_data_cannot_tell_apart():
+    from gonio.fit.select import one_se_choice
+
+    rows = [{"model": "simple", "n_params": 3, "score": 1.00, "cv_se": 0.1, "unphysical": "f0 0.09"},
+            {"model": "physical", "n_params": 9, "score": 1.05, "cv_se": 0.1},
+            {"model": "simplest", "n_params": 2, "score": 1.50, "cv_se": 0.1}]  # beyond one SE: never chosen
+    assert one_se_choice(rows)[0]["model"] == "physical"
+    del rows[0]["unphysical"]
+    assert one_se_choice(rows)[0]["model"] == "simple"  # physical too now: the fewer parameters win
+    rows[1]["score"] = 1.2  # the physical one beyond one SE: the unphysical best is kept
+    rows[0]["unphysical"] = "f0 0.09"
+    assert one_se_choice(rows)[0]["model"] == "simple"
+
+
+def test_a_sample_declared_a_metal_flags_a_dielectric_fresnel_and_says_the_data_reject_a_metal():
+    from gonio.fit.select import lobe_f0s
+
+    from .conftest import synth
+
+    plastic = synth("microfacet", {"kd": [0.3, 0.2, 0.1], "ks": 0.6, "alpha": 0.3, "f0": 0.04}, n=800)
+    kw = dict(criterion="cv", widen=False, n_starts=1)
+    sel = select(plastic, ("lambert", "microfacet"), metal=True, **kw)
+    row = {r["model"]: r for r in sel.candidates}
+    assert sel.model_name == "microfacet" and lobe_f0s(sel.params)[0] < 0.1  # the data decide, not the prior
+    assert "not a metal's Fresnel" in row["microfacet"]["reason"] and "unphysical" not in row["lambert"]
+    assert any("declared a metal" in n and "lambert" in n for n in sel.notes)
+    plain = select(plastic, ("lambert", "microfacet"), **kw)
+    assert plain.model_name == "microfacet" and "not a metal" not in " ".join(r["reason"] for r in plain.candidates)
+    assert lobe_f0s({"eta": [0.2, 0.2, 0.5], "k": [3.0, 2.5, 2.0]})[0] > 0.8  # a complex index: a metal's f0
