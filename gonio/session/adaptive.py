@@ -235,7 +235,8 @@ class AdaptiveSession:
         return self.planner.plan([Round.from_dict(r) for r in self.rounds], self.stop)
 
     def _record(self, model=None, **fields) -> None:
-        ad = {**self.store.manifest["adaptive"], "rounds": self.rounds, "stop": self.stop}
+        # the stored entries themselves (not a copy): the candidates, unchanged, are not encoded again
+        ad = {**self.store.manifest_entry("adaptive"), "rounds": self.rounds, "stop": self.stop}
         if model is not None:
             ad["model"] = _model_dict(model)
         self.store.update_manifest(plan=self._plan(), adaptive=ad, **fields)

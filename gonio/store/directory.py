@@ -71,18 +71,25 @@ _SCALARS = (str, int, float, bool, type(None))
 _ENCODER = json.JSONEncoder(allow_nan=False)
 
 
-def _encode(obj: Any, level: int = 0) -> str:
+def _encode(obj: Any, level: int = 0, memo: dict | None = None, cache: dict | None = None) -> str:
     """``obj`` as indented JSON (one space a level; a list of scalars or of rows of them on one line): what
     ``json.dumps(obj, indent=1, allow_nan=False)`` reads back as, but the lists are written by the json module's
     C encoder — with ``indent`` the module encodes in Python, which took seconds per write for a manifest holding
-    thousands of candidate poses (an adaptive session rewrites its manifest every round)."""
+    thousands of candidate poses (an adaptive session rewrites its manifest every round).
+
+    ``memo``/``cache``: the text of each container at the top two levels of the last write, by identity
+    (``id -> (obj, level, text)``): a value the caller kept unchanged since (the same object) is not encoded
+    again. ``cache`` is read, ``memo`` receives this write's entries (so it holds only live objects)."""
     if isinstance(obj, dict):
         if not obj:
             return "{}"
         if not all(isinstance(k, str) for k in obj):
             return json.dumps(obj, indent=1, allow_nan=False)  # keys json converts itself: its own rules
         pad = "\n" + " " * (level + 1)
-        items = (json.dumps(k) + ": " + _encode(v, level + 1) for k, v in obj.items())
+        if memo is None or level > 1:
+            items = (json.dumps(k) + ": " + _encode(v, level + 1) for k, v in obj.items())
+        else:
+            items = (json.dumps(k) + ": " + _encode_memo(v, level + 1, memo, cache) for k, v in obj.items())
         return "{" + pad + ("," + pad).join(items) + "\n" + " " * level + "}"
     if isinstance(obj, (list, tuple)):
         if all(isinstance(x, _SCALARS) or (isinstance(x, (list, tuple)) and all(isinstance(y, _SCALARS) for y in x))
@@ -93,10 +100,28 @@ def _encode(obj: Any, level: int = 0) -> str:
     return _ENCODER.encode(obj)
 
 
-def write_json_atomic(path: Path, obj: Mapping[str, Any]) -> None:
-    """Write ``obj`` as JSON to ``path`` atomically: a temporary file, fsync, rename, fsync the directory."""
+def _encode_memo(obj: Any, level: int, memo: dict, cache: dict | None) -> str:
+    if not isinstance(obj, (dict, list)):
+        return _encode(obj, level)
+    hit = None if cache is None else cache.get(id(obj))
+    if hit is not None and hit[0] is obj and hit[1] == level:
+        text = hit[2]
+    else:
+        text = _encode(obj, level, memo, cache)
+    memo[id(obj)] = (obj, level, text)
+    return text
+
+
+def write_json_atomic(path: Path, obj: Mapping[str, Any], *, plain: bool = False, cache: dict | None = None) -> dict:
+    """Write ``obj`` as JSON to ``path`` atomically: a temporary file, fsync, rename, fsync the directory.
+
+    ``plain``: ``obj`` is JSON data already (what :func:`gonio.store.records._jsonable` returns), not converted
+    again. ``cache``: the encoded text of the last write's containers (what this function returns; see
+    :func:`_encode`): the values of ``obj`` unchanged since (the same objects) are not encoded again — the
+    caller must not have changed them in place. Returns this write's cache."""
     tmp = path.with_name(f".{path.name}.tmp")
-    data = (_encode(_jsonable(obj)) + "\n").encode()
+    memo: dict = {}
+    data = (_encode(obj if plain else _jsonable(obj), 0, memo, cache) + "\n").encode()
     _write_new_file(tmp, data)
     try:
         os.replace(tmp, path)  # replaces a link itself, never its target
@@ -104,6 +129,7 @@ def write_json_atomic(path: Path, obj: Mapping[str, Any]) -> None:
         _unlink_quietly(tmp)
         raise
     _fsync_dir(path.parent)
+    return memo
 
 
 def _unlink_quietly(path: Path) -> None:
@@ -351,6 +377,7 @@ class SessionStore:
     def __init__(self, directory: Path, manifest: dict, fd: int, scan: ScanResult):
         self.directory = directory
         self._manifest = manifest
+        self._encoded: dict | None = None  #: the last manifest write's text of its containers (write_json_atomic)
         self._fd = fd
         self._records = {p: len(s) for p, (s, _m) in scan.records.items()}
         #: the ``meta`` of the last good record (the pose measured last), None in an empty store: a resumed run
@@ -506,6 +533,11 @@ class SessionStore:
         """The manifest as last written (a copy)."""
         return json.loads(json.dumps(self._manifest))
 
+    def manifest_entry(self, key: str) -> Any:
+        """The stored value of the manifest's top-level field ``key`` (None if absent), not a copy: read it and
+        pass its entries back to :meth:`update_manifest` unchanged, never change it in place."""
+        return self._manifest.get(key)
+
     def append(self, pose_index: int, samples: SampleSet, meta: Mapping[str, Any] | None = None) -> None:
         """Append the samples of plan pose ``pose_index``, durably (write, flush, fsync) before returning.
 
@@ -564,13 +596,24 @@ class SessionStore:
         return np.array([i for i in range(n) if i not in done], dtype=np.int64)
 
     def update_manifest(self, **fields: Any) -> None:
-        """Set top-level manifest fields (e.g. calibration results) and rewrite it atomically."""
+        """Set top-level manifest fields (e.g. calibration results) and rewrite it atomically.
+
+        An entry of a table field that is the stored entry itself (:meth:`manifest_entry`'s, e.g. an adaptive
+        session's ~1 MB of candidate poses, written again with new rounds every round) is neither converted
+        nor encoded again (:func:`write_json_atomic`'s cache)."""
         reserved = {"format", "samples_file"} & set(fields)  # the store's own fields
         if reserved:
             raise ConfigError.field(None, "manifest", sorted(reserved)[0], "is managed by the store")
-        self._manifest.update(_jsonable(fields))
+        for key, value in fields.items():
+            old = self._manifest.get(str(key))
+            if type(value) is dict and type(old) is dict and all(type(k) is str for k in value):
+                self._manifest[str(key)] = {k: v if k in old and v is old[k] else _jsonable(v)
+                                            for k, v in value.items()}
+            else:
+                self._manifest[str(key)] = _jsonable(value)
         try:
-            write_json_atomic(self.directory / MANIFEST, self._manifest)
+            self._encoded = write_json_atomic(self.directory / MANIFEST, self._manifest, plain=True,
+                                              cache=self._encoded)
         except OSError as exc:
             raise write_failed(Path(exc.filename) if exc.filename else self.directory / MANIFEST, exc) from None
 

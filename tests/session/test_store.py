@@ -299,3 +299,28 @@ def test_manifest_json_reads_back_as_the_indented_json_module_output_and_refuses
     for bad in ({"a": [float("nan")]}, {"a": float("inf")}, {"a": [[1.0, float("nan")]]}, {"a": [{"b": [-math.inf]}]}):
         with pytest.raises(ValueError):
             _encode(bad)
+
+
+def test_manifest_rewrites_reuse_unchanged_entries_and_write_what_a_fresh_encoding_writes(tmp_path):
+    """update_manifest keeps the text of entries passed back unchanged (manifest_entry's, e.g. an adaptive session's
+    candidate poses) instead of encoding them again; the file is always what encoding the whole manifest gives,
+    and an entry changed or replaced by an equal new value is written as it now is."""
+    from gonio.store.directory import _encode
+    from gonio.store.records import _jsonable
+
+    store = SessionStore.create(tmp_path / "s", {"adaptive": {"candidates": {"poses": np.arange(12.0).reshape(4, 3)},
+                                                              "rounds": []}, "rig": {"name": "x"}})
+    path = tmp_path / "s" / MANIFEST
+    for k in range(4):
+        base = store.manifest_entry("adaptive")
+        store.update_manifest(adaptive={**base, "rounds": [*base["rounds"], {"round": k, "index": np.array([k])}],
+                                        "stop": None if k < 3 else "budget"}, plan={"n_poses": k})
+        assert path.read_text() == _encode(_jsonable(store.manifest)) + "\n"
+        assert json.loads(path.read_text()) == store.manifest
+    assert store.manifest_entry("adaptive")["candidates"] is base["candidates"]  # kept, not converted again
+    assert [r["round"] for r in store.manifest["adaptive"]["rounds"]] == [0, 1, 2, 3]
+    # a new value for the entry (equal or not) is converted and written, never the old text
+    store.update_manifest(adaptive={**store.manifest_entry("adaptive"), "candidates": {"poses": [[-1.0, 2, 3]]}})
+    assert json.loads(path.read_text())["adaptive"]["candidates"] == {"poses": [[-1.0, 2, 3]]}
+    assert path.read_text() == _encode(_jsonable(store.manifest)) + "\n"
+    store.close()
