@@ -238,6 +238,12 @@ def rig_rows(ctx) -> list[tuple]:
 
         with open(path, "w") as fh:
             json.dump(results, fh, indent=1)
+    return rows_of(results)
+
+
+def rows_of(results: list[dict]) -> list[tuple]:
+    """The table's rows of the sessions ``results`` (one dict per session, as :func:`_rig_one` returns and
+    ``$GONIO_SPARSE_LOG`` keeps them)."""
     rows = []
     for kind, label in (("fixed", "through the simulated rig, noisy: fixed design"),
                         ("adaptive", "through the simulated rig, noisy: (b) adaptive")):
@@ -277,7 +283,11 @@ def main(argv=None) -> int:
 
     ap = argparse.ArgumentParser(prog="python -m benchmarks.sparse_rig")
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--from-log", nargs="+", metavar="LOG", help="only tabulate the sessions of these "
+                    "$GONIO_SPARSE_LOG files (runs cut short or split over materials); nothing is measured")
     a = ap.parse_args(argv)
+    if a.from_log:
+        return _from_log(a.from_log)
     src = find_realdata()
     if src is None:
         print("../shared/realdata not found (set GONIO_REALDATA)")
@@ -292,6 +302,28 @@ def main(argv=None) -> int:
     for row in rig_rows(ctx):
         t.add(*row)
     t.notes.append(f"run time {time.perf_counter() - t0:.0f} s; materials: {os.environ.get('GONIO_SPARSE_RIG') or 'default'}")
+    print(t.to_markdown())
+    return 0
+
+
+def _from_log(paths: list[str]) -> int:
+    """Print the rows of the sessions logged in ``paths`` (the last entry of a material and design wins)."""
+    import json
+
+    from benchmarks.common import Table
+
+    kept: dict = {}
+    for path in paths:
+        with open(path) as fh:
+            for line in fh:
+                r = json.loads(line)
+                if r.get("kind") in RIG_KINDS:
+                    kept[(r["kind"], r["material"])] = r
+    t = Table("Sparse measurement through the simulated rig with noise, leave-one-out (from logs)",
+              ["method", "poses", "median cbrt", "p90 cbrt", "note"])
+    for row in rows_of(list(kept.values())):
+        t.add(*row)
+    t.notes.append(f"{len({m for _, m in kept})} materials from {', '.join(paths)}")
     print(t.to_markdown())
     return 0
 
