@@ -40,10 +40,13 @@ def sphere_pose_samples(rate, var, calib, cam_pose, declared: Sphere, light_posi
     prior = session_centre(history, declared)
     current, _ = centre_in_use(prior, declared)
     # the edges searched around the best centre so far, away from the terminator
-    est = refine_centre(rate, calib, cam_pose, current, light_position=light_position)
+    est = refine_centre(rate, calib, cam_pose, current, light_position=light_position,
+                        pose_perturbations=pose_perturbations)
     mine = None
     if est is not None:
         mine = {"centre_m": est.centre.tolist(), "sigma_m": est.sigma.tolist(), "edges": est.n_edges}
+        if est.cov_pose is not None:
+            mine["sigma_pose_m"] = np.sqrt(np.clip(np.diag(est.cov_pose), 0.0, None)).tolist()
         history.append({"sphere_centre": mine})
     found = session_centre(history, declared) if mine else prior
     used, sigma = centre_in_use(found, declared)
