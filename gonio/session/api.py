@@ -205,7 +205,8 @@ def run_session(store, plan, rig: OpenRig, *, on_pose=None, progress: TextIO | b
               f"Status 0x{bits:02X}) cleared by a reboot; if its cause is not known, stop (Ctrl-C) and check the arm",
               file=sys.stderr)
     resume_cmd = f"gonio resume {store.directory}"
-    kind = "calibration" if "geocal" in store.manifest else "adaptive" if "adaptive" in store.manifest else "plan"
+    manifest = store.manifest  # a copy (of up to ~1 MB: an adaptive session's candidates), taken once
+    kind = "calibration" if "geocal" in manifest else "adaptive" if "adaptive" in manifest else "plan"
     common = dict(before_pose=rig.before_pose, resume_command=resume_cmd, stream=_stream(progress))
     if kind == "calibration":
         from gonio.session.geocal_session import CalibrationRunner
@@ -215,22 +216,23 @@ def run_session(store, plan, rig: OpenRig, *, on_pose=None, progress: TextIO | b
         from gonio.session.adaptive import AdaptiveSession
 
         runner = AdaptiveSession(store, devices, rig.calibration, rig.layout,
-                                 settings=RunnerSettings(timing=manifest_timing(store.manifest)), **common)
+                                 settings=RunnerSettings(timing=manifest_timing(manifest)), **common)
         runner.runner.on_pose = on_pose
     else:
         runner = SessionRunner(plan, store, devices, rig.calibration, rig.layout,
-                               settings=RunnerSettings(timing=manifest_timing(store.manifest)), **common)
+                               settings=RunnerSettings(timing=manifest_timing(manifest)), **common)
     if kind != "adaptive":
         runner.on_pose = on_pose
-    if store.manifest.get("keep_pixels") is True and kind == "plan":
+    if manifest.get("keep_pixels") is True and kind == "plan":
         runner.keep_pixels_dir = Path(store.directory) / "pixels"
     result = runner.run()
     _record_sphere_centre(store, rig)
-    total = store.manifest["plan"] if kind == "adaptive" else plan
+    manifest = store.manifest  # as the run left it
+    total = manifest["plan"] if kind == "adaptive" else plan
     n_total = len(total["poses"]) if isinstance(total, dict) else len(total)
     return SessionResult(directory=store.directory, status=result.status, run=result,
                          poses_done=len(store.done_poses()), poses_total=n_total, samples_total=store.sample_count,
-                         simulated=bool(devices.clock.simulated), kind=kind, manifest=store.manifest, rig=devices.rig,
+                         simulated=bool(devices.clock.simulated), kind=kind, manifest=manifest, rig=devices.rig,
                          recovered_faults=recovered_faults(devices))
 
 

@@ -106,10 +106,22 @@ def _encode_memo(obj: Any, level: int, memo: dict, cache: dict | None) -> str:
     hit = None if cache is None else cache.get(id(obj))
     if hit is not None and hit[0] is obj and hit[1] == level:
         text = hit[2]
+        _carry(obj, level, memo, cache)
     else:
         text = _encode(obj, level, memo, cache)
     memo[id(obj)] = (obj, level, text)
     return text
+
+
+def _carry(obj: Any, level: int, memo: dict, cache: dict) -> None:
+    """Keep the cached text of the containers inside ``obj`` (reused whole) for the next write, which may
+    replace ``obj`` but keep some of them (an adaptive session's new ``adaptive`` table, same candidates)."""
+    if isinstance(obj, dict) and level <= 1:
+        for v in obj.values():
+            hit = cache.get(id(v)) if isinstance(v, (dict, list)) else None
+            if hit is not None and hit[0] is v and hit[1] == level + 1:
+                memo[id(v)] = hit
+                _carry(v, level + 1, memo, cache)
 
 
 def write_json_atomic(path: Path, obj: Mapping[str, Any], *, plain: bool = False, cache: dict | None = None) -> dict:
