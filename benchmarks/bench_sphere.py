@@ -114,7 +114,7 @@ def _footprint_fit(run, params, start):
     return p["alpha"], _peak(p) / _peak(params) - 1, info
 
 
-def materials_table(quick: bool) -> Table:
+def materials_table(quick: bool, mats=None) -> Table:
     import gonio
     from gonio.brdf import make
     from gonio.plan.plan import CaptureSettings
@@ -125,7 +125,7 @@ def materials_table(quick: bool) -> Table:
                  "cell error median", "p95", "truth within 2σ", "fitted α (truth)", "α, footprint fit",
                  "peak, footprint fit vs truth"], baseline=0)
     target = _target()
-    mats = ["chrome-like"] if quick else list(MATERIALS)
+    mats = mats or (["chrome-like"] if quick else list(MATERIALS))
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         for name in mats:
@@ -320,13 +320,22 @@ def trade(quick: bool = False) -> list[Table]:
     return [tab]
 
 
-def run(quick: bool = False) -> list[Table]:
-    tables = [materials_table(quick)]
+def run(quick: bool = False):
+    """The tables, each yielded as it is made (``python -u -m benchmarks sphere`` prints each when done, so a run
+    cut short keeps what it measured): the full table first (the issue's coverage and lab time), the default and
+    the chrome-like material, the cameras, memory, then the other two materials. ``GONIO_SPHERE_BUDGET``: the full
+    table's --fill-budget (lab seconds, default 600)."""
+    import os
+
     flat_rate = None
     if not quick:
-        full, out = full_table()
-        tables.append(full)
+        full, out = full_table(budget=float(os.environ.get("GONIO_SPHERE_BUDGET", "600")))
         flat_rate = out["flat_rate"]
-    tables.append(cameras_table(flat_rate, quick))
-    tables.append(_memory(quick))
-    return tables
+        yield full
+        yield materials_table(quick, ["plastic", "chrome-like"])
+    else:
+        yield materials_table(quick)
+    yield cameras_table(flat_rate, quick)
+    yield _memory(quick)
+    if not quick:
+        yield materials_table(quick, ["diffuse", "rough metal"])
