@@ -227,16 +227,18 @@ def _fill_holes(values, sigma, measured, above, fill_deg, wi, wo):
     tree = cKDTree(pts)
     bound = 2.0 * np.sin(np.radians(fill_deg) / 2.0)
     h_idx = np.flatnonzero(holes)
-    d1, _ = tree.query(emb.reshape(-1, 6)[h_idx], k=1, distance_upper_bound=bound)
-    h_idx = h_idx[np.isfinite(d1)]
     filled = np.zeros(N_CELLS, dtype=bool)
-    if h_idx.size == 0:
-        return filled.reshape(SHAPE)
     k = min(_K_NEIGHBOURS, len(pts))
     v_flat, s_flat = values.reshape(-1, 3), sigma.reshape(-1, 3)
+    # one bounded query per hole (a hole with no measured cell within the bound gets only infinite distances:
+    # it stays a hole), in chunks that bound the memory of the k neighbours' values
     for chunk in np.array_split(h_idx, max(1, h_idx.size // 200_000)):
         d, j = tree.query(emb.reshape(-1, 6)[chunk], k=k, distance_upper_bound=bound)
         d, j = d.reshape(len(chunk), k), j.reshape(len(chunk), k)
+        near = np.isfinite(d[:, 0])  # the nearest first
+        chunk, d, j = chunk[near], d[near], j[near]
+        if chunk.size == 0:
+            continue
         ok = np.isfinite(d)
         w = np.where(ok, 1.0 / np.maximum(np.where(ok, d, 1.0), 1e-12) ** 2, 0.0)[..., None]
         cells = src[np.where(ok, j, 0)]
