@@ -13,7 +13,7 @@ from gonio.fit.fit import _Problem
 from gonio.fit.kernels import _ggx_spec_dalpha, _spec, jacobian_for, profile_for
 from gonio.fit.layout import Layout, make_basis
 from gonio.fit.losses import LOSSES
-from gonio.fit.solve import Projection, ProfiledProjection, bounded_lsq, bounded_lsq_batch
+from gonio.fit.solve import GRAM_BLOCK, Projection, ProfiledProjection, bounded_lsq, bounded_lsq_batch, weighted_gram
 
 from .conftest import synth
 
@@ -169,3 +169,21 @@ def test_a_search_on_a_subset_refined_on_all_lands_on_the_whole_data_optimum():
     assert coarse.params["alpha"] == pytest.approx(whole.params["alpha"], rel=1e-4)
     with pytest.raises(ConfigError, match="search_n"):
         fit(big, "microfacet", search_n=5)
+
+
+@pytest.mark.parametrize("n", [1, GRAM_BLOCK, 2 * GRAM_BLOCK + 3])
+@pytest.mark.parametrize("per_channel", [False, True])
+def test_weighted_gram_is_its_definition_over_every_block(n, per_channel):
+    """weighted_gram's blocked matrix products give H[c, i, j] = Σ w[n, c] eᵢ[n] eⱼ[n] and h[c, j] = Σ w eⱼ y[c]
+    (constant elements as floats) for sizes within one block, on a block's edge and beyond it."""
+    rng = np.random.default_rng(n)
+    elems = [rng.random(n), 0.5, rng.normal(size=n), 1.0]
+    w = rng.random((n, 3)) if per_channel else rng.random(n)
+    yT = np.ascontiguousarray(rng.normal(size=(3, n)))
+    E = np.stack([np.broadcast_to(np.asarray(e, float), (n,)) for e in elems])
+    W = w.T if per_channel else np.broadcast_to(w, (3, n))
+    H, h = weighted_gram(elems, w, yT)
+    np.testing.assert_allclose(H, np.einsum("cn,in,jn->cij", W, E, E), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(h, np.einsum("cn,jn,cn->cj", W, E, yT), rtol=1e-12, atol=1e-12)
+    H2, none = weighted_gram(elems, w)
+    assert none is None and np.array_equal(H2, H)
