@@ -117,14 +117,17 @@ Source = Measured
 _BY_SUFFIX = {".npz": "npz", ".csv": "csv", ".bsdf": "bsdf", ".binary": "merl", ".merl": "merl"}
 
 
-def _warn_if_unfinished(path: Path, manifest: dict, samples) -> None:
+def _warn_if_unfinished(path: Path, manifest: dict, samples, records: int | None = None) -> None:
     """A warning (one line through the CLI) when a session did not finish its plan: what is fitted,
-    exported or shown is then a part of the plan, and ``gonio resume`` measures the rest."""
+    exported or shown is then a part of the plan, and ``gonio resume`` measures the rest. ``records``: the
+    poses ``samples.jsonl`` holds a record of (a record may hold no sample — a sphere pose whose pixels were all
+    rejected — so the samples' poses undercount them, as ``gonio status`` counts records)."""
     import warnings
 
     from gonio.store.directory import missing_poses
 
-    done = len(set(samples.pose.tolist())) if samples is not None and getattr(samples, "pose", None) is not None else None
+    done = records if records is not None else (
+        len(set(samples.pose.tolist())) if samples is not None and getattr(samples, "pose", None) is not None else None)
     damaged = manifest.get("damaged_records") if isinstance(manifest.get("damaged_records"), list) else []
     lost = missing_poses(manifest, (done or 0) + len(damaged))
     if lost:
@@ -168,7 +171,7 @@ def load_source(path) -> Measured:
         except ImportError:
             raise DataError(f"{p}: cannot read session directories: gonio.store.directory is not installed") from None
         manifest, samples, meta = load_session_records(p)
-        _warn_if_unfinished(p, manifest, samples)
+        _warn_if_unfinished(p, manifest, samples, records=len(meta))
         return Measured(p, "session", dict(manifest), samples, None, pose_meta=meta)
     if not p.exists():
         raise DataError(f"{p}: no such session directory or data file")
