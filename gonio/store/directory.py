@@ -624,8 +624,11 @@ class SessionStore:
             else:
                 self._manifest[str(key)] = _jsonable(value)
         try:
-            self._encoded = write_json_atomic(self.directory / MANIFEST, self._manifest, plain=True,
-                                              cache=self._encoded)
+            try:
+                self._encoded = write_json_atomic(self.directory / MANIFEST, self._manifest, plain=True,
+                                                  cache=self._encoded)
+            except (TypeError, ValueError):  # a non-finite number the session's file held: converted, as before
+                self._encoded = write_json_atomic(self.directory / MANIFEST, self._manifest)
         except OSError as exc:
             raise write_failed(Path(exc.filename) if exc.filename else self.directory / MANIFEST, exc) from None
 
