@@ -122,6 +122,7 @@ class SimavrController(PtyServer):
         super().__init__(name)
         self.faults = faults
         self.clock = clock if clock is not None else RealClock()
+        self._simulated_clock = not isinstance(self.clock, RealClock)
         self.pd_noise, self.warmup_depth, self.warmup_tau = float(pd_noise), float(warmup_depth), float(warmup_tau)
         self.seed = seed
         self.proc: subprocess.Popen | None = None
@@ -192,6 +193,13 @@ class SimavrController(PtyServer):
                 self._command("RX " + data[k:k + RX_CHUNK].hex())
 
     def on_idle(self) -> None:
+        """On a real clock, the firmware keeps up with it between requests (its watchdog, the lamp's soft start).
+        On a simulated clock it runs only when observed (bytes from the host, :meth:`light_output`, the pins):
+        an idle tick comes at a real-time moment, and running to the clock's time then would make where the
+        emulated CPU stands when the next request arrives depend on the machine's load (a seeded session's
+        controller uptimes differed by 1 ms between runs under load)."""
+        if self._simulated_clock:
+            return
         with self._bridge_lock:
             if self.proc is not None:
                 self._command(f"RUN {self._target_us()}")
