@@ -133,6 +133,16 @@ def _local_pairs(out):
     return dirs_from_half_diff(out.theta_h, np.zeros_like(out.theta_h), out.theta_d, out.phi_d)
 
 
+def _chrome_sphere_samples(m, light):
+    """One noiseless 320×240 frame of a 40 mm sphere of ``m`` (its exact electron rate, σ 1e-6 relative),
+    as per-pixel samples."""
+    sph = Sphere((0.0, 0.0, 0.02), 0.02)
+    cam, calib = _camera(m, sph, light=light)
+    rate = cam.electron_rate().astype(np.float64)
+    return sphere_frame_samples(rate, np.maximum(rate, 1.0) * 1e-6, calib, cam._pose, sph, cam._light_pos,
+                                TargetLayout(), min_snr=0.0)
+
+
 def test_a_chrome_lobe_narrower_than_a_pixel_is_modelled_over_the_footprint_and_fitted():
     """GGX α = 0.01 on a 40 mm sphere at 320×240: the highlight is a tenth of a pixel's footprint of normals wide.
     The model averaged over each pixel's footprint (gonio.sphere.footprint, second order in the pixel) is what the
@@ -140,12 +150,8 @@ def test_a_chrome_lobe_narrower_than_a_pixel_is_modelled_over_the_footprint_and_
     of the footprint-averaged model recovers α and the peak from a wrong start."""
     from gonio.sphere.footprint import fit_footprint, footprint_average
 
-    sph = Sphere((0.0, 0.0, 0.02), 0.02)
     m = make("microfacet", kd=0.0, ks=1.0, alpha=0.01, f0=0.95, distribution="ggx")
-    cam, calib = _camera(m, sph, light=(0.0, 0.25, 0.3))
-    rate = cam.electron_rate().astype(np.float64)
-    out = sphere_frame_samples(rate, np.maximum(rate, 1.0) * 1e-6, calib, cam._pose, sph, cam._light_pos,
-                               TargetLayout(), min_snr=0.0)
+    out = _chrome_sphere_samples(m, light=(0.0, 0.25, 0.3))
     bright = out.f[:, 0] > 1e-2 * out.f[:, 0].max()
     avg = footprint_average(m, out.wi_local, out.wo_local, out.footprint)
     centre = m.eval(out.wi_local, out.wo_local)
@@ -165,12 +171,8 @@ def test_the_footprint_fit_scans_log_alpha_before_its_local_solve():
     whatever α it is given — here the ordinary fit's kind of start, a lobe 12× too wide — and ends within 2 %."""
     from gonio.sphere.footprint import fit_footprint
 
-    sph = Sphere((0.0, 0.0, 0.02), 0.02)
     m = make("microfacet", kd=0.0, ks=0.8, alpha=0.01, f0=0.95, distribution="ggx")
-    cam, calib = _camera(m, sph, light=(0.1, 0.2, 0.3))
-    rate = cam.electron_rate().astype(np.float64)
-    out = sphere_frame_samples(rate, np.maximum(rate, 1.0) * 1e-6, calib, cam._pose, sph, cam._light_pos,
-                               TargetLayout(), min_snr=0.0)
+    out = _chrome_sphere_samples(m, light=(0.1, 0.2, 0.3))
     k = out.f[:, 0] > 1e-3 * out.f[:, 0].max()
     sig = 0.01 * out.f[k] + 1e-4
     f = out.f[k] + sig * np.random.default_rng(2).standard_normal(sig.shape)
