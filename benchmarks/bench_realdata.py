@@ -153,14 +153,11 @@ class SGDModel:
 
 
 def find_realdata() -> Path | None:
-    """The realdata folder (see the module docstring), or None."""
-    env = os.environ.get("GONIO_REALDATA")
-    here = Path(__file__).resolve().parent.parent
-    for p in ([Path(env)] if env else []) + [Path.cwd().parent / "shared/realdata", here.parent / "shared/realdata",
-                                               here.parent.parent / "shared/realdata"]:
-        if (p / "nbrdf_to_merl.py").is_file():
-            return p
-    return None
+    """The realdata folder (see the module docstring), or None: :func:`gonio.prior.build_default.find_realdata`,
+    the one lookup the prior's build script uses too."""
+    from gonio.prior.build_default import find_realdata as find
+
+    return find()
 
 
 def merl_tables(src: Path, names, weights: str | None = None) -> dict[str, Path]:
