@@ -289,7 +289,7 @@ def register(sub) -> None:
     s.add_argument("--fill", type=float, default=None, metavar="F",
                    help="choose the light positions greedily for the cells they fill per lab second until this "
                         "fraction of the reachable cells is filled (e.g. 0.9); candidates every --theta-i-step and "
-                        "--phi-i-step (default 2.5 and 10 deg)")
+                        "--phi-i-step (default 1 and 3 deg: ~10,000 light positions, about a minute to plan)")
     s.add_argument("--fill-budget", type=float, default=None, metavar="S",
                    help="with --fill: stop at this much lab time (seconds, default 1200)")
     p.set_defaults(func=run)
@@ -369,6 +369,12 @@ def run(args) -> int:
 SIM_FOCAL_PX = 380.0
 
 
+#: The greedy sphere plan's candidate light steps (zenith, azimuth; degrees) unless given: on the default rig and
+#: camera (320x240) the 20-minute plan fills 44 % of the reachable cells from 1° x 3° candidates, 39 % from
+#: 2.5° x 10° (benchmarks sphere; the greedy picks the best ~1,300 of ~10,000 light positions)
+GREEDY_STEPS_DEG = {"theta_i_step": 1.0, "phi_i_step": 3.0}
+
+
 def _greedy_sphere(args, plan, rig):
     """``--fill``: the sphere plan chosen for cells per lab second (:func:`gonio.session.sphere_plan.greedy_sphere_plan`),
     its candidates the given sphere plan's parameters (denser defaults)."""
@@ -386,7 +392,7 @@ def _greedy_sphere(args, plan, rig):
     sphere, calib, layout = _sphere_camera(args)
     p = plan.params
     steps = {k: (p[k] if getattr(args, f"plan_{k}", None) is not None else math.radians(d))
-             for k, d in (("theta_i_step", 2.5), ("phi_i_step", 10.0))}
+             for k, d in GREEDY_STEPS_DEG.items()}
     greedy, info = greedy_sphere_plan(rig, calib, sphere, theta_o=p["theta_o"], theta_max=p["theta_max"],
                                       coverage=fill, budget=budget, capture=plan.capture, seed=args.seed,
                                       layout=layout, **steps)

@@ -18,7 +18,7 @@ valid and the reachable cells, and per θh and θd band.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -28,7 +28,7 @@ from gonio.sphere.geometry import Sphere, sphere_hits
 from gonio.sphere.pixels import sphere_box
 
 __all__ = ["cells_of_pose", "flat_cells_of_pose", "plan_cells", "valid_cells", "reachable_cells", "theta_d_reach",
-           "theta_d_index_range", "Coverage", "plan_coverage"]
+           "theta_d_index_range", "Coverage", "plan_coverage", "band_edges_deg"]
 
 
 def cells_of_pose(rig, joints, calib, sphere: Sphere, *, grazing_deg: float = 80.0, stride: int = 1) -> np.ndarray:
@@ -127,6 +127,9 @@ class Coverage:
     of_reachable: float
     theta_h_bands: list
     theta_d_bands: list
+    #: (N_CELLS,) bool: the cells filled and the reachable cells (the denominators of the bands)
+    filled_mask: np.ndarray = field(default=None, repr=False)
+    reach_mask: np.ndarray = field(default=None, repr=False)
 
     def lines(self) -> list[str]:
         out = [f"coverage: {self.filled} MERL cells filled, {100 * self.of_reachable:.1f} % of the {self.reachable} "
@@ -134,6 +137,13 @@ class Coverage:
         out.append("  by θh band (index rows of 10): " + " ".join(f"{100 * f:.0f}%" for f in self.theta_h_bands))
         out.append("  by θd band (9° each):          " + " ".join(f"{100 * f:.0f}%" for f in self.theta_d_bands))
         return out
+
+
+def band_edges_deg(axis: int) -> list:
+    """The 10 edges (degrees) of the 9 bands of 10 index rows along ``axis`` (0: θh, MERL's θh = (i/90)²·90°;
+    1: θd, 9° each)."""
+    i = np.arange(0, 91, 10)
+    return list((i / 90.0) ** 2 * 90.0 if axis == 0 else i * 1.0)
 
 
 def _bands(filled, ref, axis) -> list:
@@ -192,4 +202,5 @@ def plan_coverage(plan, rig, calib, sphere: Sphere, *, reach_step: float = 5.0, 
     lo2, hi2 = theta_d_index_range([np.flatnonzero(filled)])
     reach = reachable_cells((min(lo, lo2), max(hi, hi2))) | filled
     return Coverage(int(filled.sum()), int(valid.sum()), int(reach.sum()), float(filled.sum() / valid.sum()),
-                    float(filled.sum() / max(reach.sum(), 1)), _bands(filled, reach, 0), _bands(filled, reach, 1))
+                    float(filled.sum() / max(reach.sum(), 1)), _bands(filled, reach, 0), _bands(filled, reach, 1),
+                    filled, reach)

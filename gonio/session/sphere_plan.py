@@ -41,7 +41,8 @@ def greedy_sphere_plan(rig, calib, sphere: Sphere, *, theta_o: float = math.radi
                        reach_step: float = math.radians(5.0)):
     """``(plan, info)``: the greedy plan of the module docstring and what it expects (``reachable`` and ``filled``
     cell counts, ``candidates_reach``: the cells all candidates together fill, ``lab_s`` estimated for the poses
-    taken, ``candidates``). It stops at ``coverage`` of the reachable cells, at the ``budget``, or when no
+    taken, ``candidates``, ``trace``: (poses, 2) lab seconds spent and cells filled after each pose taken, in the
+    greedy's order — the coverage against lab time curve). It stops at ``coverage`` of the reachable cells, at the ``budget``, or when no
     candidate adds a cell. ``sweep``: the candidates and their cells, :func:`sweep_cells`'s result with the same
     arguments (a caller planning twice computes them once). ``reach_step``: the light sweep's step that finds the
     reachable θd range (:func:`gonio.session.sphere_coverage.theta_d_reach`)."""
@@ -70,7 +71,7 @@ def greedy_sphere_plan(rig, calib, sphere: Sphere, *, theta_o: float = math.radi
     joints = np.asarray(cand.joints, dtype=np.float64)
     gain = np.array([len(c) for c in cells], dtype=np.float64)  # upper bounds of the new cells (lazy)
     covered = np.zeros(N_CELLS, dtype=bool)
-    taken, spent, n_cov = [], 0.0, 0
+    taken, spent, n_cov, trace = [], 0.0, 0, []
     current = None  # the first pose: no move counted (the rig comes from wherever it stands)
     open_ = np.ones(len(cells), dtype=bool)
     while n_cov < need and open_.any():
@@ -93,6 +94,7 @@ def greedy_sphere_plan(rig, calib, sphere: Sphere, *, theta_o: float = math.radi
         n_cov += int(gain[i])
         spent += float(cost[i])
         taken.append(i)
+        trace.append((spent, n_cov))
         open_[i] = False
         current = joints[i]
     if not reach.any():
@@ -109,7 +111,7 @@ def greedy_sphere_plan(rig, calib, sphere: Sphere, *, theta_o: float = math.radi
     perm = optimize_order(sub.joints, model, seed=seed, initial=np.arange(len(sub)))
     sub = sub.reordered(perm, "optimized")
     info = {"reachable": int(reach.sum()), "filled": int(n_cov), "lab_s": spent, "candidates": len(cand),
-            "poses": len(taken), "candidates_reach": n_cand}
+            "poses": len(taken), "candidates_reach": n_cand, "trace": np.asarray(trace, dtype=np.float64)}
     return sub, info
 
 

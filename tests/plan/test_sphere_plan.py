@@ -80,6 +80,9 @@ def test_the_greedy_plan_fills_what_it_is_asked_in_fewer_poses_than_its_candidat
     assert plan_cells(plan, rig, calib, sph)[valid_cells()].sum() == info["filled"]
     every, more = greedy_sphere_plan(rig, calib, sph, coverage=0.9, **kw)
     assert more["filled"] == more["candidates_reach"] < 0.9 * more["reachable"] and len(every) > len(plan)
+    tr = more["trace"]  # the coverage against lab time, pose by pose: both grow, and end at what it says
+    assert tr.shape == (len(every), 2) and np.all(np.diff(tr, axis=0) > 0)
+    assert tr[-1, 1] == more["filled"] and tr[-1, 0] == pytest.approx(more["lab_s"])
     first, _ = greedy_sphere_plan(rig, calib, sph, coverage=0.8, budget=1.0, **kw)
     assert len(first) == 1  # a budget below two poses' lab time: the single best pose
 
@@ -127,3 +130,42 @@ def test_plan_sphere_fill_refuses_bad_values_in_one_line(opts, field, capsys):
 def test_fill_is_only_for_plan_sphere(capsys):
     assert main(["plan", "in_plane", "--fill", "0.5"]) != 0
     assert "only for plan sphere" in capsys.readouterr().err
+
+
+def test_reachable_cells_match_a_brute_force_over_the_sphere_s_normals():
+    """reachable_cells' closed form against the geometry itself: light and camera far away at 2·θd apart (θd the
+    row's centre, here 62.5°), the sphere's normals every 0.2° of azimuth around the half vector at every θh row's centre; a
+    normal is kept when the pipeline would keep its pixel (θi, θo in its frame ≤ 80°), and its (θh, θd, φd) cell
+    counted. Every closed-form cell of the row is hit (θd 54–72° is reachable: those rows stay empty for want of
+    pixels, not of geometry), and the few hit cells the closed form leaves out are at the grazing limit (a cell's
+    centre past 80°, part of it inside)."""
+    from gonio.geometry import frame_from_normal, half_diff_from_dirs
+    from gonio.io.merl import SHAPE, cell_centres
+    from gonio.io.merl_index import half_diff_index
+    from gonio.session.sphere_coverage import reachable_cells
+
+    j = 62
+    th, td, _ = cell_centres()
+    wi = np.array([math.sin(td[j]), 0.0, math.cos(td[j])])
+    wo = np.array([-math.sin(td[j]), 0.0, math.cos(td[j])])  # the half vector: +z
+    TH, PS = np.meshgrid(th, np.radians(np.arange(0.0, 360.0, 0.2)), indexing="ij")
+    n = np.stack([np.sin(TH) * np.cos(PS), np.sin(TH) * np.sin(PS), np.cos(TH)], axis=-1).reshape(-1, 3)
+    F = frame_from_normal(n)
+    li, lo = F @ wi, F @ wo
+    c = math.cos(math.radians(80))
+    ok = (li[:, 2] >= c) & (lo[:, 2] >= c)
+    a, _, b, p = half_diff_from_dirs(li[ok], lo[ok])
+    ih, idd, ip = half_diff_index(a, b, p)
+    assert np.all(idd == j)
+    hit = np.zeros(SHAPE[0] * SHAPE[2], dtype=bool)
+    hit[ih * SHAPE[2] + ip] = True
+    closed = reachable_cells((0, 89)).reshape(SHAPE)[:, j, :].ravel()
+    assert closed.sum() > 5000 and not np.any(closed & ~hit)
+    extra = np.flatnonzero(hit & ~closed)
+    assert len(extra) < 0.005 * closed.sum()
+    # the extra cells are at the grazing limit: their centre's θi or θo is within a cell of 80°
+    from gonio.geometry import dirs_from_half_diff
+
+    _, _, pd = cell_centres()
+    ewi, ewo = dirs_from_half_diff(th[extra // SHAPE[2]], 0.0, np.full(len(extra), td[j]), pd[extra % SHAPE[2]])
+    assert np.all(np.minimum(ewi[:, 2], ewo[:, 2]) > math.cos(math.radians(83)))
