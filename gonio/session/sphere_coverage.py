@@ -13,6 +13,18 @@ steps approaches — a sampled sweep's cells are not: at 320×240 a sweep every 
 418,806 and 560,082 cells, the limit is ~890,000 (the sampled count grows with the sweep's density and the camera's
 pixels, so coverage against it says more about the sweep than about the plan). Coverage is reported against the
 valid and the reachable cells, and per θh and θd band.
+
+The closed form is checked against a brute force over the sphere's normals (tests/plan/test_sphere_plan.py). What it
+counts is what the geometry allows, not what a pixel budget buys: a cell is filled only when some pixel's *centre*
+falls in it. Two kinds of cells take far more pixels than the others:
+
+- small θh: MERL's θh rows are 90°·(i/90)² (the first 10 rows span 1.1°, the next 10 up to 4.4°), and a cell at θh
+  spans ~2·Δθh·sin θh·1° of normals, where a pixel of a sphere R pixels in radius spans ~(180/πR)° × the same (R = 19
+  at 320x240: ~3°): a 320x240 frame puts one pixel centre or none in the 1,800 cells of its θd row under
+  θh = 1.1°, and ~6 in the 1,800 between 1.1° and 4.4°;
+- large θd: at a light–camera angle γ ≈ 2θd, the pixels kept (θi and θo ≤ 80° in the normal's frame) are a lune
+  ~(180° − γ) wide seen edge-on: at 320x240 a pose gives ~320 samples at θd ≈ 50°, ~120 at 63°, ~45 at 72°, ~8 at
+  77°, spread over two θd rows of 7,000–10,000 reachable cells each.
 """
 
 from __future__ import annotations
