@@ -179,7 +179,7 @@ def materials_table(quick: bool, mats=None) -> Table:
 
 
 def full_table(resolution: str | None = None, fill: float = 0.9, budget: float = 1200.0,
-               steps: tuple[float, float] = (2.5, 10.0)) -> tuple[list[Table], dict]:
+               steps: tuple[float, float] = (1.0, 3.0)) -> tuple[list[Table], dict]:
     """The default material: flat default session vs the greedy sphere plan at ``resolution`` (None: the simulated
     camera's default, :data:`gonio.session.options.DEFAULT_SIM_RESOLUTION`), candidates every ``steps`` degrees of
     light zenith and azimuth; then the coverage against lab time (the plan's prediction, pose by pose) and by
@@ -362,15 +362,20 @@ def cameras_table(flat_rate: float | None, quick: bool) -> Table:
     return tab
 
 
-def _memory(quick: bool) -> Table:
-    """Peak resident memory of a whole sphere session (``gonio measure`` in a child process, 320×240): the frames
-    are merged and reduced to samples pose by pose, so memory does not grow with the frames."""
+def _memory(quick: bool, resolution: str | None = None) -> Table:
+    """Peak resident memory of a whole sphere session (``gonio measure`` in a child process, at ``resolution``,
+    default the simulated camera's default, 320×240): the frames are merged and reduced to samples pose by pose, so
+    memory does not grow with the frames."""
     import json
     import resource
     import subprocess
     import sys
 
-    tab = Table("Memory of a sphere session (gonio measure --sim, 320×240, the default resolution)",
+    from gonio.session.options import DEFAULT_SIM_RESOLUTION
+
+    resolution = resolution or DEFAULT_SIM_RESOLUTION
+    tab = Table(f"Memory of a sphere session (gonio measure --sim, {resolution}"
+                + (", the default resolution)" if resolution == DEFAULT_SIM_RESOLUTION else ")"),
                 ["frames (poses)", "samples", "peak RSS MB", "wall s"], baseline=0)
     target = _target()
     sizes = [("30", "60"), ("20", "40")] if quick else [("30", "60"), ("4", "18")]  # ~20 and ~400 poses
@@ -380,7 +385,8 @@ def _memory(quick: bool) -> Table:
             t0 = time.perf_counter()
             before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
             subprocess.run([sys.executable, "-m", "gonio.cli.main", "measure", "--sim", "--target", target,
-                            "--plan", "sphere", "--theta-i-step", ti, "--phi-i-step", pi, "--out", str(out), "--quiet"],
+                            "--plan", "sphere", "--theta-i-step", ti, "--phi-i-step", pi, "--out", str(out), "--quiet",
+                            "--sim-resolution", resolution],
                            check=True, capture_output=True)
             peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss  # KiB, the largest child so far
             m = json.loads((out / "manifest.json").read_text())
@@ -402,24 +408,32 @@ def trade(quick: bool = False) -> list[Table]:
 
 def run(quick: bool = False):
     """The tables, each yielded as it is made (``python -u -m benchmarks sphere`` prints each when done, so a run
-    cut short keeps what it measured): the full table first (the issue's coverage and lab time), the default and
-    the chrome-like material, the cameras, memory, then the other two materials. ``GONIO_SPHERE_BUDGET``: the full
-    table's --fill-budget (lab seconds, default 1200: the issue's 20 minutes); ``GONIO_SPHERE_RESOLUTION``: its
-    camera (default: the simulated camera's, 320x240); ``GONIO_SPHERE_STEPS``: its candidates' light zenith and
-    azimuth steps in degrees (default ``2.5,10``)."""
+    cut short keeps what it measured): the full table first (the issue's coverage and lab time, then its coverage
+    against lab time and by band), the default and the chrome-like material, the cameras, memory, then the other two
+    materials. ``GONIO_SPHERE_BUDGET``: the full table's --fill-budget (lab seconds, default 1200: the issue's 20
+    minutes); ``GONIO_SPHERE_RESOLUTION``: its camera (default: the simulated camera's, 320x240);
+    ``GONIO_SPHERE_STEPS``: its candidates' light zenith and azimuth steps in degrees (default ``1,3``, as
+    ``gonio plan sphere --fill``); ``GONIO_SPHERE_ONLY``: the tables to make, a comma list of ``full``,
+    ``materials``, ``cameras``, ``memory`` (default all); ``GONIO_SPHERE_MEMORY_RESOLUTION``: the memory table's
+    camera (default 320x240)."""
     import os
 
+    only = {x.strip() for x in os.environ.get("GONIO_SPHERE_ONLY", "full,materials,cameras,memory").split(",")}
     flat_rate = None
     if not quick:
-        steps = tuple(float(x) for x in os.environ.get("GONIO_SPHERE_STEPS", "2.5,10").split(","))
-        tabs, out = full_table(os.environ.get("GONIO_SPHERE_RESOLUTION") or None,
-                               budget=float(os.environ.get("GONIO_SPHERE_BUDGET", "1200")), steps=steps)
-        flat_rate = out["flat_rate"]
-        yield from tabs
-        yield materials_table(quick, ["plastic", "chrome-like"])
-    else:
+        if "full" in only:
+            steps = tuple(float(x) for x in os.environ.get("GONIO_SPHERE_STEPS", "1,3").split(","))
+            tabs, out = full_table(os.environ.get("GONIO_SPHERE_RESOLUTION") or None,
+                                   budget=float(os.environ.get("GONIO_SPHERE_BUDGET", "1200")), steps=steps)
+            flat_rate = out["flat_rate"]
+            yield from tabs
+        if "materials" in only:
+            yield materials_table(quick, ["plastic", "chrome-like"])
+    elif "materials" in only:
         yield materials_table(quick)
-    yield cameras_table(flat_rate, quick)
-    yield _memory(quick)
-    if not quick:
+    if "cameras" in only:
+        yield cameras_table(flat_rate, quick)
+    if "memory" in only:
+        yield _memory(quick, os.environ.get("GONIO_SPHERE_MEMORY_RESOLUTION") or None)
+    if not quick and "materials" in only:
         yield materials_table(quick, ["diffuse", "rough metal"])
