@@ -16,6 +16,7 @@ from gonio.errors import ConfigError, DataError, HardwareError
 from gonio.pipeline.dark import DarkCache
 from gonio.pipeline.exposure import CapturePlan, ExposureSettings, plan_bracket
 from gonio.pipeline.hdr import BadFrame, SATURATION_MARGIN, average_frames, check_frame, merge_linear
+from gonio.pipeline.covers import cover_points
 from gonio.pipeline.markers import BoardPose, board_poses_agree, detect_board_pose, refine_board_pose, to_gray8
 from gonio.pipeline.signal import SignalCheck
 from gonio.pipeline.reflectance import build_roi, used_pixel_samples
@@ -142,6 +143,7 @@ class Pipeline:
         self._size_checked = False
         self._size_misses, self._miss_shape = 0, None
         self._board = layout.charuco.board()
+        self._covers = cover_points(layout)
         self._next_exposure = self.settings.initial_exposure
         self._signal = SignalCheck(calibration.noise, self._limit)
         #: a sphere: the record metas (their ``sphere_centre``) of the poses stored before this one, in pose order —
@@ -217,7 +219,7 @@ class Pipeline:
         return found is not None and board_poses_agree(known, found)
 
     def _locate(self, frame: Frame, px: np.ndarray, hint: CameraPose | None) -> tuple[BoardPose | None, CameraPose | None]:
-        bp = detect_board_pose(self._gray(frame, px), self.calib, self.layout.charuco, self._board)
+        bp = detect_board_pose(self._gray(frame, px), self.calib, self.layout.charuco, self._board, covers=self._covers)
         if bp is not None:
             return bp, bp.pose
         return None, hint

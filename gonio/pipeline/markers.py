@@ -176,10 +176,16 @@ def to_gray8(pixels: np.ndarray, bit_depth: int, black_level: float = 0.0) -> np
     return np.clip(img * np.float32(scale), 0, 255).astype(np.uint8)
 
 
-def detect_board_pose(gray: np.ndarray, calib: CameraCalibration, spec: CharucoSpec, board=None) -> BoardPose | None:
+def detect_board_pose(gray: np.ndarray, calib: CameraCalibration, spec: CharucoSpec, board=None, *,
+                      covers=None) -> BoardPose | None:
     """Camera pose (sample frame) from the ChArUco board in ``gray``, or ``None`` if not found.
 
-    ``None`` when fewer than :data:`MIN_CORNERS` corners are found, or when they do not determine a
+    ``covers``: what lies on the board (:func:`gonio.pipeline.covers.cover_points` of the target layout: the white
+    patch, the sample or tile). The corners whose finder's window a cover reaches, seen with the pose from all the
+    corners, are not the board's (:func:`gonio.pipeline.covers.covered_corners`): they are left out and the pose
+    is fitted again from the others.
+
+    ``None`` when fewer than :data:`MIN_CORNERS` corners are found (or left), or when they do not determine a
     pose (:func:`board_pose_from_points`): the caller then falls back on the kinematics and flags
     the samples ``NO_BOARD``.
     """
@@ -193,7 +199,18 @@ def detect_board_pose(gray: np.ndarray, calib: CameraCalibration, spec: CharucoS
     obj, img = board.matchImagePoints(ch_corners, ch_ids)
     if obj is None or len(obj) < MIN_CORNERS:
         return None
-    return board_pose_from_points(obj, img, calib, spec, ids=np.asarray(ch_ids).reshape(-1))
+    ids = np.asarray(ch_ids).reshape(-1)
+    bp = board_pose_from_points(obj, img, calib, spec, ids=ids)
+    if bp is None or not covers:
+        return bp
+    from gonio.pipeline.covers import covered_corners
+
+    obj = np.asarray(obj, dtype=np.float64).reshape(-1, 3)
+    img = np.asarray(img, dtype=np.float64).reshape(-1, 2)
+    keep = ~covered_corners(obj, bp.rvec, bp.tvec, calib, spec, covers, img=img)
+    if keep.all():
+        return bp
+    return board_pose_from_points(obj[keep], img[keep], calib, spec, ids=ids[keep])
 
 
 #: The corner refinement's window half-size in projected squares, and its bounds in pixels. Measured on 200

@@ -76,10 +76,12 @@ def observe_pose(camera, calibration, layout, joints, *, highlight: bool, tile=N
     (default: the layout's sample patch); ``tile_f0``, ``emitter_radius_m``: the tile's reflectance and the
     light's emitting disc (:data:`TILE_F0`, :data:`EMITTER_RADIUS_M`), recorded with the highlight."""
     from gonio.pipeline.highlight import clear_of_edges, find_highlight
+    from gonio.pipeline.covers import cover_points
     from gonio.pipeline.markers import detect_board_pose, to_gray8
 
     f = metered_board_frame(camera, board_exposure, gain, min_exposure)
-    bp = detect_board_pose(to_gray8(f.pixels, bit_depth or f.bit_depth, f.black_level), calibration, layout.charuco)
+    bp = detect_board_pose(to_gray8(f.pixels, bit_depth or f.bit_depth, f.black_level), calibration, layout.charuco,
+                           covers=cover_points(layout))
     if bp is None:
         return None, None, "ChArUco board not found"
     cam = board_observation(bp, joints)
