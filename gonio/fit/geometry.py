@@ -22,6 +22,13 @@ axes of ``Σ_g`` of JCGM 101:2008 §5 / JCGM 102:2011 §6.2.1, ``Σ_g = Σ_k δg
 
 The within-pose part of the same error is also in ``sigma_pose`` (taken there as independent between poses):
 counted twice, its share is about 1/G of this term — conservative, never smaller.
+
+The sample frame itself is shared by every pose too: it is the board's, as the corner detector sees it, and the
+board may be turned against the sample's surface (:data:`gonio.rig.geocal.BOARD_ROTATION_SIGMA_DEG` about each
+axis). Turned by ``D``, a sample the host records at ``(wi, wo)`` with value ``f`` really is at ``(D wi, D wo)`` in
+the surface's frame, with the value ``f · cos θi / cos θi'`` (the tile's irradiance, ``cos θi = wi_z``, relative to
+a white reference on the board, which turns with it). Each turn (:attr:`CalibrationModes.frame_turns`, one
+standard uncertainty) is one more mode, propagated the same way.
 """
 
 from __future__ import annotations
@@ -48,6 +55,35 @@ class CalibrationModes:
     white: np.ndarray | None = None
     names: tuple = ()
     source: str = "the rig file's calibration covariance"
+    #: (R, 3) rotation vectors (rad), each one standard uncertainty of a turn of the sample frame shared by every
+    #: pose (module docstring); None: none
+    frame_turns: np.ndarray | None = None
+
+    @property
+    def n_modes(self) -> int:
+        """The light's principal axes and the frame's turns."""
+        return int(self.offsets.shape[0]) + (0 if self.frame_turns is None else len(self.frame_turns))
+
+    def mode(self, wi: np.ndarray, wo: np.ndarray, pose: np.ndarray, k: int, scale: float = 1.0):
+        """``(wi', wo', ln f'/f)`` along mode ``k``: the light's axis ``k`` (:meth:`perturbed`, ``wo`` unchanged)
+        or, past them, the frame turned by ``scale`` times turn ``k − K`` (module docstring); ``None`` when no
+        sample belongs to a pose of the modes."""
+        K = int(self.offsets.shape[0])
+        if k < K:
+            got = self.perturbed(wi, pose, k, scale)
+            return None if got is None else (got[0], wo, got[1])
+        known = np.isin(pose, self.pose)
+        if not known.any():
+            return None
+        rv = scale * np.asarray(self.frame_turns[k - K], dtype=np.float64)
+        from scipy.spatial.transform import Rotation
+
+        D = Rotation.from_rotvec(rv).as_matrix()  # Rodrigues' formula
+        wi2, wo2 = wi @ D.T, wo @ D.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lnf = np.log(wi[:, 2]) - np.log(wi2[:, 2])
+        ok = known & np.isfinite(lnf) & (wi2[:, 2] > 0) & (wo2[:, 2] > 0)
+        return np.where(ok[:, None], wi2, wi), np.where(ok[:, None], wo2, wo), np.where(ok, lnf, 0.0)
 
     def perturbed(self, wi: np.ndarray, pose: np.ndarray, k: int, scale: float = 1.0):
         """``(wi', ln f'/f)`` of samples ``wi`` (N, 3) of poses ``pose`` (N,) with the light moved ``scale`` σ along
@@ -89,34 +125,36 @@ def calibration_covariance(prob, p: np.ndarray, idx: np.ndarray, J: np.ndarray |
     Jacobian in ``idx`` (N·C, len(idx)) when already computed."""
     d = prob.d
     modes = getattr(d, "geometry", None)
-    if modes is None or d.pose is None or len(idx) == 0 or modes.offsets.shape[0] == 0:
+    if modes is None or d.pose is None or len(idx) == 0 or modes.n_modes == 0:
         return None
     from gonio.fit.correlated import _jacobian
 
     colour, shape = prob.L.unpack(p)
     sigma = d.sigma
 
-    def residual(wi, y):
-        return np.asarray(prob.loss.residual(prob.L.eval(colour, shape, wi, d.wo), y, wi[:, 2].copy(), sigma),
+    def residual(wi, wo, y):
+        return np.asarray(prob.loss.residual(prob.L.eval(colour, shape, wi, wo), y, wi[:, 2].copy(), sigma),
                           dtype=np.float64).ravel()
 
     if J is None:
         J = _jacobian(prob, p, idx).reshape(-1, len(idx))
     Ainv = np.linalg.pinv(J.T @ J)
     dtheta = []
-    for k in range(modes.offsets.shape[0]):
+    for k in range(modes.n_modes):
         rs = []
         for scale in (1.0, -1.0):
-            got = modes.perturbed(d.wi, d.pose, k, scale)
+            got = modes.mode(d.wi, d.wo, d.pose, k, scale)
             if got is None:
                 return None
-            wi2, lnf = got
-            rs.append(residual(wi2, d.y * np.exp(lnf)[:, None]))
+            wi2, wo2, lnf = got
+            rs.append(residual(wi2, wo2, d.y * np.exp(lnf)[:, None]))
         dr = 0.5 * (rs[0] - rs[1])
         dtheta.append(-Ainv @ (J.T @ np.where(np.isfinite(dr), dr, 0.0)))
     D = np.array(dtheta)
     cov = D.T @ D
+    turns = 0 if modes.frame_turns is None else len(modes.frame_turns)
     note = (f"uncertainties include the geometric calibration's error shared by all {len(modes.pose)} poses "
-            f"({modes.source}, {modes.offsets.shape[0]} principal axes propagated through the fit, GUM JCGM 100 "
-            f"§5.2; gonio.fit.geometry)")
+            f"({modes.source}, {modes.offsets.shape[0]} principal axes"
+            + (f" and {turns} turns of the board's frame against the sample" if turns else "")
+            + " propagated through the fit, GUM JCGM 100 §5.2; gonio.fit.geometry)")
     return cov, note

@@ -6,7 +6,9 @@ the joints it measured at. :func:`session_modes` turns them into :class:`gonio.f
 the light's position at each pose ``S_G`` (what the host computed the pose's samples with) and its offsets
 ``δS_kG = (∂S/∂g)(joints_G) · √λ_k v_k`` along the principal axes of ``Σ_g`` (first order, GUM JCGM 100:2008 §5.2;
 principal perturbations, JCGM 102:2011 §6.2.1; ``∂S/∂g`` by central differences of the kinematic chain,
-:func:`gonio.rig.geocov.light_jacobian`).
+:func:`gonio.rig.geocov.light_jacobian`), and the turns of the sample frame the board defines, one
+:data:`gonio.rig.geocal.BOARD_ROTATION_SIGMA_DEG` about each axis (shared by every pose; the calibration states
+that uncertainty of the board's orientation against the sample surface).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ def session_modes(manifest: dict, pose_meta: dict, where: str = "session"):
     from gonio.errors import ConfigError, DataError
     from gonio.fit.geometry import CalibrationModes
     from gonio.pipeline.target import TargetLayout
+    from gonio.rig.geocal import BOARD_ROTATION_SIGMA_DEG
     from gonio.rig.geocov import light_jacobian
     from gonio.rig.kinematics import load_rig
 
@@ -58,5 +61,7 @@ def session_modes(manifest: dict, pose_meta: dict, where: str = "session"):
     offsets = np.einsum("gip,pk->kgi", J, L)
     w = layout.white  # a session's values are relative to its white reference (gonio.pipeline.reflectance)
     white = np.array([(w.x0 + w.x1) / 2, (w.y0 + w.y1) / 2, 0.0])
+    turns = np.radians(BOARD_ROTATION_SIGMA_DEG) * np.eye(3)  # the board's frame against the sample, per axis
     return CalibrationModes(np.array(poses), light, offsets, white, tuple(cov.names),
-                            f"the calibration covariance of {len(cov.names)} chain parameters in the session's rig file")
+                            f"the calibration covariance of {len(cov.names)} chain parameters in the session's rig "
+                            f"file, the board's orientation {BOARD_ROTATION_SIGMA_DEG:g}° per axis", frame_turns=turns)

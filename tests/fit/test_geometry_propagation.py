@@ -117,3 +117,34 @@ def test_select_propagates_it_into_the_winner_not_into_each_fold(monkeypatch):
     sel = select(_session(np.zeros_like(dS)), ("microfacet",), criterion="cv", folds=3, geometry=_modes(dS), n_starts=1)
     assert any("geometric calibration's error" in n for n in sel.winner.notes)
     assert 1 <= sum(propagated) <= 2  # the candidate's fit (and a refit of the winner), never the 3 folds
+
+
+def _turned_session(angle_deg):
+    """The samples of :func:`_session` (no light error) when the sample's surface really is turned by ``angle_deg``
+    about y against the board's frame the host uses: the true directions ``D wi``, ``D wo``, the host's value
+    ``f(D wi, D wo) · cos θi' / cos θi`` (its irradiance assumed the board's normal)."""
+    from scipy.spatial.transform import Rotation
+
+    base = _session(np.zeros((9, 3)))
+    D = Rotation.from_rotvec([0.0, np.radians(angle_deg), 0.0]).as_matrix()
+    wi_t, wo_t = base.wi @ D.T, base.wo @ D.T
+    f = make("microfacet", **MAT).eval(wi_t, wo_t) * (wi_t[:, 2] / base.wi[:, 2])[:, None]
+    return SampleSet(base.wi, base.wo, f, 0.002 * f + 1e-4, pose=base.pose, sigma_pose=np.zeros_like(f))
+
+
+def test_a_turn_of_the_board_frame_is_propagated_like_the_light():
+    """The frame's turn (CalibrationModes.frame_turns: the board's orientation against the sample, shared by every
+    pose) adds the σ a refit of data made with the surface turned ±0.3° about y moves α by, within 10 %."""
+    S, _ = _poses()
+    modes = CalibrationModes(np.arange(len(S)), S, np.zeros((0, len(S), 3)), np.array([-0.085, 0.0, 0.0]),
+                             frame_turns=np.array([[0.0, np.radians(0.3), 0.0]]))
+    kw = dict(report=False, n_starts=1)
+    nominal = _session(np.zeros((9, 3)))
+    plain = fit(nominal, "microfacet", **kw)
+    with_turn = fit(nominal, "microfacet", geometry=modes, **kw)
+    up, down = fit(_turned_session(0.3), "microfacet", **kw), fit(_turned_session(-0.3), "microfacet", **kw)
+    assert any("1 turns of the board's frame" in n for n in with_turn.notes)
+    u_turn = np.sqrt(with_turn.uncertainty["alpha"] ** 2 - plain.uncertainty["alpha"] ** 2)
+    shift = abs(up.params["alpha"] - down.params["alpha"]) / 2
+    assert shift > 3 * plain.uncertainty["alpha"]
+    assert 0.9 < u_turn / shift < 1.1

@@ -46,6 +46,11 @@ def test_the_offsets_are_the_light_moved_one_sigma_along_each_axis():
     assert np.allclose(size[0], SIGMA_ARC_MM * 1e-3, rtol=0.05)  # the arc offset moves the light by itself
     assert np.allclose(size[1], rig.light_radius * math.radians(SIGMA_EL_DEG), rtol=0.05)
     assert np.allclose(m.white, [-0.085, 0.0, 0.0])
+    # and the board's frame turned one stated σ about each axis, the same at every pose
+    from gonio.rig.geocal import BOARD_ROTATION_SIGMA_DEG
+
+    assert np.allclose(m.frame_turns, math.radians(BOARD_ROTATION_SIGMA_DEG) * np.eye(3))
+    assert m.n_modes == 2 + 3
 
 
 def test_no_modes_without_a_covariance_or_on_a_tilted_mount():
