@@ -14,7 +14,8 @@ Res. 4(3); within ``ln n`` of the fewest seconds), evaluated lazily: a candidate
 is an upper bound (Minoux 1978, "Accelerated greedy algorithms for maximizing submodular set functions"). The poses
 taken are then ordered for lab time as any plan is (:func:`gonio.plan.ordering.optimize_order`); the ordered tour
 moves less than the greedy counted (each move from the pose taken before), and the lab time it frees goes back to
-the greedy (:data:`REFILLS`), so the plan fills its budget.
+the greedy (:data:`REFILLS`), so the plan fills its budget: the session's lab time as
+:func:`gonio.plan.estimate_plan` counts it (start-up darks and dark checks included) stays within the budget.
 """
 
 from __future__ import annotations
@@ -49,14 +50,15 @@ def greedy_sphere_plan(rig, calib, sphere: Sphere, *, theta_o: float = math.radi
                        reach_step: float = math.radians(5.0)):
     """``(plan, info)``: the greedy plan of the module docstring and what it expects (``reachable`` and ``filled``
     cell counts, ``candidates_reach``: the cells all candidates together fill, ``lab_s`` estimated for the poses
-    taken in the plan's order — captures, settles and the moves of the ordered tour —, ``candidates``, ``trace``:
+    taken in the plan's order as :func:`gonio.plan.estimate_plan` counts a session (start-up darks, captures,
+    settles, the moves of the ordered tour, dark checks), ``candidates``, ``trace``:
     (poses, 2) lab seconds and cells filled after each pose taken, in the greedy's order, each move counted from the
     pose taken before — the coverage against lab time curve, an upper bound of the lab time). The lab time the
     ordered tour saves goes back to the greedy (:data:`REFILLS`). It stops at ``coverage`` of the reachable cells, at the ``budget``, or when no
     candidate adds a cell. ``sweep``: the candidates and their cells, :func:`sweep_cells`'s result with the same
     arguments (a caller planning twice computes them once). ``reach_step``: the light sweep's step that finds the
     reachable θd range (:func:`gonio.session.sphere_coverage.theta_d_reach`)."""
-    from gonio.plan.labtime import pose_capture_time
+    from gonio.plan.labtime import pose_capture_time, session_lab_time
     from gonio.plan.ordering import MotionModel, optimize_order
     from gonio.plan.plan import CaptureSettings
 
@@ -79,29 +81,33 @@ def greedy_sphere_plan(rig, calib, sphere: Sphere, *, theta_o: float = math.radi
     if n_cand == 0:
         raise ConfigError.field(None, "plan sphere", f"{len(cand)} candidates",
                                 f"no light position shows the sphere and {MIN_WHITE_PIXELS} white-reference pixels")
-    model = MotionModel.from_rig(rig)
+    model = MotionModel.as_run(rig)  # the servos' profiles as written, as the lab-time estimate moves them
     per_pose = float(capture.settle) + pose_capture_time(capture)
     joints = np.asarray(cand.joints, dtype=np.float64)
     gain = np.array([len(c) for c in cells], dtype=np.float64)  # upper bounds of the new cells (lazy)
     st = _Greedy(np.zeros(N_CELLS, dtype=bool), [], 0.0, 0, [], None, np.ones(len(cells), dtype=bool), gain)
-    limit, best = budget, None
-    for _ in range(REFILLS + 1):
+    overhead = session_lab_time(np.zeros(1), capture).total - per_pose  # the session's start-up darks, warm-up
+    limit, best, rounds, retries = budget - overhead, None, 0, 0
+    while rounds <= REFILLS and retries < 8:
         trial = st.copy()
         trial.run(cells, joints, model, per_pose, need, limit)
         if not trial.taken or len(trial.taken) == len(st.taken):
             break
         taken = np.asarray(trial.taken)
         perm = optimize_order(joints[taken], model, seed=seed, initial=np.arange(len(taken)))
-        tour = per_pose * len(taken) + float(model.move_time(joints[taken][perm[:-1]], joints[taken][perm[1:]]).sum())
-        if tour > budget + 1e-9:  # the poses added last do not fit the ordered tour: give back half as much
-            limit -= (limit - st.spent) / 2 if best is not None else limit / 2
+        q = joints[taken][perm]
+        tour = session_lab_time(np.concatenate([[0.0], model.move_time(q[:-1], q[1:])]), capture).total
+        if tour > budget + 1e-9:  # the poses added last do not fit the session: retry with less
+            limit = max(limit - 1.1 * (tour - budget) - per_pose, st.spent)
+            retries += 1
             continue
-        st, best = trial, (perm, tour)
+        st, best, rounds = trial, (perm, tour), rounds + 1
         if st.n_cov >= need or tour > budget - per_pose:
             break
         limit += budget - tour  # the greedy counted each move from the pose taken before; the tour moves less
     if best is None:
-        raise ConfigError.field(None, "--fill-budget", budget, f"less than one pose's lab time ({per_pose:.2f} s)")
+        raise ConfigError.field(None, "--fill-budget", budget, f"less than the session's start-up and one pose "
+                                f"({overhead + per_pose:.1f} lab s)")
     perm, tour = best
     taken = st.taken
     plan = cand.reordered(np.array(taken + [k for k in range(len(cand)) if k not in set(taken)]), "raster")

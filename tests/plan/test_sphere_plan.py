@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from gonio.cli.main import main
+from gonio.errors import ConfigError
 from gonio.plan.generators import make_plan
 from gonio.rig.kinematics import load_rig
 from gonio.sphere import Sphere
@@ -83,15 +84,23 @@ def test_the_greedy_plan_fills_what_it_is_asked_in_fewer_poses_than_its_candidat
     tr = more["trace"]  # the coverage against lab time, pose by pose: both grow, and end at what it says
     assert tr.shape == (len(every), 2) and np.all(np.diff(tr, axis=0) > 0)
     assert tr[-1, 1] == more["filled"] and more["lab_s"] <= tr[-1, 0] + 1e-9  # the ordered tour moves less
-    first, _ = greedy_sphere_plan(rig, calib, sph, coverage=0.8, budget=1.0, **kw)
-    assert len(first) == 1  # a budget below two poses' lab time: the single best pose
+    from gonio.plan.labtime import session_lab_time
+    from gonio.plan.plan import CaptureSettings
+
+    one = session_lab_time(np.zeros(1), CaptureSettings()).total  # the session's start-up and one pose
+    first, f1 = greedy_sphere_plan(rig, calib, sph, coverage=0.8, budget=one + 0.2, **kw)
+    assert len(first) == 1 and f1["lab_s"] == pytest.approx(one)  # below two poses: the single best one
     # a budget the greedy's own count of moves would exhaust: the ordered tour's savings go back to it, and the
     # plan, ordered, still fits the budget
     some, s = greedy_sphere_plan(rig, calib, sph, coverage=0.9, budget=60.0, **kw)
     monkeypatch.setattr(sphere_plan, "REFILLS", 0)
     fewer, f = greedy_sphere_plan(rig, calib, sph, coverage=0.9, budget=60.0, **kw)
-    assert s["trace"][-1, 0] > 60.0 >= s["lab_s"] > f["lab_s"] and len(some) == len(s["trace"]) > len(fewer)
-    assert s["filled"] > f["filled"]
+    assert 60.0 >= s["lab_s"] > f["lab_s"] and len(some) == len(s["trace"]) > len(fewer) and s["filled"] > f["filled"]
+    from gonio.plan import estimate_plan
+
+    assert estimate_plan(some, rig).optimized == pytest.approx(s["lab_s"])  # the session's lab time, as estimated
+    with pytest.raises(ConfigError, match="start-up and one pose"):
+        greedy_sphere_plan(rig, calib, sph, coverage=0.8, budget=one - 0.1, **kw)
 
 
 def test_reachable_cells_are_the_limit_of_finer_sweeps_not_a_sweep_s_sample(rig):
