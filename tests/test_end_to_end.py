@@ -1,8 +1,11 @@
 """A user's whole workflow through the `gonio` command, on one simulated session:
 measure -> status -> export (csv, npz, merl) -> plot -> fit.
 
-Each step runs as a separate process, as a user runs it, and is checked against the session store
-(and, for the MERL table, against the known simulated material).
+Each step is checked against the session store (and, for the MERL table, against the known simulated
+material). The measurement and the refused commands run as separate processes, as a user runs them (the
+exit codes, stdout and stderr as a shell sees them); the other steps run ``gonio``'s ``main`` in this process
+(the same code after the interpreter's start-up, which costs more CPU than most of these steps: ~1-2 s each
+for the imports of numpy, scipy, numba and matplotlib).
 """
 
 from __future__ import annotations
@@ -23,10 +26,26 @@ PLAN = ["--plan", "in_plane", "--theta-i-step", "20", "--theta-o-step", "15", "-
 
 
 def gonio(*args: str, ok: bool = True) -> subprocess.CompletedProcess:
+    """``gonio ARGS`` in a new process."""
     out = subprocess.run([sys.executable, "-m", "gonio.cli.main", *args], capture_output=True, text=True, timeout=300)
     if ok:
         assert out.returncode == 0, f"gonio {' '.join(args)} failed:\n{out.stderr}"
     return out
+
+
+@pytest.fixture
+def run(capsys):
+    """``run(*ARGS)``: ``gonio ARGS`` in this process (:func:`gonio.cli.main.main`), which must exit 0; its stdout."""
+    from gonio.cli.main import main
+
+    def run(*args: str) -> str:
+        capsys.readouterr()
+        code = main(list(args))
+        out, err = capsys.readouterr()
+        assert code == 0, f"gonio {' '.join(args)} failed ({code}):\n{err}"
+        return out
+
+    return run
 
 
 @pytest.fixture(scope="module")
@@ -37,16 +56,16 @@ def session(tmp_path_factory):
     return d
 
 
-def test_status_reports_a_completed_session(session):
+def test_status_reports_a_completed_session(session, run):
     manifest, samples = load_session(session)
-    out = gonio("status", str(session)).stdout
+    out = run("status", str(session))
     assert "completed" in out and f"{len(manifest['plan']['poses'])}" in out
     assert len(samples) > 0
 
 
-def test_csv_export_has_the_documented_columns_and_every_sample(session, tmp_path):
+def test_csv_export_has_the_documented_columns_and_every_sample(session, tmp_path, run):
     path = tmp_path / "s.csv"
-    gonio("export", str(session), "--format", "csv", "-o", str(path))
+    run("export", str(session), "--format", "csv", "-o", str(path))
     with open(path, newline="") as fh:
         rows = list(csv.reader(fh))
     head = rows[0]
@@ -58,9 +77,9 @@ def test_csv_export_has_the_documented_columns_and_every_sample(session, tmp_pat
     np.testing.assert_array_equal(np.sort(f.ravel()), np.sort(samples.f.ravel()))
 
 
-def test_npz_export_is_self_describing_without_pickle(session, tmp_path):
+def test_npz_export_is_self_describing_without_pickle(session, tmp_path, run):
     path = tmp_path / "s.npz"
-    gonio("export", str(session), "--format", "npz", "-o", str(path))
+    run("export", str(session), "--format", "npz", "-o", str(path))
     with np.load(path, allow_pickle=False) as z:
         meta = json.loads(str(z["metadata"][()] if z["metadata"].ndim == 0 else z["metadata"][0]))
         keys = set(z.files)
@@ -69,9 +88,9 @@ def test_npz_export_is_self_describing_without_pickle(session, tmp_path):
     assert "1/sr" in text and "cos" in text and "microfacet" in text
 
 
-def test_merl_export_matches_the_simulated_material_where_measured(session, tmp_path):
+def test_merl_export_matches_the_simulated_material_where_measured(session, tmp_path, run):
     path = tmp_path / "s.binary"
-    gonio("export", str(session), "--format", "merl", "-o", str(path))
+    run("export", str(session), "--format", "merl", "-o", str(path))
     assert path.stat().st_size == FILE_SIZE
     table = read_merl(path)
     manifest, samples = load_session(session)
@@ -86,21 +105,21 @@ def test_merl_export_matches_the_simulated_material_where_measured(session, tmp_
 
 
 @pytest.mark.parametrize("kind", ["polar", "inplane", "coverage"])
-def test_plots_render(session, tmp_path, kind):
+def test_plots_render(session, tmp_path, kind, run):
     png = tmp_path / f"{kind}.png"
-    gonio("plot", str(session), "--kind", kind, "-o", str(png))
+    run("plot", str(session), "--kind", kind, "-o", str(png))
     data = png.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
 
 
-def test_fit_writes_json_and_residual_plot_uses_it(session, tmp_path):
+def test_fit_writes_json_and_residual_plot_uses_it(session, tmp_path, run):
     fit_json = tmp_path / "fit.json"
-    gonio("fit", str(session), "--model", "microfacet", "--json", str(fit_json))
+    run("fit", str(session), "--model", "microfacet", "--json", str(fit_json))
     result = json.loads(fit_json.read_text())
     assert result["model"] == "microfacet" and {"params", "uncertainty", "loss", "error"} <= set(result)
     assert 0.0 < result["params"]["alpha"] < 1.0
     png = tmp_path / "residual.png"
-    gonio("plot", str(session), "--kind", "residual", "--model", str(fit_json), "-o", str(png))
+    run("plot", str(session), "--kind", "residual", "--model", str(fit_json), "-o", str(png))
     assert png.read_bytes()[:4] == b"\x89PNG"
 
 
