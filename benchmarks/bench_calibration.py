@@ -27,7 +27,7 @@ import math
 import numpy as np
 from scipy.optimize import least_squares
 
-from benchmarks.common import Table
+from benchmarks.common import Size, Table, size
 
 ALPHA = 0.05
 
@@ -175,6 +175,14 @@ def run(quick: bool = False, jobs: int | None = None, seeds: int | None = None, 
     joints, code = rig.solve_many(ti, pi_, to, po)
     options = {"joints": joints[code == 0], "lobe": lobe_poses(rig), "plan": calibration_plan(rig),
                "rplan": calibration_plan(rig, quick=quick), "rendered": set(range(n_rendered))}
+    smoke = size(quick) is Size.SMOKE
+    if smoke:
+        # the smoke size (`gonio bench --smoke`, the test suite): the same code on fewer poses: the quick plan for the
+        # geometric observations too, and the rendered highlights at every other light azimuth of the quick plan
+        # (3 of 6, 120° apart: the pose set still passes check_pose_set); its numbers mean little
+        hi = options["rplan"]["highlight"]
+        options["plan"] = options["rplan"]
+        options["rplan"] = {**options["rplan"], "highlight": hi[np.isin(hi[:, 0], np.unique(hi[:, 0])[::2])]}
     # lab time: the session runner's cost model of the calibration session (moves, settle and approach, frames)
     lab = calibration_lab_time(calibration_session_plan(rig), rig) / 60
     rlab = calibration_lab_time(calibration_session_plan(rig, quick=quick), rig) / 60
@@ -201,7 +209,7 @@ def run(quick: bool = False, jobs: int | None = None, seeds: int | None = None, 
               ("charuco", "before: declared wi, wo from ChArUco", None),
               ("after", f"after: calibrated from geometric observations ({n_seeds} seeds, no frames)", lab),
               ("rendered", f"after: calibrated from rendered + detected frames ({n_rendered} seeds"
-                           + (", quick plan)" if quick else ")"), rlab))
+                           + (", smoke plan)" if smoke else ", quick plan)" if quick else ")"), rlab))
     for key, label, minutes in labels:
         acc = [r[key] for r in rows if key in r]
         ei, eo = np.concatenate([a[0] for a in acc]), np.concatenate([a[1] for a in acc])
@@ -227,7 +235,7 @@ def run(quick: bool = False, jobs: int | None = None, seeds: int | None = None, 
     t.notes.append(f"calibration plan: {len(options['plan']['camera'])} ChArUco poses + "
                    f"{len(options['plan']['highlight'])} mirror-highlight poses, lab time {lab:.1f} min (the runner's "
                    f"cost model: moves, settle and alternating approach, frames; goal <= 10 min)"
-                   + (f"; the rendered sessions use the quick plan ({len(options['rplan']['camera'])} + "
+                   + (f"; the rendered sessions use the {'smoke' if smoke else 'quick'} plan ({len(options['rplan']['camera'])} + "
                       f"{len(options['rplan']['highlight'])} poses, {rlab:.1f} min)" if quick else ""))
     t.notes.append(f"rendered + detected (sim.as_built.render_observations -> gonio.session.geocal_observe.observe_pose): "
                    f"every pose rendered on the as-built rig (320x240, ChArUco board with an 80 mm glossy black tile "
