@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from gonio.brdf.abc import ABCMicrofacet, ABCSmooth
+from gonio.brdf.abc_conductor import ABCSmoothConductor
 from gonio.brdf.ashikhmin_shirley import AshikhminShirley
 from gonio.brdf.base import BRDF, Param
 from gonio.brdf.blinn_phong import BlinnPhong
@@ -31,6 +32,7 @@ MODELS: dict[str, type[BRDF]] = {
     for cls in (Lambert, Phong, BlinnPhong, CookTorrance, Microfacet, Ward, Lafortune, OrenNayar, AshikhminShirley)
 }
 MODELS.update({cls.name: cls for cls in (ABCMicrofacet, ABCSmooth, GTR)})  # models for real measurements (issue 14)
+MODELS[ABCSmoothConductor.name] = ABCSmoothConductor  # a metal's Fresnel with its own scale (issue 29)
 MODELS.update({c.name: c for c in (Dupuy2015, Dupuy2015Conductor)})  # data-driven microfacet (Dupuy et al. 2015)
 MODELS.update({name: lobe_sum(name) for name in PRESETS})
 

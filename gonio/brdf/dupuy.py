@@ -46,8 +46,9 @@ N_NDF = 90
 N_FRESNEL = 10
 #: Nodes of the quadrature over θm (uniform in √(θm/(π/2)), as D's nodes).
 _QUAD = 1024
-#: Range of the complex index of the conductor variant (:class:`Dupuy2015Conductor`): real part, extinction.
-ETA_MIN, ETA_MAX, K_MAX = 0.02, 10.0, 12.0
+#: Range of the complex index of the conductor variant (:class:`Dupuy2015Conductor`): real part, extinction — what
+#: Gulbrandsen's (F(0), edge tint) reach with F(0) in [0.5, 0.99] (:func:`gonio.brdf.fresnel.gulbrandsen_index`).
+ETA_MIN, ETA_MAX, K_MAX = 0.005, 400.0, 200.0
 #: Nodes θk (uniform in [0, π/2]) at which G1 is tabulated and interpolated.
 G1_NODES = 256
 

@@ -13,7 +13,8 @@ import numpy as np
 from gonio._jit import jitable, select
 
 __all__ = ["schlick", "schlick_m", "schlick_weight", "schlick_blend", "one_minus_cos_d", "one_minus_cos_d_xyz",
-           "schlick_rational_power", "f0_from_eta", "dielectric", "dielectric_core", "dielectric_parts", "conductor"]
+           "schlick_rational_power", "f0_from_eta", "dielectric", "dielectric_core", "dielectric_parts", "conductor", "conductor_core",
+           "gulbrandsen_index", "METAL_F0_MIN", "F0_MAX"]
 
 
 def _prep(cos_theta, *consts):
@@ -164,9 +165,17 @@ def conductor(cos_theta, eta, k) -> np.ndarray:
     F = (R_s + R_p) / 2.
 
     (Cook & Torrance 1982 appendix; the form of Mitsuba 3 ``fresnel_conductor`` and of
-    S. Lagarde, "Memo on Fresnel equations", 2013.) η = 0, k = 1 gives F = 1.
+    S. Lagarde, "Memo on Fresnel equations", 2013.) η = 0, k = 1 gives F = 1. The formula is
+    :func:`conductor_core`.
     """
     c, (eta, k) = _prep(cos_theta, eta, k)
+    return conductor_core(c, eta, k)
+
+
+@jitable
+def conductor_core(c, eta, k):
+    """:func:`conductor` for ``c`` = cos θ already in [0, 1] (arrays broadcasting against ``eta`` and ``k``, or
+    scalars): the same formula (Cook & Torrance 1982 appendix), clamped to [0, 1]."""
     c2 = c * c
     s2 = 1.0 - c2
     t = eta * eta - k * k - s2
@@ -178,4 +187,29 @@ def conductor(cos_theta, eta, k) -> np.ndarray:
     t3 = ab * c2 + s2 * s2
     t4 = t2 * s2
     rp = rs * (t3 - t4) / np.maximum(t3 + t4, 1e-30)
-    return np.clip(0.5 * (rs + rp), 0.0, 1.0)
+    return np.minimum(np.maximum(0.5 * (rs + rp), 0.0), 1.0)
+
+
+#: Lowest normal-incidence reflectance of the model's conductor: a metal's at every visible wavelength is above it
+#: (Palik 1985: silver, aluminium, chrome, nickel, iron, copper alloys in red and green), a dielectric's below 0.1.
+METAL_F0_MIN = 0.5
+#: Highest normal-incidence reflectance a fitted conductor takes: F(0) = 1 is a perfect conductor, whose index
+#: :func:`gulbrandsen_index` does not reach (η → 0 or ∞); at 0.99, η ∈ [0.005, 400] and k ≤ 200.
+F0_MAX = 0.99
+
+
+def gulbrandsen_index(r, g):
+    """The complex index η + i k of a conductor with normal-incidence reflectance ``r`` and edge tint ``g`` (O.
+    Gulbrandsen, "Artist Friendly Metallic Fresnel", JCGT 3(4), 2014, eqs. 3–4):
+
+    η = g (1 − r)/(1 + r) + (1 − g)(1 + √r)/(1 − √r),   k = √((r (η + 1)² − (η − 1)²)/(1 − r)).
+
+    Every (r, g) in [0, 1) × [0, 1] is a valid index with F(0) = r exactly (:func:`conductor`); g = 0 is the
+    dielectric of that F(0) (k = 0, its F dips before grazing), g = 1 the lowest η (F rises soonest towards 1): a fit
+    searched over r ≥ :data:`METAL_F0_MIN` is searched over metals only. Arrays or scalars. ``(eta, k)``."""
+    r = np.asarray(r, dtype=np.float64)
+    g = np.asarray(g, dtype=np.float64)
+    sr = np.sqrt(r)
+    eta = g * (1.0 - r) / (1.0 + r) + (1.0 - g) * (1.0 + sr) / (1.0 - sr)
+    k = np.sqrt(np.maximum(r * (eta + 1.0) ** 2 - (eta - 1.0) ** 2, 0.0) / (1.0 - r))
+    return eta, k

@@ -29,13 +29,15 @@ def register(sub) -> None:
                         "0: the criterion alone)")
     p.add_argument("--metal", action="store_true",
                    help="--select: the sample is a metal (a conductor), which the data alone cannot tell from a dark "
-                        "dielectric: among candidates whose held-out error is within one standard error of the best, "
-                        "one with a metal's Fresnel (normal-incidence reflectance >= 0.5, or a complex index) is "
-                        "preferred; large tables also get dupuy2015-conductor")
+                        "dielectric: the choice is made among the candidates with a metal's Fresnel (normal-incidence "
+                        "reflectance >= 0.5) while one remains, and the notes say how much better the best other "
+                        "predicts; large tables also get abc-smooth-conductor and dupuy2015-conductor (a conductor's "
+                        "complex-index Fresnel with the lobe's own scale)")
     p.add_argument("--loss", default="auto", help="auto, cosine, chi2, log, cbrt (auto: chi2 with uncertainties)")
     p.add_argument("--image-weight", type=float, default=None, metavar="W",
-                   help="--model dupuy2015 only: weight of the squared relative image error (rendered spheres) beside "
-                        "the loss's in what is minimized (default 10; 0: the loss alone)")
+                   help="dupuy2015 fits: weight of the squared relative image error (rendered spheres) beside "
+                        "the loss's in what is minimized (default 10; 0: the loss alone, and --select on a large table "
+                        "then scores held-out samples by the loss alone too)")
     p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                    help="hold a parameter fixed (repeatable), e.g. distribution=beckmann or f0=0.9,0.6,0.5")
     p.add_argument("--max-theta", type=float, default=80.0, help="grazing cutoff for θi, θo in degrees (default 80)")

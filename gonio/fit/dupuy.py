@@ -258,17 +258,9 @@ def _with_image(d: FitData, w: np.ndarray, image: float) -> tuple[np.ndarray, in
     wd = w / max(float(np.sum(w * y * y)), 1e-300)
     if not image > 0:
         return wd, 0
-    from gonio.fit.metrics import IMAGE_MAX_GAP, _hd_coords, data_tree, sphere_geometry, IMAGE_ANGLES_DEG
+    from gonio.fit.metrics import sphere_cover
 
-    tree = data_tree(d)
-    cmin = float(min(d.cos_i.min(), d.cos_o.min()))
-    cover = np.zeros(len(d))
-    for angle in IMAGE_ANGLES_DEG:
-        wi, wo, _ = sphere_geometry(angle)
-        ok = (wi[:, 2] >= cmin) & (wo[:, 2] >= cmin)
-        dist, idx = tree.query(_hd_coords(wi[ok], wo[ok]), distance_upper_bound=IMAGE_MAX_GAP)
-        hit = np.isfinite(dist)
-        cover += np.bincount(idx[hit], wi[ok][hit, 2] ** 2, len(d))
+    cover = sphere_cover(d)
     if not cover.any():
         return wd, 0
     wp = cover[:, None] * np.ones((1, 3))

@@ -3,8 +3,9 @@ D tabulated as in Dupuy et al. 2015, the Fresnel factor ks · F(θd; η + ik) of
 
 1. The table fit of :mod:`gonio.fit.dupuy` (power iteration, alternating linear least squares, the image term).
 2. Rounds of: per channel, (kd, ks, η, k) minimizing the same weighted squares with D and G fixed — kd and
-   ks in closed form for each (η, k) (variable projection, Golub & Pereyra 1973), (η, k) by a scan (η
-   log-spaced × k) and a bounded polish (L-BFGS-B), on per-θd-bin sums (:class:`_Channel`); then D by the
+   ks in closed form for each (η, k) (variable projection, Golub & Pereyra 1973), (η, k) over metals only
+   (F(0) ≥ 0.5: a scan of Gulbrandsen 2014's (F(0), edge tint), :func:`gonio.brdf.fresnel.gulbrandsen_index`, and a
+   bounded polish, L-BFGS-B, in those two), on per-θd-bin sums (:class:`_Channel`); then D by the
    linear step of :mod:`gonio.fit.dupuy` with this Fresnel, normalized, and G1 recomputed from it. The round
    with the lowest objective is kept.
 
@@ -21,7 +22,7 @@ import numpy as np
 
 from gonio.brdf.dupuy import (ETA_MAX, ETA_MIN, K_MAX, N_FRESNEL, N_NDF, Dupuy2015Conductor, ndf_nodes,
                               normalization)
-from gonio.brdf.fresnel import conductor
+from gonio.brdf.fresnel import F0_MAX, METAL_F0_MIN, conductor, gulbrandsen_index
 from gonio.errors import DataError
 from gonio.fit.data import FitData
 from gonio.fit.dupuy import (IMAGE_WEIGHT, ITERATIONS, _inverse, _ndf_step, _weights, table_fit,
@@ -33,9 +34,10 @@ __all__ = ["fit_dupuy_conductor", "ROUNDS"]
 
 #: Rounds of step 2.
 ROUNDS = 2
-#: The scan of step 2: η log-spaced over its range, k uniform.
-_ETAS = np.geomspace(ETA_MIN, ETA_MAX, 32)
-_KS = np.linspace(0.0, K_MAX, 33)
+#: The scan of step 2, over metals only: F(0) from :data:`~gonio.brdf.fresnel.METAL_F0_MIN` to
+#: :data:`~gonio.brdf.fresnel.F0_MAX` × Gulbrandsen's edge tint over [0, 1] (:func:`gonio.brdf.fresnel.gulbrandsen_index`).
+_F0S = np.linspace(METAL_F0_MIN, F0_MAX, 32)
+_EDGES = np.linspace(0.0, 1.0, 33)
 
 
 #: θd bins of the sufficient statistics of step 3 (F is taken constant within a bin of 0.35°).
@@ -89,20 +91,37 @@ class _Channel:
 
 
 def _channel(ch: _Channel, x0) -> np.ndarray:
-    """(kd, ks, η, k) of one channel: a scan of η (log-spaced) × k, then a bounded polish (L-BFGS-B in
-    (ln η, k)) of the profiled objective :meth:`_Channel.solve`."""
+    """(kd, ks, η, k) of one channel, over metals only (F(0) ≥ :data:`~gonio.brdf.fresnel.METAL_F0_MIN`, issue 29): a
+    scan of Gulbrandsen's (F(0), edge tint) (:func:`gonio.brdf.fresnel.gulbrandsen_index`), then a bounded polish
+    (L-BFGS-B) of the profiled objective :meth:`_Channel.solve` in the same two numbers; ``x0`` (a previous round's
+    index, kept when it is a metal's) joins the scan."""
     from scipy.optimize import minimize
 
-    e_grid, k_grid = (a.ravel() for a in np.meshgrid(_ETAS, _KS, indexing="ij"))
+    r_grid, g_grid = (a.ravel() for a in np.meshgrid(_F0S, _EDGES, indexing="ij"))
+    e_grid, k_grid = gulbrandsen_index(r_grid, g_grid)
     if x0 is not None:
-        e_grid, k_grid = np.append(e_grid, x0[2]), np.append(k_grid, x0[3])
+        r0 = float(conductor(np.ones(1), x0[2], x0[3])[0])
+        if METAL_F0_MIN <= r0 <= F0_MAX:
+            e_grid, k_grid = np.append(e_grid, x0[2]), np.append(k_grid, x0[3])
+            r_grid, g_grid = np.append(r_grid, r0), np.append(g_grid, _edge_of(r0, x0[2]))
     j = int(np.argmin(ch.solve_many(e_grid, k_grid)[0]))
-    e0, k0 = float(e_grid[j]), float(k_grid[j])
-    res = minimize(lambda u: ch.solve(float(np.clip(np.exp(u[0]), ETA_MIN, ETA_MAX)), float(u[1]))[0], [np.log(e0), k0], method="L-BFGS-B",
-                   bounds=[(np.log(ETA_MIN), np.log(ETA_MAX)), (0.0, K_MAX)])
-    eta, k = float(np.clip(np.exp(res.x[0]), ETA_MIN, ETA_MAX)), float(np.clip(res.x[1], 0.0, K_MAX))
-    _, kd, ks = ch.solve(eta, k)
-    return np.array([kd, ks, eta, k])
+
+    def objective(u):
+        eta, k = gulbrandsen_index(float(np.clip(u[0], METAL_F0_MIN, F0_MAX)), float(np.clip(u[1], 0.0, 1.0)))
+        return ch.solve(float(eta), float(k))[0]
+
+    res = minimize(objective, [r_grid[j], g_grid[j]], method="L-BFGS-B", bounds=[(METAL_F0_MIN, F0_MAX), (0.0, 1.0)])
+    eta, k = gulbrandsen_index(float(np.clip(res.x[0], METAL_F0_MIN, F0_MAX)), float(np.clip(res.x[1], 0.0, 1.0)))
+    _, kd, ks = ch.solve(float(eta), float(k))
+    return np.array([kd, ks, float(eta), float(k)])
+
+
+def _edge_of(r: float, eta: float) -> float:
+    """Gulbrandsen's edge tint g of the index whose F(0) is ``r`` and real part ``eta`` (the first of his eqs. 3–4
+    solved for g), clipped to [0, 1]."""
+    sr = np.sqrt(r)
+    n_min, n_max = (1.0 - r) / (1.0 + r), (1.0 + sr) / (1.0 - sr)
+    return float(np.clip((n_max - eta) / max(n_max - n_min, 1e-300), 0.0, 1.0))
 
 
 def _jacobian(cos_d, spec, w, x) -> np.ndarray:
@@ -161,18 +180,23 @@ def fit_dupuy_conductor(d: FitData, loss: Loss, *, n_ndf: int = N_NDF, image: fl
     ndf_se = np.concatenate([ndf_se[:1], ndf_se]) / normalization(model.ndf)
     ndf_se[nempty] = np.nan
     at_bound: dict = {}
-    lo, hi = (0.0, 0.0, ETA_MIN, 0.0), (1.0, 1.0, ETA_MAX, K_MAX)
-    for i, name in enumerate(names):
+    for i, name in enumerate(names[:2]):  # kd, ks in [0, 1]
         v = np.asarray(model.params[name], dtype=np.float64)
         for c, ch in enumerate("rgb"):
-            span = hi[i] - lo[i]
-            if v[c] - lo[i] <= 1e-6 * span or hi[i] - v[c] <= 1e-6 * span:
-                at_bound.setdefault(name, {})[ch] = f"lower {lo[i]:g}" if v[c] - lo[i] <= 1e-6 * span else f"upper {hi[i]:g}"
+            if v[c] <= 1e-6 or 1.0 - v[c] <= 1e-6:
+                at_bound.setdefault(name, {})[ch] = "lower 0" if v[c] <= 1e-6 else "upper 1"
                 se[i, c] = np.nan
+    # the index is searched in Gulbrandsen's (F(0), edge tint): its bounds are those of the two (η and k lose their σ)
+    f0 = conductor(np.ones(1), np.asarray(model.eta), np.asarray(model.k))[0]
+    edge = np.array([_edge_of(float(f0[c]), float(model.eta[c])) for c in range(3)])
+    for name, v, lo, hi in (("f0", f0, METAL_F0_MIN, F0_MAX), ("edge", edge, 0.0, 1.0)):
+        for c, ch in enumerate("rgb"):
+            if v[c] - lo <= 1e-6 * (hi - lo) or hi - v[c] <= 1e-6 * (hi - lo):
+                at_bound.setdefault(name, {})[ch] = f"lower {lo:g}" if v[c] - lo <= 1e-6 * (hi - lo) else f"upper {hi:g}"
+                se[2:, c] = np.nan
     if (np.asarray(model.ndf) <= 0).any():
         at_bound["ndf"] = {"value": "lower 0 at some theta_h nodes"}
         ndf_se[np.asarray(model.ndf) <= 0] = np.nan
-    f0 = conductor(np.ones(1), np.asarray(model.eta), np.asarray(model.k))[0]
     notes = [f"Dupuy et al. 2015's tabulated D with a conductor's Fresnel (complex index per channel): "
              f"normal-incidence reflectance {'/'.join(f'{v:.3g}' for v in f0)} times ks; round {it_best + 1} of "
              f"{rounds} kept" + (f"; the objective includes {image:g} x the image error" if n_pix else "")]

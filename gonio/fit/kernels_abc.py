@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from gonio.brdf.abc import abc_fresnel, abc_s_core, abc_smooth_x
+from gonio.brdf.abc_conductor import abc_conductor_fresnel, gulbrandsen_index
 
 
 def _projected_x(data) -> np.ndarray:
@@ -17,28 +18,37 @@ def _projected_x(data) -> np.ndarray:
     return cache["abc_x"]
 
 
-def _fresnel(data, eta: float) -> np.ndarray:
-    """Exact dielectric Fresnel reflectance at θd (:func:`gonio.brdf.abc.abc_fresnel`), kept for the last η."""
+def _fresnel(data, eta: float, k: float | None = None) -> np.ndarray:
+    """Fresnel reflectance at θd, kept for the last index: the exact dielectric one of η
+    (:func:`gonio.brdf.abc.abc_fresnel`), or with ``k`` the conductor's of η + i k
+    (:func:`gonio.brdf.abc_conductor.abc_conductor_fresnel`)."""
     cache = data.__dict__.setdefault("_kernel_cache", {})
+    key = (eta, k)
     hit = cache.get("abc_fresnel")
-    if hit is None or hit[0] != eta:
-        hit = cache["abc_fresnel"] = (eta, abc_fresnel(data.pair, eta))
+    if hit is None or hit[0] != key:
+        f = abc_fresnel(data.pair, eta) if k is None else abc_conductor_fresnel(data.pair, eta, k)
+        hit = cache["abc_fresnel"] = (key, f)
     return hit[1]
 
 
 def abc_smooth(data, layout, shape):
     """Löw et al. 2012's smooth-surface ABC model (:class:`gonio.brdf.abc.ABCSmooth`): bases kd → 1/π,
     A → S(‖wi⊥ + wo⊥‖²; B, C) · F(θd; η) with S(x) = 1/(1 + B x)^C (their §4, eq. 7): the factors of the
-    model's lobe :func:`gonio.brdf.abc.abc_smooth_spec`, F kept for the last η."""
+    model's lobe :func:`gonio.brdf.abc.abc_smooth_spec`, F kept for the last η. With ``f0`` and ``edge``
+    (:class:`gonio.brdf.abc_conductor.ABCSmoothConductor`) F is the conductor's of their index η + i k."""
     p = {**layout.fixed, **shape}
-    s = abc_s_core(_projected_x(data), float(p["B"]), float(p["C"])) * _fresnel(data, float(p["eta"]))
+    if "edge" in p:  # the conductor's index from (f0, edge) (gonio.brdf.abc_conductor.gulbrandsen_index)
+        eta, k = (float(v) for v in gulbrandsen_index(float(p["f0"]), float(p["edge"])))
+    else:
+        eta, k = float(p["eta"]), None
+    s = abc_s_core(_projected_x(data), float(p["B"]), float(p["C"])) * _fresnel(data, eta, k)
     basis = {"kd": np.full(len(data), 1.0 / np.pi), "A": s}
     offset = None
-    for k in ("kd", "A"):
-        if k in layout.fixed and np.any(np.asarray(layout.fixed[k]) != 0):
-            b = basis[k][:, None]
-            offset = (0.0 if offset is None else offset) + np.asarray(layout.fixed[k]) * b
-    return offset, [basis[k] for k in layout.colour]
+    for name in ("kd", "A"):
+        if name in layout.fixed and np.any(np.asarray(layout.fixed[name]) != 0):
+            b = basis[name][:, None]
+            offset = (0.0 if offset is None else offset) + np.asarray(layout.fixed[name]) * b
+    return offset, [basis[name] for name in layout.colour]
 
 
 def abc_smooth_albedo(B: float, C: float) -> float:
@@ -65,4 +75,4 @@ def _abc_smooth_hi(layout, shape) -> np.ndarray | None:
 abc_smooth.supports = lambda L: set(L.colour) <= {"kd", "A"}
 abc_smooth.colour_hi = _abc_smooth_hi
 abc_smooth.colour_hi_reason = "the lobe's albedo 1"
-KERNELS_ABC = {"abc-smooth": abc_smooth}
+KERNELS_ABC = {"abc-smooth": abc_smooth, "abc-smooth-conductor": abc_smooth}

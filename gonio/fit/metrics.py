@@ -139,6 +139,24 @@ def sphere_sample_index(data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_P
     return np.unique(np.concatenate(out)) if out else np.zeros(0, dtype=np.intp)
 
 
+def sphere_cover(data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS) -> np.ndarray:
+    """Per sample (N,), the sum of cos²θi over the pixels of :func:`image_error`'s spheres whose nearest measured
+    sample (within :data:`IMAGE_MAX_GAP`) it is: Σ cover · (f_model − f)² over the samples approximates the squared
+    numerator of the image error with each pixel compared at its sample's own geometry (0 for a sample no pixel
+    shows)."""
+    tree = data_tree(data)
+    cmin = float(min(data.cos_i.min(), data.cos_o.min()))
+    cover = np.zeros(len(data))
+    for angle in angles_deg:
+        wi, wo, _ = sphere_geometry(angle, pixels)
+        ok = (wi[:, 2] >= cmin) & (wo[:, 2] >= cmin)
+        if ok.any():
+            dist, idx = tree.query(_hd_coords(wi[ok], wo[ok]), distance_upper_bound=IMAGE_MAX_GAP)
+            hit = np.isfinite(dist)
+            cover += np.bincount(idx[hit], wi[ok][hit, 2] ** 2, len(data))
+    return cover
+
+
 def sphere_pixels(model, data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS, _tree=None):
     """``(L_model, L_data)`` (P, 3) of the sphere pixels of :func:`image_error` that have a measured sample
     within :data:`IMAGE_MAX_GAP` (:func:`sphere_targets`), L = f cos θi; ``None`` when there is none."""

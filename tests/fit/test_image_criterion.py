@@ -54,3 +54,21 @@ def test_image_criterion_on_data_too_sparse_to_render_is_refused_in_one_line():
     with pytest.raises(ConfigError, match="too sparse") as exc:
         select((wi, wo, y), ("lambert",), criterion="image")
     assert "\n" not in str(exc.value)
+
+
+def test_a_large_table_s_held_out_score_adds_what_the_rendered_spheres_show(dense):
+    # issue 29: the data-driven fits minimize loss + image, and were scored on the loss alone
+    from gonio.fit.fit import fit, resolve_loss
+    from gonio.fit.select import HeldOut
+
+    d, _ = dense
+    loss = resolve_loss("auto", d)
+    flat = fit(d, "lambert", report=False)  # misses the highlight the spheres show
+    plain, both = HeldOut(d, loss, 0.0), HeldOut(d, loss, 4.0)
+    assert both.cover.any() and both.image == 4.0
+    s0, se0, share0 = plain(flat)
+    s4, se4, share4 = both(flat)
+    res = loss.residual(flat.build().eval(d.wi, d.wo), d.y, d.cos_i, d.sigma)
+    res0 = loss.residual(np.zeros_like(d.y), d.y, d.cos_i, d.sigma)
+    assert s0 == pytest.approx(np.mean(res ** 2) / np.mean(res0 ** 2), rel=1e-9) and share0 == 0.0
+    assert 0.0 < share4 < 1.0 and s4 == pytest.approx(s0 / (1.0 - share4), rel=1e-9) and se4 > se0 > 0
