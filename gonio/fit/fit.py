@@ -540,6 +540,10 @@ def fit(data, model: str | type, *, loss: str = "auto", fixed: dict | None = Non
 def _finish(r: FitResult, d: FitData, report: bool, t0: float) -> FitResult:
     """The last steps of every :func:`fit`: the bounds reached said in a note, the report added on request, the
     time taken recorded."""
+    from gonio.fit.kernels_abc import FIT_NOTES
+
+    if r.model_name in FIT_NOTES:  # what the fitted parameters mean physically (a conductor's index, its scale)
+        r.notes.append(FIT_NOTES[r.model_name](r.params))
     if r.at_bound:
         r.notes.append("at or near a bound of its range: " + "; ".join(
             f"{k} ({', '.join(f'{c} {w}' for c, w in v.items())})" for k, v in r.at_bound.items()))

@@ -76,3 +76,20 @@ abc_smooth.supports = lambda L: set(L.colour) <= {"kd", "A"}
 abc_smooth.colour_hi = _abc_smooth_hi
 abc_smooth.colour_hi_reason = "the lobe's albedo 1"
 KERNELS_ABC = {"abc-smooth": abc_smooth, "abc-smooth-conductor": abc_smooth}
+
+
+def conductor_note(params: dict) -> str:
+    """What a fitted :class:`gonio.brdf.abc_conductor.ABCSmoothConductor` means physically (its module docstring): the
+    conductor's index and F(0), and the specular scale A·albedo(B, C) — the fraction of the light the lobe would
+    reflect from a perfect mirror of the same roughness, below 1 by what the surface loses beyond the conductor's
+    Fresnel (or the table's absolute calibration)."""
+    eta, k = (float(v) for v in gulbrandsen_index(float(params["f0"]), float(params["edge"])))
+    scale = np.asarray(params["A"], dtype=np.float64) * abc_smooth_albedo(float(params["B"]), float(params["C"]))
+    return (f"a conductor's Fresnel: index {eta:.3g} + {k:.3g}i (Gulbrandsen 2014 from F(0) {float(params['f0']):.3g}, "
+            f"edge tint {float(params['edge']):.3g}); specular scale A x the lobe's albedo "
+            f"{'/'.join(f'{v:.3g}' for v in scale)} (1: every bit of light a mirror of this roughness would reflect; "
+            f"the lobe reflects that times F)")
+
+
+#: A note every fit of these models carries (:func:`gonio.fit.fit.fit`), by model name.
+FIT_NOTES = {"abc-smooth-conductor": conductor_note}

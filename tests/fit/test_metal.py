@@ -138,3 +138,14 @@ def test_the_conductor_data_driven_model_searches_metals_only(dim_metal):
     f0 = conductor(np.ones(1), np.asarray(r.params["eta"]), np.asarray(r.params["k"]))[0]
     assert np.all(f0 >= 0.5 - 1e-9), f0  # was a dielectric's 0.07 (eta 1.7, k 0) on a MERL metal
     assert "f0" in r.at_bound  # the data would go lower: said, not hidden
+
+
+def test_abc_smooth_conductor_recovers_a_conductor_and_says_what_its_scale_means():
+    from .conftest import synth
+
+    truth = {"kd": 0.003, "A": [300.0, 250.0, 200.0], "B": 3e3, "C": 1.5, "f0": 0.6, "edge": 0.3}
+    r = fit(synth("abc-smooth-conductor", truth, n=600, noise=0.0), "abc-smooth-conductor", report=False, n_starts=1)
+    assert r.params["f0"] == pytest.approx(0.6, rel=1e-3) and r.params["edge"] == pytest.approx(0.3, rel=1e-2)
+    assert r.params["B"] == pytest.approx(3e3, rel=1e-3)
+    scale = np.asarray(r.params["A"]) * abc_smooth_albedo(r.params["B"], r.params["C"])
+    assert any("a conductor's Fresnel: index" in n and f"{scale[0]:.3g}" in n for n in r.notes), r.notes
