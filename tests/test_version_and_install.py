@@ -33,7 +33,8 @@ def test_version_names_the_evaluation_path_that_runs():
     assert compiled.available()  # installed with gonio (test above): the default is the compiled path
     from importlib.metadata import version
 
-    assert _version().startswith("gonio ") and f"BRDF evaluation: compiled (numba {version('numba')})" in _version()
+    out = _version()
+    assert out.startswith("gonio ") and f"BRDF evaluation: compiled (numba {version('numba')})" in out
     assert "BRDF evaluation: NumPy (GONIO_BRDF_BACKEND=numpy)" in _version(GONIO_BRDF_BACKEND="numpy")
 
 

@@ -142,11 +142,16 @@ def _check_resumed(d: Path, ref_manifest, ref_samples, planned_before: int, same
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):
+    """The uninterrupted session, measured by gonio's main in this process (the same session as `gonio measure`
+    in a new process: the simulator is seeded; the interrupted runs are the ones that need a process of their own)."""
+    import contextlib
+    import io
+
     d = tmp_path_factory.mktemp("adaptive") / "ref"
-    proc = _gonio(*ARGS, "--out", str(d))
-    out, err = proc.communicate(timeout=120)
-    assert proc.returncode == 0, err.decode()
-    assert b"adaptive: 3 rounds, stopped (rounds)" in out
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main([*ARGS, "--out", str(d)]) == 0
+    assert "adaptive: 3 rounds, stopped (rounds)" in out.getvalue()
     manifest, samples = load_session(d)
     assert len(manifest["plan"]["poses"]) == N_POSES
     return manifest, samples
@@ -185,13 +190,13 @@ def test_ctrl_c_finishes_the_pose_then_resume_continues_adapting(tmp_path, refer
     _check_resumed(d, *reference, planned_before=len(manifest["adaptive"]["rounds"]), same_poses=False)
 
 
-def test_cli_rejects_adaptive_options_elsewhere_and_plan_says_what_it_cannot_estimate(tmp_path):
+def test_cli_rejects_adaptive_options_elsewhere_and_plan_says_what_it_cannot_estimate(tmp_path, capsys):
     p = _gonio("measure", "--sim", "--plan", "in_plane", "--batch", "4", "--out", str(tmp_path / "x"))
     out, err = p.communicate(timeout=60)
     assert p.returncode == 2 and b"--batch" in err and b"only for plan adaptive" in err
     assert not (tmp_path / "x").exists()
-    p = _gonio("plan", "adaptive", "--lab-budget", "600", "--coarse", "10")
-    out, err = p.communicate(timeout=60)
-    assert p.returncode == 0, err.decode()
-    assert b"coarse first round: 10 poses" in out
-    assert b"cannot be estimated ahead of time" in out and b"600 s" in out
+    capsys.readouterr()
+    assert main(["plan", "adaptive", "--lab-budget", "600", "--coarse", "10"]) == 0
+    out = capsys.readouterr().out
+    assert "coarse first round: 10 poses" in out
+    assert "cannot be estimated ahead of time" in out and "600 s" in out
