@@ -45,16 +45,58 @@ def _floor(model, x: np.ndarray) -> np.ndarray:
     return trapezoid_time(x[..., None] * model.vmax, model.vmax, model.amax).min(axis=-1)
 
 
+#: Point sets up to this size are searched exhaustively (:class:`_Exhaustive`) instead of with a k-d tree: the
+#: plans a session orders are mostly this small (the default in-plane plan has 56 poses), and importing
+#: scipy.spatial alone costs ~0.4 CPU s, more than exhaustive queries of every pose of such a plan.
+EXHAUSTIVE_MAX = 256
+
+
+class _Exhaustive:
+    """The queries of :class:`scipy.spatial.cKDTree` that this module makes (Chebyshev distance, ``p=inf``,
+    periodic ``boxsize``), answered by comparing with every point: the ``k`` nearest points (distance, index),
+    nearest first (ties by index), the missing ones (beyond ``distance_upper_bound`` or past the point count)
+    as ``inf`` and index ``n``, shaped as cKDTree shapes them. ``indices`` is the points' order, as the tree's
+    leaf order (any order gives the same lists, :func:`_query`)."""
+
+    def __init__(self, data: np.ndarray, boxsize=None):
+        self.data = np.asarray(data, dtype=np.float64)
+        self.n = self.data.shape[0]
+        self.box = None if boxsize is None else np.asarray(boxsize, dtype=np.float64)
+        self.indices = np.arange(self.n)
+
+    def query(self, x, k: int = 1, p: float = np.inf, distance_upper_bound: float = np.inf):
+        assert p == np.inf, "only the Chebyshev distance is needed here"
+        x = np.asarray(x, dtype=np.float64)
+        q = x.reshape(-1, self.data.shape[1])
+        diff = np.abs(q[:, None, :] - self.data[None, :, :])
+        if self.box is not None:
+            diff = np.minimum(diff, self.box - diff)
+        d = diff.max(axis=-1) if self.n else np.zeros((q.shape[0], 0))
+        order = np.argsort(d, axis=1, kind="stable")[:, :k]
+        dist = np.take_along_axis(d, order, 1)
+        far = dist > distance_upper_bound
+        dist[far], order[far] = np.inf, self.n
+        if order.shape[1] < k:  # fewer points than k: cKDTree pads with inf and index n
+            pad = k - order.shape[1]
+            dist = np.concatenate([dist, np.full((q.shape[0], pad), np.inf)], axis=1)
+            order = np.concatenate([order, np.full((q.shape[0], pad), self.n)], axis=1)
+        shape = x.shape[:-1] + ((k,) if k > 1 else ())
+        return dist.reshape(shape), order.reshape(shape)
+
+
 def _tree(x: np.ndarray, model, ref: np.ndarray):
     """k-d tree over ``x`` in speed-scaled coordinates (periodic on wrap joints; non-wrap axes offset
-    and boxed by the extent of ``ref``, a superset of every point queried, so they never wrap)."""
-    from scipy.spatial import cKDTree
-
+    and boxed by the extent of ``ref``, a superset of every point queried, so they never wrap); up to
+    :data:`EXHAUSTIVE_MAX` points an exhaustive search with the same answers (:class:`_Exhaustive`)."""
     s = _scaled_like(x, ref, model)
     box = None
     if model.wrap.any():
         r = _scaled_like(ref, ref, model)
         box = np.where(model.wrap, _TWO_PI / model.vmax, np.ptp(r, axis=0) * 4.0 + 1.0)
+    if s.shape[0] <= EXHAUSTIVE_MAX:
+        return _Exhaustive(s, boxsize=box)
+    from scipy.spatial import cKDTree
+
     return cKDTree(s, boxsize=box)
 
 

@@ -142,3 +142,51 @@ def test_estimate_reuses_the_lists_ordering_built(rig_model, kind, monkeypatch):
     moved = ordered.copy()
     moved[0, 0] += 1e-9
     assert nb.recall(moved, model) is None and nb.recall(q, model) is None
+
+
+def test_the_exhaustive_search_of_small_sets_answers_as_the_k_d_tree():
+    """Up to nb.EXHAUSTIVE_MAX points (a session's plan, mostly) the queries are answered without scipy.spatial: the
+    same distances, the same shapes, the same points nearer than the last one returned (ties at the last place may
+    take either point), inf and index n for the missing ones; with and without a periodic box, ties included."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(0)
+    box = np.array([6.0, 6.0, 50.0, 50.0])
+    for trial in range(60):
+        n = int(rng.integers(1, 40))
+        data = rng.uniform(0, 1, (n, 4)) * box
+        if trial % 3 == 0:
+            data = np.round(data) % box  # many equal distances
+        q = rng.uniform(0, 1, (5, 4)) * box
+        k = int(rng.integers(1, n + 3))
+        bound = np.inf if trial % 2 else float(rng.uniform(0, 10))
+        for bx in (box, None):
+            d1, i1 = cKDTree(data, boxsize=bx).query(q, k=k, p=np.inf, distance_upper_bound=bound)
+            d2, i2 = nb._Exhaustive(data, boxsize=bx).query(q, k=k, p=np.inf, distance_upper_bound=bound)
+            assert d1.shape == d2.shape == i2.shape and np.array_equal(d1, d2)
+            assert np.array_equal(i1 == n, i2 == n)
+            for r1, r2, dr in zip(i1.reshape(5, -1), i2.reshape(5, -1), d1.reshape(5, -1)):
+                last = dr[np.isfinite(dr)].max(initial=-1.0)
+                assert set(r1[dr < last]) == set(r2[dr < last])
+        d1, _ = cKDTree(data, boxsize=box).query(q[0], k=k, p=np.inf)
+        d2, _ = nb._Exhaustive(data, boxsize=box).query(q[0], k=k, p=np.inf)
+        assert np.shape(d1) == np.shape(d2) and np.array_equal(d1, d2)
+
+
+def test_a_small_plan_is_ordered_without_scipy_spatial_and_as_with_the_tree(rig_model, monkeypatch):
+    plan = make_plan("in_plane", seed=0)
+    assert len(plan) <= nb.EXHAUSTIVE_MAX
+    monkeypatch.setattr(nb, "EXHAUSTIVE_MAX", 0)  # the k-d tree for every set
+    tree = make_plan("in_plane", seed=0)
+    assert np.array_equal(plan.poses, tree.poses)
+    assert mst_move_time(plan.joints, rig_model) == mst_move_time(tree.joints, rig_model)
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import sys; from gonio.plan import make_plan; make_plan('in_plane', seed=0); "
+            "print(any(m.startswith('scipy.spatial') for m in sys.modules))")
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout
+    assert out == "False\n"
