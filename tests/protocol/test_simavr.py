@@ -7,6 +7,7 @@ import math
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -119,14 +120,30 @@ def test_soft_start_photodiode_and_latching_estop(avr):
         assert ctl.status().light_on
 
 
-def test_short_simulated_session_runs_against_the_avr_binary(built, tmp_path):
+#: `gonio measure --sim --sim-controller simavr` of six poses (the AVR build as the rig controller)
+AVR_SESSION = ["measure", "--sim", "--sim-controller", "simavr", "--plan", "grid", "--theta-step", "45", "--phi-step",
+               "180", "--theta-max", "45", "--sim-resolution", "320x240", "--seed", "5", "--quiet"]
+
+
+def _measure_with_simavr(out: Path, *python_options: str) -> subprocess.CompletedProcess:
+    r = subprocess.run([sys.executable, *python_options, "-m", "gonio.cli.main", *AVR_SESSION, "--out", str(out)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return r
+
+
+@pytest.fixture(scope="module")
+def avr_session(built, tmp_path_factory):
+    """The six-pose session measured against the AVR binary by a `gonio` process that turns every ResourceWarning
+    (an unclosed port, pipe or process) into an error: ``(directory, CompletedProcess)``."""
+    out = tmp_path_factory.mktemp("avr") / "s"
+    return out, _measure_with_simavr(out, "-W", "error::ResourceWarning")
+
+
+def test_short_simulated_session_runs_against_the_avr_binary(avr_session):
     import json
 
-    out = tmp_path / "s"
-    r = subprocess.run([sys.executable, "-W", "error::ResourceWarning", "-m", "gonio.cli.main", "measure", "--sim",
-                        "--sim-controller", "simavr", "--plan", "grid", "--theta-step", "45", "--phi-step", "180",
-                        "--theta-max", "45", "--out", str(out), "--quiet"], capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
+    out, r = avr_session
     assert "6/6 poses" in r.stdout and "warning" not in r.stderr
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["sim"]["controller"] == "simavr"
@@ -276,23 +293,19 @@ def test_the_photodiode_in_simavr_has_seeded_noise_and_the_lamp_warm_up(built):
     assert other[0].mean != first.mean or other[0].sem != first.sem
 
 
-def test_simavr_sessions_are_reproducible_per_seed(built, tmp_path):
-    """Two `gonio measure --sim --sim-controller simavr` runs with one seed store the same samples, bit for bit:
-    the AVR runs in lockstep with the simulated clock (no real-time pacing), its photodiode noise is reseeded
-    per pose."""
+def test_simavr_sessions_are_reproducible_per_seed(avr_session, tmp_path):
+    """Two `gonio measure --sim --sim-controller simavr` runs with one seed (two processes: the session of the
+    test above and one more) store the same samples, bit for bit: the AVR runs in lockstep with the simulated clock
+    (no real-time pacing), its photodiode noise is reseeded per pose."""
     from gonio.session.store import scan_samples
 
-    def run(out):
-        r = subprocess.run([sys.executable, "-m", "gonio.cli.main", "measure", "--sim", "--sim-controller", "simavr",
-                            "--plan", "grid", "--theta-step", "45", "--phi-step", "180", "--theta-max", "45",
-                            "--sim-resolution", "320x240", "--seed", "5", "--out", str(out), "--quiet"],
-                           capture_output=True, text=True, timeout=300)
-        assert r.returncode == 0, r.stderr
+    def stored(out):
         scan = scan_samples(out / "samples.jsonl")
         meta = {k: {f: v for f, v in m.items() if f not in ("timing",)} for k, (_s, m) in scan.records.items()}
         return scan.samples().to_dict(), meta  # wall-clock timings differ between runs, by nature
 
-    (a, meta_a), (b, meta_b) = run(tmp_path / "a"), run(tmp_path / "b")
+    _measure_with_simavr(tmp_path / "b")
+    (a, meta_a), (b, meta_b) = stored(avr_session[0]), stored(tmp_path / "b")
     assert len(meta_a) == 6 and meta_a == meta_b  # photodiode readings and their timestamps included
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)  # wo, wi, values: bit for bit
     assert np.ptp(a["wo"][:, 2]) > 0.1  # not trivially equal: six poses of different directions
