@@ -223,12 +223,15 @@ class Layout(_SearchMap):
         ``lobe1.ks`` stays within its range whatever the solver."""
         hi = np.array(self.colour_hi, dtype=np.float64)
         if self.links:
-            bounds = self.cls.bounds()
+            steps = self.__dict__.get("_link_steps")
+            if steps is None:  # (colour index of the source, shape index of the ratio, the linked colour's upper bound)
+                bounds = self.cls.bounds()
+                steps = self._link_steps = [(self.colour.index(src), self.shape.index(r), float(bounds[dst][1]))
+                                            for dst, src, r in self.links]
             shape = np.asarray(shape, dtype=np.float64)
-            for dst, src, r in self.links:
-                w = max(float(shape[self.shape.index(r)]), 1e-300)
-                k = self.colour.index(src)
-                hi[k] = min(hi[k], float(bounds[dst][1]) / w)
+            for k, j, top in steps:
+                w = max(float(shape[j]), 1e-300)
+                hi[k] = min(hi[k], top / w)
         return hi
 
     def link_values(self, shape) -> dict[str, float]:

@@ -71,11 +71,10 @@ def bounded_lsq_batch(G: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarr
     problem keeps its feasible candidate of least ½ aᵀGa − bᵀa (the first in active-set order on a tie).
     """
     K = b.shape[-1]
-    free, fixval = _active_sets(tuple(np.isfinite(lo)), tuple(np.isfinite(hi)), lo, hi)  # (C, K) each
+    free, fixval, ok_free, eye = _active_sets(lo, hi, K)  # (C, K) each, cached per bounds
     stack = b.shape[:-1]
     Gs = np.asarray(G, dtype=np.float64).reshape((-1, K, K))
     bs = np.asarray(b, dtype=np.float64).reshape((-1, K))
-    eye = np.eye(K)
     A = np.where(free[:, None, :, None], Gs[None], eye)  # (C, P, K, K): free rows of G, unit rows for bound ones
     rhs = np.where(free[:, None, :], bs[None], fixval[:, None, :])  # (C, P, K)
     try:
@@ -83,24 +82,28 @@ def bounded_lsq_batch(G: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarr
     except np.linalg.LinAlgError:  # a singular free block somewhere: the minimum-norm solution of each free block
         x = _solve_free_blocks(Gs, bs, free, fixval)
     with np.errstate(invalid="ignore"):
-        ok = np.all(~free[:, None, :] | ((x >= lo - 1e-12) & (x <= hi + 1e-12)), axis=-1)  # (C, P)
+        ok = np.all(ok_free[:, None, :] | ((x >= lo - 1e-12) & (x <= hi + 1e-12)), axis=-1)  # (C, P)
         val = 0.5 * np.einsum("cpi,pij,cpj->cp", x, Gs, x) - np.einsum("pi,cpi->cp", bs, x)
     val = np.where(ok & ~np.isnan(val), val, np.inf)
     j = np.argmin(val, axis=0)  # the first of the least (the enumeration order of bounded_lsq)
-    best = x[j, np.arange(x.shape[1])]
-    best[~np.isfinite(val[j, np.arange(x.shape[1])])] = 0.0
-    return np.clip(best.reshape(stack + (K,)), lo, hi)
+    p = np.arange(x.shape[1])
+    best = x[j, p]
+    best[~np.isfinite(val[j, p])] = 0.0
+    return np.minimum(np.maximum(best.reshape(stack + (K,)), lo), hi)  # np.clip's answer, less overhead
 
 
-_ACTIVE_SETS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+_ACTIVE_SETS: dict[tuple, tuple[np.ndarray, ...]] = {}
 
 
-def _active_sets(lo_finite: tuple, hi_finite: tuple, lo: np.ndarray, hi: np.ndarray):
+def _active_sets(lo: np.ndarray, hi: np.ndarray, K: int):
     """Every active set of :func:`bounded_lsq_batch` in :func:`bounded_lsq`'s order (itertools.product of
-    free / lower / upper per variable): ``free`` (C, K) bool and the bound values ``fixval`` (C, K) (0 where free)."""
-    key = (lo_finite, hi_finite, tuple(np.where(lo_finite, lo, 0.0).tolist()), tuple(np.where(hi_finite, hi, 0.0).tolist()))
+    free / lower / upper per variable): ``free`` (C, K) bool, the bound values ``fixval`` (C, K) (0 where free),
+    ``~free`` as a (C, K) mask and the K x K identity; cached per bounds (a fit calls this thousands of times with
+    the same few bounds, and building them cost more than the solves)."""
+    key = (K, np.asarray(lo, dtype=np.float64).tobytes(), np.asarray(hi, dtype=np.float64).tobytes())
     hit = _ACTIVE_SETS.get(key)
     if hit is None:
+        lo_finite, hi_finite = tuple(np.isfinite(lo)), tuple(np.isfinite(hi))
         options = [["free"] + (["lo"] if lf else []) + (["hi"] if hf else []) for lf, hf in zip(lo_finite, hi_finite)]
         combos = list(itertools.product(*options))
         free = np.array([[c == "free" for c in combo] for combo in combos], dtype=bool).reshape(len(combos), len(options))
@@ -108,7 +111,7 @@ def _active_sets(lo_finite: tuple, hi_finite: tuple, lo: np.ndarray, hi: np.ndar
                            for combo in combos], dtype=np.float64).reshape(len(combos), len(options))
         if len(_ACTIVE_SETS) > 64:
             _ACTIVE_SETS.clear()
-        _ACTIVE_SETS[key] = hit = (free, fixval)
+        _ACTIVE_SETS[key] = hit = (free, fixval, ~free, np.eye(K))
     return hit
 
 
@@ -182,10 +185,30 @@ class Projection:
         extra = hook(shape) if hook is not None else None
         return self.hi if extra is None else np.minimum(self.hi, extra)
 
+    #: Points remembered by :meth:`__call__` (the last ones evaluated).
+    MEMO = 32
+
     def __call__(self, shape) -> tuple[float, np.ndarray]:
+        """``(cost, colour (K, 3))`` at ``shape``. A point asked for again (a line search or a quasi-Newton step
+        returning to a point, the second cycle of a coordinate scan, the search's final evaluation at its best
+        point: about one request in six of a fit) is answered from the last :data:`MEMO` points: the same
+        numbers, without the evaluation."""
         self.n_evals += 1
+        key = np.asarray(shape, dtype=np.float64).tobytes()
+        memo = self.__dict__.setdefault("_memo", {})
+        hit = memo.get(key)
+        if hit is not None:
+            return hit[0], hit[1].copy()
+        cost, colour = self._evaluate(shape)
+        if len(memo) >= self.MEMO:
+            del memo[next(iter(memo))]  # the oldest
+        memo[key] = (cost, colour)
+        return cost, colour.copy()
+
+    def _evaluate(self, shape) -> tuple[float, np.ndarray]:
         G, b, c0 = self.normal_equations(shape)
-        G = np.ascontiguousarray(np.broadcast_to(G, (3,) + G.shape[-2:]))
+        if G.shape[0] != 3 or not G.flags.c_contiguous:
+            G = np.ascontiguousarray(np.broadcast_to(G, (3,) + G.shape[-2:]))
         hi = self.upper(shape)
         with np.errstate(all="ignore"):
             try:
