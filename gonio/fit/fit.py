@@ -124,6 +124,8 @@ class _Problem:
 
     def residuals(self, p, index=slice(None)) -> np.ndarray:
         d = self.d
+        if isinstance(index, slice) and index == slice(None):
+            return self.loss.residuals_of(self.values(p), d)
         sigma = None if d.sigma is None else d.sigma[index]
         return self.loss.residual(self.values(p, index), d.y[index], d.cos_i[index], sigma)
 
@@ -139,7 +141,7 @@ class _Problem:
         if self.loss.linear and self.jacobian is not None:
             colour, shape = self.L.unpack(p)
             elems, C = self.jacobian.jacobian(self.d, self.L, colour, shape)
-            return jtj_from_elements(elems, C, _channel_weights(self.loss.weight(self.d.y, self.d.cos_i, self.d.sigma)))
+            return jtj_from_elements(elems, C, _channel_weights(self.loss.weights_of(self.d)))
         if self.loss.linear and self.basis is not None and self.basis.separable:
             return self._jtj_linear(p)
         P = p.size
@@ -163,7 +165,7 @@ class _Problem:
     def _jtj_linear(self, p) -> np.ndarray:
         L, d = self.L, self.d
         colour, shape = L.unpack(p)
-        w = self.loss.weight(d.y, d.cos_i, d.sigma)
+        w = self.loss.weights_of(d)
         _, cols = self._basis_at(shape)
         Bs = [np.broadcast_to(B[:, None] if B.ndim == 1 else B, d.y.shape) for B in cols]
         dm = []
@@ -767,12 +769,12 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
     if optimum is not None:
         colour, shape = optimum
         if separable and lossobj.linear:  # colours solved again at the held value
-            w = lossobj.weight(d.y, d.cos_i, d.sigma)
+            w = lossobj.weights_of(d)
             _, colour = Projection(basis, np.ascontiguousarray(w), d.y, L.colour_lo, L.colour_hi)(shape)
         p = L.pack(colour, shape)
         cost = prob.cost(p)
     elif method == "varpro":
-        w = (lossobj.weight or LOSSES["cosine"].weight)(d.y, d.cos_i, d.sigma)
+        w = (lossobj if lossobj.weight else LOSSES["cosine"]).weights_of(d)
         profile = prob.profile
 
         def projection(data_, w_, basis_=None):

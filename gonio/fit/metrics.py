@@ -105,8 +105,24 @@ def sphere_targets(data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS
     """The sphere pixels of :func:`image_error` that have a measured sample within :data:`IMAGE_MAX_GAP`, over
     all ``angles_deg``, as samples: ``(wi, wo, f)`` (P, 3) each, ``f`` the nearest measured sample's value at
     the pixel's own geometry — what the rendering of the measurement shows there; ``None`` when there is none.
-    A least-squares fit to them with weights cos²θi minimizes the image error itself (:mod:`gonio.fit.dupuy`)."""
-    tree = _tree if _tree is not None else data_tree(data)
+    A least-squares fit to them with weights cos²θi minimizes the image error itself (:mod:`gonio.fit.dupuy`).
+
+    Remembered on the data (read-only arrays) when the data's own tree is used: a report asks for them twice (the
+    image error and ΔE) and a selection once per candidate."""
+    if _tree is not None:
+        return _sphere_targets(data, angles_deg, pixels, _tree)
+    cache = data.__dict__.setdefault("_kernel_cache", {})
+    key = ("sphere_targets", tuple(float(a) for a in angles_deg), int(pixels))
+    if key not in cache:
+        out = _sphere_targets(data, angles_deg, pixels, data_tree(data))
+        for a in out or ():
+            a.setflags(write=False)
+        cache[key] = out
+    return cache[key]
+
+
+def _sphere_targets(data, angles_deg, pixels, tree):
+    """:func:`sphere_targets` with the k-d tree ``tree`` of the data's geometry."""
     cmin = float(min(data.cos_i.min(), data.cos_o.min()))
     out = []
     for angle in angles_deg:
