@@ -56,13 +56,27 @@ def _lobe_basis(data, layout, shape, spec):
         f0 = np.asarray(fixed["f0"])
         if not np.all(f0 == 1.0):  # Schlick F = 1 exactly when f0 = 1
             spec = spec[:, None] * _fresnel_cache(data, f0)
-    basis = {"kd": np.full(len(data), 1.0 / np.pi), "ks": spec}
+    offsets = layout.__dict__.get("_lobe_offsets")
+    if offsets is None:  # the fixed terms that add an offset (a non-zero fixed kd or ks), once per layout
+        offsets = layout._lobe_offsets = tuple(k for k in ("kd", "ks") if k in fixed and np.any(np.asarray(fixed[k]) != 0))
+    basis = {"kd": _diffuse_column(data) if "kd" in layout.colour or "kd" in offsets else None, "ks": spec}
     offset = None
-    for k in ("kd", "ks"):
-        if k in fixed and np.any(np.asarray(fixed[k]) != 0):
-            b = basis[k] if basis[k].ndim == 2 else basis[k][:, None]
-            offset = (0.0 if offset is None else offset) + np.asarray(fixed[k]) * b
+    for k in offsets:
+        b = basis[k] if basis[k].ndim == 2 else basis[k][:, None]
+        offset = (0.0 if offset is None else offset) + np.asarray(fixed[k]) * b
     return offset, [basis[k] for k in layout.colour]
+
+
+def _diffuse_column(data):
+    """The Lambert term's basis 1/π at every sample (read-only), made once per dataset."""
+    import numpy as np
+
+    cache = data.__dict__.setdefault("_kernel_cache", {})
+    col = cache.get("kd")
+    if col is None:
+        col = cache["kd"] = np.full(len(data), 1.0 / np.pi)
+        col.setflags(write=False)
+    return col
 
 
 def _spec(data, name, alpha):
@@ -75,15 +89,25 @@ def _spec(data, name, alpha):
 
     specs = data.__dict__.setdefault("_kernel_cache", {}).setdefault("spec", {})
     key = (name, float(alpha))
-    if key not in specs:
-        if len(specs) >= 4:  # two lobes of a sum alternate: keep a few
-            specs.clear()
+    hit = specs.get(key)
+    if hit is None:
+        if len(specs) >= SPEC_CACHE:  # the least recently used goes
+            del specs[next(iter(specs))]
         with np.errstate(all="ignore"):  # as BRDF.eval: the formulas' guards, not warnings, handle the extremes
             if name == "ggx":  # prepared data are above the horizon, where every microfacet is visible
-                specs[key] = 1.0 / ggx_spec_den(data.pair, float(alpha))  # = ggx_spec there, one pass less
+                hit = 1.0 / ggx_spec_den(data.pair, float(alpha))  # = ggx_spec there, one pass less
             else:
-                specs[key] = np.asarray(SPECS[name](data.pair, float(alpha)), dtype=np.float64)
-    return specs[key]
+                hit = np.asarray(SPECS[name](data.pair, float(alpha)), dtype=np.float64)
+    else:
+        del specs[key]  # re-inserted below: the most recently used last
+    specs[key] = hit
+    return hit
+
+
+#: Lobe values remembered per data set by :func:`_spec` (least recently used dropped): a finite-difference
+#: gradient of a two-lobe sum visits each lobe's width at x and x + h while the other lobe's is unchanged, so a
+#: handful must survive; on a large table each costs N doubles (a MERL table's 1.1e6: 9 MB).
+SPEC_CACHE = 8
 
 
 def _schlick_m5(data):
