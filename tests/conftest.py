@@ -32,15 +32,33 @@ settings.load_profile("ci" if os.environ.get("CI") else os.environ.get("HYPOTHES
 SMALL_SESSION = ["--plan", "in_plane", "--theta-i", "30", "--theta-o-step", "20", "--quiet"]
 
 
-@pytest.fixture(scope="session")
-def small_session_measured(tmp_path_factory):
-    """The small in-plane session, measured once per test run (per xdist worker). Read-only: a test that
-    damages or extends a session takes :func:`copy_small_session`'s copy."""
+def measured_once(tmp_path_factory, name: str, argv: list[str]):
+    """``gonio ARGV --out DIR`` (gonio's main, which must exit 0) measured once per test run, shared by the xdist
+    workers of the run (a directory under their common base, made by the first worker that asks, under a file
+    lock; the others wait for it): ``DIR``. Read-only to every test."""
+    import fcntl
+
     from gonio.cli.main import main
 
-    d = tmp_path_factory.mktemp("small-session") / "s"
-    assert main(["measure", "--sim", *SMALL_SESSION, "--out", str(d)]) == 0
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # this run's base, shared by its workers (pytest-of-USER/pytest-N)
+    done, d = root / f"{name}.done", root / name / "s"
+    with open(root / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not done.exists():
+            shutil.rmtree(d.parent, ignore_errors=True)
+            d.parent.mkdir()
+            assert main([*argv, "--out", str(d)]) == 0
+            done.touch()
     return d
+
+
+@pytest.fixture(scope="session")
+def small_session_measured(tmp_path_factory):
+    """The small in-plane session, measured once per test run (:func:`measured_once`: once for all xdist
+    workers). Read-only: a test that damages or extends a session takes :func:`copy_small_session`'s copy."""
+    return measured_once(tmp_path_factory, "small-session", ["measure", "--sim", *SMALL_SESSION])
 
 
 @pytest.fixture(scope="session")
@@ -83,13 +101,9 @@ def _writes_nothing_into_the_working_directory():
 @pytest.fixture(scope="session")
 def default_session_measured(tmp_path_factory):
     """The quick start's session (`gonio measure --sim` with every default: the default plan, material and
-    camera), measured once per test run (per xdist worker; the modules that use it share a group,
+    camera), measured once per test run (:func:`measured_once`; the modules that use it share a group,
     :data:`SAME_WORKER`). Read-only: copy it (shutil.copytree) to change it."""
-    from gonio.cli.main import main
-
-    d = tmp_path_factory.mktemp("default-session") / "s"
-    assert main(["measure", "--sim", "--out", str(d), "--quiet"]) == 0
-    return d
+    return measured_once(tmp_path_factory, "default-session", ["measure", "--sim", "--quiet"])
 
 
 def pytest_addoption(parser):

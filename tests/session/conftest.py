@@ -20,13 +20,11 @@ SMALL = ["--quiet", "--plan", "in_plane", "--theta-i-step", "30", "--theta-o-ste
 
 @pytest.fixture(scope="session")
 def measured(tmp_path_factory):
-    """A small completed ``gonio measure --sim`` session, made once per test process: tests copy it before they
-    change it."""
-    from gonio.cli.main import main
+    """A small completed ``gonio measure --sim`` session, made once per test run (for all xdist workers): tests copy
+    it before they change it."""
+    from tests.conftest import measured_once
 
-    d = tmp_path_factory.mktemp("measured") / "s"
-    assert main(["measure", "--sim", *SMALL, "--out", str(d)]) == 0
-    return d
+    return measured_once(tmp_path_factory, "session-measured", ["measure", "--sim", *SMALL])
 
 
 #: A small in-plane plan (degrees: θi, φi, θo, φo), all reachable on the default rig.
