@@ -381,6 +381,9 @@ def run(quick: bool = False) -> list[Table]:
         "cbrt: relative cube-root cosine-weighted RMS; image: relative RMS of spheres under point lights at 0/30/60° "
         "(nearest measured sample per pixel, a floor of ~0.03 for an exact model); log: RMS of ln(1 + f cos θi) differences",
         "published fits: Löw et al. 2012 ABC and Bagher et al. 2012 SGD, parameters from jdupuy/dj_brdf dj_brdf.h",
+        "the published ABC fits' own Fresnel factor on the metals (a dielectric's of their index, F(0) = ((η-1)/(η+1))^2): "
+        + ", ".join(f"{n} {((ABC[n][4] - 1) / (ABC[n][4] + 1)) ** 2:.3g}" for n in METALS if n in ABC)
+        + " (a metal's is >= 0.5: by the physical column's rule only chrome's is)",
         f"tables rebuilt from Sztrajman et al. 2021's neural fits of the MERL measurements ({src})",
         "at bound: parameters of the selected fit at or near a bound of their range (each also in its notes)",
         "the metals are selected with metal=True (--metal: prior knowledge the tables cannot supply, their specular "
