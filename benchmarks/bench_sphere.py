@@ -295,7 +295,7 @@ def _band_table(cov, measured) -> Table:
             tab.add(f"{name} {e[b]:.1f}–{e[b + 1]:.1f}°", n, f"{100 * (f & r)[tuple(sl)].sum() / n:.1f} %",
                     f"{100 * h[tuple(sl)].sum() / n:.1f} %", *err)
     tab.notes.append("a cell whose θh is under ~4° is smaller than the normals one pixel spans (a pixel of a 19-px "
-                     "radius sphere spans ~3° of normals, a MERL cell at θh = 1° spans 0.2° × 0.04°): few pixel "
+                     "radius sphere spans ~3° of normals, a MERL cell at θh = 1° spans 0.2° × 0.02°, twice): few pixel "
                      "centres land in one, whatever the light's step; the error columns say how its value and σ hold "
                      "up there (the pixel's value is its footprint's mean, binned at its centre)")
     return tab

@@ -205,12 +205,17 @@ def theta_d_reach(rig, calib, sphere: Sphere, *, theta_o: float, step: float = m
 def plan_coverage(plan, rig, calib, sphere: Sphere, *, reach_step: float = 5.0, stride: int = 1,
                   layout=None) -> Coverage:
     """The :class:`Coverage` of ``plan`` (see the module docstring); pixels every ``stride`` rows and columns. The θd
-    range of the reachable cells: :func:`theta_d_reach` with a sweep every ``reach_step`` degrees."""
+    range of the reachable cells: :func:`theta_d_reach` with a sweep every ``reach_step`` degrees, widened to the
+    range a greedy plan's candidates found (``plan.params["greedy"]["theta_d_range"]``: its light positions are
+    finer than the sweep), so the plan and its coverage count against the same cells."""
     filled = plan_cells(plan, rig, calib, sphere, stride=stride)
     theta_o = float(plan.params.get("theta_o", plan.poses[0, 2])) if len(plan) else 0.0
     valid = valid_cells()
     filled &= valid
+    known = (plan.params.get("greedy") or {}).get("theta_d_range")  # the greedy's candidates found it: a finer sweep
     lo, hi = theta_d_reach(rig, calib, sphere, theta_o=theta_o, step=math.radians(reach_step), layout=layout)
+    if known is not None:
+        lo, hi = min(lo, int(known[0])), max(hi, int(known[1]))
     lo2, hi2 = theta_d_index_range([np.flatnonzero(filled)])
     reach = reachable_cells((min(lo, lo2), max(hi, hi2))) | filled
     return Coverage(int(filled.sum()), int(valid.sum()), int(reach.sum()), float(filled.sum() / valid.sum()),

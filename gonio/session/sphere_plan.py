@@ -115,7 +115,8 @@ def greedy_sphere_plan(rig, calib, sphere: Sphere, *, theta_o: float = math.radi
 
     sub = replace(plan, poses=plan.poses[:len(taken)], joints=plan.joints[:len(taken)],
                   params={**plan.params, "greedy": {"coverage": coverage, "budget_s": budget,
-                                                     "candidates": len(cand)}})
+                                                     "candidates": len(cand),
+                                                     "theta_d_range": [min(lo, lo2), max(hi, hi2)]}})
     sub = sub.reordered(perm, "optimized")
     info = {"reachable": int(reach.sum()), "filled": int(st.n_cov), "lab_s": tour, "candidates": len(cand),
             "poses": len(taken), "candidates_reach": n_cand, "trace": np.asarray(st.trace, dtype=np.float64)}
