@@ -441,6 +441,7 @@ class SumBasis:
             self.parts.append((sub, b, shape_idx, colour_names))
         self.ref = np.where((layout.colour_lo <= 0) & (layout.colour_hi >= 0), 0.0, layout.colour_lo)
         self.separable = layout.K > 0 and all(b is not None and b.separable for _, b, _, _ in self.parts)
+        self._link_index = [layout.shape.index(r) for _, _, r in layout.links]
 
     #: What the shape-dependent colour bound of :meth:`colour_hi` is (for ``at_bound``).
     colour_hi_reason = "a linked colour (ratio x its source) at its upper bound"
@@ -459,8 +460,8 @@ class SumBasis:
             if not getattr(pf0, "is_zero", False):
                 f0 = pf0 if f0 is None else f0 + pf0
             cols.update(zip(names, pcols))
-        for dst, src, r in self.layout.links:  # colour dst = w · colour src: one column src → B_src + w B_dst
-            w = shape[self.layout.shape.index(r)]
+        for (dst, src, r), j in zip(self.layout.links, self._link_index):  # colour dst = w · colour src: src → B_src + w B_dst
+            w = shape[j]
             a, b = cols[src], cols.pop(dst)
             if a.ndim != b.ndim:
                 a, b = np.broadcast_to(a if a.ndim == 2 else a[:, None], self.data.y.shape), (b if b.ndim == 2 else b[:, None])
@@ -533,14 +534,17 @@ class SeparatedLobes(_SearchMap):
     def to_shape(self, u):
         u = np.asarray(u, dtype=np.float64)
         base = u.copy()
-        _, _, is_log = self.layout.search_space()
-        for chain in self.chains:
-            for j in chain[1:]:
-                base[j] = np.log(self.shape_lo[j]) if is_log[j] else self.shape_lo[j]  # placeholder
+        steps = self.__dict__.get("_steps")
+        if steps is None:  # per ratio: (previous, this, placeholder of this in u, its lower and upper bound)
+            _, _, is_log = self.layout.search_space()
+            steps = self._steps = [(prev, j, np.log(self.shape_lo[j]) if is_log[j] else self.shape_lo[j],
+                                    self.shape_lo[j], self.shape_hi[j])
+                                   for chain in self.chains for prev, j in zip(chain, chain[1:])]
+        for _, j, placeholder, _, _ in steps:
+            base[j] = placeholder
         s = self.layout.to_shape(base)
-        for chain in self.chains:
-            for prev, j in zip(chain, chain[1:]):
-                s[j] = np.clip(s[prev] * np.exp(u[j]), self.shape_lo[j], self.shape_hi[j])
+        for prev, j, _, lo, hi in steps:  # in chain order: a later lobe's width from the one before, already set
+            s[j] = min(max(s[prev] * np.exp(u[j]), lo), hi)  # np.clip's value, for a scalar
         return s
 
     def to_u(self, s):
