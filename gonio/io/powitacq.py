@@ -163,11 +163,13 @@ class _Warp:
         self.ny, self.nx = d.shape[-2:]
 
     def invert(self, sx, sy, corners):
-        """(sample x, sample y, pdf) of ``invert``; ``corners`` = [(phi index, theta index, weight)]."""
-        nx, ny = self.nx, self.ny
+        """(sample x, sample y, pdf) of ``invert``; ``corners`` = [(phi index, theta index, weight)].
 
-        def lookup(arr, iy, ix):
-            return sum(w * arr[a, b, iy, ix] for a, b, w in corners)
+        Each table is read through flat indices (one per corner, offset by +1 / +nx for the neighbours): the same
+        elements as indexing its four axes, without four index arrays per read."""
+        nx, ny = self.nx, self.ny
+        n_theta = self.data.shape[1]
+        data, cond, marg = self.data.reshape(-1), self.cond.reshape(-1), self.marg.reshape(-1)
 
         sx = sx * (nx - 1)
         sy = sy * (ny - 1)
@@ -175,19 +177,27 @@ class _Warp:
         py = np.minimum(np.maximum(sy, 0).astype(np.intp), ny - 2)
         sx = sx - px
         sy = sy - py
-        v00, v10 = lookup(self.data, py, px), lookup(self.data, py, px + 1)
-        v01, v11 = lookup(self.data, py + 1, px), lookup(self.data, py + 1, px + 1)
+        rows = [((a * n_theta + b) * ny + py, w) for a, b, w in corners]  # flat (phi, theta, y) row per corner
+
+        def lookup(arr, dy, x):  # Σ_corners w · arr[a, b, py + dy, x] (in the corners' order, from 0)
+            total = 0
+            for r, w in rows:
+                total = total + w * arr.take((r + dy) * nx + x)
+            return total
+
+        v00, v10 = lookup(data, 0, px), lookup(data, 0, px + 1)
+        v01, v11 = lookup(data, 1, px), lookup(data, 1, px + 1)
         c0 = (1 - sy) * v00 + sy * v01
         c1 = (1 - sy) * v10 + sy * v11
         pdf = (1 - sx) * c0 + sx * c1
         sx = sx * (c0 + 0.5 * sx * (c1 - c0))
-        v0, v1 = lookup(self.cond, py, px), lookup(self.cond, py + 1, px)
+        v0, v1 = lookup(cond, 0, px), lookup(cond, 1, px)
         sx = sx + (1 - sy) * v0 + sy * v1
-        r0, r1 = lookup(self.cond, py, nx - 1), lookup(self.cond, py + 1, nx - 1)
+        r0, r1 = lookup(cond, 0, nx - 1), lookup(cond, 1, nx - 1)
         with np.errstate(invalid="ignore", divide="ignore"):
             sx = sx / ((1 - sy) * r0 + sy * r1)
         sy = sy * (r0 + 0.5 * sy * (r1 - r0))
-        sy = sy + sum(w * self.marg[a, b, py] for a, b, w in corners)
+        sy = sy + sum(w * marg.take(r) for r, w in rows)
         return sx, sy, pdf * (nx - 1) * (ny - 1)
 
 
@@ -248,12 +258,14 @@ class PowitacqBRDF:
         iy = np.minimum(np.maximum(np.nan_to_num(y), 0).astype(np.intp), ny - 2)
         wx, wy = x - ix, y - iy
         out = np.zeros(wi.shape[:-1] + (3,))
+        flat = rgb.reshape(-1)  # rgb[a, b, c, y, x] at ((a·nθ + b)·3 + c)·ny·nx + y·nx + x: read through flat indices
+        cell = [((a * rgb.shape[1] + b) * 3 * ny + iy) * nx + ix for a, b, _ in corners]
         for c in range(3):
             val = 0.0
-            for a, b, w in corners:
-                d = rgb[:, :, c]
-                val = val + w * ((1 - wy) * ((1 - wx) * d[a, b, iy, ix] + wx * d[a, b, iy, ix + 1])
-                                 + wy * ((1 - wx) * d[a, b, iy + 1, ix] + wx * d[a, b, iy + 1, ix + 1]))
+            for k, (_, _, w) in enumerate(corners):
+                i = cell[k] + c * ny * nx
+                val = val + w * ((1 - wy) * ((1 - wx) * flat.take(i) + wx * flat.take(i + 1))
+                                 + wy * ((1 - wx) * flat.take(i + nx) + wx * flat.take(i + nx + 1)))
             out[..., c] = np.maximum(0.0, val)
         ndf = _bilinear(f["ndf"].astype(np.float64), u_wm[0], u_wm[1])
         sigma = _bilinear(f["sigma"].astype(np.float64), u_wi[0], u_wi[1])
