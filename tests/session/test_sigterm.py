@@ -23,7 +23,7 @@ def test_sigterm_finishes_the_pose_in_flight_and_records_an_interrupted_run(tmp_
     proc = subprocess.Popen([sys.executable, "-m", "gonio.cli.main", "measure", "--sim", "--plan", "grid",
                              "--theta-step", "10", "--phi-step", "30", "--out", str(d)], cwd=REPO, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    deadline = time.monotonic() + 120
+    deadline = time.monotonic() + 600  # a guard against a hung process only: a loaded machine may need minutes
     while proc.poll() is None and time.monotonic() < deadline:
         try:
             if (d / "samples.jsonl").read_bytes().count(b"\n") >= 2:
@@ -32,7 +32,7 @@ def test_sigterm_finishes_the_pose_in_flight_and_records_an_interrupted_run(tmp_
             pass
         time.sleep(0.01)
     proc.send_signal(signal.SIGTERM)
-    out, err = proc.communicate(timeout=60)
+    out, err = proc.communicate(timeout=300)  # the pose in flight is finished first (minutes on a loaded machine)
     err = err.decode()
     assert proc.returncode == 130, err
     assert f"gonio resume {d}" in err and "Traceback" not in err, err
