@@ -63,6 +63,13 @@ class LinkFaults:
         with self._lock:
             self._queue.extend([kind] * times)
 
+    def can_fail(self) -> bool:
+        """Whether any reply may still be lost, late or damaged: a fault rate above zero or a fault queued."""
+        with self._lock:
+            queued = bool(self._queue)
+        return queued or any(getattr(self, f"{k}_rate") > 0 for k in ("drop", "corrupt", "delay", "garbage",
+                                                                       "truncate", "short"))
+
     def _draw(self) -> str | None:
         with self._lock:
             if self._queue:

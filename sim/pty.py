@@ -48,6 +48,21 @@ class PtyServer:
         self._pending: list[bytes] | None = None
         self._loop_ident: int | None = None
 
+    #: The reply deadline (real seconds) a host's driver gets from :attr:`reply_timeout` on a link without faults.
+    FAULTLESS_REPLY_TIMEOUT = 5.0
+
+    @property
+    def reply_timeout(self) -> float | None:
+        """The reply deadline (real seconds) a host's driver should use with this emulator, or None for the
+        driver's own default. An emulator answers at once on this machine, so without link faults
+        (:meth:`sim.faults.LinkFaults.can_fail`) only the machine's load makes a reply late; a driver that then
+        times out retries, and a retried request is executed again (SPEC.md section 5: a new photodiode reading,
+        new noise) or, after the last retry, stops the pose for a recovery — so a seeded session would depend on
+        the load (a SIGKILL-and-resume test's pose differed from the uninterrupted run's under load ~15). A
+        generous deadline costs nothing where no reply is ever lost. On a faulty link: None, so the driver's
+        retries run at their real pace (what fault tests exercise)."""
+        return None if self.faults.can_fail() else self.FAULTLESS_REPLY_TIMEOUT
+
     # -- lifecycle ----------------------------------------------------------------------------
     def start(self) -> "PtyServer":
         if self._thread is None:

@@ -352,6 +352,22 @@ class SimRig:
         """The rig controller's pty (open it with pyserial)."""
         return self.controller.path
 
+    def open_devices(self, camera=None, **options):
+        """Open this rig's devices through the host's own drivers (:func:`gonio.session.runner.open_devices`:
+        the real dynamixel-sdk on the servo bus's pty, the controller client on the controller's), ``camera``
+        (default :attr:`camera`), with the reply deadlines the emulators ask for (:attr:`sim.pty.PtyServer.reply_timeout`:
+        generous on links without faults, so the machine's load cannot change a seeded session). ``options``
+        go to ``open_devices`` and win over those deadlines."""
+        from gonio.session.runner import open_devices
+
+        deadlines = {}
+        if getattr(self.controller, "reply_timeout", None) is not None:
+            deadlines["controller_timeout"] = float(self.controller.reply_timeout)
+        if getattr(self.servo_bus, "reply_timeout", None) is not None:  # the SDK's packet timeout is 2 x latency timer + transfer
+            deadlines["latency_timer_ms"] = 1000.0 * self.servo_bus.reply_timeout / 2.0
+        return open_devices(self.rig, self.servo_port, self.controller_port, self.camera if camera is None else camera,
+                            self.clock, **{**deadlines, **options})
+
     # -- lifecycle ------------------------------------------------------------------------------
     def start(self) -> "SimRig":
         if not self._started:

@@ -201,7 +201,6 @@ def open_sim_config(rig, text, where, config, material, target, *, hold: bool = 
 
 def _start_sim(record, rig, *, material_brdf, config, hold, exposure_range=None, calibration=None) -> OpenRig:
     """Start :class:`sim.rig.SimRig` for ``record`` and open its devices through the host's own drivers."""
-    from gonio.session.runner import open_devices
 
     simrig = _sim_plugin()
     layout = manifest_layout(record)
@@ -211,9 +210,8 @@ def _start_sim(record, rig, *, material_brdf, config, hold, exposure_range=None,
         camera = sim.camera
         if getattr(config, "camera_link", "direct") == "gige":  # the sim camera behind a real GigE Vision link
             camera = _gige_sim_camera(sim, stack)
-        # an emulator that names its reply deadline gets it (simavr: emulated on this CPU, see its reply_timeout)
-        devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, camera, sim.clock,
-                               controller_timeout=getattr(sim.controller, "reply_timeout", 0.25))
+        # through the host's own drivers, with the reply deadlines the emulators ask for (sim.pty.PtyServer.reply_timeout)
+        devices = sim.open_devices(camera)
     except BaseException:
         stack.close()
         raise

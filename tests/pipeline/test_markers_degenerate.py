@@ -100,13 +100,13 @@ def test_the_grazing_pose_through_the_runner_gives_flagged_samples_not_a_skip(tm
     """The failing pose's angles on the simulated rig (320×240, the bench's material): measured,
     flagged NO_BOARD (camera pose from the kinematics), with finite values — not skipped, no crash."""
     from gonio.plan.plan import CaptureSettings, Plan
-    from gonio.session.runner import SessionRunner, open_devices
+    from gonio.session.runner import SessionRunner
     from gonio.session.store import SessionStore, load_session
     from sim.rig import SimRig, SimRigConfig
 
     plan = Plan(poses=np.radians([[20.0, 0.0, 70.0, 90.0]]), capture=CaptureSettings())
     with SimRig(config=SimRigConfig(width=320, height=240, focal_px=380.0)) as sim:
-        devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+        devices = sim.open_devices()
         try:
             store = SessionStore.create(tmp_path / "s", {"plan": plan, "mode": "test"})
             result = SessionRunner(plan, store, devices, sim.calibration, sim.layout, before_pose=sim.begin_pose,

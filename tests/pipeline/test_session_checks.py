@@ -10,7 +10,7 @@ import pytest
 from gonio.errors import ConfigError
 from gonio.pipeline.target import CameraCalibration
 from gonio.plan.plan import CaptureSettings, Plan
-from gonio.session.runner import SessionRunner, open_devices
+from gonio.session.runner import SessionRunner
 from gonio.session.store import SessionStore
 from sim.rig import SimRig, SimRigConfig
 
@@ -19,7 +19,7 @@ def test_frame_size_other_than_the_calibration_is_a_one_line_config_error(tmp_pa
     # the camera delivers 160x120 frames, the pipeline is calibrated for 320x240
     plan = Plan(poses=np.radians([[30.0, 0, 30, 180]]), capture=CaptureSettings(), generator="custom")
     with SimRig(config=SimRigConfig(width=160, height=120, focal_px=190.0)) as sim:
-        devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+        devices = sim.open_devices()
         try:
             calib = CameraCalibration.pinhole(320, 240, 380.0, noise=sim.calibration.noise)
             store = SessionStore.create(tmp_path / "s", {"plan": plan, "mode": "test"})

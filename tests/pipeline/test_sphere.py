@@ -360,7 +360,7 @@ def test_a_resumed_sphere_session_is_bit_identical_to_an_uninterrupted_one(tmp_p
     declared centre, stopped after pose 1 and resumed, stores, pose by pose, the same bits as one run through."""
     from gonio.pipeline.target import TargetLayout
     from gonio.plan.plan import CaptureSettings, Plan
-    from gonio.session.runner import SessionRunner, open_devices
+    from gonio.session.runner import SessionRunner
     from gonio.session.store import SessionStore
     from sim.rig import SimRig, SimRigConfig
     from tests.session.test_bit_identical_resume import CONFIG, assert_bit_identical
@@ -371,7 +371,7 @@ def test_a_resumed_sphere_session_is_bit_identical_to_an_uninterrupted_one(tmp_p
 
     def run(d, *, stop_after=None, resume=False):
         with SimRig(config=SimRigConfig(**CONFIG, sphere_offset_m=(0.001, -0.001, 0.0)), layout=layout) as sim:
-            devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+            devices = sim.open_devices()
             try:
                 store = SessionStore.open(d) if resume else SessionStore.create(d, {"plan": plan, "mode": "test"})
                 runner = None

@@ -107,14 +107,14 @@ def test_declared_tilt_keeps_the_uncertainties_honest(tmp_path):
     import math
 
     from gonio.plan.generators import make_plan
-    from gonio.session.runner import SessionRunner, open_devices
+    from gonio.session.runner import SessionRunner
     from gonio.session.store import SessionStore, load_session
     from sim.rig import SimRig, SimRigConfig
 
     plan = make_plan("in_plane", theta_i_step=math.radians(20), theta_o_step=math.radians(20),
                      theta_max=math.radians(70), seed=0)
     with SimRig(config=SimRigConfig(seed=0), layout=TargetLayout(mount=TILT)) as sim:
-        devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+        devices = sim.open_devices()
         try:
             store = SessionStore.create(tmp_path / "s", {"plan": plan, "mode": "test"})
             SessionRunner(plan, store, devices, sim.calibration, sim.layout, before_pose=sim.begin_pose,

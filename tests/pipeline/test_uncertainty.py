@@ -12,7 +12,7 @@ from gonio.pipeline.markers import BoardPose
 from gonio.pipeline.target import CameraPose
 from gonio.pipeline.uncertainty import local_h_gradient, plane_transfer
 from gonio.plan.generators import make_plan
-from gonio.session.runner import SessionRunner, open_devices
+from gonio.session.runner import SessionRunner
 from gonio.session.store import SessionStore, load_session
 from sim.rig import SimRig, SimRigConfig
 
@@ -22,7 +22,7 @@ def run_default_session(directory, seed=0):
     plan = make_plan("in_plane", theta_i_step=math.radians(20), theta_o_step=math.radians(10),
                      theta_max=math.radians(70), seed=seed)
     with SimRig(config=SimRigConfig(seed=seed)) as sim:
-        devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+        devices = sim.open_devices()
         try:
             store = SessionStore.create(directory, {"plan": plan, "mode": "test"})
             SessionRunner(plan, store, devices, sim.calibration, sim.layout, before_pose=sim.begin_pose,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gonio.plan.plan import CaptureSettings, Plan
-from gonio.session.runner import SessionRunner, open_devices
+from gonio.session.runner import SessionRunner
 from gonio.session.store import SessionStore, scan_samples
 from sim.rig import SimRig, SimRigConfig
 
@@ -46,8 +46,7 @@ class Session:
                           servo_faults=servo_faults, controller_faults=controller_faults).start()
         self.devices = None
         try:
-            self.devices = open_devices(self.sim.rig, self.sim.servo_port, self.sim.controller_port, self.sim.camera,
-                                        self.sim.clock)
+            self.devices = self.sim.open_devices()
         except BaseException:
             self.sim.stop()
             raise

@@ -19,7 +19,6 @@ from gonio.errors import ConfigError
 from gonio.plan import make_plan
 from gonio.plan.adaptive import AdaptiveSettings
 from gonio.session.adaptive import AdaptiveSession, FitSpec, new_adaptive_manifest
-from gonio.session.runner import open_devices
 from gonio.session.store import SessionStore, load_session, scan_samples
 from sim.rig import SimRig, SimRigConfig
 
@@ -36,7 +35,7 @@ def _run_in_process(directory, candidates, settings, fit=FitSpec("microfacet", n
     with SimRig(config=SimRigConfig(seed=3, width=240, height=180, focal_px=285.0)) as sim:
         entries = new_adaptive_manifest(candidates, settings, fit, sim.rig)
         store = SessionStore.create(directory, {**entries, "mode": "test"})
-        devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+        devices = sim.open_devices()
         try:
             return AdaptiveSession(store, devices, sim.calibration, sim.layout, before_pose=sim.begin_pose,
                                    stream=None).run(), sim.material

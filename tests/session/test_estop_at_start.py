@@ -8,7 +8,6 @@ from __future__ import annotations
 import pytest
 
 from gonio.errors import EmergencyStop
-from gonio.session.runner import open_devices
 from sim.rig import SimRig, SimRigConfig
 from sim.servo_bus import HW_OVERLOAD
 
@@ -20,13 +19,13 @@ def test_no_byte_to_a_servo_when_the_session_opens_with_the_e_stop_pressed(cause
         (sim.controller.set_estop if cause == "estop" else sim.controller.set_interlock)(True)
         before = sim.servo_bus.bytes_in
         with pytest.raises(EmergencyStop) as e:
-            open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+            sim.open_devices()
         msg = str(e.value)
         assert "\n" not in msg and ("E-stop" if cause == "estop" else "interlock") in msg, msg
         assert sim.servo_bus.bytes_in == before
         assert sim.servo_bus.servo(2).peek("hardware_error_status") == HW_OVERLOAD  # not rebooted
         sim.controller.set_estop(False)
         sim.controller.set_interlock(False)
-        devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+        devices = sim.open_devices()
         devices.close()
         assert sim.servo_bus.bytes_in > before

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gonio.plan import SessionTiming, estimate_plan, make_plan
-from gonio.session.runner import RunnerSettings, SessionRunner, open_devices
+from gonio.session.runner import RunnerSettings, SessionRunner
 from gonio.session.store import SessionStore
 
 #: automatic exposure chooses 1-8 frames per exposure while measuring; the estimate assumes the expected
@@ -27,7 +27,7 @@ def _run(plan, out, timing=None):
     from sim.rig import SimRig, SimRigConfig
 
     with SimRig(config=SimRigConfig(width=240, height=180, focal_px=285.0)) as sim:
-        dev = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+        dev = sim.open_devices()
         try:
             store = SessionStore.create(out, {"plan": plan, "mode": "test"})
             return SessionRunner(plan, store, dev, sim.calibration, sim.layout, before_pose=sim.begin_pose,

@@ -59,7 +59,7 @@ def test_a_session_that_never_sees_the_board_stops_unusable_and_says_why(tmp_pat
     from sim.rig import SimRig, SimRigConfig
 
     from gonio.pipeline.target import CharucoSpec
-    from gonio.session.runner import SessionRunner, open_devices
+    from gonio.session.runner import SessionRunner
     from gonio.session.store import SessionStore
 
     deg = [(t, 0, t, 180) for t in (10, 15, 20, 25, 30, 35, 40)] + [(t, 90, t, 270) for t in (10, 15, 20, 25, 30, 35, 40)]
@@ -67,7 +67,7 @@ def test_a_session_that_never_sees_the_board_stops_unusable_and_says_why(tmp_pat
     sim = SimRig(config=SimRigConfig(seed=1)).start()
     devices = None
     try:
-        devices = open_devices(sim.rig, sim.servo_port, sim.controller_port, sim.camera, sim.clock)
+        devices = sim.open_devices()
         store = SessionStore.create(tmp_path / "s", {"plan": plan, "mode": "test"})
         wrong = replace(sim.layout, charuco=replace(sim.layout.charuco, dictionary="DICT_6X6_250"))
         assert wrong.charuco.dictionary != sim.layout.charuco.dictionary
