@@ -367,8 +367,6 @@ def _memory(quick: bool, resolution: str | None = None) -> Table:
     default the simulated camera's default, 320×240): the frames are merged and reduced to samples pose by pose, so
     memory does not grow with the frames."""
     import json
-    import resource
-    import subprocess
     import sys
 
     from gonio.session.options import DEFAULT_SIM_RESOLUTION
@@ -383,17 +381,41 @@ def _memory(quick: bool, resolution: str | None = None) -> Table:
         for k, (ti, pi) in enumerate(sizes):
             out = Path(d) / f"s{k}"
             t0 = time.perf_counter()
-            before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-            subprocess.run([sys.executable, "-m", "gonio.cli.main", "measure", "--sim", "--target", target,
-                            "--plan", "sphere", "--theta-i-step", ti, "--phi-i-step", pi, "--out", str(out), "--quiet",
-                            "--sim-resolution", resolution],
-                           check=True, capture_output=True)
-            peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss  # KiB, the largest child so far
+            peak = _child_peak_rss([sys.executable, "-m", "gonio.cli.main", "measure", "--sim", "--target", target,
+                                    "--plan", "sphere", "--theta-i-step", ti, "--phi-i-step", pi, "--out", str(out),
+                                    "--quiet", "--sim-resolution", resolution])
             m = json.loads((out / "manifest.json").read_text())
-            tab.add(m["last_run"]["poses"], m["last_run"]["samples"], f"{max(peak, before) / 1024:.0f}",
+            tab.add(m["last_run"]["poses"], m["last_run"]["samples"], f"{peak / 1024:.0f}",
                     f"{time.perf_counter() - t0:.1f}")
-    tab.notes.append("peak RSS: the largest child process's (getrusage RUSAGE_CHILDREN); the rows run in increasing size")
+    tab.notes.append("peak RSS: the session process's own high-water mark (VmHWM of /proc/PID/status, read until it "
+                     "exits; getrusage's RUSAGE_CHILDREN would count the benchmark process's memory at the fork)")
     return tab
+
+
+def _child_peak_rss(cmd) -> int:
+    """Run ``cmd`` and return its peak resident memory (KiB): ``VmHWM`` of ``/proc/PID/status``, polled until it
+    exits, every 0.2 s — the child's own address space (a child's ``ru_maxrss`` also counts the parent's pages it was
+    forked with: Linux keeps the pre-exec high-water mark). Raises ``CalledProcessError`` when it fails."""
+    import subprocess
+
+    err_file = tempfile.TemporaryFile()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err_file)
+    peak = 0
+    status = Path(f"/proc/{proc.pid}/status")
+    while proc.poll() is None:
+        try:
+            for line in status.read_text().splitlines():
+                if line.startswith("VmHWM:"):
+                    peak = max(peak, int(line.split()[1]))
+        except (OSError, ValueError):
+            pass
+        time.sleep(0.2)
+    err_file.seek(0)
+    err = err_file.read()
+    err_file.close()
+    if proc.returncode:
+        raise subprocess.CalledProcessError(proc.returncode, cmd, stderr=err)
+    return peak
 
 
 def trade(quick: bool = False) -> list[Table]:
