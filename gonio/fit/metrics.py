@@ -121,20 +121,25 @@ def sphere_targets(data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS
     return cache[key]
 
 
-def _sphere_targets(data, angles_deg, pixels, tree):
-    """:func:`sphere_targets` with the k-d tree ``tree`` of the data's geometry."""
+def _sphere_hits(data, angles_deg, pixels, tree):
+    """Per angle of ``angles_deg`` with a pixel inside the data's range of cos θ: the pixels of :func:`image_error`'s
+    sphere whose nearest measured sample (k-d tree ``tree`` of the data's geometry) lies within
+    :data:`IMAGE_MAX_GAP`, as ``(wi, wo, index of that sample)``."""
     cmin = float(min(data.cos_i.min(), data.cos_o.min()))
-    out = []
     for angle in angles_deg:
         wi, wo, _ = sphere_geometry(angle, pixels)
         ok = (wi[:, 2] >= cmin) & (wo[:, 2] >= cmin)
-        wi, wo = wi[ok], wo[ok]
-        if not len(wi):
+        if not ok.any():
             continue
+        wi, wo = wi[ok], wo[ok]
         dist, idx = tree.query(_hd_coords(wi, wo), distance_upper_bound=IMAGE_MAX_GAP)
         hit = np.isfinite(dist)
-        if hit.any():
-            out.append((wi[hit], wo[hit], data.y[idx[hit]]))
+        yield wi[hit], wo[hit], idx[hit]
+
+
+def _sphere_targets(data, angles_deg, pixels, tree):
+    """:func:`sphere_targets` with the k-d tree ``tree`` of the data's geometry."""
+    out = [(wi, wo, data.y[idx]) for wi, wo, idx in _sphere_hits(data, angles_deg, pixels, tree) if len(idx)]
     if not out:
         return None
     return tuple(np.concatenate(a) for a in zip(*out))
@@ -143,15 +148,7 @@ def _sphere_targets(data, angles_deg, pixels, tree):
 def sphere_sample_index(data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS) -> np.ndarray:
     """Indices (sorted, unique) of the samples :func:`image_error`'s spheres show: each pixel's nearest measured
     sample within :data:`IMAGE_MAX_GAP` (the k-d tree is the one the error measures use, cached on the data)."""
-    tree = data_tree(data)
-    cmin = float(min(data.cos_i.min(), data.cos_o.min()))
-    out = []
-    for angle in angles_deg:
-        wi, wo, _ = sphere_geometry(angle, pixels)
-        ok = (wi[:, 2] >= cmin) & (wo[:, 2] >= cmin)
-        if ok.any():
-            dist, idx = tree.query(_hd_coords(wi[ok], wo[ok]), distance_upper_bound=IMAGE_MAX_GAP)
-            out.append(idx[np.isfinite(dist)])
+    out = [idx for _, _, idx in _sphere_hits(data, angles_deg, pixels, data_tree(data))]
     return np.unique(np.concatenate(out)) if out else np.zeros(0, dtype=np.intp)
 
 
@@ -160,16 +157,9 @@ def sphere_cover(data, angles_deg=IMAGE_ANGLES_DEG, pixels: int = IMAGE_PIXELS) 
     sample (within :data:`IMAGE_MAX_GAP`) it is: Σ cover · (f_model − f)² over the samples approximates the squared
     numerator of the image error with each pixel compared at its sample's own geometry (0 for a sample no pixel
     shows)."""
-    tree = data_tree(data)
-    cmin = float(min(data.cos_i.min(), data.cos_o.min()))
     cover = np.zeros(len(data))
-    for angle in angles_deg:
-        wi, wo, _ = sphere_geometry(angle, pixels)
-        ok = (wi[:, 2] >= cmin) & (wo[:, 2] >= cmin)
-        if ok.any():
-            dist, idx = tree.query(_hd_coords(wi[ok], wo[ok]), distance_upper_bound=IMAGE_MAX_GAP)
-            hit = np.isfinite(dist)
-            cover += np.bincount(idx[hit], wi[ok][hit, 2] ** 2, len(data))
+    for wi, _, idx in _sphere_hits(data, angles_deg, pixels, data_tree(data)):
+        cover += np.bincount(idx, wi[:, 2] ** 2, len(data))
     return cover
 
 
