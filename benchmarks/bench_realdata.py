@@ -193,8 +193,9 @@ SPLIT_CHROMA = 0.1
 
 def physics(name: str, params: dict, sel=None) -> tuple[bool, str]:
     """Are a fit's parameters physical for this material: a metal's lobes have f0 ≥ 0.5 (a complex index's F(0)
-    too), not a free Fresnel table (``dupuy2015``'s F(θd) takes any shape), and two specular lobes are not split by
-    colour (chromaticities within :data:`SPLIT_CHROMA`)? ``(ok, why)``. With the selection ``sel``, its note on what
+    too), not a free Fresnel table (``dupuy2015``'s F(θd) takes any shape), a coat over the metal
+    (``dupuy2015-coated``) is a dielectric of index within :data:`gonio.brdf.coated.COAT_N_MIN`–``COAT_N_MAX``, and
+    two specular lobes are not split by colour (chromaticities within :data:`SPLIT_CHROMA`)? ``(ok, why)``. With the selection ``sel``, its note on what
     the metal constraint cost is added."""
     from gonio.fit.select import lobe_f0s
 
@@ -212,10 +213,19 @@ def physics(name: str, params: dict, sel=None) -> tuple[bool, str]:
         split = max(float(np.abs(a - b).max()) for i, a in enumerate(ch) for b in ch[i + 1:])
         if split > SPLIT_CHROMA:
             bad.append(f"lobes split by colour (chromaticity differs by {split:.2f})")
+    coat = ""
+    if "n" in params and "t" in params:  # a conductor under a dielectric coat (gonio.brdf.coated)
+        from gonio.brdf.coated import COAT_N_MAX, COAT_N_MIN
+
+        n = float(params["n"])
+        if not COAT_N_MIN <= n <= COAT_N_MAX:
+            bad.append(f"coat index {n:.3g} outside a dielectric's {COAT_N_MIN:g}-{COAT_N_MAX:g}")
+        coat = (f" under a dielectric coat (n {n:.3g}, round-trip transmittance "
+                + "/".join(f"{v:.2g}" for v in np.atleast_1d(params["t"])) + ")")
     if bad:
         return False, "; ".join(bad)
     if name in METALS:
-        return True, f"metal: complex index, f0 {min(f0s):.3g}" if complex_index else f"metal: f0 {min(f0s):.3g}"
+        return True, (f"metal: complex index, f0 {min(f0s):.3g}" if complex_index else f"metal: f0 {min(f0s):.3g}") + coat
     return True, "ok"
 
 
@@ -375,7 +385,8 @@ def run(quick: bool = False) -> list[Table]:
         f"each of the cube-root (Ngan et al. 2005), image and log (Löw et al. 2012) errors; losing: "
         + (", ".join(f"{n} ({r:.3g}x)" for r, n in sorted(worst, reverse=True) if r > 1.0) or "none"),
         f"{n_phys} of {len(names)} materials: physical parameters (metals ({', '.join(METALS)}) with lobe f0 >= 0.5, "
-        f"no two lobes whose chromaticities differ by more than {SPLIT_CHROMA})",
+        f"a coat over a metal a dielectric of index 1.3-2.0, no two lobes whose chromaticities differ by more than "
+        f"{SPLIT_CHROMA})",
         f"CPU s per table: max {max(cpus):.1f}, median {float(np.median(cpus)):.1f} (target <= 10 s on one core)",
         "ratio: gonio's error / the better published fit's error (per measure; <= 1 is as good or better)",
         "cbrt: relative cube-root cosine-weighted RMS; image: relative RMS of spheres under point lights at 0/30/60° "
@@ -388,7 +399,8 @@ def run(quick: bool = False) -> list[Table]:
         "at bound: parameters of the selected fit at or near a bound of their range (each also in its notes)",
         "the metals are selected with metal=True (--metal: prior knowledge the tables cannot supply, their specular "
         "albedo being as low as a dark dielectric's): abc-smooth-conductor and dupuy2015-conductor (a conductor's "
-        "complex index, F(0) >= 0.5, the lobe's own scale) are added and the choice is made among the candidates "
+        "complex index, F(0) >= 0.5, the lobe's own scale) and dupuy2015-coated (that conductor under a thin dielectric "
+        "coat) are added and the choice is made among the candidates "
         "with a metal's Fresnel (the selection's note says how much better the best excluded one predicts held-out "
         "samples); a free Fresnel table (dupuy2015) is not a metal's",
     ]

@@ -14,6 +14,7 @@ from gonio.brdf.abc_conductor import ABCSmoothConductor
 from gonio.brdf.ashikhmin_shirley import AshikhminShirley
 from gonio.brdf.base import BRDF, Param
 from gonio.brdf.blinn_phong import BlinnPhong
+from gonio.brdf.coated import Dupuy2015Coated
 from gonio.brdf.cook_torrance import CookTorrance
 from gonio.brdf.dupuy import Dupuy2015, Dupuy2015Conductor
 from gonio.brdf.gtr import GTR
@@ -34,6 +35,7 @@ MODELS: dict[str, type[BRDF]] = {
 MODELS.update({cls.name: cls for cls in (ABCMicrofacet, ABCSmooth, GTR)})  # models for real measurements (issue 14)
 MODELS[ABCSmoothConductor.name] = ABCSmoothConductor  # a metal's Fresnel with its own scale (issue 29)
 MODELS.update({c.name: c for c in (Dupuy2015, Dupuy2015Conductor)})  # data-driven microfacet (Dupuy et al. 2015)
+MODELS[Dupuy2015Coated.name] = Dupuy2015Coated  # a metal under a thin dielectric coat (issue 29)
 MODELS.update({name: lobe_sum(name) for name in PRESETS})
 
 

@@ -32,7 +32,8 @@ def register(sub) -> None:
                         "dielectric: the choice is made among the candidates with a metal's Fresnel (normal-incidence "
                         "reflectance >= 0.5) while one remains, and the notes say how much better the best other "
                         "predicts; large tables also get abc-smooth-conductor and dupuy2015-conductor (a conductor's "
-                        "complex-index Fresnel with the lobe's own scale)")
+                        "complex-index Fresnel with the lobe's own scale) and dupuy2015-coated (the same conductor "
+                        "under a thin dielectric coat: an oxidised or lacquered metal)")
     p.add_argument("--loss", default="auto", help="auto, cosine, chi2, log, cbrt (auto: chi2 with uncertainties)")
     p.add_argument("--image-weight", type=float, default=None, metavar="W",
                    help="dupuy2015 fits: weight of the squared relative image error (rendered spheres) beside "

@@ -270,7 +270,19 @@ def _with_image(d: FitData, w: np.ndarray, image: float) -> tuple[np.ndarray, in
 
 def table_fit(d: FitData, loss: Loss, n_ndf: int, n_fresnel: int, iterations: int, image: float):
     """Steps 1–3 of the module docstring: ``(model, the F steps' normal matrices, the round kept, geometry,
-    weights, samples the spheres see)``."""
+    weights, samples the spheres see)``. Kept on the data set for its arguments (the conductor and coated variants,
+    :mod:`gonio.fit.dupuy_conductor`, :mod:`gonio.fit.dupuy_coated`, start from the same table fit: a metal's selection
+    fits all three on one subset); what it returns is read, never written."""
+    cache = d.__dict__.setdefault("_kernel_cache", {})
+    key = ("dupuy_table", loss.name, n_ndf, n_fresnel, iterations, float(image))
+    hit = cache.get(key)
+    if hit is None:
+        hit = cache[key] = _table_fit(d, loss, n_ndf, n_fresnel, iterations, image)
+    return hit
+
+
+def _table_fit(d: FitData, loss: Loss, n_ndf: int, n_fresnel: int, iterations: int, image: float):
+    """:func:`table_fit`, computed."""
     geo = _Geometry(d, n_ndf, n_fresnel)
     floor = np.percentile(d.y, 5, axis=0)
     ndf = power_iteration(_retro_profile(geo.theta_h, geo.theta_d, d.y - floor[None, :], n_ndf))

@@ -65,7 +65,11 @@ class _Channel:
         """:meth:`solve` at M points (η, k) at once (arrays (M,)): the Fresnel factors of every bin and point are one
         (bins, M) array, the normal equations M 2×2 systems; the minimum over the interior solution and the four
         edges of the box (one of kd, ks at 0 or 1, the other solved, each clipped to [0, 1])."""
-        f = conductor(self.cos, eta, k).reshape(self.cos.size, -1)  # (bins, M)
+        return self.solve_fresnel(conductor(self.cos, eta, k).reshape(self.cos.size, -1))
+
+    def solve_fresnel(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`solve_many` for M Fresnel factors given at the bins' θd (an array (bins, M)): any F(θd), e.g. a
+        coated conductor's (:mod:`gonio.fit.dupuy_coated`)."""
         a11 = float(np.sum(self.w)) / np.pi ** 2
         a12 = (self.ws @ f) / np.pi
         a22 = self.wss @ (f * f)
@@ -139,14 +143,51 @@ def _jacobian(cos_d, spec, w, x) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
+def check_size(d: FitData, n_ndf: int, name: str) -> None:
+    """DataError (one line) when ``d`` has too few values to determine the tables of ``name``."""
+    if 3 * len(d) <= n_ndf + 3 * N_FRESNEL + 3:
+        raise DataError(f"{d.source}: {len(d)} usable samples ({3 * len(d)} values) cannot determine the "
+                        f"tables of {name}; need at least {(n_ndf + 3 * N_FRESNEL + 3) // 3 + 1} samples")
+
+
+def mark_bound(at_bound: dict, se: np.ndarray, rows, name: str, v, lo: float, hi: float) -> None:
+    """Name every channel of parameter ``name`` (values ``v`` (3,)) within 10⁻⁶ of its range's width from a bound in
+    ``at_bound`` and take the σ of rows ``rows`` of ``se`` (params × channels) of that channel."""
+    for c, ch in enumerate("rgb"):
+        if v[c] - lo <= 1e-6 * (hi - lo) or hi - v[c] <= 1e-6 * (hi - lo):
+            at_bound.setdefault(name, {})[ch] = f"lower {lo:g}" if v[c] - lo <= 1e-6 * (hi - lo) else f"upper {hi:g}"
+            se[rows, c] = np.nan
+
+
+def index_bounds(at_bound: dict, se: np.ndarray, rows, eta, k) -> np.ndarray:
+    """The conductors' F(0) per channel; an F(0) or edge tint on a bound is named (:func:`mark_bound`): the index is
+    searched in Gulbrandsen's (F(0), edge tint), whose bounds are its own (η and k, rows ``rows``, lose their σ)."""
+    f0 = conductor(np.ones(1), np.asarray(eta), np.asarray(k))[0]
+    edge = np.array([_edge_of(float(f0[c]), float(np.asarray(eta)[c])) for c in range(3)])
+    mark_bound(at_bound, se, rows, "f0", f0, METAL_F0_MIN, F0_MAX)
+    mark_bound(at_bound, se, rows, "edge", edge, 0.0, 1.0)
+    return f0
+
+
+def ndf_sigma(geo, model, cos_d, y, w, wscale: float, s2: float, at_bound: dict) -> tuple[np.ndarray, np.ndarray]:
+    """``(σ of D's nodes, nodes no sample constrains)`` from the D step's normal matrix at ``model`` (as
+    :mod:`gonio.fit.dupuy`); nodes at 0 are named in ``at_bound`` and lose their σ."""
+    _, nmat, nempty = _ndf_step(geo, np.asarray(model.kd), model.fresnel_at(cos_d), geo.g2(model._ndf), y, w)
+    ndf_se = np.sqrt(np.maximum(np.diag(_inverse(nmat * wscale + np.diag(np.where(nempty[1:], 1.0, 0.0)))), 0.0) * s2)
+    ndf_se = np.concatenate([ndf_se[:1], ndf_se]) / normalization(model.ndf)
+    ndf_se[nempty] = np.nan
+    if (np.asarray(model.ndf) <= 0).any():
+        at_bound["ndf"] = {"value": "lower 0 at some theta_h nodes"}
+        ndf_se[np.asarray(model.ndf) <= 0] = np.nan
+    return ndf_se, nempty
+
+
 def fit_dupuy_conductor(d: FitData, loss: Loss, *, n_ndf: int = N_NDF, image: float = IMAGE_WEIGHT,
                         rounds: int = ROUNDS) -> FitResult:
     """Fit :class:`gonio.brdf.dupuy.Dupuy2015Conductor` to prepared samples ``d`` under ``loss`` (module docstring)."""
     t0 = time.perf_counter()
     k_par = n_ndf + 12
-    if 3 * len(d) <= n_ndf + 3 * N_FRESNEL + 3:
-        raise DataError(f"{d.source}: {len(d)} usable samples ({3 * len(d)} values) cannot determine the "
-                        f"tables of dupuy2015-conductor; need at least {(n_ndf + 3 * N_FRESNEL + 3) // 3 + 1} samples")
+    check_size(d, n_ndf, "dupuy2015-conductor")
     table, _, _, geo, w, n_pix = table_fit(d, loss, n_ndf, N_FRESNEL, ITERATIONS, image)
     y = np.asarray(d.y, dtype=np.float64)
     ndf = np.asarray(table._ndf)
@@ -175,28 +216,13 @@ def fit_dupuy_conductor(d: FitData, loss: Loss, *, n_ndf: int = N_NDF, image: fl
     se = np.zeros((4, 3))
     for c, jac in enumerate(jacs):
         se[:, c] = np.sqrt(np.maximum(np.diag(_inverse(jac.T @ jac * wscale)), 0.0) * s2)
-    _, nmat, nempty = _ndf_step(geo, np.asarray(model.kd), model.fresnel_at(cos_d), geo.g2(model._ndf), y, w)
-    ndf_se = np.sqrt(np.maximum(np.diag(_inverse(nmat * wscale + np.diag(np.where(nempty[1:], 1.0, 0.0)))), 0.0) * s2)
-    ndf_se = np.concatenate([ndf_se[:1], ndf_se]) / normalization(model.ndf)
-    ndf_se[nempty] = np.nan
     at_bound: dict = {}
+    ndf_bound: dict = {}  # listed last
+    ndf_se, nempty = ndf_sigma(geo, model, cos_d, y, w, wscale, s2, ndf_bound)
     for i, name in enumerate(names[:2]):  # kd, ks in [0, 1]
-        v = np.asarray(model.params[name], dtype=np.float64)
-        for c, ch in enumerate("rgb"):
-            if v[c] <= 1e-6 or 1.0 - v[c] <= 1e-6:
-                at_bound.setdefault(name, {})[ch] = "lower 0" if v[c] <= 1e-6 else "upper 1"
-                se[i, c] = np.nan
-    # the index is searched in Gulbrandsen's (F(0), edge tint): its bounds are those of the two (η and k lose their σ)
-    f0 = conductor(np.ones(1), np.asarray(model.eta), np.asarray(model.k))[0]
-    edge = np.array([_edge_of(float(f0[c]), float(model.eta[c])) for c in range(3)])
-    for name, v, lo, hi in (("f0", f0, METAL_F0_MIN, F0_MAX), ("edge", edge, 0.0, 1.0)):
-        for c, ch in enumerate("rgb"):
-            if v[c] - lo <= 1e-6 * (hi - lo) or hi - v[c] <= 1e-6 * (hi - lo):
-                at_bound.setdefault(name, {})[ch] = f"lower {lo:g}" if v[c] - lo <= 1e-6 * (hi - lo) else f"upper {hi:g}"
-                se[2:, c] = np.nan
-    if (np.asarray(model.ndf) <= 0).any():
-        at_bound["ndf"] = {"value": "lower 0 at some theta_h nodes"}
-        ndf_se[np.asarray(model.ndf) <= 0] = np.nan
+        mark_bound(at_bound, se, i, name, np.asarray(model.params[name], dtype=np.float64), 0.0, 1.0)
+    f0 = index_bounds(at_bound, se, slice(2, 4), model.eta, model.k)
+    at_bound.update(ndf_bound)
     notes = [f"Dupuy et al. 2015's tabulated D with a conductor's Fresnel (complex index per channel): "
              f"normal-incidence reflectance {'/'.join(f'{v:.3g}' for v in f0)} times ks; round {it_best + 1} of "
              f"{rounds} kept" + (f"; the objective includes {image:g} x the image error" if n_pix else "")]

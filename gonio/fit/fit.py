@@ -571,6 +571,10 @@ def _fit_data_driven(d: FitData, cls, loss: str, fixed, free, report: bool, t0: 
     image = IMAGE_WEIGHT if image_weight is None else float(image_weight)
     if cls.name == "dupuy2015":
         r = fit_dupuy(d, resolve_loss(loss, d), image=image)
+    elif cls.name == "dupuy2015-coated":
+        from gonio.fit.dupuy_coated import fit_dupuy_coated
+
+        r = fit_dupuy_coated(d, resolve_loss(loss, d), image=image)
     else:
         from gonio.fit.dupuy_conductor import fit_dupuy_conductor
 

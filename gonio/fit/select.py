@@ -252,8 +252,10 @@ def _cv_score(d, model, loss, k, seed, fit_kw, bar=None, start=None) -> tuple[fl
 LARGE_TABLE_CANDIDATES = ("gtr", "abc-smooth", "dupuy2015")
 #: Added on a large table when the sample is declared a metal (``metal=True``): a conductor's complex-index Fresnel with
 #: F(0) ≥ :data:`METAL_F0_MIN` (Gulbrandsen 2014's parameters, :func:`gonio.brdf.fresnel.gulbrandsen_index`) and the
-#: lobe's own scale, on Löw et al.'s smooth-surface lobe (chrome) and on the tabulated D (brass, nickel).
-METAL_CANDIDATES = ("abc-smooth-conductor", "dupuy2015-conductor")
+#: lobe's own scale, on Löw et al.'s smooth-surface lobe (chrome) and on the tabulated D (brass, nickel), and the
+#: tabulated D's conductor under a thin dielectric coat (``dupuy2015-coated``, :mod:`gonio.brdf.coated`: an oxidised or
+#: lacquered metal, whose Fresnel factor rises towards grazing as a dielectric's — alum-bronze).
+METAL_CANDIDATES = ("abc-smooth-conductor", "dupuy2015-conductor", "dupuy2015-coated")
 #: Width parameters of the terms of a sum: one on a bound means the term has no shape the data determine.
 _WIDTHS = ("alpha", "roughness", "exponent", "alpha_x", "alpha_y", "sigma")
 #: Candidates added when no candidate fits the data (:mod:`gonio.fit.gof`): a rough diffuse surface (Oren &

@@ -28,7 +28,8 @@ PHYSICAL = {
 def test_the_energy_conserving_flags():
     conserving = {n for n, c in MODELS.items() if c.energy_conserving}
     assert conserving == {"lambert", "phong", "microfacet", "ashikhmin-shirley", "lambert+ggx", "lambert+2ggx",
-                          "lambert+beckmann", "lambert+2beckmann", "dupuy2015", "dupuy2015-conductor"}
+                          "lambert+beckmann", "lambert+2beckmann", "dupuy2015", "dupuy2015-conductor",
+                          "dupuy2015-coated"}
 
 
 @pytest.mark.parametrize("name", [n for n, v in PHYSICAL.items() if v])
