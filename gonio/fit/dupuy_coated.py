@@ -9,7 +9,7 @@ the last round's n) of the summed per-channel optimum;
 per channel, kd and ks in closed form (variable projection, Golub & Pereyra 1973, on per-θd-bin sums:
 :class:`gonio.fit.dupuy_conductor._Channel`) for every (F(0), edge tint, t) of a scan over metals only
 (Gulbrandsen 2014, :func:`gonio.brdf.fresnel.gulbrandsen_index`, F(0) ≥ 0.5) and the layer's transmittance t ∈ [0, 1],
-then a bounded polish (L-BFGS-B) of the three. Standard uncertainties s² (JᵀJ)⁻¹ of (kd, ks, η, k, t) per channel and
+then, in the last round, a bounded polish (L-BFGS-B) of the three. Standard uncertainties s² (JᵀJ)⁻¹ of (kd, ks, η, k, t) per channel and
 n jointly, at the solution (Press et al., *Numerical Recipes*, 3rd ed., §15.5); a parameter on a bound has none.
 """
 
@@ -32,11 +32,12 @@ from gonio.fit.result import FitResult
 __all__ = ["fit_dupuy_coated"]
 
 #: The per-channel scan: F(0) in air × edge tint × the layer's round-trip transmittance t.
-_F0S = np.linspace(METAL_F0_MIN, F0_MAX, 10)
-_EDGES = np.linspace(0.0, 1.0, 9)
-_TS = np.concatenate([[0.0], np.geomspace(0.01, 1.0, 10)])
-#: Coat indices of the scan that starts the bounded search of n.
-_NS = np.linspace(COAT_N_MIN, COAT_N_MAX, 8)
+_F0S = np.linspace(METAL_F0_MIN, F0_MAX, 8)
+_EDGES = np.linspace(0.0, 1.0, 7)
+_TS = np.concatenate([[0.0], np.geomspace(0.01, 1.0, 8)])
+#: Coat indices of the scan that starts the bounded search of n, and the search's tolerance in n.
+_NS = np.linspace(COAT_N_MIN, COAT_N_MAX, 6)
+N_TOL = 3e-3
 _NAMES = ("kd", "ks", "eta", "k", "t")
 
 
@@ -90,7 +91,7 @@ def _channels_at(chans, n: float, x_prev, polish: bool) -> tuple[float, np.ndarr
             from scipy.optimize import minimize
 
             bounds = [(METAL_F0_MIN, F0_MAX), (0.0, 1.0), (0.0, 1.0)]
-            res = minimize(lambda v: _one(ch, n, v)[0], u, method="L-BFGS-B", bounds=bounds)
+            res = minimize(lambda v: _one(ch, n, v)[0], u, method="L-BFGS-B", bounds=bounds, options={"maxiter": 40})
             if res.fun <= obj[j]:
                 u = np.clip(res.x, [b[0] for b in bounds], [b[1] for b in bounds])
         val, kd, ks, e, kk = _one(ch, n, u)
@@ -99,8 +100,9 @@ def _channels_at(chans, n: float, x_prev, polish: bool) -> tuple[float, np.ndarr
     return total, x
 
 
-def _fresnel_step(chans, x_prev, n_prev):
-    """The coat index and the per-channel (kd, ks, η, k, t) (module docstring): ``(n, x (5, 3))``."""
+def _fresnel_step(chans, x_prev, n_prev, polish: bool):
+    """The coat index and the per-channel (kd, ks, η, k, t) (module docstring; the L-BFGS-B polish with ``polish``):
+    ``(n, x (5, 3))``."""
     from scipy.optimize import minimize_scalar
 
     def total(n):
@@ -109,11 +111,11 @@ def _fresnel_step(chans, x_prev, n_prev):
     ns = _NS if n_prev is None else np.array([n_prev])  # a later round searches near the last round's n
     vals = [total(n) for n in ns]
     j = int(np.argmin(vals))
-    step = _NS[1] - _NS[0]
+    step = (_NS[1] - _NS[0]) * (1.0 if n_prev is None else 0.5)
     lo, hi = max(ns[j] - step, COAT_N_MIN), min(ns[j] + step, COAT_N_MAX)
-    res = minimize_scalar(total, bounds=(lo, hi), method="bounded", options={"xatol": 2e-3})
+    res = minimize_scalar(total, bounds=(lo, hi), method="bounded", options={"xatol": N_TOL})
     n = float(res.x) if res.fun <= vals[j] else float(ns[j])
-    return n, _channels_at(chans, n, x_prev, True)[1]
+    return n, _channels_at(chans, n, x_prev, polish)[1]
 
 
 def _jacobian(cos_d, spec, w, x, n) -> np.ndarray:
@@ -160,7 +162,7 @@ def fit_dupuy_coated(d: FitData, loss: Loss, *, n_ndf: int = N_NDF, image: float
     for it in range(rounds):
         g2 = geo.g2(ndf)
         spec = geo.ndf_at(ndf) * g2 / geo.den
-        n, x = _fresnel_step([_Channel(geo.theta_d, spec, y[:, c], w[:, c]) for c in range(3)], x, n)
+        n, x = _fresnel_step([_Channel(geo.theta_d, spec, y[:, c], w[:, c]) for c in range(3)], x, n, it == rounds - 1)
         model = Dupuy2015Coated(kd=x[0], ndf=ndf, ks=x[1], eta=x[2], k=x[3], t=x[4], n=n)
         objective = float(np.sum(w * (model.eval(d.wi, d.wo) - y) ** 2))
         if best is None or objective < best[0]:
