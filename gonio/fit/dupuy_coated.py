@@ -192,11 +192,15 @@ def fit_dupuy_coated(d: FitData, loss: Loss, *, n_ndf: int = N_NDF, image: float
     n_se = float(n_se[0, 0])
     at_bound.update(ndf_bound)
     coat0 = ((n - 1.0) / (n + 1.0)) ** 2
+    back = x[4] * conductor(np.ones(1), x[2] / n, x[3] / n)[0]  # t F_c(0) against the coat
     notes = [f"Dupuy et al. 2015's tabulated D with a conductor under a thin dielectric coat (Weidlich & Wilkie 2007): "
              f"coat index {n:.3g} (its own reflectance {coat0:.3g} at normal incidence), the metal's normal-incidence "
              f"reflectance in air {'/'.join(f'{v:.3g}' for v in f0)}, the layer's round-trip transmittance "
              f"{'/'.join(f'{v:.3g}' for v in x[4])}, all times ks; round {it_best + 1} of {rounds} kept"
-             + (f"; the objective includes {image:g} x the image error" if n_pix else "")]
+             + (f"; the objective includes {image:g} x the image error" if n_pix else ""),
+             f"the layer's transmittance t and the metal's index trade off: what the data determine is the light the "
+             f"metal sends back through the coat at normal incidence, t F_c(0) = {'/'.join(f'{v:.3g}' for v in back)} "
+             f"(their sigmas are conditional on the fitted D)"]
     if nempty.any():
         notes.append(unmeasured_note("D", "theta_h", nempty, ndf_nodes(n_ndf)))
     rms_rel, chi2_red = d.fit_quality(model.eval(d.wi, d.wo), k_par)

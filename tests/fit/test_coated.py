@@ -79,9 +79,17 @@ def test_a_declared_metal_with_a_coat_gets_the_coated_fit_and_its_coat(coated_ta
     assert sel.model_name == "dupuy2015-coated", [(r["model"], r.get("score")) for r in sel.candidates]
     p = sel.params
     assert not _not_a_metal(p)
-    assert COAT_N_MIN <= p["n"] <= COAT_N_MAX and p["n"] == pytest.approx(1.6, abs=0.1)
-    np.testing.assert_allclose(p["t"], [0.4, 0.2, 0.1], atol=0.1)
+    sigma_n = sel.winner.uncertainty["n"]
+    assert np.isfinite(sigma_n) and 0 < sigma_n < 0.05
+    assert COAT_N_MIN <= p["n"] <= COAT_N_MAX and abs(p["n"] - 1.6) <= 3 * sigma_n
     f0 = conductor(np.ones(1), np.asarray(p["eta"]), np.asarray(p["k"]))[0]
     assert np.all(f0 >= 0.5 - 1e-9)
-    assert np.isfinite(sel.winner.uncertainty["n"]) and sel.winner.uncertainty["n"] > 0
-    assert any("coat index" in n for n in sel.winner.notes)
+    # what the data determine of the metal: the light it sends back through the coat at normal incidence, t F_c(0)
+    # (t and the metal's F(0) trade off along it; the fit's note says so and prints the product)
+    np.testing.assert_allclose(_through(p), _through(_coated().params), rtol=0.05)
+    assert any("coat index" in n for n in sel.winner.notes) and any("trade off" in n for n in sel.winner.notes)
+
+
+def _through(p):
+    m = (np.asarray(p["eta"]) + 1j * np.asarray(p["k"])) / p["n"]
+    return np.asarray(p["t"]) * np.abs((m - 1) / (m + 1)) ** 2
