@@ -185,3 +185,20 @@ def test_reachable_cells_match_a_brute_force_over_the_sphere_s_normals():
     _, _, pd = cell_centres()
     ewi, ewo = dirs_from_half_diff(th[extra // SHAPE[2]], 0.0, np.full(len(extra), td[j]), pd[extra % SHAPE[2]])
     assert np.all(np.minimum(ewi[:, 2], ewo[:, 2]) > math.cos(math.radians(83)))
+
+
+def test_theta_d_reach_is_remembered_by_value_and_is_the_computation(rig):
+    """theta_d_reach answers a repeated question from memory (the greedy plan and the coverage of the plan it made
+    ask the same): the remembered answer is the computed one, and a question that differs (the sphere, the camera's
+    elevation) is computed afresh — its own answer, not another's."""
+    from gonio.pipeline.target import CameraCalibration
+    from gonio.session import sphere_coverage as sc
+
+    calib, step = CameraCalibration.pinhole(320, 240, 380.0), math.radians(30)
+    args = [(Sphere((0.0, 0.0, 0.02), 0.02), 60), (Sphere((0.0, 0.0, 0.01), 0.01), 60),
+            (Sphere((0.0, 0.0, 0.02), 0.02), 40)]
+    computed = [sc._theta_d_reach(rig, calib, s, theta_o=math.radians(t), step=step, layout=None, stride=4)
+                for s, t in args]
+    assert len(set(computed)) == 3  # the three questions have different answers
+    for _ in range(2):  # computed (or remembered) the first time, remembered the second
+        assert [sc.theta_d_reach(rig, calib, s, theta_o=math.radians(t), step=step) for s, t in args] == computed
