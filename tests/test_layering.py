@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import gonio
@@ -11,8 +12,15 @@ from gonio.plugins import plugin
 FORBIDDEN = ("sim", "benchmarks", "tests")
 
 
+@functools.lru_cache(maxsize=None)
+def _nodes(path: Path) -> tuple:
+    """The import statements of ``path``, at any depth (parsed once per run: the tests below read the same files)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    return tuple(n for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom)))
+
+
 def _imports(path: Path):
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+    for node in _nodes(path):
         if isinstance(node, ast.Import):
             yield from (a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
@@ -49,7 +57,7 @@ def _imported_modules(path: Path, module: str):
     """Every module an import statement of ``path`` names, at any depth (imports inside functions count: a lazy
     import is still a dependency), relative imports resolved; ``from gonio import x`` names ``gonio.x``."""
     package = module.split(".") if path.name == "__init__.py" else module.split(".")[:-1]
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+    for node in _nodes(path):
         if isinstance(node, ast.Import):
             yield from (a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
@@ -133,7 +141,7 @@ def test_no_cli_module_imports_another_ones_private_helpers_and_no_circle_betwee
     for path in sorted(root.glob("*.py")):
         me = path.stem
         graph[me] = set()
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+        for node in _nodes(path):
             if not isinstance(node, ast.ImportFrom) or not node.module:
                 continue
             if node.module.startswith("gonio.cli."):
