@@ -179,10 +179,14 @@ def run(quick: bool = False, jobs: int | None = None, seeds: int | None = None, 
     if smoke:
         # the smoke size (`gonio bench --smoke`, the test suite): the same code on fewer poses: the quick plan for the
         # geometric observations too, and the rendered highlights at every other light azimuth of the quick plan
-        # (3 of 6, 120° apart: the pose set still passes check_pose_set); its numbers mean little
+        # (3 of 6, 120° apart: the pose set still passes check_pose_set), seen from the two parallax views ±3° off
+        # the mirror direction only (they still triangulate the light; 30 rendered highlight frames, not 45); its
+        # numbers mean little
         hi = options["rplan"]["highlight"]
+        parallax = np.round(np.degrees(-hi[:, 3] - hi[:, 1]), 6) != 0.0  # camera elevation beyond the mirror's
         options["plan"] = options["rplan"]
-        options["rplan"] = {**options["rplan"], "highlight": hi[np.isin(hi[:, 0], np.unique(hi[:, 0])[::2])]}
+        options["rplan"] = {**options["rplan"],
+                            "highlight": hi[np.isin(hi[:, 0], np.unique(hi[:, 0])[::2]) & parallax]}
     # lab time: the session runner's cost model of the calibration session (moves, settle and approach, frames)
     lab = calibration_lab_time(calibration_session_plan(rig), rig) / 60
     rlab = calibration_lab_time(calibration_session_plan(rig, quick=quick), rig) / 60
