@@ -130,6 +130,11 @@ SHARED_FIXTURE_MODULES = (
 #: worker), so the fixture is made once: module -> the module whose group it joins.
 SAME_WORKER = {
     "tests/api/test_readme.py": "tests/fit/test_session.py",  # default_session_measured
+    # tests/report/conftest.py's session fixtures: one Chromium, the report inputs, `gonio fit` and `gonio report` of
+    # them (~3 CPU s and a browser start on every worker that receives one of these modules' tests)
+    **{f"tests/report/{m}.py": "tests/report/test_hostile_names.py"
+       for m in ("test_render_and_report", "test_report_layout", "test_report_fit_and_model",
+                 "test_report_given_fit_errors", "test_viewer_server")},
 }
 
 
