@@ -131,9 +131,9 @@ def crc32c(data: bytes) -> int:
     Hamming distance 6 for messages of 178 to 5,243 bits, 8 below (Koopman, "32-Bit Cyclic Redundancy
     Codes for Internet Applications", DSN 2002, Table 1).
     """
-    crc = 0xFFFFFFFF
+    crc, table = 0xFFFFFFFF, _CRC32C
     for b in bytes(data):
-        crc = (crc >> 8) ^ _CRC32C[(crc ^ b) & 0xFF]
+        crc = (crc >> 8) ^ table[(crc ^ b) & 0xFF]
     return crc ^ 0xFFFFFFFF
 
 
@@ -145,9 +145,17 @@ def check_bytes(crc: int) -> bytes:
 
 def check_value(k: bytes) -> int | None:
     """Inverse of :func:`check_bytes`; None for bytes no CRC encodes to (a high bit clear, stray bits)."""
-    if len(k) != CHECK_SIZE or any(b < 0x80 for b in k) or k[-1] & 0x70:
+    k = bytes(k)
+    if len(k) != CHECK_SIZE or min(k) < 0x80 or k[-1] & 0x70:
         return None
-    return sum((b & 0x7F) << (7 * i) for i, b in enumerate(k))
+    value = 0
+    for shift, b in zip(_SHIFTS, k):
+        value |= (b & 0x7F) << shift
+    return value
+
+
+#: bit offsets of the check bytes' 7-bit groups (:func:`check_value`)
+_SHIFTS = tuple(7 * i for i in range(CHECK_SIZE))
 
 
 def cobs_encode(data: bytes) -> bytes:
@@ -228,7 +236,10 @@ def decode_segment(seg: bytes) -> Frame | Reject:
     if len(seg) > MAX_ENCODED:
         return Reject("overflow", seg)
     enc, k = seg[:-CHECK_SIZE], seg[-CHECK_SIZE:]
-    if len(seg) < CHECK_SIZE + 1 or check_value(k) != crc32c(enc):
+    if len(seg) < CHECK_SIZE + 1:
+        return Reject("crc", seg)
+    check = check_value(k)  # bytes no CRC encodes to are rejected without computing one
+    if check is None or check != crc32c(enc):
         return Reject("crc", seg)
     try:
         body = cobs_decode(enc)
@@ -278,6 +289,17 @@ class Decoder:
         while True:
             k = data.find(b"\x00", start)
             piece = data[start:] if k < 0 else data[start:k]
+            if k >= 0 and not self._buf and not self._overflow and len(piece) <= MAX_ENCODED:
+                # a whole segment within this chunk: judged where it lies (what the buffer would hold)
+                if piece:
+                    ev = decode_segment(piece)
+                    if isinstance(ev, Frame):
+                        self.frames += 1
+                    else:
+                        self.rejects[ev.verdict] += 1
+                    events.append(ev)
+                start = k + 1
+                continue
             if self._overflow or len(self._buf) + len(piece) > MAX_ENCODED:
                 if not self._overflow:
                     self._overflow_raw = bytes(self._buf[:16])
