@@ -240,15 +240,32 @@ def _search_shape(proj: Projection, L: Layout, rng, n_starts: int):
         u_scan, c_scan = _coordinate_scan(f, cand[best[0]], costs[best[0]], u_lo, u_hi)
         cand.append(u_scan)
         costs = np.append(costs, c_scan)
+        fg = _with_gradient(proj, L)
         for j in best + [len(cand) - 1]:
-            res = minimize(f, cand[j], method="L-BFGS-B", bounds=list(zip(u_lo, u_hi)),
-                           options={"eps": 1e-7, "ftol": 1e-13, "gtol": 1e-10, "maxiter": 200})
+            res = minimize(f if fg is None else fg, cand[j], method="L-BFGS-B", jac=fg is not None,
+                           bounds=list(zip(u_lo, u_hi)), options={"eps": 1e-7, "ftol": 1e-13, "gtol": 1e-10, "maxiter": 200})
             results.append((float(res.fun), np.asarray(res.x)))
             results.append((float(costs[j]), np.asarray(cand[j])))
     cost, u = min(results, key=lambda t: t[0])
     shape = L.to_shape(u)
     cost, colour = proj(shape)
     return shape, colour, cost
+
+
+def _with_gradient(proj, L):
+    """``fg(u) = (cost, ∂cost/∂u)`` of the projected cost in the search space of ``L`` where the projection has an
+    exact gradient (:meth:`gonio.fit.solve.Projection.value_and_grad`, carried through ``L.to_shape`` by
+    :func:`gonio.fit.gradient.map_jacobian`), so L-BFGS-B needs no finite differences; else None."""
+    if not getattr(proj, "has_gradient", False):
+        return None
+    from gonio.fit.gradient import map_jacobian
+
+    def fg(u):
+        u = np.atleast_1d(u)
+        cost, g = proj.value_and_grad(L.to_shape(u))
+        return cost, map_jacobian(L, u).T @ g
+
+    return fg
 
 
 #: Above this many samples the global shape search runs on a seeded random subset of this size and only
@@ -272,7 +289,8 @@ def _refine(proj: Projection, L: Layout, u0: np.ndarray, width: float = 0.1):
         res = minimize_scalar(f, bounds=(a, b), method="bounded", options={"xatol": 1e-5})
         u = np.array([res.x])
     else:
-        res = minimize(f, u0, method="L-BFGS-B", bounds=list(zip(u_lo, u_hi)),
+        fg = _with_gradient(proj, L)
+        res = minimize(f if fg is None else fg, u0, method="L-BFGS-B", jac=fg is not None, bounds=list(zip(u_lo, u_hi)),
                        options={"eps": 1e-6, "ftol": 1e-10, "gtol": 1e-6, "maxiter": 8})
         u = np.asarray(res.x)
     shape = L.to_shape(u)

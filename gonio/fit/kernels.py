@@ -141,19 +141,20 @@ def _fresnel_cache(data, f0):
     return cache[key]
 
 
-def _ggx_spec_dalpha(data, alpha):
+def _ggx_spec_dalpha(data, alpha, floor: bool = True):
     """∂S/∂α of S = D G2 / (4 cos θi cos θo) for GGX (the α-column of the Jacobian, exact).
 
     From D = α²/(π (sin²θh + α² cos²θh)²) and G1(v) = 2/(1 + rᵥ), rᵥ = √(1 + α² tan²θv) (Walter et al.
     2007, eqs. 33-34): ∂ln S/∂α² = 1/α² − 2 cos²θh/(sin²θh + α² cos²θh) − Σᵥ tan²θv/(2 rᵥ (1 + rᵥ)),
     and ∂α²/∂α = 2α (0 below the roughness floor, where α is clamped). Checked against central
-    differences in tests/fit/test_fast.py.
+    differences in tests/fit/test_fast.py. ``floor=False``: at the floor itself, the derivative from above (what
+    a search standing on the floor needs to leave it).
     """
     import numpy as np
 
     from gonio.brdf.microfacet import ALPHA_MIN
 
-    if alpha <= ALPHA_MIN:
+    if alpha < ALPHA_MIN or (floor and alpha == ALPHA_MIN):
         return np.zeros(len(data))
     c2h, s2h, t2i, t2o = _geometry(data)
     a2 = float(alpha) ** 2
@@ -162,6 +163,40 @@ def _ggx_spec_dalpha(data, alpha):
         r = np.sqrt(1.0 + a2 * t2)
         dlog -= t2 / (2.0 * r * (1.0 + r))
     return _spec(data, "ggx", alpha) * dlog * (2.0 * float(alpha))
+
+
+def _microfacet_derivatives(data, layout, shape):
+    """Derivatives of :func:`_microfacet`'s offset and colour bases in each shape parameter, for GGX
+    (:func:`gonio.fit.gradient.basis_derivatives`): ``{name: (∂offset or None, [∂Bₖ or None per colour])}``.
+
+    With F = f0 + (1 − f0) m⁵ (Schlick 1994, eq. 15) the lobe's basis is S(α) F: ∂/∂α = (∂S/∂α) F
+    (:func:`_ggx_spec_dalpha`, exact) and, for a tied f0, ∂/∂f0 = S (1 − m⁵); the Lambert basis 1/π is constant;
+    a fixed non-zero ks adds ks times the lobe's derivative to the offset."""
+    import numpy as np
+
+    from gonio.brdf.fresnel import schlick_blend
+
+    fixed = layout.fixed
+    alpha = float(shape["alpha"])
+    dS = _ggx_spec_dalpha(data, alpha, floor=False)
+    per = {}
+    if "f0" in shape:
+        f0 = float(shape["f0"])
+        per["alpha"] = dS if f0 == 1.0 else dS * schlick_blend(f0, _schlick_m5(data))
+        per["f0"] = _spec(data, "ggx", alpha) * (1.0 - _schlick_m5(data))
+    else:
+        f0 = np.asarray(fixed["f0"])
+        per["alpha"] = dS if np.all(f0 == 1.0) else dS[:, None] * _fresnel_cache(data, f0)
+    out = {}
+    for name, d in per.items():
+        off = None
+        if "ks" in fixed and np.any(np.asarray(fixed["ks"]) != 0):
+            off = np.asarray(fixed["ks"]) * (d if d.ndim == 2 else d[:, None])
+        out[name] = (off, [d if c == "ks" else None for c in layout.colour])
+    return out
+
+
+_microfacet_derivatives.supports = lambda L: L.fixed.get("distribution") == "ggx"
 
 
 class MicrofacetTiedF0:
@@ -315,6 +350,7 @@ def _gtr(data, layout, shape):
 _gtr.supports = lambda L: {"alpha", "gamma"} <= set(L.shape) and ("f0" in L.fixed or "f0" in L.shape)
 _microfacet.supports = lambda L: L.shape in (["alpha"], ["alpha", "f0"]) and ("f0" in L.fixed or "f0" in L.shape)
 _lambert.supports = lambda L: L.colour == ["albedo"]
+_microfacet.derivatives = _microfacet_derivatives
 KERNELS.update({"lambert": _lambert, "microfacet": _microfacet, "gtr": _gtr})
 
 from gonio.fit.kernels_abc import KERNELS_ABC  # noqa: E402  (models for real measurements, issue 14)

@@ -206,6 +206,11 @@ class Projection:
         return cost, colour.copy()
 
     def _evaluate(self, shape) -> tuple[float, np.ndarray]:
+        cost, a, _ = self._solve(shape)
+        return cost, a.T.copy()
+
+    def _solve(self, shape) -> tuple[float, np.ndarray, np.ndarray]:
+        """``(cost, colours a (3, K), their upper bounds (K,))`` at ``shape``."""
         G, b, c0 = self.normal_equations(shape)
         if G.shape[0] != 3 or not G.flags.c_contiguous:
             G = np.ascontiguousarray(np.broadcast_to(G, (3,) + G.shape[-2:]))
@@ -218,13 +223,45 @@ class Projection:
                 a, ok = np.zeros_like(b), np.zeros(3, dtype=bool)
         if not ok.all():  # exact active-set solution where a bound is active (Lawson & Hanson 1974)
             a[~ok] = bounded_lsq_batch(G[~ok], b[~ok], self.lo, hi)
-        return self._cost(a), a.T.copy()
+        return self._cost(a), a, hi
+
+    @property
+    def has_gradient(self) -> bool:
+        """Whether :meth:`value_and_grad` applies: the basis supplies its derivatives
+        (:func:`gonio.fit.gradient.has_derivatives`)."""
+        has = self.__dict__.get("_has_gradient")
+        if has is None:
+            from gonio.fit.gradient import has_derivatives
+
+            has = self._has_gradient = has_derivatives(self.basis)
+        return has
+
+    def value_and_grad(self, shape) -> tuple[float, np.ndarray]:
+        """``(cost, ∂cost/∂shape (S,))`` at ``shape``: the exact gradient of the projected cost
+        (:func:`gonio.fit.gradient.projection_gradient`: one evaluation and the basis's derivative vectors, where
+        finite differences cost one or two evaluations per shape parameter); only where :attr:`has_gradient`.
+        Counts as one evaluation; the point is remembered as :meth:`__call__` does."""
+        from gonio.fit.gradient import projection_gradient
+
+        self.n_evals += 1
+        shape = np.asarray(shape, dtype=np.float64)
+        cost, a, hi = self._solve(shape)
+        memo = self.__dict__.setdefault("_memo", {})
+        key = shape.tobytes()
+        if key not in memo:
+            if len(memo) >= self.MEMO:
+                del memo[next(iter(memo))]
+            memo[key] = (cost, a.T.copy())
+        wr, first = self._wr
+        return cost, projection_gradient(self.basis, shape, a, wr, first, hi)
 
     def _cost(self, a: np.ndarray) -> float:
         """½ Σ w (f₀ + Σ aₖBₖ − y)² at colours ``a`` (3, K), from the residuals of the basis of the last
-        :meth:`normal_equations` (see the class docstring for why not from the Gram matrices)."""
+        :meth:`normal_equations` (see the class docstring for why not from the Gram matrices); the weighted
+        residuals are kept for :meth:`value_and_grad`."""
         f0, cols = self._last
-        if all(B.ndim == 1 for B in cols):  # channels first, as in normal_equations
+        first = all(B.ndim == 1 for B in cols)
+        if first:  # channels first, as in normal_equations
             if self._wT is None:
                 self._wT, self._yT = np.ascontiguousarray(self.w.T), np.ascontiguousarray(self.y.T)
             r = -self._yT if getattr(f0, "is_zero", False) else np.asarray(f0).T - self._yT
@@ -236,7 +273,9 @@ class Projection:
             for k, B in enumerate(cols):
                 r = r + (B[:, None] if B.ndim == 1 else B) * a[:, k]
             w = self.w
-        return float(0.5 * np.sum(w * r * r))
+        wr = w * r
+        self._wr = (wr, first)
+        return float(0.5 * np.sum(wr * r))
 
 
 #: Samples per block of :func:`weighted_gram`: the block's elementary vectors (J x 8192 doubles, ~0.4 MB for
