@@ -130,9 +130,9 @@ def _check_isotropy(s: SampleSet, cell: np.ndarray, ph: np.ndarray, tol: float, 
     empty = IsotropyCheck(False, 0, 0.0, 0.0, tol, max_fraction)
     sector = np.minimum((ph / (2 * np.pi) * _N_SECTORS).astype(np.intp), _N_SECTORS - 1)
     key = cell * _N_SECTORS + sector
-    present = np.zeros(N_CELLS * _N_SECTORS, dtype=bool)
-    present[key] = True
-    sectors_per_cell = present.reshape(N_CELLS, _N_SECTORS).sum(axis=1)
+    # the (cell, sector) groups present, sorted: np.unique of the samples' keys, not a mask over all N_CELLS x 8
+    # groups (12 M) and its cumulative sum, which cost more than everything else here on a small sample set
+    sectors_per_cell = np.bincount(np.unique(key) // _N_SECTORS, minlength=N_CELLS)
     sel = sectors_per_cell[cell] >= 2
     if not sel.any():
         return empty
@@ -149,10 +149,7 @@ def _check_isotropy(s: SampleSet, cell: np.ndarray, ph: np.ndarray, tol: float, 
     scale = np.where(np.abs(iso) > 1e-300, iso, 1.0)
     y, sy = y[sel] / scale, sy[sel] / np.abs(scale)
     w = _weights(y, sy)
-    present[:] = False
-    present[key[sel]] = True
-    keys = np.flatnonzero(present)  # sorted (cell, sector) groups, without a sort
-    inv = (np.cumsum(present) - 1)[key[sel]]
+    keys, inv = np.unique(key[sel], return_inverse=True)  # sorted (cell, sector) groups; each sample's group
     wg = np.bincount(inv, w)
     mg = np.bincount(inv, w * y) / wg
     sg = 1.0 / np.sqrt(wg)
@@ -240,13 +237,13 @@ def _fill_holes(values, sigma, measured, above, fill_deg, wi, wo):
         if chunk.size == 0:
             continue
         ok = np.isfinite(d)
-        w = np.where(ok, 1.0 / np.maximum(np.where(ok, d, 1.0), 1e-12) ** 2, 0.0)[..., None]
+        w = np.where(ok, 1.0 / np.maximum(np.where(ok, d, 1.0), 1e-12) ** 2, 0.0)
         cells = src[np.where(ok, j, 0)]
-        fv, fs = v_flat[cells], s_flat[cells]
-        wsum = w.sum(axis=1)
-        est = (w * fv).sum(axis=1) / wsum
+        # sums over the k neighbours, one neighbour at a time (whole columns: no (holes, k, 3) temporaries)
+        wsum = w.sum(axis=1)[:, None]
+        est = sum(w[:, i, None] * v_flat[cells[:, i]] for i in range(k)) / wsum
         # uncertainty: the neighbours' own uncertainty plus their scatter about the estimate
-        var = (w * (fs**2 + (fv - est[:, None, :]) ** 2)).sum(axis=1) / wsum
+        var = sum(w[:, i, None] * (s_flat[cells[:, i]] ** 2 + (v_flat[cells[:, i]] - est) ** 2) for i in range(k)) / wsum
         v_flat[chunk] = est
         s_flat[chunk] = np.sqrt(var)
         filled[chunk] = True
