@@ -347,11 +347,50 @@ def _gtr(data, layout, shape):
     return _lobe_basis(data, layout, shape, spec)
 
 
+def _oren_nayar(data, layout, shape):
+    """Oren & Nayar 1994's qualitative model (:class:`gonio.brdf.oren_nayar.OrenNayar`, eq. 30): basis of the
+    albedo (A(σ) + B(σ) t)/π with the geometric term t = max(0, wi⊥·wo⊥)/max(cos θi, cos θo) cached per dataset."""
+    a, b = _oren_nayar_ab(float(shape["sigma"]))
+    return None, [(a + b * _oren_nayar_term(data)) / 3.141592653589793]
+
+
+def _oren_nayar_ab(sigma):
+    """A = 1 − 0.5 σ²/(σ² + 0.33) and B = 0.45 σ²/(σ² + 0.09) (Oren & Nayar 1994, eq. 30)."""
+    s2 = sigma * sigma
+    return 1.0 - 0.5 * s2 / (s2 + 0.33), 0.45 * s2 / (s2 + 0.09)
+
+
+def _oren_nayar_term(data):
+    """max(0, wi_x wo_x + wi_y wo_y) / max(cos θi, cos θo), the model's own expression, once per dataset."""
+    import numpy as np
+
+    from gonio.brdf.microfacet import _tiny
+
+    cache = data.__dict__.setdefault("_kernel_cache", {})
+    if "oren_nayar" not in cache:
+        wi, wo = data.wi, data.wo
+        p = np.maximum(wi[:, 0] * wo[:, 0] + wi[:, 1] * wo[:, 1], 0.0)
+        cache["oren_nayar"] = p / np.maximum(np.maximum(wi[:, 2], wo[:, 2]), _tiny(wi))
+    return cache["oren_nayar"]
+
+
+def _oren_nayar_derivatives(data, layout, shape):
+    """∂/∂σ of :func:`_oren_nayar`'s basis: (A' + B' t)/π with A' = −0.33 σ/(σ² + 0.33)² and
+    B' = 0.081 σ/(σ² + 0.09)² (derivatives of eq. 30's A and B)."""
+    sigma = float(shape["sigma"])
+    s2 = sigma * sigma
+    da, db = -0.33 * sigma / (s2 + 0.33) ** 2, 0.081 * sigma / (s2 + 0.09) ** 2
+    return {"sigma": (None, [(da + db * _oren_nayar_term(data)) / 3.141592653589793])}
+
+
+_oren_nayar.supports = lambda L: L.colour == ["albedo"] and L.shape == ["sigma"]
+_oren_nayar.derivatives = _oren_nayar_derivatives
+_oren_nayar_derivatives.supports = lambda L: True
 _gtr.supports = lambda L: {"alpha", "gamma"} <= set(L.shape) and ("f0" in L.fixed or "f0" in L.shape)
 _microfacet.supports = lambda L: L.shape in (["alpha"], ["alpha", "f0"]) and ("f0" in L.fixed or "f0" in L.shape)
 _lambert.supports = lambda L: L.colour == ["albedo"]
 _microfacet.derivatives = _microfacet_derivatives
-KERNELS.update({"lambert": _lambert, "microfacet": _microfacet, "gtr": _gtr})
+KERNELS.update({"lambert": _lambert, "microfacet": _microfacet, "gtr": _gtr, "oren-nayar": _oren_nayar})
 
 from gonio.fit.kernels_abc import KERNELS_ABC  # noqa: E402  (models for real measurements, issue 14)
 

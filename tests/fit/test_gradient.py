@@ -49,6 +49,7 @@ def _central(proj, space, u, h=1e-6):
     ("microfacet", {}, False),
     ("microfacet", {"f0": [0.5, 0.6, 0.7]}, False),  # a fixed per-channel Fresnel: (N, 3) bases
     ("microfacet", {"ks": 0.3, "f0": [0.5, 0.5, 0.5]}, False),  # a fixed ks: the lobe is in the offset
+    ("oren-nayar+ggx", {}, False),  # Oren-Nayar's sigma (its kernel's derivative) beside a GGX lobe
 ])
 def test_the_gradient_is_the_central_difference_of_the_cost(data, name, fixed, linked):
     L, proj = _projection(data, name, fixed, linked)
@@ -62,6 +63,18 @@ def test_the_gradient_is_the_central_difference_of_the_cost(data, name, fixed, l
         gu = map_jacobian(space, u).T @ g
         fd = _central(proj, space, u)
         np.testing.assert_allclose(gu, fd, rtol=1e-4, atol=1e-7 * cost)
+
+
+def test_the_oren_nayar_kernel_is_the_model(data):
+    """The kernel's basis (gonio.fit.kernels._oren_nayar) times the albedo is the model's value at every sample."""
+    from gonio.brdf import make
+    from gonio.fit.kernels import KERNELS
+
+    L = Layout("oren-nayar")
+    for sigma in (0.0, 0.2, 1.3):
+        _, (B,) = KERNELS["oren-nayar"](data, L, {"sigma": sigma})
+        want = make("oren-nayar", albedo=[0.2, 0.5, 0.9], sigma=sigma).eval(data.wi, data.wo)
+        np.testing.assert_allclose(B[:, None] * [0.2, 0.5, 0.9], want, rtol=1e-13)
 
 
 def test_the_gradient_follows_a_colour_held_at_its_linked_bound(data):
