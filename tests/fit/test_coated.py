@@ -72,7 +72,9 @@ def coated_table():
     return synth(m.name, m.params, n=1500)
 
 
-def test_a_declared_metal_with_a_coat_gets_the_coated_fit_and_its_coat(coated_table):
+def test_a_declared_metal_with_a_coat_gets_the_coated_fit_and_its_coat(coated_table, tmp_path):
+    import gonio
+
     from gonio.fit.select import _not_a_metal, select
 
     sel = select(coated_table, ("dupuy2015-conductor", "dupuy2015-coated"), metal=True, widen=False)
@@ -88,6 +90,9 @@ def test_a_declared_metal_with_a_coat_gets_the_coated_fit_and_its_coat(coated_ta
     # (t and the metal's F(0) trade off along it; the fit's note says so and prints the product)
     np.testing.assert_allclose(_through(p), _through(_coated().params), rtol=0.05)
     assert any("coat index" in n for n in sel.winner.notes) and any("trade off" in n for n in sel.winner.notes)
+    sel.winner.to_json(tmp_path / "fit.json")  # the fit file loads as the same model
+    wi, wo = coated_table.wi[:50], coated_table.wo[:50]
+    np.testing.assert_allclose(gonio.load(str(tmp_path / "fit.json")).eval(wi, wo), sel.model.eval(wi, wo), rtol=1e-9)
 
 
 def _through(p):
