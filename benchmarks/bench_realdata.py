@@ -195,8 +195,8 @@ def physics(name: str, params: dict, sel=None) -> tuple[bool, str]:
     """Are a fit's parameters physical for this material: a metal's lobes have f0 ≥ 0.5 (a complex index's F(0)
     too), not a free Fresnel table (``dupuy2015``'s F(θd) takes any shape), a coat over the metal
     (``dupuy2015-coated``) is a dielectric of index within :data:`gonio.brdf.coated.COAT_N_MIN`–``COAT_N_MAX``, and
-    two specular lobes are not split by colour (chromaticities within :data:`SPLIT_CHROMA`)? ``(ok, why)``. With the selection ``sel``, its note on what
-    the metal constraint cost is added."""
+    two specular lobes are not split by colour (chromaticities within :data:`SPLIT_CHROMA`)? ``(ok, why)``. With the
+    selection ``sel``, its note on what the metal constraint cost is added."""
     from gonio.fit.select import lobe_f0s
 
     bad = []

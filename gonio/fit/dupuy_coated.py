@@ -9,8 +9,10 @@ the last round's n) of the summed per-channel optimum;
 per channel, kd and ks in closed form (variable projection, Golub & Pereyra 1973, on per-θd-bin sums:
 :class:`gonio.fit.dupuy_conductor._Channel`) for every (F(0), edge tint, t) of a scan over metals only
 (Gulbrandsen 2014, :func:`gonio.brdf.fresnel.gulbrandsen_index`, F(0) ≥ 0.5) and the layer's transmittance t ∈ [0, 1],
-then, in the last round, a bounded polish (L-BFGS-B) of the three. Standard uncertainties s² (JᵀJ)⁻¹ of (kd, ks, η, k, t) per channel and
-n jointly, at the solution (Press et al., *Numerical Recipes*, 3rd ed., §15.5); a parameter on a bound has none.
+then, in the last round, a bounded polish (L-BFGS-B) of the three. Standard uncertainties s² (JᵀJ)⁻¹ of
+(kd, ks, η, k, t) per channel and n jointly, at the solution and conditional on the fitted D (Press et al., *Numerical
+Recipes*, 3rd ed., §15.5); a parameter on a bound has none. t and the metal's index trade off along t F_c(0), the light
+the metal sends back through the coat at normal incidence, which the fit's note prints.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ from gonio.fit.data import prepare
 from gonio.fit.fit import fit
 from gonio.fit.gof import MAX_RATIO, goodness_of_fit
 from gonio.fit.losses import LOSSES
-from gonio.fit.select import DEFAULT_CANDIDATES, LARGE_TABLE_CANDIDATES, WIDEN_CANDIDATES, select
+from gonio.fit.select import DEFAULT_CANDIDATES, LARGE_TABLE_CANDIDATES, METAL_CANDIDATES, WIDEN_CANDIDATES, select
 from gonio.samples import SampleSet
 
 from .conftest import synth
@@ -64,7 +64,7 @@ def test_help_lists_the_candidates_select_uses(capsys):
     with pytest.raises(SystemExit):
         main(["fit", "--help"])
     text = " ".join(capsys.readouterr().out.split()).replace("- ", "-")
-    for name in DEFAULT_CANDIDATES + LARGE_TABLE_CANDIDATES + WIDEN_CANDIDATES:
+    for name in DEFAULT_CANDIDATES + LARGE_TABLE_CANDIDATES + WIDEN_CANDIDATES + METAL_CANDIDATES:
         assert name in text, name
     assert ",".join(DEFAULT_CANDIDATES) in text
 
