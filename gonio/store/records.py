@@ -99,18 +99,28 @@ def _int(obj: Mapping, key: str, lo: int, hi: int) -> int:
 
 
 def _depth(obj: Any, limit: int) -> int:
-    """Nesting depth of a parsed JSON value (iterative: no recursion on crafted input)."""
-    deepest, stack = 0, [(obj, 1)]
-    while stack:
-        cur, d = stack.pop()
-        deepest = max(deepest, d)
-        if deepest > limit:
-            return deepest
-        if isinstance(cur, dict):
-            stack.extend((v, d + 1) for v in cur.values())
-        elif isinstance(cur, list):
-            stack.extend((v, d + 1) for v in cur)
-    return deepest
+    """Nesting depth of a parsed JSON value (a scalar or an empty container: 1), or ``limit + 1`` as soon as it is
+    deeper than ``limit``. Iterative, level by level (no recursion on crafted input), visiting containers only: a
+    non-empty one makes the next level exist, and its scalars need no visit of their own."""
+    depth, level = 1, [obj]
+    while True:
+        children, deeper = [], False
+        for cur in level:
+            if isinstance(cur, dict):
+                values = cur.values()
+            elif isinstance(cur, list):
+                values = cur
+            else:
+                continue
+            if values:
+                deeper = True
+                children.extend([v for v in values if isinstance(v, (dict, list))])
+        if not deeper:
+            return depth
+        depth += 1
+        if depth > limit:
+            return depth
+        level = children
 
 
 def decode_record(line: bytes) -> tuple[int, SampleSet, dict]:

@@ -352,3 +352,41 @@ def test_a_record_without_samples_is_not_taken_for_a_lost_pose(tmp_path):
         warnings.simplefilter("always")
         gonio.load(d)
     assert [x for x in w if "1 pose(s) the manifest counted" in str(x.message)]
+
+
+def _depth_by_node(obj, limit):
+    """The nesting depth node by node (every value pushed with its depth; the store's check before it went level by
+    level over containers only)."""
+    deepest, stack = 0, [(obj, 1)]
+    while stack:
+        cur, d = stack.pop()
+        deepest = max(deepest, d)
+        if deepest > limit:
+            return deepest
+        if isinstance(cur, dict):
+            stack.extend((v, d + 1) for v in cur.values())
+        elif isinstance(cur, list):
+            stack.extend((v, d + 1) for v in cur)
+    return deepest
+
+
+def test_record_depth_check_is_the_depth_of_every_node():
+    """gonio.store.records._depth (the check that refuses records nested deeper than MAX_DEPTH) gives the depth a
+    node-by-node walk gives, and the first depth past the limit, on random JSON values."""
+    import random
+
+    from gonio.store.records import _depth
+
+    rnd = random.Random(0)
+
+    def value(d):
+        if d <= 0 or rnd.random() < 0.3:
+            return rnd.choice([1, 2.5, "x", None, True, [], {}])
+        if rnd.random() < 0.5:
+            return [value(d - 1) for _ in range(rnd.randrange(0, 4))]
+        return {str(i): value(d - 1) for i in range(rnd.randrange(0, 4))}
+
+    values = [value(rnd.randrange(0, 40)) for _ in range(600)]
+    assert len({_depth_by_node(v, 99) for v in values}) > 20  # depths 1 to 40
+    for limit in (1, 10, 32):
+        assert [_depth(v, limit) for v in values] == [_depth_by_node(v, limit) for v in values], limit
