@@ -231,6 +231,56 @@ def _pass2(pos, idx, table, lam, p0, u, recip, rn, full_well, gain_k, black, sat
                      saturation)
 
 
+#: A frame whose values below the Poisson threshold all have one mean of at least this (a dark frame: the dark signal
+#: of a long exposure) takes :func:`_pass2_one_mean`; below it the search ends in one or two steps
+ONE_MEAN_FROM = 1.0
+#: The partial sums :func:`_pass2_one_mean` tabulates at most (a mean below the threshold, 30, needs ~100) and the
+#: buckets of their guide (Chen & Asau, "On generating random variates from an empirical distribution", AIIE
+#: Transactions 6(2), 1974)
+ONE_MEAN_TABLE, ONE_MEAN_GUIDE = 512, 64
+
+
+def _pass2_one_mean(pos, idx, table, lm, p0, u, recip, rn, full_well, gain_k, black, saturation, out, cdfs, guide):
+    """:func:`_pass2` for values that all have the mean ``lm`` (``p0`` = e^−lm, as :func:`draw` computes it): the
+    partial sums its search computes — the same operations in the same order — are tabulated once in ``cdfs``, and
+    each value's ``k`` (the first with ``u ≤ cdf_k``, or the step at which a term no longer changed the sum) is
+    found from the guide's bucket of ``u`` by two exact scans: the same ``k`` in one or two steps instead of ~λ.
+    Returns False, having written nothing, when the sums do not end within ``cdfs`` (compiled)."""
+    nr = recip.size
+    p = p0
+    cdf = p
+    cdfs[0] = cdf
+    n = 0
+    while True:
+        n += 1
+        p = p * (lm * (recip[n - 1] if n <= nr else 1.0 / n))
+        cn = cdf + p
+        if cn == cdf:
+            break
+        if n >= cdfs.size:
+            return False
+        cdfs[n] = cn
+        cdf = cn
+    ng = guide.size
+    k = 0
+    for g in range(ng):
+        while k < n and cdfs[k] < g / ng:
+            k += 1
+        guide[g] = k
+    for j in range(u.size):
+        uj = u[j]
+        g = int(uj * ng)
+        k = guide[g if g < ng else ng - 1]
+        while k > 0 and uj <= cdfs[k - 1]:
+            k -= 1
+        while k < n and uj > cdfs[k]:
+            k += 1
+        i = pos[j]
+        out[i] = _dn(np.float32(np.float64(k) + np.float64(rn * table[idx[i]])), full_well, gain_k, black,
+                     saturation)
+    return True
+
+
 @functools.lru_cache(maxsize=1)
 def _compiled():
     import numba
@@ -239,17 +289,18 @@ def _compiled():
     for f in (_dn, _block, _gather):
         register_jitable(f)
     jit = numba.njit(cache=True, nogil=True)
-    return jit(_pass1), jit(_pass2)
+    return jit(_pass1), jit(_pass2), jit(_pass2_one_mean)
 
 
 def expose_compiled(rate, scale, pattern, dark_e, rng, normal_indices, table, below, *, read_noise, full_well, gain_k,
                     black, saturation, dtype=np.uint16) -> np.ndarray:
     """:func:`expose_numpy` in two numba passes: every value by the normal approximation, block by block, and the
     means below ``below`` gathered (:func:`_pass1`); then, with the uniforms drawn for those, their Poisson values
-    written over the first pass's (:func:`_pass2`). The same random numbers drawn in the same order and the same
-    operations on each value: the same frame bit for bit."""
+    written over the first pass's (:func:`_pass2`; :func:`_pass2_one_mean` when they all have one mean, as a dark
+    frame's do). The same random numbers drawn in the same order and the same operations on each value: the same
+    frame bit for bit."""
     f32 = np.float32
-    pass1, pass2 = _compiled()
+    pass1, pass2, pass2_one_mean = _compiled()
     idx = np.ascontiguousarray(normal_indices(rate.shape)).reshape(-1)
     rate1 = np.ascontiguousarray(rate, dtype=f32).reshape(-1)
     pat1 = rate1 if pattern is None else np.ascontiguousarray(pattern, dtype=f32).reshape(-1)
@@ -264,5 +315,9 @@ def expose_compiled(rate, scale, pattern, dark_e, rng, normal_indices, table, be
         lam = lam[:n]
         p0 = np.negative(lam)
         np.exp(p0, out=p0)  # np.exp(-lam) in one array instead of two (fresh pages cost more than the exp)
-        pass2(pos, idx, table, lam, p0, rng.random(n), RECIPROCALS, f32(read_noise), *conv, out1)
+        u = rng.random(n)
+        one = n > 1 and lam[0] >= ONE_MEAN_FROM and lam.min() == lam.max() and p0.min() == p0.max()
+        if not (one and pass2_one_mean(pos, idx, table, lam[0], p0[0], u, RECIPROCALS, f32(read_noise), *conv, out1,
+                                       np.empty(ONE_MEAN_TABLE), np.empty(ONE_MEAN_GUIDE, dtype=np.int64))):
+            pass2(pos, idx, table, lam, p0, u, RECIPROCALS, f32(read_noise), *conv, out1)
     return out
