@@ -81,6 +81,28 @@ def test_batched_bounded_lsq_equals_the_scalar_one():
 
 
 
+@pytest.mark.parametrize("singular", [False, True])
+def test_two_colours_in_closed_form_equal_the_scalar_solver(singular):
+    """K = 2 (a diffuse and a specular weight) is solved in closed form (gonio.fit.solve._two_colours); a singular
+    free block (two identical columns) falls back to the minimum-norm path."""
+    rng = np.random.default_rng(6)
+    lo, hi = np.array([0.0, 0.0]), np.array([1.0, np.inf])
+    A = rng.normal(size=(300, 5, 2))
+    if singular:
+        A[..., 1] = A[..., 0]
+    G = np.einsum("nij,nik->njk", A, A)
+    b = rng.normal(scale=2.0, size=(300, 2))
+    got = bounded_lsq_batch(G, b, lo, hi)
+    want = np.stack([bounded_lsq(G[i], b[i], lo, hi) for i in range(300)])
+    val = lambda a: 0.5 * np.einsum("ni,nij,nj->n", a, G, a) - np.einsum("ni,ni->n", b, a)  # noqa: E731
+    assert np.all((got >= lo) & (got <= hi))
+    if singular:
+        assert np.all(val(got) <= val(want) + 1e-9)
+    else:
+        np.testing.assert_allclose(got, want, atol=1e-12)
+        assert np.any(got == 0.0) and np.any(got[:, 0] == 1.0) and np.any((got > 0).all(axis=1))
+
+
 def test_batched_bounded_lsq_with_singular_free_blocks_equals_the_scalar_one():
     # two identical columns: every active set that frees both is singular (the minimum-norm fallback)
     rng = np.random.default_rng(5)
