@@ -28,7 +28,8 @@ from gonio.pipeline.target import CameraCalibration, CameraPose, NoiseModel, Tar
 from gonio.rig.interfaces import Clock, Frame, PhotodiodeReading
 from sim import sensor_noise
 
-__all__ = ["SensorModel", "SimScene", "SimCamera", "SceneLight", "normal_table"]
+__all__ = ["SensorModel", "SimScene", "SimCamera", "SceneLight", "normal_table", "board_texture",
+           "blurred_board_texture"]
 
 #: Below this mean count (electrons) shot noise is drawn from the exact Poisson law (by inversion,
 #: :mod:`sim.sensor_noise`); above it from its normal approximation N(μ, μ), whose CDF error is below 1 % of
@@ -170,6 +171,32 @@ def board_points_compiled(x, y, R, C, inv, origin):
                            bool(C[2] > 0), f32(inv), f32(origin[0]), f32(origin[1]),
                            *(a.reshape(-1) for a in (px, py, hit, mx, my)))
     return px, py, hit, mx, my
+
+
+@functools.lru_cache(maxsize=4)
+def board_texture(charuco, texel: float, white: float, black: float) -> np.ndarray:
+    """The ChArUco board's albedo at ``texel`` metres per texel (``black`` on the markers and black squares,
+    ``white`` elsewhere; OpenCV's ``generateImage`` without margin), float32, read-only. Made once per process for
+    each board: every simulated camera of a session, and every session of a process (a test run, a benchmark), looks
+    at the same board (~1100 × 850 texels: ~10 ms)."""
+    w, h = charuco.size
+    size = (int(round(w / texel)), int(round(h / texel)))
+    img = charuco.board().generateImage(size, marginSize=0, borderBits=1)
+    tex = (black + (white - black) * (img / 255.0)).astype(np.float32)
+    tex.flags.writeable = False
+    return tex
+
+
+@functools.lru_cache(maxsize=16)
+def blurred_board_texture(charuco, texel: float, white: float, black: float, sigma: float) -> np.ndarray:
+    """:func:`board_texture` prefiltered with a Gaussian of ``sigma`` texels (``cv2.GaussianBlur``; the pixel
+    footprint's prefilter, :meth:`SimCamera._board_view`), float32, read-only; made once per process for each
+    board and ``sigma`` (~5 ms each; a rig's camera stays at one distance from the board)."""
+    import cv2
+
+    tex = cv2.GaussianBlur(board_texture(charuco, texel, white, black), (0, 0), sigma)
+    tex.flags.writeable = False
+    return tex
 
 
 @dataclass(frozen=True)
@@ -457,14 +484,15 @@ class SimCamera:
         xb, yb = np.broadcast_arrays(xb, yb)
         return np.stack([xb, yb, np.ones_like(xb)], axis=-1) @ self._pose.R
 
+    def _texture_key(self) -> tuple:
+        """What the board texture depends on (the scene's board, texel and albedos): the key of the process-wide
+        caches :func:`board_texture` and :func:`blurred_board_texture`."""
+        s = self.scene
+        return s.layout.charuco, float(s.texel), float(s.board_white), float(s.board_black)
+
     def _board_texture(self):
         if self._texture is None:
-            spec = self.scene.layout.charuco
-            w, h = spec.size
-            size = (int(round(w / self.scene.texel)), int(round(h / self.scene.texel)))
-            img = spec.board().generateImage(size, marginSize=0, borderBits=1)
-            s = self.scene
-            self._texture = (s.board_black + (s.board_white - s.board_black) * (img / 255.0)).astype(np.float32)
+            self._texture = board_texture(*self._texture_key())
         return self._texture
 
     def _prnu_pattern(self, shape) -> np.ndarray | None:
@@ -496,14 +524,12 @@ class SimCamera:
 
     def _blurred_texture(self, sigma: float) -> np.ndarray:
         """The board texture prefiltered with a Gaussian of ``sigma`` texels (cached per exact ``sigma``:
-        a rig's camera stays at one distance from the board, so a session uses one or two values)."""
-        import cv2
-
+        a rig's camera stays at one distance from the board, so a session uses one or two values; and per process,
+        :func:`blurred_board_texture`)."""
         cache = self._blurred
         tex = cache.get(sigma)
         if tex is None:
-            tex = cv2.GaussianBlur(self._board_texture(), (0, 0), sigma)
-            tex.flags.writeable = False
+            tex = blurred_board_texture(*self._texture_key(), float(sigma))
             if len(cache) >= 8:
                 cache.pop(next(iter(cache)))
             cache[sigma] = tex
