@@ -38,11 +38,14 @@ def test_avr_build_fits_the_atmega328p(built):
     assert 1000 < flash <= 32 * 1024 - 512 and 100 < ram <= 1536
 
 
-def test_gonio_controller_status_through_simavr(avr):
-    r = subprocess.run([sys.executable, "-m", "gonio.cli.main", "controller", "status", "--port", avr.path],
-                       capture_output=True, text=True, timeout=60)
-    assert r.returncode == 0, r.stderr
-    assert "protocol 2.2, firmware 0x00000202" in r.stdout and "E-stop      released" in r.stdout
+def test_gonio_controller_status_through_simavr(avr, capsys):
+    from gonio.cli.main import main
+
+    # gonio's main in this process: it opens the AVR's pty by its path as a new process would (no interpreter start-up)
+    code = main(["controller", "status", "--port", avr.path])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    assert "protocol 2.2, firmware 0x00000202" in out.out and "E-stop      released" in out.out
 
 
 def test_error_codes_duplicates_busy_and_silent_drops(avr):
