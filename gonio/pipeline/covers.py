@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["cover_points", "covered_corners", "COVER_MARGIN_PX", "MAX_WINDOW_PX"]
+__all__ = ["cover_points", "covered_corners", "corner_windows", "cover_hulls", "near_hulls", "COVER_MARGIN_PX",
+           "MAX_WINDOW_PX"]
 
 #: Pixels added to a corner finder's window: the lens's (or the renderer's) blur reaches that far beyond it.
 COVER_MARGIN_PX = 2.0
@@ -73,41 +74,70 @@ def _hull_distance(points: np.ndarray, hull: np.ndarray) -> np.ndarray:
     return np.where(inside, 0.0, dist)
 
 
+def corner_windows(obj, rvec, tvec, calib, spec) -> np.ndarray:
+    """OpenCV's ChArUco corner-finder window half-sizes (px, (n,)) of the board corners ``obj`` (board frame,
+    (n, 3) m) seen with the board pose ``(rvec, tvec)`` (its ``getMaximumSubPixWindowSizes``): ``d − 2`` clipped to
+    [1, :data:`MAX_WINDOW_PX`] (OpenCV truncates it to an integer: the floor of this), ``d`` the distance to the nearest corner of the neighbouring markers,
+    here the nearest of the four points ``(±δ, ±δ)`` from the corner, ``δ = (square − marker)/2``, all projected."""
+    import cv2
+
+    obj = np.asarray(obj, dtype=np.float64).reshape(-1, 3)
+    n = len(obj)
+    delta = 0.5 * (spec.square_length - spec.marker_length)
+    offs = np.array([[delta, delta, 0.0], [-delta, delta, 0.0], [delta, -delta, 0.0], [-delta, -delta, 0.0]])
+    proj, _ = cv2.projectPoints(np.concatenate([obj] + [obj + o for o in offs]),
+                                np.asarray(rvec, dtype=np.float64).reshape(3, 1),
+                                np.asarray(tvec, dtype=np.float64).reshape(3, 1), calib.K, calib.dist)
+    p = proj.reshape(5, n, 2)
+    d = np.linalg.norm(p[1:] - p[0][None], axis=2).min(axis=0)
+    return np.clip(d - 2.0, 1.0, MAX_WINDOW_PX)
+
+
+def cover_hulls(rvec, tvec, calib, spec, covers) -> list[np.ndarray]:
+    """The image outlines (convex hulls, (k, 2) px) of ``covers`` (point sets in the sample frame,
+    :func:`cover_points`) seen with the board pose ``(rvec, tvec)``; a cover partly behind the camera has none."""
+    import cv2
+
+    rvec = np.asarray(rvec, dtype=np.float64).reshape(3, 1)
+    tvec = np.asarray(tvec, dtype=np.float64).reshape(3, 1)
+    R_cb, _ = cv2.Rodrigues(rvec)
+    hulls = []
+    for cover in covers or ():
+        board_pts = spec.sample_to_board(np.asarray(cover, dtype=np.float64).reshape(-1, 3))
+        if not np.all(board_pts @ R_cb[2] + float(tvec[2, 0]) > 0):
+            continue  # part of it behind the camera: no image outline (not a view the rig takes)
+        q, _ = cv2.projectPoints(board_pts, rvec, tvec, calib.K, calib.dist)
+        hull = cv2.convexHull(q.reshape(-1, 2).astype(np.float32)).reshape(-1, 2).astype(np.float64)
+        if len(hull) >= 3:
+            hulls.append(hull)
+    return hulls
+
+
+def near_hulls(points, hulls, reach) -> np.ndarray:
+    """Which image points (n, 2) lie within ``reach`` px (scalar or (n,)) of one of ``hulls``: a mask (n,)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    near = np.zeros(len(points), dtype=bool)
+    for hull in hulls:
+        near |= _hull_distance(points, hull) < reach
+    return near
+
+
 def covered_corners(obj, rvec, tvec, calib, spec, covers, img=None) -> np.ndarray:
     """Which board corners ``obj`` (board frame, (n, 3) m) a cover reaches, seen with the board pose ``(rvec,
     tvec)``: a boolean mask (n,). ``covers``: point sets in the sample frame (:func:`cover_points`).
 
-    A corner is covered when its corner finder's window, plus :data:`COVER_MARGIN_PX` of blur, touches the image
-    of a cover (the convex hull of its projected points). The window is OpenCV's ChArUco one
-    (``getMaximumSubPixWindowSizes``): half-size ``w = clip(d − 2, 1, 10)`` px with ``d`` the distance to the
-    nearest corner of the neighbouring markers, here the nearest of the four points ``(±δ, ±δ)`` from the corner,
-    ``δ = (square − marker)/2``, all projected; a square window of half-size ``w`` reaches ``√2 w``. ``img``: the
-    corners' image points (n, 2); default their projection."""
+    A corner is covered when its corner finder's window (:func:`corner_windows`; a square window of half-size
+    ``w`` reaches ``√2 w``), plus :data:`COVER_MARGIN_PX` of blur, touches the image of a cover (the convex hull
+    of its projected points, :func:`cover_hulls`). ``img``: the corners' image points (n, 2); default their
+    projection."""
     import cv2
 
     obj = np.asarray(obj, dtype=np.float64).reshape(-1, 3)
     n = len(obj)
     if n == 0 or not covers:
         return np.zeros(n, dtype=bool)
-    rvec = np.asarray(rvec, dtype=np.float64).reshape(3, 1)
-    tvec = np.asarray(tvec, dtype=np.float64).reshape(3, 1)
-    delta = 0.5 * (spec.square_length - spec.marker_length)
-    offs = np.array([[delta, delta, 0.0], [-delta, delta, 0.0], [delta, -delta, 0.0], [-delta, -delta, 0.0]])
-    pts = np.concatenate([obj] + [obj + o for o in offs])
-    proj, _ = cv2.projectPoints(pts, rvec, tvec, calib.K, calib.dist)
-    p = proj.reshape(5, n, 2)
-    centre = p[0] if img is None else np.asarray(img, dtype=np.float64).reshape(n, 2)
-    d = np.linalg.norm(p[1:] - p[0][None], axis=2).min(axis=0)
-    reach = np.sqrt(2.0) * np.clip(d - 2.0, 1.0, MAX_WINDOW_PX) + COVER_MARGIN_PX
-    R_cb, _ = cv2.Rodrigues(rvec)
-    covered = np.zeros(n, dtype=bool)
-    for cover in covers:
-        board_pts = spec.sample_to_board(np.asarray(cover, dtype=np.float64).reshape(-1, 3))
-        if not np.all(board_pts @ R_cb[2] + float(tvec[2, 0]) > 0):
-            continue  # part of it behind the camera: no image outline (not a view the rig takes)
-        q, _ = cv2.projectPoints(board_pts, rvec, tvec, calib.K, calib.dist)
-        hull = cv2.convexHull(q.reshape(-1, 2).astype(np.float32)).reshape(-1, 2).astype(np.float64)
-        if len(hull) < 3:
-            continue
-        covered |= _hull_distance(centre, hull) < reach
-    return covered
+    if img is None:
+        img = cv2.projectPoints(obj, np.asarray(rvec, dtype=np.float64).reshape(3, 1),
+                                np.asarray(tvec, dtype=np.float64).reshape(3, 1), calib.K, calib.dist)[0]
+    reach = np.sqrt(2.0) * corner_windows(obj, rvec, tvec, calib, spec) + COVER_MARGIN_PX
+    return near_hulls(img, cover_hulls(rvec, tvec, calib, spec, covers), reach)

@@ -81,7 +81,7 @@ def observe_pose(camera, calibration, layout, joints, *, highlight: bool, tile=N
 
     f = metered_board_frame(camera, board_exposure, gain, min_exposure)
     bp = detect_board_pose(to_gray8(f.pixels, bit_depth or f.bit_depth, f.black_level), calibration, layout.charuco,
-                           covers=cover_points(layout))
+                           covers=cover_points(layout), flat_field=True)
     if bp is None:
         return None, None, "ChArUco board not found"
     cam = board_observation(bp, joints)
