@@ -223,7 +223,7 @@ def _fill_holes(values, sigma, measured, above, fill_deg, wi, wo):
     src = np.concatenate([m_idx, m_idx])
     tree = cKDTree(pts)
     bound = 2.0 * np.sin(np.radians(fill_deg) / 2.0)
-    h_idx = np.flatnonzero(holes)
+    h_idx = np.flatnonzero(holes & _near_rows(measured, bound)[..., None])
     filled = np.zeros(N_CELLS, dtype=bool)
     k = min(_K_NEIGHBOURS, len(pts))
     v_flat, s_flat = values.reshape(-1, 3), sigma.reshape(-1, 3)
@@ -248,6 +248,25 @@ def _fill_holes(values, sigma, measured, above, fill_deg, wi, wo):
         s_flat[chunk] = np.sqrt(var)
         filled[chunk] = True
     return filled.reshape(SHAPE)
+
+
+def _near_rows(measured: np.ndarray, bound: float) -> np.ndarray:
+    """(θh, θd) rows of the grid (90, 90) that can hold a cell within chord distance ``bound`` of a measured cell
+    in :func:`_fill_holes`'s embedding e = (wi, wo)/√2 (its twins included): a necessary condition, so the k-d tree
+    is asked only about holes that may have a neighbour (a sparse session's table is mostly far from any).
+
+    For |e − e'| < b, |Δwi| + |Δwo| < 2b, and both wi·wo = cos 2θd and (wi + wo)_z = 2 cos θd cos θh (at φh = 0;
+    Rusinkiewicz 1998) change by at most |Δwi| + |Δwo| (unit vectors): so |Δ cos 2θd| < 2b and
+    |Δ(cos θd cos θh)| < b, which the rows' centres are tested for (Chebyshev distance, with a margin for rounding)."""
+    from scipy.spatial import cKDTree
+
+    from gonio.io.merl import cell_centres
+
+    th, td, _ = cell_centres()
+    rows = np.stack(np.broadcast_arrays(np.cos(2.0 * td)[None, :] / 2.0, np.cos(td)[None, :] * np.cos(th)[:, None]), -1)
+    have = measured.any(axis=-1)
+    d, _ = cKDTree(rows[have]).query(rows.reshape(-1, 2), p=np.inf, distance_upper_bound=bound * (1 + 1e-6) + 1e-12)
+    return np.isfinite(d).reshape(have.shape)
 
 
 def tabulate(samples: SampleSet, *, fill_deg: float = DEFAULT_FILL_DEG, include_flagged: bool = False,

@@ -146,3 +146,24 @@ def test_flagged_and_invalid_samples_excluded():
         tabulate(SampleSet(wi[:5], wo[:5], f[:5], np.full((5, 3), 0.01)))
     with pytest.raises(DataError, match="fill distance"):
         tabulate(SampleSet(wi, wo, f, np.full((100, 3), 0.01)), fill_deg=-1)
+
+
+def test_the_row_prefilter_of_the_fill_drops_no_hole_a_full_search_fills(monkeypatch):
+    """The fill asks its k-d tree only about holes in (θh, θd) rows that can be within the distance of a measured
+    cell (gonio.tabulate._near_rows, a necessary condition): the table is bit for bit the one of asking about every
+    hole, on a sparse set (a few incidence angles, where the prefilter leaves out most rows)."""
+    import gonio.tabulate as tab_mod
+
+    rng = np.random.default_rng(9)
+    n = 600
+    wi = from_spherical(np.radians(rng.choice([10.0, 35.0, 60.0], n)), np.zeros(n))
+    wo = _hemisphere(rng, n)
+    f = make("microfacet", kd=0.2, ks=0.5, alpha=0.3).eval(wi, wo)
+    s = SampleSet(wi, wo, f, 0.01 * f)
+    some = tabulate(s, fill_deg=4.0)
+    assert not tab_mod._near_rows(some.table.count > 0, 2 * np.sin(np.radians(2.0))).all()  # rows were left out
+    monkeypatch.setattr(tab_mod, "_near_rows", lambda measured, bound: np.ones(measured.shape[:2], dtype=bool))
+    every = tabulate(s, fill_deg=4.0)
+    assert some.n_filled == every.n_filled > 1000
+    np.testing.assert_array_equal(some.table.values, every.table.values)
+    np.testing.assert_array_equal(some.table.sigma, every.table.sigma)
