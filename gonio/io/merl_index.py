@@ -29,12 +29,16 @@ acos/atan2/cos/sin are not (NumPy's SIMD versions differ from the C library's in
 vectorized pass uses NumPy's; every pair whose result could depend on those last bits (a
 pre-truncation value within 1e-6 of an integer, or a difference vector within 1e-6 of the pole, where
 φd is ill-conditioned: wi = wo, exact in-plane pairs) is recomputed with the C library's functions
-(Python's ``math`` module wraps them), the ones the reference program calls.
+(Python's ``math`` module wraps them), the ones the reference program calls — one Python call per value, or
+the same C functions in a compiled loop (:mod:`gonio.io._libm`, checked against ``math`` bit for bit before it is
+used) once a process computed :data:`COLD_VALUES` values.
 """
 
 from __future__ import annotations
 
+import functools
 import math
+import sys
 
 import numpy as np
 
@@ -47,11 +51,63 @@ _M_PI = 3.1415926535897932384626433832795  # M_PI_LOCAL of the reference; == mat
 _TOL = 1e-6
 
 
+#: :func:`_libm` runs the C library's functions in a compiled loop (:mod:`gonio.io._libm`, ~25 ns a value instead of
+#: the ~0.6 µs of a Python call) on calls of this many values or more once numba is in this process (loading the
+#: loop then costs ~0.02 CPU s) ...
+MIN_COMPILED = 64
+#: ... and, before that, loads numba and the loop (~0.5 CPU s) once the Python path has computed this many values in
+#: this process (about as much time as the load; a renter who buys once the rent paid reaches the price pays at most
+#: twice the better of the two: Karlin et al., "Competitive snoopy caching", Algorithmica 3, 1988), or for a single
+#: call this large. E.g. a sphere rendered from a MERL table with the light along the view: wi = wo at every pixel,
+#: every pair near the pole and recomputed, ~8 values a pixel.
+COLD_VALUES = 1_000_000
+_PYTHON_VALUES = [0]  #: values the Python path computed in this process (:data:`COLD_VALUES`)
+
+
+@functools.lru_cache(maxsize=1)
+def _compiled():
+    """:data:`gonio.io._libm.FUNCTIONS` if numba is installed, not disabled (``GONIO_BRDF_BACKEND=numpy``) and its
+    loops give :mod:`math`'s results bit for bit (:func:`gonio.io._libm.exact`); else None."""
+    import os
+
+    from gonio.brdf import compiled
+
+    if not compiled.available() or os.environ.get("GONIO_BRDF_BACKEND", "").lower() == "numpy":
+        return None
+    from gonio.io import _libm as lib
+
+    return lib.FUNCTIONS if lib.exact() else None
+
+
+def _warm() -> bool:
+    """The loop is loaded, or numba is in this process (loading the loop costs little then)."""
+    return bool(_compiled.cache_info().currsize) or "numba" in sys.modules
+
+
+def _loops(n: int):
+    """The compiled loops for a call on ``n`` values (:data:`MIN_COMPILED`, :data:`COLD_VALUES`), or None: the
+    Python path (which counts them)."""
+    if n >= MIN_COMPILED and (_warm() or _PYTHON_VALUES[0] + n >= COLD_VALUES):
+        loops = _compiled()
+        if loops is not None:
+            return loops
+    _PYTHON_VALUES[0] += n
+    return None
+
+
 def _libm(f, nargs: int = 1):
-    """``f`` (a C library function wrapped by :mod:`math`) applied elementwise, float64 out."""
+    """``f`` (a C library function wrapped by :mod:`math`) applied elementwise, float64 out: one Python call per
+    value, or the same C function in a compiled loop (:func:`_loops`)."""
     u = np.frompyfunc(f, nargs, 1)
+    name = f.__name__
 
     def call(*args):
+        args = [np.asarray(a, dtype=np.float64) for a in args]
+        shape = np.broadcast_shapes(*(a.shape for a in args))
+        loops = _loops(math.prod(shape))
+        if loops is not None:
+            flat = [np.array(np.broadcast_to(a, shape), dtype=np.float64, order="C").ravel() for a in args]
+            return loops[name](*flat).reshape(shape)
         with np.errstate(invalid="ignore"):
             return np.asarray(u(*args), dtype=np.float64)
 
@@ -67,6 +123,7 @@ def _c_call(f):
         except ValueError:
             return math.nan
 
+    call.__name__ = f.__name__
     return call
 
 
