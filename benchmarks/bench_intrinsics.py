@@ -37,7 +37,10 @@ def _rig_views(cfg, quick: bool):
     rig = load_rig(text=text, source=src)
     with open_sim_config(rig, text, src, cfg, load_material_file(None), None, detector=False) as opened:
         plan = view_plan(rig)
-        views, _ = capture_views(opened.devices, opened.layout.charuco, plan[::3] if quick else plan)
+        from gonio.pipeline.covers import cover_points
+
+        views, _ = capture_views(opened.devices, opened.layout.charuco, plan[::3] if quick else plan,
+                                 covers=cover_points(opened.layout))
     return views
 
 
@@ -47,9 +50,11 @@ def _handheld_views(truth, seed: int, n: int):
     from gonio.pipeline.target import TargetLayout
     from sim.charuco_views import render_handheld_views
 
-    spec = TargetLayout().charuco
-    return [detect_view(to_gray8(f, 12, 64), spec) for f in render_handheld_views(truth, n, seed=seed,
-                                                                                   max_tilt_deg=60.0)]
+    from gonio.pipeline.covers import cover_points
+
+    layout = TargetLayout()  # what render_handheld_views renders: the white patch and sample on the board
+    return [detect_view(to_gray8(f, 12, 64), layout.charuco, covers=cover_points(layout))
+            for f in render_handheld_views(truth, n, seed=seed, max_tilt_deg=60.0)]
 
 
 def run(quick: bool = False) -> list[Table]:

@@ -97,15 +97,18 @@ def run_calibrate(args) -> int:
     from gonio.pipeline.target import TargetLayout, load_target
 
     check_output(args.output, option="-o", force=args.force, suffixes=(".toml",))
-    spec = (load_target(args.target) if args.target else TargetLayout()).charuco
+    from gonio.pipeline.covers import cover_points
+
+    layout = load_target(args.target) if args.target else TargetLayout()
+    spec, covers = layout.charuco, cover_points(layout)  # the target's white patch and sample: their corners left out
     truth, camera_table = None, {}
     if args.images:
         from gonio.session.camera_views import views_from_files
 
-        views, refused, (w, h) = views_from_files(args.images, spec)
+        views, refused, (w, h) = views_from_files(args.images, spec, covers)
         how = f"{len(args.images)} image files"
     else:
-        views, refused, (w, h), truth, camera_table = _rig_views(args, spec, _resolution(args.sim_resolution))
+        views, refused, (w, h), truth, camera_table = _rig_views(args, spec, _resolution(args.sim_resolution), covers)
         how = "the simulated rig's camera arm" if args.sim else f"the camera arm of {args.rig}"
     print(f"ChArUco board found in {len(views)} of {len(views) + len(refused)} views ({how})"
           + (f"; not in e.g. {refused[0][0]}: {refused[0][1]}" if refused else ""))
@@ -119,7 +122,7 @@ def run_calibrate(args) -> int:
     return 0
 
 
-def _rig_views(args, spec, size):
+def _rig_views(args, spec, size, covers=None):
     """Views taken on the rig (or the simulated one): ``(views, refused, (w, h), truth | None, camera table)``."""
     from gonio.errors import ConfigError
     from gonio.rig.kinematics import load_rig, read_rig_text
@@ -161,7 +164,7 @@ def _rig_views(args, spec, size):
         plan = view_plan(rig)
         if args.quick:
             plan = plan[::3]
-        views, refused = capture_views(opened.devices, spec, plan, on_view=_progress)
+        views, refused = capture_views(opened.devices, spec, plan, on_view=_progress, covers=covers)
         frame = opened.devices.camera.capture(0.005, 1.0)
     size = (frame.pixels.shape[1], frame.pixels.shape[0])
     return views, refused, size, truth, camera_table

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["cover_points", "covered_corners", "corner_windows", "cover_hulls", "near_hulls", "COVER_MARGIN_PX",
-           "MAX_WINDOW_PX"]
+__all__ = ["cover_points", "covered_corners", "covered_in_plane", "covered_by", "corner_windows", "cover_hulls",
+           "near_hulls", "pose_projector", "plane_projector", "COVER_MARGIN_PX", "MAX_WINDOW_PX"]
 
 #: Pixels added to a corner finder's window: the lens's (or the renderer's) blur reaches that far beyond it.
 COVER_MARGIN_PX = 2.0
@@ -74,40 +74,76 @@ def _hull_distance(points: np.ndarray, hull: np.ndarray) -> np.ndarray:
     return np.where(inside, 0.0, dist)
 
 
-def corner_windows(obj, rvec, tvec, calib, spec) -> np.ndarray:
-    """OpenCV's ChArUco corner-finder window half-sizes (px, (n,)) of the board corners ``obj`` (board frame,
-    (n, 3) m) seen with the board pose ``(rvec, tvec)`` (its ``getMaximumSubPixWindowSizes``): ``d − 2`` clipped to
-    [1, :data:`MAX_WINDOW_PX`] (OpenCV truncates it to an integer: the floor of this), ``d`` the distance to the nearest corner of the neighbouring markers,
-    here the nearest of the four points ``(±δ, ±δ)`` from the corner, ``δ = (square − marker)/2``, all projected."""
-    import cv2
-
-    obj = np.asarray(obj, dtype=np.float64).reshape(-1, 3)
-    n = len(obj)
-    delta = 0.5 * (spec.square_length - spec.marker_length)
-    offs = np.array([[delta, delta, 0.0], [-delta, delta, 0.0], [delta, -delta, 0.0], [-delta, -delta, 0.0]])
-    proj, _ = cv2.projectPoints(np.concatenate([obj] + [obj + o for o in offs]),
-                                np.asarray(rvec, dtype=np.float64).reshape(3, 1),
-                                np.asarray(tvec, dtype=np.float64).reshape(3, 1), calib.K, calib.dist)
-    p = proj.reshape(5, n, 2)
-    d = np.linalg.norm(p[1:] - p[0][None], axis=2).min(axis=0)
-    return np.clip(d - 2.0, 1.0, MAX_WINDOW_PX)
-
-
-def cover_hulls(rvec, tvec, calib, spec, covers) -> list[np.ndarray]:
-    """The image outlines (convex hulls, (k, 2) px) of ``covers`` (point sets in the sample frame,
-    :func:`cover_points`) seen with the board pose ``(rvec, tvec)``; a cover partly behind the camera has none."""
+def pose_projector(rvec, tvec, calib):
+    """Board-frame points (k, 3) → pixels (k, 2) through the board pose ``(rvec, tvec)`` and ``calib``
+    (``cv2.projectPoints``); None for points partly behind the camera (no image outline: not a view the rig takes)."""
     import cv2
 
     rvec = np.asarray(rvec, dtype=np.float64).reshape(3, 1)
     tvec = np.asarray(tvec, dtype=np.float64).reshape(3, 1)
     R_cb, _ = cv2.Rodrigues(rvec)
+
+    def project(p):
+        p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
+        if not np.all(p @ R_cb[2] + float(tvec[2, 0]) > 0):
+            return None
+        return cv2.projectPoints(p, rvec, tvec, calib.K, calib.dist)[0].reshape(-1, 2)
+
+    return project
+
+
+def plane_projector(obj, img):
+    """Board-frame points (k, 3) → pixels (k, 2) by the homography of the board plane onto the image that the
+    corners ``obj`` (board frame) ↔ ``img`` (pixels) define (least squares, Hartley & Zisserman §4.1; z dropped, the
+    lens's distortion left out — it moves an outline by a fraction of a corner window), for views without a camera
+    model (intrinsic calibration); None when the corners define no homography (fewer than 4, degenerate)."""
+    import cv2
+
+    obj = np.asarray(obj, dtype=np.float64).reshape(-1, 3)
+    img = np.asarray(img, dtype=np.float64).reshape(-1, 2)
+    if len(obj) < 4:
+        return None
+    H, _ = cv2.findHomography(obj[:, :2], img, 0)
+    if H is None or not np.all(np.isfinite(H)):
+        return None
+
+    def project(p):
+        p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
+        return cv2.perspectiveTransform(np.ascontiguousarray(p[:, :2]).reshape(-1, 1, 2), H).reshape(-1, 2)
+
+    return project
+
+
+def corner_windows(obj, project, spec) -> np.ndarray | None:
+    """OpenCV's ChArUco corner-finder window half-sizes (px, (n,)) of the board corners ``obj`` (board frame,
+    (n, 3) m) seen through ``project`` (:func:`pose_projector`, :func:`plane_projector`) (its
+    ``getMaximumSubPixWindowSizes``): ``d − 2`` clipped to [1, :data:`MAX_WINDOW_PX`] (OpenCV truncates it to an
+    integer: the floor of this), ``d`` the distance to the nearest corner of the neighbouring markers, here the
+    nearest of the four points ``(±δ, ±δ)`` from the corner, ``δ = (square − marker)/2``, all projected; None when
+    ``project`` gives none."""
+    obj = np.asarray(obj, dtype=np.float64).reshape(-1, 3)
+    n = len(obj)
+    delta = 0.5 * (spec.square_length - spec.marker_length)
+    offs = np.array([[delta, delta, 0.0], [-delta, delta, 0.0], [delta, -delta, 0.0], [-delta, -delta, 0.0]])
+    p = project(np.concatenate([obj] + [obj + o for o in offs]))
+    if p is None:
+        return None
+    p = p.reshape(5, n, 2)
+    d = np.linalg.norm(p[1:] - p[0][None], axis=2).min(axis=0)
+    return np.clip(d - 2.0, 1.0, MAX_WINDOW_PX)
+
+
+def cover_hulls(project, spec, covers) -> list[np.ndarray]:
+    """The image outlines (convex hulls, (k, 2) px) of ``covers`` (point sets in the sample frame,
+    :func:`cover_points`) seen through ``project``; a cover it cannot project has none."""
+    import cv2
+
     hulls = []
     for cover in covers or ():
-        board_pts = spec.sample_to_board(np.asarray(cover, dtype=np.float64).reshape(-1, 3))
-        if not np.all(board_pts @ R_cb[2] + float(tvec[2, 0]) > 0):
-            continue  # part of it behind the camera: no image outline (not a view the rig takes)
-        q, _ = cv2.projectPoints(board_pts, rvec, tvec, calib.K, calib.dist)
-        hull = cv2.convexHull(q.reshape(-1, 2).astype(np.float32)).reshape(-1, 2).astype(np.float64)
+        q = project(spec.sample_to_board(np.asarray(cover, dtype=np.float64).reshape(-1, 3)))
+        if q is None:
+            continue
+        hull = cv2.convexHull(np.asarray(q, dtype=np.float32).reshape(-1, 2)).reshape(-1, 2).astype(np.float64)
         if len(hull) >= 3:
             hulls.append(hull)
     return hulls
@@ -122,22 +158,32 @@ def near_hulls(points, hulls, reach) -> np.ndarray:
     return near
 
 
-def covered_corners(obj, rvec, tvec, calib, spec, covers, img=None) -> np.ndarray:
-    """Which board corners ``obj`` (board frame, (n, 3) m) a cover reaches, seen with the board pose ``(rvec,
-    tvec)``: a boolean mask (n,). ``covers``: point sets in the sample frame (:func:`cover_points`).
+def covered_by(obj, project, spec, covers, img=None) -> np.ndarray:
+    """Which board corners ``obj`` (board frame, (n, 3) m) a cover reaches, seen through ``project``: a boolean
+    mask (n,). ``covers``: point sets in the sample frame (:func:`cover_points`).
 
     A corner is covered when its corner finder's window (:func:`corner_windows`; a square window of half-size
     ``w`` reaches ``√2 w``), plus :data:`COVER_MARGIN_PX` of blur, touches the image of a cover (the convex hull
     of its projected points, :func:`cover_hulls`). ``img``: the corners' image points (n, 2); default their
     projection."""
-    import cv2
-
     obj = np.asarray(obj, dtype=np.float64).reshape(-1, 3)
     n = len(obj)
-    if n == 0 or not covers:
+    if n == 0 or not covers or project is None:
         return np.zeros(n, dtype=bool)
-    if img is None:
-        img = cv2.projectPoints(obj, np.asarray(rvec, dtype=np.float64).reshape(3, 1),
-                                np.asarray(tvec, dtype=np.float64).reshape(3, 1), calib.K, calib.dist)[0]
-    reach = np.sqrt(2.0) * corner_windows(obj, rvec, tvec, calib, spec) + COVER_MARGIN_PX
-    return near_hulls(img, cover_hulls(rvec, tvec, calib, spec, covers), reach)
+    win = corner_windows(obj, project, spec)
+    if win is None:
+        return np.zeros(n, dtype=bool)
+    centre = project(obj) if img is None else np.asarray(img, dtype=np.float64).reshape(n, 2)
+    return near_hulls(centre, cover_hulls(project, spec, covers), np.sqrt(2.0) * win + COVER_MARGIN_PX)
+
+
+def covered_corners(obj, rvec, tvec, calib, spec, covers, img=None) -> np.ndarray:
+    """:func:`covered_by` with the board pose ``(rvec, tvec)`` and ``calib`` (:func:`pose_projector`)."""
+    return covered_by(obj, pose_projector(rvec, tvec, calib), spec, covers, img)
+
+
+def covered_in_plane(obj, img, spec, covers) -> np.ndarray:
+    """:func:`covered_by` without a camera model (intrinsic calibration): through the board plane's homography onto
+    the image that the corners ``obj`` ↔ ``img`` define (:func:`plane_projector`), the covers by their footprint
+    on the board (a sphere's or a raised sample's outline seen obliquely reaches further)."""
+    return covered_by(obj, plane_projector(obj, img), spec, covers, img)

@@ -51,9 +51,11 @@ class CharucoView:
     source: str = ""
 
 
-def detect_view(gray: np.ndarray, spec, *, source: str = "", board=None) -> CharucoView | None:
+def detect_view(gray: np.ndarray, spec, *, source: str = "", board=None, covers=None) -> CharucoView | None:
     """The ChArUco corners of an 8-bit grey frame (:func:`gonio.pipeline.markers.to_gray8`), or None with fewer
-    than :data:`MIN_CORNERS` or (nearly) collinear corners (they constrain no homography)."""
+    than :data:`MIN_CORNERS` or (nearly) collinear corners (they constrain no homography). ``covers``: what lies
+    on the board (:func:`gonio.pipeline.covers.cover_points`; the target on a rig's stage): the corners whose
+    finder window it reaches are left out (:func:`gonio.pipeline.covers.covered_in_plane`)."""
     import cv2
 
     from gonio.pipeline.markers import MIN_SPREAD_SQUARES, corner_spread
@@ -63,10 +65,18 @@ def detect_view(gray: np.ndarray, spec, *, source: str = "", board=None) -> Char
     if ids is None or len(ids) < MIN_CORNERS:
         return None
     obj, img = board.matchImagePoints(corners, ids)
-    if obj is None or len(obj) < MIN_CORNERS or corner_spread(obj) < MIN_SPREAD_SQUARES * spec.square_length:
+    if obj is None or len(obj) < MIN_CORNERS:
         return None
-    return CharucoView(np.asarray(obj, np.float64).reshape(-1, 3), np.asarray(img, np.float64).reshape(-1, 2),
-                       np.asarray(ids).reshape(-1), source)
+    obj, img, ids = np.asarray(obj, np.float64).reshape(-1, 3), np.asarray(img, np.float64).reshape(-1, 2), \
+        np.asarray(ids).reshape(-1)
+    if covers:
+        from gonio.pipeline.covers import covered_in_plane
+
+        keep = ~covered_in_plane(obj, img, spec, covers)
+        obj, img, ids = obj[keep], img[keep], ids[keep]
+    if len(obj) < MIN_CORNERS or corner_spread(obj) < MIN_SPREAD_SQUARES * spec.square_length:
+        return None
+    return CharucoView(obj, img, ids, source)
 
 
 @dataclass(frozen=True)

@@ -208,10 +208,10 @@ def detect_board_pose(gray: np.ndarray, calib: CameraCalibration, spec: CharucoS
     ids = np.asarray(ch_ids).reshape(-1)
     bp = board_pose_from_points(obj, img, calib, spec, ids=ids)
     if flat_field and bp is not None:
-        from gonio.pipeline.covers import COVER_MARGIN_PX, cover_hulls, near_hulls
+        from gonio.pipeline.covers import COVER_MARGIN_PX, cover_hulls, near_hulls, pose_projector
         from gonio.pipeline.shading import flat_fielded
 
-        hulls = cover_hulls(bp.rvec, bp.tvec, calib, spec, covers)
+        hulls = cover_hulls(pose_projector(bp.rvec, bp.tvec, calib), spec, covers)
         flat = flat_fielded(gray, bp.rvec, bp.tvec, calib, spec,
                             exclude=lambda xy: near_hulls(xy, hulls, COVER_MARGIN_PX + 1.0))
         again = None if flat is None else detect_board_pose(flat, calib, spec, board, covers=covers)

@@ -52,10 +52,12 @@ def _clear(controller) -> None:
 
 
 def capture_views(devices, spec, plan: np.ndarray, *, exposure: float = 0.005, gain: float = 1.0,
-                  on_view=None) -> tuple[list, list[tuple[int, str]]]:
+                  on_view=None, covers=None) -> tuple[list, list[tuple[int, str]]]:
     """Move to every pose of ``plan`` on ``devices`` (:class:`gonio.session.runner.Devices`), light on, and detect
     the board: ``(views, refused)`` — :class:`gonio.pipeline.intrinsics.CharucoView` per pose where the board
-    was found, and ``(pose index, why)`` where not. ``on_view(k, n, view_or_None)`` reports progress."""
+    was found, and ``(pose index, why)`` where not. ``on_view(k, n, view_or_None)`` reports progress. ``covers``:
+    what lies on the board on the stage (:func:`gonio.pipeline.covers.cover_points` of the target), whose corners
+    are left out."""
     from gonio.pipeline.intrinsics import detect_view
     from gonio.pipeline.markers import to_gray8
     from gonio.session.geocal_observe import metered_board_frame
@@ -71,7 +73,7 @@ def capture_views(devices, spec, plan: np.ndarray, *, exposure: float = 0.005, g
             devices.axes.move_to(rig.as_dict(j))
             devices.clock.sleep(0.3)  # settle
             f = metered_board_frame(devices.camera, exposure, gain)
-            view = detect_view(to_gray8(f.pixels, f.bit_depth, f.black_level), spec, board=board,
+            view = detect_view(to_gray8(f.pixels, f.bit_depth, f.black_level), spec, board=board, covers=covers,
                                source=f"pose {k} ({', '.join(f'{math.degrees(a):.0f}' for a in j)} deg)")
             if view is None:
                 refused.append((k, "ChArUco board not found"))
@@ -108,8 +110,9 @@ def _read_image(path: Path) -> np.ndarray:
     return img
 
 
-def views_from_files(paths, spec) -> tuple[list, list[tuple[str, str]], tuple[int, int]]:
-    """``(views, refused, (width, height))`` from image files (module docstring); every image the same size."""
+def views_from_files(paths, spec, covers=None) -> tuple[list, list[tuple[str, str]], tuple[int, int]]:
+    """``(views, refused, (width, height))`` from image files (module docstring); every image the same size.
+    ``covers``: as :func:`capture_views`'s."""
     from gonio.pipeline.intrinsics import detect_view
     from gonio.pipeline.markers import to_gray8
 
@@ -123,7 +126,7 @@ def views_from_files(paths, spec) -> tuple[list, list[tuple[str, str]], tuple[in
             raise DataError(f"{p}: {img.shape[1]}x{img.shape[0]} pixels, the first image {size[0]}x{size[1]}: one camera, "
                             "one size")
         bits = 8 if img.dtype == np.uint8 else 16
-        view = detect_view(to_gray8(img, bits), spec, board=board, source=str(p))
+        view = detect_view(to_gray8(img, bits), spec, board=board, source=str(p), covers=covers)
         if view is None:
             refused.append((str(p), "ChArUco board not found"))
         else:

@@ -153,3 +153,22 @@ def test_detect_board_pose_leaves_covered_corners_out(rendered_views):
     assert np.all(np.abs(np.mean(dc, axis=0)) < 2e-5), np.mean(dc, axis=0)
     assert np.sqrt(np.mean(np.square(rot))) < 0.012
     assert np.sqrt(np.mean(np.square(rot_all))) > 0.025
+
+
+def test_intrinsic_views_leave_covered_corners_out(rendered_views):
+    """:func:`gonio.pipeline.intrinsics.detect_view` with covers (no camera model yet: the corners' own homography)
+    keeps no corner the true pose says is covered, and drops the ones it does; without covers they are kept."""
+    from gonio.pipeline.intrinsics import detect_view
+
+    lay, calib, views = rendered_views
+    spec = lay.charuco
+    covers = cover_points(lay)
+    allobj = np.asarray(spec.board().getChessboardCorners(), dtype=np.float64).reshape(-1, 3)
+    dropped = 0
+    for pose, gray in views:
+        v, v_all = detect_view(gray, spec, covers=covers), detect_view(gray, spec)
+        truth = covered_corners(allobj[v_all.ids], *_board_rt(pose, spec), calib, spec, covers)
+        assert truth.any()
+        np.testing.assert_array_equal(np.sort(v.ids), np.sort(v_all.ids[~truth]))
+        dropped += int(truth.sum())
+    assert dropped >= 2 * len(views)
