@@ -29,11 +29,17 @@ from gonio.brdf.base import Param
 from gonio.brdf.dupuy import Dupuy2015Conductor
 from gonio.brdf.fresnel import conductor_core, dielectric_core
 
-__all__ = ["Dupuy2015Coated", "thin_coat_fresnel", "COAT_N_MIN", "COAT_N_MAX"]
+__all__ = ["Dupuy2015Coated", "thin_coat_fresnel", "COAT_N_MIN", "COAT_N_MAX", "BASE_EDGE_MIN"]
 
 #: Range of the coat's refractive index: lacquers, resins and glasses 1.3–1.7, thin oxides up to ~2.0 (Al₂O₃ 1.77;
 #: Palik 1985): the fit's bounds, and what the realdata benchmark calls a physical coat.
 COAT_N_MIN, COAT_N_MAX = 1.3, 2.0
+#: Lowest Gulbrandsen edge tint of the metal under the coat (:func:`gonio.brdf.fresnel.gulbrandsen_index`): with
+#: g ≥ 0.2 its extinction k is at least 0.94 for every F(0) in [0.5, 0.99] — an absorbing conductor, never the
+#: dielectric of that F(0) (g = 0: k = 0) which F(0) ≥ 0.5 alone admits. Under a coat the metal is seen only through
+#: t F_c, and its index trades off with t: on alum-bronze a fit free to take g = 0 reached k = 0 in two channels with
+#: the same errors as this bound's k > 2 (issue 29).
+BASE_EDGE_MIN = 0.2
 
 
 def thin_coat_fresnel(cos_d, n, eta, k, t):
@@ -62,7 +68,8 @@ def thin_coat_fresnel(cos_d, n, eta, k, t):
 class Dupuy2015Coated(Dupuy2015Conductor):
     """:class:`gonio.brdf.dupuy.Dupuy2015Conductor` under a thin dielectric coat: the tabulated D and its Smith G1 of
     Dupuy et al. 2015, and the Fresnel factor ks · F(θd) of :func:`thin_coat_fresnel` — the coat's own reflection
-    (index ``n``, one for R, G, B) plus the conductor (η + i k per channel, F(0) in air ≥ 0.5: a metal) seen through
+    (index ``n``, one for R, G, B) plus the conductor (η + i k per channel, F(0) in air ≥ 0.5 and k ≥ 0.94 as fitted,
+    :data:`BASE_EDGE_MIN`: a metal) seen through
     it, dimmed by the layer's round-trip transmittance ``t`` (per channel: an oxide's or a tinted lacquer's colour).
     n = 1, t = 1 would be the bare conductor; n's range is a coat's (:data:`COAT_N_MIN`–:data:`COAT_N_MAX`). pbrt-v4's
     ``coatedconductor`` (interface.eta = n, conductor.eta/k, one roughness for both) renders the same structure."""

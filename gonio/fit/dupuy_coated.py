@@ -8,7 +8,8 @@ D step. The Fresnel step: the coat's index n (one for R, G, B) by a scan of [:da
 the last round's n) of the summed per-channel optimum;
 per channel, kd and ks in closed form (variable projection, Golub & Pereyra 1973, on per-θd-bin sums:
 :class:`gonio.fit.dupuy_conductor._Channel`) for every (F(0), edge tint, t) of a scan over metals only
-(Gulbrandsen 2014, :func:`gonio.brdf.fresnel.gulbrandsen_index`, F(0) ≥ 0.5) and the layer's transmittance t ∈ [0, 1],
+(Gulbrandsen 2014, :func:`gonio.brdf.fresnel.gulbrandsen_index`, F(0) ≥ 0.5, edge tint ≥
+:data:`~gonio.brdf.coated.BASE_EDGE_MIN`: k > 0) and the layer's transmittance t ∈ [0, 1],
 then, in the last round, a bounded polish (L-BFGS-B) of the three. Standard uncertainties s² (JᵀJ)⁻¹ of
 (kd, ks, η, k, t) per channel and n jointly, at the solution and conditional on the fitted D (Press et al., *Numerical
 Recipes*, 3rd ed., §15.5); a parameter on a bound has none. t and the metal's index trade off along t F_c(0), the light
@@ -21,7 +22,7 @@ import time
 
 import numpy as np
 
-from gonio.brdf.coated import COAT_N_MAX, COAT_N_MIN, Dupuy2015Coated, thin_coat_fresnel
+from gonio.brdf.coated import BASE_EDGE_MIN, COAT_N_MAX, COAT_N_MIN, Dupuy2015Coated, thin_coat_fresnel
 from gonio.brdf.dupuy import N_NDF, N_FRESNEL, ndf_nodes, normalization
 from gonio.brdf.fresnel import F0_MAX, METAL_F0_MIN, conductor, gulbrandsen_index
 from gonio.fit.data import FitData
@@ -35,7 +36,7 @@ __all__ = ["fit_dupuy_coated"]
 
 #: The per-channel scan: F(0) in air × edge tint × the layer's round-trip transmittance t.
 _F0S = np.linspace(METAL_F0_MIN, F0_MAX, 8)
-_EDGES = np.linspace(0.0, 1.0, 7)
+_EDGES = np.linspace(BASE_EDGE_MIN, 1.0, 7)
 _TS = np.concatenate([[0.0], np.geomspace(0.01, 1.0, 8)])
 #: Coat indices of the scan that starts the bounded search of n, and the search's tolerance in n.
 _NS = np.linspace(COAT_N_MIN, COAT_N_MAX, 6)
@@ -64,7 +65,7 @@ def _scan_point(j: int) -> np.ndarray:
 
 def _one(ch: _Channel, n: float, u) -> tuple[float, float, float, float, float]:
     """``(objective, kd, ks, η, k)`` of one channel at (F(0), edge, t) = ``u`` and coat index n."""
-    eta, k = gulbrandsen_index(float(np.clip(u[0], METAL_F0_MIN, F0_MAX)), float(np.clip(u[1], 0.0, 1.0)))
+    eta, k = gulbrandsen_index(float(np.clip(u[0], METAL_F0_MIN, F0_MAX)), float(np.clip(u[1], BASE_EDGE_MIN, 1.0)))
     f = thin_coat_fresnel(ch.cos, n, np.array([float(eta)]), np.array([float(k)]), np.array([float(np.clip(u[2], 0, 1))]))
     obj, kd, ks = ch.solve_fresnel(f)
     return float(obj[0]), float(kd[0]), float(ks[0]), float(eta), float(k)
@@ -79,7 +80,8 @@ def _channels_at(chans, n: float, x_prev, polish: bool) -> tuple[float, np.ndarr
         for c in range(3):
             r0 = float(conductor(np.ones(1), x_prev[2, c], x_prev[3, c])[0])
             if METAL_F0_MIN <= r0 <= F0_MAX:
-                extra.append((c, np.array([r0, _edge_of(r0, x_prev[2, c]), x_prev[4, c]]), x_prev[2:5, c]))
+                extra.append((c, np.array([r0, max(_edge_of(r0, x_prev[2, c]), BASE_EDGE_MIN), x_prev[4, c]]),
+                              x_prev[2:5, c]))
     f = _scan(chans[0].cos, n, np.array([e[2] for e in extra]).T.reshape(3, -1))
     g = f.shape[1] - len(extra)
     total, x = 0.0, np.zeros((5, 3))
@@ -92,7 +94,7 @@ def _channels_at(chans, n: float, x_prev, polish: bool) -> tuple[float, np.ndarr
         if polish:
             from scipy.optimize import minimize
 
-            bounds = [(METAL_F0_MIN, F0_MAX), (0.0, 1.0), (0.0, 1.0)]
+            bounds = [(METAL_F0_MIN, F0_MAX), (BASE_EDGE_MIN, 1.0), (0.0, 1.0)]
             res = minimize(lambda v: _one(ch, n, v)[0], u, method="L-BFGS-B", bounds=bounds, options={"maxiter": 40})
             if res.fun <= obj[j]:
                 u = np.clip(res.x, [b[0] for b in bounds], [b[1] for b in bounds])
@@ -187,7 +189,7 @@ def fit_dupuy_coated(d: FitData, loss: Loss, *, n_ndf: int = N_NDF, image: float
     ndf_se, nempty = ndf_sigma(geo, model, cos_d, y, w, wscale, s2, ndf_bound)
     for i, name in ((0, "kd"), (1, "ks"), (4, "t")):  # in [0, 1]
         mark_bound(at_bound, se, i, name, x[i], 0.0, 1.0)
-    f0 = index_bounds(at_bound, se, slice(2, 4), x[2], x[3])
+    f0 = index_bounds(at_bound, se, slice(2, 4), x[2], x[3], BASE_EDGE_MIN)
     mark_bound(at_bound, n_se, 0, "n", np.full(3, n), COAT_N_MIN, COAT_N_MAX)
     if "n" in at_bound:  # one value for R, G, B
         at_bound["n"] = {"value": at_bound["n"]["r"]}

@@ -159,13 +159,14 @@ def mark_bound(at_bound: dict, se: np.ndarray, rows, name: str, v, lo: float, hi
             se[rows, c] = np.nan
 
 
-def index_bounds(at_bound: dict, se: np.ndarray, rows, eta, k) -> np.ndarray:
-    """The conductors' F(0) per channel; an F(0) or edge tint on a bound is named (:func:`mark_bound`): the index is
-    searched in Gulbrandsen's (F(0), edge tint), whose bounds are its own (η and k, rows ``rows``, lose their σ)."""
+def index_bounds(at_bound: dict, se: np.ndarray, rows, eta, k, edge_min: float = 0.0) -> np.ndarray:
+    """The conductors' F(0) per channel; an F(0) or edge tint on a bound (the edge tint's lower one ``edge_min``) is
+    named (:func:`mark_bound`): the index is searched in Gulbrandsen's (F(0), edge tint), whose bounds are its own (η
+    and k, rows ``rows``, lose their σ)."""
     f0 = conductor(np.ones(1), np.asarray(eta), np.asarray(k))[0]
     edge = np.array([_edge_of(float(f0[c]), float(np.asarray(eta)[c])) for c in range(3)])
     mark_bound(at_bound, se, rows, "f0", f0, METAL_F0_MIN, F0_MAX)
-    mark_bound(at_bound, se, rows, "edge", edge, 0.0, 1.0)
+    mark_bound(at_bound, se, rows, "edge", edge, edge_min, 1.0)
     return f0
 
 
