@@ -24,8 +24,16 @@ from benchmarks.common import Size, Table, size, time_call
 MATERIAL = {"model": "lambert+2ggx",
             "params": {"diffuse.albedo": [0.25, 0.2, 0.15], "lobe1.ks": 0.3, "lobe1.alpha": 0.3,
                        "lobe2.ks": 0.3, "lobe2.alpha": 0.1}}
-#: Camera resolution of the simulated sessions (the `gonio measure --sim` default).
+#: Camera resolution of the simulated sessions (the `gonio measure --sim` default) ...
 RESOLUTION = (320, 240)
+#: ... and at the smoke size (`gonio bench --smoke`, the test suite's bench smoke: its numbers mean little): 56 % of
+#: the pixels, the smallest camera at which the simulated board is still found (tests/session/conftest.py).
+SMOKE_RESOLUTION = (240, 180)
+
+
+def resolution(quick=False) -> tuple[int, int]:
+    """The simulated camera of the plan and capture tables at this size (:data:`RESOLUTION`, :data:`SMOKE_RESOLUTION`)."""
+    return SMOKE_RESOLUTION if size(quick) is Size.SMOKE else RESOLUTION
 #: Largest zenith angle of the plans and of the directions the BRDF error is averaged over.
 THETA_MAX_DEG = 70.0
 _D = math.radians
@@ -61,20 +69,21 @@ def eval_directions(n: int = 20_000, theta_max_deg: float = THETA_MAX_DEG, seed:
 _SIMULATED: dict[tuple, tuple] = {}
 
 
-def _plan_key(plan) -> tuple:
-    return plan.generator, np.asarray(plan.poses).tobytes(), repr(plan.capture)
+def _plan_key(plan, camera) -> tuple:
+    return plan.generator, np.asarray(plan.poses).tobytes(), repr(plan.capture), tuple(camera)
 
 
-def simulate(plan, out: Path):
-    """Run ``plan`` on the simulated rig rendering :data:`MATERIAL`: ``(RunResult, wall s, SampleSet)``.
-    The simulator is seeded, so a plan simulated before in this process is not run again: its result, wall
-    time (of the run that measured it) and samples are returned again."""
+def simulate(plan, out: Path, camera: tuple[int, int] = RESOLUTION):
+    """Run ``plan`` on the simulated rig rendering :data:`MATERIAL` with a ``camera`` (width, height) camera:
+    ``(RunResult, wall s, SampleSet)``. The simulator is seeded, so a plan simulated before in this process (on the
+    same camera) is not run again: its result, wall time (of the run that measured it) and samples are returned
+    again."""
     from benchmarks.bench_session import _session
     from gonio.store.directory import load_session
 
-    key = _plan_key(plan)
+    key = _plan_key(plan, camera)
     if key not in _SIMULATED:
-        result, wall = _session(plan, RESOLUTION, out, material=MATERIAL)
+        result, wall = _session(plan, camera, out, material=MATERIAL)
         _SIMULATED[key] = (result, wall, load_session(out)[1])
     return _SIMULATED[key]
 
@@ -174,7 +183,7 @@ def adaptive_args(lab_budget: float, target_error: float, quick: bool = False):
     return build_parser().parse_args(argv)
 
 
-def simulate_adaptive(args, out: Path, n_starts: int | None = None):
+def simulate_adaptive(args, out: Path, n_starts: int | None = None, camera: tuple[int, int] = RESOLUTION):
     """Run the adaptive session ``args`` describe (:func:`gonio.cli.plan.adaptive_from_args`, then
     :class:`gonio.session.adaptive.AdaptiveSession` on the simulated rig rendering :data:`MATERIAL`):
     ``(AdaptiveSessionResult, wall s, SampleSet)``. ``n_starts``: the rounds' fits' starts instead of the
@@ -188,7 +197,7 @@ def simulate_adaptive(args, out: Path, n_starts: int | None = None):
     candidates, settings, spec = adaptive_from_args(args, load_rig(), source="bench --plan adaptive")
     if n_starts is not None:
         spec = replace(spec, n_starts=n_starts)
-    return _adaptive_session(candidates, settings, spec, RESOLUTION, out, material=MATERIAL)
+    return _adaptive_session(candidates, settings, spec, camera, out, material=MATERIAL)
 
 
 def _adaptive_runs(default: PlanRow, overhead: float, quick: bool) -> list[tuple[str, object]]:
@@ -288,7 +297,7 @@ def plan_table(quick: bool = False) -> Table:
     f_true = f_truth.eval(wi, wo)
     model = fitted_model(quick)
     t = Table(f"plan density and kind: lab time vs BRDF error ({MATERIAL['model']} with a narrow lobe, "
-              f"simulated sessions at {RESOLUTION[0]}×{RESOLUTION[1]}, fitted {model})",
+              f"simulated sessions at {resolution(quick)[0]}×{resolution(quick)[1]}, fitted {model})",
               ["plan", "parameters", "poses", "lab s", "lab vs default", "wall s", "usable samples",
                "sample rel RMS err", "BRDF rel RMS err", "err vs default", "fit s"], baseline=1, default=1)
     rows: list[PlanRow] = []
@@ -297,7 +306,7 @@ def plan_table(quick: bool = False) -> Table:
         for i, (kind, label, params, is_default) in enumerate(_uniform_plans(quick)):
             plan = make_plan(kind, seed=0, **params)
             try:
-                result, wall, s = simulate(plan, Path(tmp) / f"p{i}")
+                result, wall, s = simulate(plan, Path(tmp) / f"p{i}", resolution(quick))
                 rows.append(_session_row(kind, label, len(plan), result, wall, s, wi, wo, f_true, f_truth, is_default,
                                          starts, model))
             except Exception as exc:  # a crashing session is a finding: say so, keep the other rows
@@ -311,7 +320,8 @@ def plan_table(quick: bool = False) -> Table:
         base = next(r for r in rows if r.default)
         for j, (label, args) in enumerate(_adaptive_runs(base, overhead, quick)):
             try:
-                result, wall, s = simulate_adaptive(args, Path(tmp) / f"a{j}", n_starts=1 if quick else None)
+                result, wall, s = simulate_adaptive(args, Path(tmp) / f"a{j}", n_starts=1 if quick else None,
+                                                    camera=resolution(quick))
                 n = sum(r["n_poses"] for r in result.rounds)
                 rows.append(_session_row("adaptive", f"{label}: {len(result.rounds)} rounds, stop: {result.stop}",
                                          n, result, wall, s, wi, wo, f_true, f_truth, n_starts=starts, model=model))
@@ -378,7 +388,7 @@ def capture_table(quick: bool = False) -> Table:
     measured = []
     with tempfile.TemporaryDirectory() as tmp:
         for i, (label, cap) in enumerate(rows):
-            result, _, s = simulate(replace(plan, capture=cap), Path(tmp) / f"c{i}")
+            result, _, s = simulate(replace(plan, capture=cap), Path(tmp) / f"c{i}", resolution(quick))
             good = s.good()
             if len(good):
                 rel = float(np.median(good.sigma / np.maximum(np.abs(good.f), 1e-12)))
