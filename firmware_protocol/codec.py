@@ -292,12 +292,7 @@ class Decoder:
             if k >= 0 and not self._buf and not self._overflow and len(piece) <= MAX_ENCODED:
                 # a whole segment within this chunk: judged where it lies (what the buffer would hold)
                 if piece:
-                    ev = decode_segment(piece)
-                    if isinstance(ev, Frame):
-                        self.frames += 1
-                    else:
-                        self.rejects[ev.verdict] += 1
-                    events.append(ev)
+                    events.append(self._counted(decode_segment(piece)))
                 start = k + 1
                 continue
             if self._overflow or len(self._buf) + len(piece) > MAX_ENCODED:
@@ -318,12 +313,16 @@ class Decoder:
                 start = k + 1
                 continue
             self._buf.clear()
-            if isinstance(ev, Frame):
-                self.frames += 1
-            else:
-                self.rejects[ev.verdict] += 1
-            events.append(ev)
+            events.append(self._counted(ev))
             start = k + 1
+
+    def _counted(self, ev: Frame | Reject) -> Frame | Reject:
+        """``ev``, counted in :attr:`frames` or :attr:`rejects`."""
+        if isinstance(ev, Frame):
+            self.frames += 1
+        else:
+            self.rejects[ev.verdict] += 1
+        return ev
 
 
 # ================================================================================================
