@@ -68,33 +68,41 @@ def test_profiled_cost_is_the_projected_cost_minimized_over_f0(data, loss):
         assert cost <= min(grid) * (1 + 1e-12)
 
 
-def test_batched_bounded_lsq_equals_the_scalar_one():
-    rng = np.random.default_rng(4)
-    lo, hi = np.array([0.0, 0.0, -1.0]), np.array([1.0, 1.0, np.inf])
-    A = rng.normal(size=(200, 6, 3))
+def _batched_and_scalar(seed, n, rows, lo, hi, singular):
+    """``n`` random bounded least-squares problems ``min ½aᵀGa − bᵀa`` over the box (``G = AᵀA``, ``A`` of
+    ``rows`` × len(lo); with ``singular`` its first two columns equal): the batched solver's answers, the scalar
+    solver's, and the problems' G and b."""
+    rng = np.random.default_rng(seed)
+    k = len(lo)
+    A = rng.normal(size=(n, rows, k))
+    if singular:
+        A[..., 1] = A[..., 0]
     G = np.einsum("nij,nik->njk", A, A)
-    b = rng.normal(scale=2.0, size=(200, 3))
+    b = rng.normal(scale=2.0, size=(n, k))
     got = bounded_lsq_batch(G, b, lo, hi)
-    want = np.stack([bounded_lsq(G[i], b[i], lo, hi) for i in range(200)])
+    want = np.stack([bounded_lsq(G[i], b[i], lo, hi) for i in range(n)])
+    return got, want, G, b
+
+
+def _objective(a, G, b):
+    """``½aᵀGa − bᵀa`` of each problem's answer ``a`` (n, k) → (n,)."""
+    return 0.5 * np.einsum("ni,nij,nj->n", a, G, a) - np.einsum("ni,ni->n", b, a)
+
+
+def test_batched_bounded_lsq_equals_the_scalar_one():
+    lo, hi = np.array([0.0, 0.0, -1.0]), np.array([1.0, 1.0, np.inf])
+    got, want, _, _ = _batched_and_scalar(4, 200, 6, lo, hi, singular=False)
     np.testing.assert_allclose(got, want, atol=1e-9)
     assert np.any(got == 0.0) and np.any(got == 1.0)  # bounds were active in some problems
-
 
 
 @pytest.mark.parametrize("singular", [False, True])
 def test_two_colours_in_closed_form_equal_the_scalar_solver(singular):
     """K = 2 (a diffuse and a specular weight) is solved in closed form (gonio.fit.solve._two_colours); a singular
     free block (two identical columns) falls back to the minimum-norm path."""
-    rng = np.random.default_rng(6)
     lo, hi = np.array([0.0, 0.0]), np.array([1.0, np.inf])
-    A = rng.normal(size=(300, 5, 2))
-    if singular:
-        A[..., 1] = A[..., 0]
-    G = np.einsum("nij,nik->njk", A, A)
-    b = rng.normal(scale=2.0, size=(300, 2))
-    got = bounded_lsq_batch(G, b, lo, hi)
-    want = np.stack([bounded_lsq(G[i], b[i], lo, hi) for i in range(300)])
-    val = lambda a: 0.5 * np.einsum("ni,nij,nj->n", a, G, a) - np.einsum("ni,ni->n", b, a)  # noqa: E731
+    got, want, G, b = _batched_and_scalar(6, 300, 5, lo, hi, singular)
+    val = lambda a: _objective(a, G, b)  # noqa: E731
     assert np.all((got >= lo) & (got <= hi))
     if singular:
         assert np.all(val(got) <= val(want) + 1e-9)
@@ -105,15 +113,9 @@ def test_two_colours_in_closed_form_equal_the_scalar_solver(singular):
 
 def test_batched_bounded_lsq_with_singular_free_blocks_equals_the_scalar_one():
     # two identical columns: every active set that frees both is singular (the minimum-norm fallback)
-    rng = np.random.default_rng(5)
     lo, hi = np.array([0.0, 0.0, 0.0]), np.array([1.0, 1.0, 2.0])
-    A = rng.normal(size=(50, 6, 3))
-    A[..., 1] = A[..., 0]
-    G = np.einsum("nij,nik->njk", A, A)
-    b = rng.normal(scale=2.0, size=(50, 3))
-    got = bounded_lsq_batch(G, b, lo, hi)
-    want = np.stack([bounded_lsq(G[i], b[i], lo, hi) for i in range(50)])
-    val = lambda a: 0.5 * np.einsum("ni,nij,nj->n", a, G, a) - np.einsum("ni,ni->n", b, a)  # noqa: E731
+    got, want, G, b = _batched_and_scalar(5, 50, 6, lo, hi, singular=True)
+    val = lambda a: _objective(a, G, b)  # noqa: E731
     assert np.all((got >= lo) & (got <= hi))
     # at least as low as the scalar solver's (whose least-squares solutions of the singular blocks may miss a
     # feasible point of the null space), and no lower than any point of a grid over the box
