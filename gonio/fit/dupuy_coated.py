@@ -27,8 +27,8 @@ from gonio.brdf.dupuy import N_NDF, N_FRESNEL, ndf_nodes, normalization
 from gonio.brdf.fresnel import F0_MAX, METAL_F0_MIN, conductor, gulbrandsen_index
 from gonio.fit.data import FitData
 from gonio.fit.dupuy import IMAGE_WEIGHT, ITERATIONS, _inverse, _ndf_step, _weights, table_fit, unmeasured_note
-from gonio.fit.dupuy_conductor import (ROUNDS, _Channel, _edge_of, check_size, index_bounds, mark_bound,
-                                       ndf_sigma)
+from gonio.fit.dupuy_conductor import (ROUNDS, _Channel, _edge_of, bounded_difference, check_size, index_bounds,
+                                       mark_bound, ndf_sigma)
 from gonio.fit.losses import Loss
 from gonio.fit.result import FitResult
 
@@ -140,15 +140,12 @@ def _jacobian(cos_d, spec, w, x, n) -> np.ndarray:
         f = fres(x[:, c], n)
         jac[rows, 5 * c] = sw / np.pi
         jac[rows, 5 * c + 1] = sw * f * spec
+        scale = sw * x[1, c] * spec
         for i, (lo, hi) in zip((2, 3, 4), bounds):
-            h = 1e-5 * max(abs(x[i, c]), 1.0)
-            a, b = max(x[i, c] - h, lo), min(x[i, c] + h, hi)
-            xa, xb = x[:, c].copy(), x[:, c].copy()
-            xa[i], xb[i] = a, b
-            jac[rows, 5 * c + i] = sw * x[1, c] * spec * (fres(xb, n) - fres(xa, n)) / max(b - a, 1e-300)
-        h = 1e-5
-        a, b = max(n - h, COAT_N_MIN), min(n + h, COAT_N_MAX)
-        jac[rows, 15] = sw * x[1, c] * spec * (fres(x[:, c], b) - fres(x[:, c], a)) / max(b - a, 1e-300)
+            jac[rows, 5 * c + i] = bounded_difference(lambda v: fres(v, n), x[:, c], i, lo, hi,
+                                                      1e-5 * max(abs(x[i, c]), 1.0), scale)
+        jac[rows, 15] = bounded_difference(lambda v: fres(x[:, c], v[0]), np.array([n]), 0, COAT_N_MIN, COAT_N_MAX,
+                                           1e-5, scale)
     return jac
 
 

@@ -128,18 +128,23 @@ def _edge_of(r: float, eta: float) -> float:
     return float(np.clip((n_max - eta) / max(n_max - n_min, 1e-300), 0.0, 1.0))
 
 
+def bounded_difference(f, x: np.ndarray, i: int, lo: float, hi: float, h: float, scale) -> np.ndarray:
+    """``scale · ∂f/∂x[i]`` by a central difference kept within the parameter's range [lo, hi] (one-sided at a
+    bound): ``scale · (f(x with x[i] = b) − f(x with x[i] = a)) / (b − a)``, a, b = x[i] ∓ h clipped to the range."""
+    a, b = max(x[i] - h, lo), min(x[i] + h, hi)
+    xa, xb = x.copy(), x.copy()
+    xa[i], xb[i] = a, b
+    return scale * (f(xb) - f(xa)) / max(b - a, 1e-300)
+
+
 def _jacobian(cos_d, spec, w, x) -> np.ndarray:
     """∂(√w · model)/∂(kd, ks, η, k) of one channel at ``x`` (analytic in kd, ks; central differences in η, k)."""
     sw = np.sqrt(w)
     f = conductor(cos_d, x[2], x[3])
     cols = [sw / np.pi, sw * f * spec]
     for i, (lo, hi) in ((2, (ETA_MIN, ETA_MAX)), (3, (0.0, K_MAX))):
-        h = 1e-5 * max(abs(x[i]), 1.0)
-        a, b = max(x[i] - h, lo), min(x[i] + h, hi)
-        xa, xb = x.copy(), x.copy()
-        xa[i], xb[i] = a, b
-        fa, fb = conductor(cos_d, xa[2], xa[3]), conductor(cos_d, xb[2], xb[3])
-        cols.append(sw * x[1] * spec * (fb - fa) / max(b - a, 1e-300))
+        cols.append(bounded_difference(lambda v: conductor(cos_d, v[2], v[3]), x, i, lo, hi,
+                                       1e-5 * max(abs(x[i]), 1.0), sw * x[1] * spec))
     return np.stack(cols, axis=1)
 
 
