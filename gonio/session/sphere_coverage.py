@@ -123,7 +123,7 @@ def reachable_cells(theta_d_index_range, *, grazing_deg: float = 80.0) -> np.nda
     c = math.cos(math.radians(grazing_deg))
     lo, hi = (int(x) for x in theta_d_index_range)
     idd = np.broadcast_to(np.arange(SHAPE[1])[None, :, None], SHAPE).ravel()
-    return (cos_i > 0) & (cos_o > 0) & (cos_i >= c) & (cos_o >= c) & (idd >= lo) & (idd <= hi)
+    return valid_cells() & (cos_i >= c) & (cos_o >= c) & (idd >= lo) & (idd <= hi)
 
 
 def theta_d_index_range(cells) -> tuple[int, int]:
