@@ -232,10 +232,17 @@ class Projection:
         if hit is not None:
             return hit[0], hit[1].copy()
         cost, colour = self._evaluate(shape)
-        if len(memo) >= self.MEMO:
-            del memo[next(iter(memo))]  # the oldest
-        memo[key] = (cost, colour)
+        self._remember(key, cost, colour)
         return cost, colour.copy()
+
+    def _remember(self, key: bytes, cost: float, colour: np.ndarray) -> None:
+        """Keep ``(cost, colour)`` of the point ``key`` (its shape's bytes) among the last :data:`MEMO` points (the
+        oldest forgotten first); a point already kept stays as it is."""
+        memo = self.__dict__.setdefault("_memo", {})
+        if key not in memo:
+            if len(memo) >= self.MEMO:
+                del memo[next(iter(memo))]  # the oldest
+            memo[key] = (cost, colour)
 
     def _evaluate(self, shape) -> tuple[float, np.ndarray]:
         cost, a, _ = self._solve(shape)
@@ -278,12 +285,7 @@ class Projection:
         self.n_evals += 1
         shape = np.asarray(shape, dtype=np.float64)
         cost, a, hi = self._solve(shape)
-        memo = self.__dict__.setdefault("_memo", {})
-        key = shape.tobytes()
-        if key not in memo:
-            if len(memo) >= self.MEMO:
-                del memo[next(iter(memo))]
-            memo[key] = (cost, a.T.copy())
+        self._remember(shape.tobytes(), cost, a.T.copy())
         wr, first = self._wr
         return cost, projection_gradient(self.basis, shape, a, wr, first, hi)
 
