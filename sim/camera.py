@@ -390,8 +390,6 @@ class SimCamera:
         self._cache_key: bytes | None = None
         self._rate: np.ndarray | None = None
         self._rays: np.ndarray | None = None
-        self._texture = None
-        self._blurred: dict[float, np.ndarray] = {}
         # per camera pose (and scene): the board's view and the sample's (see _board_view, _sample_view)
         self._view_key: bytes | None = None
         self._view_scene = self._view = None
@@ -413,8 +411,7 @@ class SimCamera:
     @scene.setter
     def scene(self, scene: SimScene) -> None:
         self._scene = scene
-        self._texture, self._cache_key, self._rate = None, None, None
-        self._blurred = {}
+        self._cache_key, self._rate = None, None
 
     def reseed(self, seed) -> None:
         """Restart the noise generator from ``seed`` (anything ``numpy.random.default_rng`` takes, e.g.
@@ -491,9 +488,8 @@ class SimCamera:
         return s.layout.charuco, float(s.texel), float(s.board_white), float(s.board_black)
 
     def _board_texture(self):
-        if self._texture is None:
-            self._texture = board_texture(*self._texture_key())
-        return self._texture
+        """The board texture (:func:`board_texture`, made once per process for each board)."""
+        return board_texture(*self._texture_key())
 
     def _prnu_pattern(self, shape) -> np.ndarray | None:
         """Relative responsivity of every pixel (PRNU), a fixed pattern of the sensor drawn from a constant seed;
@@ -523,17 +519,10 @@ class SimCamera:
         return self._rate
 
     def _blurred_texture(self, sigma: float) -> np.ndarray:
-        """The board texture prefiltered with a Gaussian of ``sigma`` texels (cached per exact ``sigma``:
-        a rig's camera stays at one distance from the board, so a session uses one or two values; and per process,
-        :func:`blurred_board_texture`)."""
-        cache = self._blurred
-        tex = cache.get(sigma)
-        if tex is None:
-            tex = blurred_board_texture(*self._texture_key(), float(sigma))
-            if len(cache) >= 8:
-                cache.pop(next(iter(cache)))
-            cache[sigma] = tex
-        return tex
+        """The board texture prefiltered with a Gaussian of ``sigma`` texels (:func:`blurred_board_texture`, made
+        once per process for each board and ``sigma``: a rig's camera stays at one distance from the board, so a
+        session uses one or two values)."""
+        return blurred_board_texture(*self._texture_key(), float(sigma))
 
     def _board_view(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """What the camera pose alone decides (cached per pose; a plan often moves only the light):

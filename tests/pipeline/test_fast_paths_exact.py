@@ -11,14 +11,15 @@ import pytest
 from gonio.pipeline.dark import DarkFrame
 from gonio.pipeline.markers import to_gray8
 from gonio.pipeline.signal import BLACK_SIGMAS, FrameSignalError, SignalCheck
-from sim.camera import SensorModel
+from sim.camera import SensorModel, blurred_board_texture, board_texture
 
 
 def _clear_render_caches(cam) -> None:
     cam._cache_key = cam._view_key = cam._sample_key = None
     cam._patch_scene = None
-    cam._rays, cam._texture = None, None
-    cam._blurred.clear()
+    cam._rays = None
+    board_texture.cache_clear()  # the board textures are made once per process: made again here
+    blurred_board_texture.cache_clear()
 
 
 def test_frames_are_the_same_with_and_without_the_render_caches(bench_factory, lambert):
