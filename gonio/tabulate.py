@@ -216,10 +216,13 @@ def _fill_holes(values, sigma, measured, above, fill_deg, wi, wo):
         return np.zeros(SHAPE, dtype=bool)
     from scipy.spatial import cKDTree
 
-    emb = np.concatenate([wi, wo], axis=-1) / np.sqrt(2.0)
-    twin = np.concatenate([wo, wi], axis=-1) / np.sqrt(2.0)
+    wi, wo = wi.reshape(-1, 3), wo.reshape(-1, 3)
+    r2 = np.sqrt(2.0)
     m_idx = np.flatnonzero(measured)
-    pts = np.concatenate([emb.reshape(-1, 6)[m_idx], twin.reshape(-1, 6)[m_idx]])
+    # the embedding (wi, wo)/√2 and its reciprocal twin (wo, wi)/√2, of the rows needed only (measured cells, holes
+    # asked about): the same values as the whole grid's embedding indexed, without its two 70 MB arrays
+    pts = np.concatenate([np.concatenate([wi[m_idx], wo[m_idx]], axis=-1) / r2,
+                          np.concatenate([wo[m_idx], wi[m_idx]], axis=-1) / r2])
     src = np.concatenate([m_idx, m_idx])
     tree = cKDTree(pts)
     bound = 2.0 * np.sin(np.radians(fill_deg) / 2.0)
@@ -230,7 +233,7 @@ def _fill_holes(values, sigma, measured, above, fill_deg, wi, wo):
     # one bounded query per hole (a hole with no measured cell within the bound gets only infinite distances:
     # it stays a hole), in chunks that bound the memory of the k neighbours' values
     for chunk in np.array_split(h_idx, max(1, h_idx.size // 200_000)):
-        d, j = tree.query(emb.reshape(-1, 6)[chunk], k=k, distance_upper_bound=bound)
+        d, j = tree.query(np.concatenate([wi[chunk], wo[chunk]], axis=-1) / r2, k=k, distance_upper_bound=bound)
         d, j = d.reshape(len(chunk), k), j.reshape(len(chunk), k)
         near = np.isfinite(d[:, 0])  # the nearest first
         chunk, d, j = chunk[near], d[near], j[near]
@@ -239,11 +242,13 @@ def _fill_holes(values, sigma, measured, above, fill_deg, wi, wo):
         ok = np.isfinite(d)
         w = np.where(ok, 1.0 / np.maximum(np.where(ok, d, 1.0), 1e-12) ** 2, 0.0)
         cells = src[np.where(ok, j, 0)]
-        # sums over the k neighbours, one neighbour at a time (whole columns: no (holes, k, 3) temporaries)
+        # sums over the k neighbours, one neighbour at a time in order (whole columns: no (holes, k, 3) temporaries);
+        # each neighbour's values gathered once for both sums
         wsum = w.sum(axis=1)[:, None]
-        est = sum(w[:, i, None] * v_flat[cells[:, i]] for i in range(k)) / wsum
+        vk = [v_flat[cells[:, i]] for i in range(k)]
+        est = sum(w[:, i, None] * vk[i] for i in range(k)) / wsum
         # uncertainty: the neighbours' own uncertainty plus their scatter about the estimate
-        var = sum(w[:, i, None] * (s_flat[cells[:, i]] ** 2 + (v_flat[cells[:, i]] - est) ** 2) for i in range(k)) / wsum
+        var = sum(w[:, i, None] * (s_flat[cells[:, i]] ** 2 + (vk[i] - est) ** 2) for i in range(k)) / wsum
         v_flat[chunk] = est
         s_flat[chunk] = np.sqrt(var)
         filled[chunk] = True
