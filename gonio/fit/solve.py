@@ -399,28 +399,55 @@ class ProfiledProjection:
     def _t_of(self, u):
         return np.exp(u) if self.t_space[2] else np.asarray(u)
 
-    def _costs(self, t, H, h):
-        """Projected costs (len(t),) at tied values ``t`` (colours unconstrained where feasible,
-        :func:`bounded_lsq` otherwise)."""
-        T = self.profile.transform(self.L, t)
-        G = np.einsum("tkj,cjl,tml->tckm", T, H, T)
-        b = np.einsum("tkj,cj->tck", T, h)
+    def _affine(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(T0, T1)`` (K, J) with T(t) = T0 + t T1 (the profile's transform is affine in t), once per projection."""
+        hit = self.__dict__.get("_T01")
+        if hit is None:
+            T0, T1 = self.profile.transform(self.L, np.array([0.0, 1.0]))
+            hit = self._T01 = (T0, T1 - T0)
+        return hit
+
+    def _pieces(self, H, h):
+        """The Gram matrices and right-hand sides of the colours as polynomials in t, from those of the elementary
+        vectors (H (3, J, J), h (3, J)): with T = T0 + t T1, G(t) = T H Tᵀ = G₀ + t G₁ + t² G₂ (3, K, K) and
+        b(t) = T h = b₀ + t b₁ (3, K) — formed once per shape, so a grid of t costs a few array operations."""
+        T0, T1 = self._affine()
+        HT0, HT1 = H @ T0.T, H @ T1.T  # (3, J, K)
+        G1 = T0 @ HT1
+        return (T0 @ HT0, G1 + G1.transpose(0, 2, 1), T1 @ HT1), (h @ T0.T, h @ T1.T)
+
+    def _costs(self, t, pieces, colours: bool = False):
+        """Projected costs (len(t),) at tied values ``t`` (colours unconstrained where feasible — for two colours by
+        Cramer's rule, else one batched solve — and :func:`bounded_lsq_batch`, exact, otherwise), from
+        :meth:`_pieces`; with ``colours`` also the colours (len(t), 3, K)."""
+        (G0, G1, G2), (b0, b1) = pieces
+        t = np.asarray(t, dtype=np.float64)
+        tg = t[:, None, None, None]
+        G = G0 + tg * G1 + (tg * tg) * G2  # (T, 3, K, K)
+        b = b0 + t[:, None, None] * b1  # (T, 3, K)
         with np.errstate(all="ignore"):
-            try:
-                a = np.linalg.solve(G, b[..., None])[..., 0]
-                ok = np.isfinite(a).all(-1) & (a >= self.lo).all(-1) & (a <= self.hi).all(-1)
-            except np.linalg.LinAlgError:
-                a = np.zeros_like(b)
-                ok = np.zeros(b.shape[:2], dtype=bool)
+            if G.shape[-1] == 2:
+                g00, g01, g10, g11 = G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1]
+                det = g00 * g11 - g01 * g10
+                a = np.empty_like(b)
+                a[..., 0] = (g11 * b[..., 0] - g01 * b[..., 1]) / det
+                a[..., 1] = (g00 * b[..., 1] - g10 * b[..., 0]) / det
+            else:
+                try:
+                    a = np.linalg.solve(G, b[..., None])[..., 0]
+                except np.linalg.LinAlgError:
+                    a = np.full_like(b, np.nan)
+            ok = np.isfinite(a).all(-1) & (a >= self.lo).all(-1) & (a <= self.hi).all(-1)
         if not ok.all():
             a[~ok] = bounded_lsq_batch(G[~ok], b[~ok], self.lo, self.hi)
         q = self.c0 - 2.0 * np.einsum("tck,tck->tc", b, a) + np.einsum("tck,tckm,tcm->tc", a, G, a)
-        return 0.5 * np.maximum(q, 0.0).sum(axis=1)
+        cost = 0.5 * np.maximum(q, 0.0).sum(axis=1)
+        return (cost, a) if colours else cost
 
     def _solve(self, shape_nl) -> tuple[float, float, np.ndarray]:
         """``(t, cost, colour)`` at the non-tied shape ``shape_nl``: t global over a 65-point grid of its
         search interval, then the bracket around the best point is gridded again (each round vectorized,
-        32-fold shrink) down to 1e-9; colours by :func:`bounded_lsq` at that t. Memoized per ``shape_nl``."""
+        32-fold shrink) down to 1e-9; colours by the exact bounded solve at that t. Memoized per ``shape_nl``."""
 
         shape_nl = np.atleast_1d(np.asarray(shape_nl, dtype=np.float64))
         key = tuple(shape_nl.tolist())
@@ -428,27 +455,21 @@ class ProfiledProjection:
         if hit is not None:
             return hit
         H, h = weighted_gram(self.profile.elements(self.data, self.L, shape_nl), self.w, self.yT)
+        pieces = self._pieces(H, h)
         a, b = self.t_space[:2]
         for _ in range(10):  # each round shrinks the bracket 32-fold: 10 rounds reach ~1e-15 of the range
             grid = np.linspace(a, b, 65)
-            costs = self._costs(self._t_of(grid), H, h)
+            costs = self._costs(self._t_of(grid), pieces)
             j = int(np.argmin(costs))
             u = float(grid[j])
             a, b = grid[max(j - 1, 0)], grid[min(j + 1, grid.size - 1)]
             if b - a <= 1e-9 * max(1.0, abs(u)):
                 break
         t = float(np.clip(self._t_of(u), self.L.shape_lo[self.t_index], self.L.shape_hi[self.t_index]))
-        T = self.profile.transform(self.L, t)[0]
-        colour = np.empty((self.L.K, 3))
-        cost = 0.0
-        for c in range(3):
-            G, bc = T @ H[c] @ T.T, T @ h[c]
-            ac = bounded_lsq(G, bc, self.lo, self.hi)
-            colour[:, c] = ac
-            cost += 0.5 * max(self.c0[c] - 2.0 * bc @ ac + ac @ G @ ac, 0.0)
+        cost, colour = self._costs(np.array([t]), pieces, colours=True)
         if len(self._memo) > 256:
             self._memo.clear()
-        self._memo[key] = out = (t, cost, colour)
+        self._memo[key] = out = (t, float(cost[0]), colour[0].T.copy())
         return out
 
     def full_shape(self, shape_nl) -> np.ndarray:

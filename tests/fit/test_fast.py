@@ -68,6 +68,31 @@ def test_profiled_cost_is_the_projected_cost_minimized_over_f0(data, loss):
         assert cost <= min(grid) * (1 + 1e-12)
 
 
+@pytest.mark.parametrize("model, tied", [("microfacet", "f0"), ("lambert+ggx", "lobe1.f0")])
+def test_profiled_costs_over_f0_equal_the_gram_matrices_formed_at_each_f0(data, model, tied):
+    """The profile's grid of f0 is costed from G(t) = G0 + t G1 + t2 G2 (ProfiledProjection._pieces): the same costs
+    and colours as T(t) H T(t)^T formed at every t and solved one t at a time (bounds active at some t)."""
+    L = Layout(model, {}, (tied,))
+    prof_kernel = profile_for(L)
+    w = LOSSES["chi2"].weight(data.y, data.cos_i, data.sigma)
+    prof = ProfiledProjection(prof_kernel, L, data, w, L.shape.index(prof_kernel.tied))
+    H, h = weighted_gram(prof_kernel.elements(data, L, np.array([0.2])), prof.w, prof.yT)
+    t = np.geomspace(1e-3, 1.0, 97)
+    cost, colour = prof._costs(t, prof._pieces(H, h), colours=True)
+    T = prof_kernel.transform(L, t)
+    bound = 0
+    for i in range(t.size):
+        want = 0.0
+        for c in range(3):
+            G, b = T[i] @ H[c] @ T[i].T, T[i] @ h[c]
+            a = bounded_lsq(G, b, L.colour_lo, L.colour_hi)
+            bound += bool(np.any(a == L.colour_lo) or np.any(a == L.colour_hi))
+            np.testing.assert_allclose(colour[i, c], a, rtol=1e-9, atol=1e-12)
+            want += 0.5 * max(prof.c0[c] - 2.0 * b @ a + a @ G @ a, 0.0)
+        assert cost[i] == pytest.approx(want, rel=1e-9)
+    assert bound  # the bounded path was exercised
+
+
 def _batched_and_scalar(seed, n, rows, lo, hi, singular):
     """``n`` random bounded least-squares problems ``min ½aᵀGa − bᵀa`` over the box (``G = AᵀA``, ``A`` of
     ``rows`` × len(lo); with ``singular`` its first two columns equal): the batched solver's answers, the scalar
