@@ -122,6 +122,16 @@ class ChainErrors:
         return cls(dict(zip(ARM_FIELDS, v[:na])), dict(zip(CAMERA_FIELDS, v[na:na + nc])),
                    dict(zip(TURNTABLE_FIELDS, v[na + nc:na + nc + nt])), v[na + nc + nt])
 
+    @classmethod
+    def from_vectors(cls, V) -> "ChainErrors":
+        """A batch of K parameter vectors ``V`` (K, P) (:meth:`vector`'s order) as one ``ChainErrors`` whose
+        fields are (K, 1) arrays: :func:`chain_forward` then gives all K chains at N joints at once, (K, N, ...)."""
+        V = np.asarray(V, dtype=np.float64)
+        cols = [V[:, i, None] for i in range(V.shape[1])]
+        na, nc, nt = len(ARM_FIELDS), len(CAMERA_FIELDS), len(TURNTABLE_FIELDS)
+        return cls(dict(zip(ARM_FIELDS, cols[:na])), dict(zip(CAMERA_FIELDS, cols[na:na + nc])),
+                   dict(zip(TURNTABLE_FIELDS, cols[na + nc:na + nc + nt])), cols[na + nc + nt])
+
     def to_dict(self) -> dict:
         return {"light": dict(self.light), "camera": dict(self.camera), "turntable": dict(self.turntable),
                 "sample_height_mm": float(self.sample_height_mm)}
@@ -187,21 +197,39 @@ def _rz(a):
 
 
 def _arm(e: dict, az, el, radius_m: float):
-    """Device position (lab frame, m) and orientation ``Q`` (..., 3, 3) of one arm (module docstring)."""
-    d = math.radians
+    """Device position (lab frame, m) and orientation ``Q`` (..., 3, 3) of one arm (module docstring). The
+    fields of ``e`` are numbers, or arrays (a batch of parameter vectors, :meth:`ChainErrors.from_vectors`)
+    that broadcast against ``az`` and ``el``."""
+    d = np.radians
     A = _rx(np.asarray(d(e["tilt_x_deg"]))) @ _ry(np.asarray(d(e["tilt_y_deg"])))
     Raz = A @ _rz(az + d(e["d_az_deg"]))
-    Q = Raz @ _rx(np.full_like(az, d(e["nonorth_deg"]))) @ _ry(el + d(e["d_el_deg"]))
-    c = np.array([e["axis_x_mm"], e["axis_y_mm"], 0.0]) * 1e-3 + Raz @ (np.array([e["arc_x_mm"], 0.0, e["arc_z_mm"]]) * 1e-3)
-    p = c + Q @ np.array([0.0, e["lateral_mm"] * 1e-3, radius_m + e["d_radius_mm"] * 1e-3])
+    Q = Raz @ _rx(np.broadcast_to(d(e["nonorth_deg"]), np.broadcast_shapes(np.shape(az), np.shape(e["nonorth_deg"])))) \
+        @ _ry(el + d(e["d_el_deg"]))
+    c = _vec(e["axis_x_mm"], e["axis_y_mm"], 0.0) * 1e-3 + _apply(Raz, _vec(e["arc_x_mm"], 0.0, e["arc_z_mm"]) * 1e-3)
+    p = c + _apply(Q, _vec(0.0, e["lateral_mm"] * 1e-3, radius_m + e["d_radius_mm"] * 1e-3))
     return p, Q
+
+
+def _vec(x, y, z) -> np.ndarray:
+    """The vectors ``(x, y, z)`` (..., 3) of numbers or broadcasting arrays."""
+    x, y, z = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (x, y, z)))
+    return np.stack([x, y, z], axis=-1)
+
+
+def _apply(M, v) -> np.ndarray:
+    """``M v`` for matrices ``M`` (..., 3, 3) and vectors ``v`` (3,) or (..., 3) (broadcasting)."""
+    return M @ v if v.ndim == 1 else (M @ v[..., None])[..., 0]
 
 
 def chain_forward(rig, errors: ChainErrors, joints):
     """True light position, camera position and camera rotation in the sample frame for joints ``(..., 4)``
     of ``rig``'s layout (``gonio.rig.kinematics.Rig``): ``(light (..., 3), cam (..., 3), R (..., 3, 3))``,
     ``R`` in :meth:`gonio.rig.kinematics.Rig.camera_pose`'s convention (rows: camera x, y, z in sample
-    coordinates). All-zero ``errors`` reproduce ``rig.light_position`` / ``rig.camera_pose`` exactly."""
+    coordinates). All-zero ``errors`` reproduce ``rig.light_position`` / ``rig.camera_pose`` exactly.
+
+    ``errors`` may hold a batch of K parameter vectors (:meth:`ChainErrors.from_vectors`: every field a (K, 1)
+    array) for joints (N, 4): the results are then (K, N, 3) and (K, N, 3, 3), row k the same numbers, bit for
+    bit, as for the k-th vector alone (what the calibration's all-columns-at-once Jacobian relies on)."""
     j = rig.as_array(joints)
     if rig.layout == "turntable":
         s = j[..., 0]
@@ -215,20 +243,26 @@ def chain_forward(rig, errors: ChainErrors, joints):
     x, z = Q[..., :, 1], -Q[..., :, 2]
     R = np.stack([x, np.cross(z, x), z], axis=-2)
     m = errors.camera
-    if m.get("mount_x_deg", 0.0) or m.get("mount_y_deg", 0.0) or m.get("mount_z_deg", 0.0):
-        d = math.radians
+    turned = np.broadcast_to(np.asarray(m.get("mount_x_deg", 0.0), dtype=np.float64) != 0, R.shape[:-2])
+    turned = turned | (np.asarray(m.get("mount_y_deg", 0.0)) != 0) | (np.asarray(m.get("mount_z_deg", 0.0)) != 0)
+    if np.any(turned):
+        d = np.radians
         M = (_rx(np.asarray(d(m["mount_x_deg"]))) @ _ry(np.asarray(d(m["mount_y_deg"])))
              @ _rz(np.asarray(d(m["mount_z_deg"]))))
-        R = M @ R
+        if np.all(turned):
+            R = M @ R
+        else:  # a batch whose mounting rotations are zero in some rows: those keep R untouched (as alone)
+            R = R.copy()
+            R[turned] = (np.broadcast_to(M, R.shape) [turned] @ R[turned])
     if s is not None:  # lab → sample frame: the turntable's rotation, inverted
         t = errors.turntable
-        T = (_rx(np.asarray(math.radians(t["tilt_x_deg"]))) @ _ry(np.asarray(math.radians(t["tilt_y_deg"])))
-             @ _rz(s + math.radians(t["d_az_deg"])))
+        T = (_rx(np.asarray(np.radians(t["tilt_x_deg"]))) @ _ry(np.asarray(np.radians(t["tilt_y_deg"])))
+             @ _rz(s + np.radians(t["d_az_deg"])))
         Tt = np.swapaxes(T, -1, -2)
         pl = (Tt @ pl[..., None])[..., 0]
         pc = (Tt @ pc[..., None])[..., 0]
         R = R @ T
-    h = np.array([0.0, 0.0, errors.sample_height_mm * 1e-3])
+    h = _vec(0.0, 0.0, errors.sample_height_mm * 1e-3)
     return pl - h, pc - h, R
 
 

@@ -19,7 +19,8 @@ frame's residuals are whitened together by the frame's covariance — the detect
 scatter propagated through the chain, which couples a frame's board pose and highlight — whose sizes are
 variance components estimated from the residuals (:mod:`gonio.rig.geocal_noise`; re-estimated at each of
 three passes). Without covariances each kind is whitened by its own covariance where it has one and
-rescaled by its scatter. The problem is solved with :func:`scipy.optimize.least_squares`. The standard
+rescaled by its scatter. The problem is solved with :func:`scipy.optimize.least_squares`, its forward-difference
+Jacobian taken with all columns in one batched evaluation (:mod:`gonio.rig.geocal_residuals`: scipy's own steps). The standard
 uncertainty of a parameter is the larger of the Gauss–Newton one, ``s² (JᵀJ)⁻¹`` (Bates & Watts 1988,
 *Nonlinear Regression Analysis*, §2.3.1), and the cluster-robust sandwich one (one cluster per frame;
 White 1980, Liang & Zeger 1986), plus the effect of errors common to every observation that no scatter
@@ -45,8 +46,10 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from gonio.errors import ConfigError
-from gonio.rig.chain import ARM_FIELDS, CAMERA_FIELDS, TURNTABLE_FIELDS, ChainErrors, chain_forward
+from gonio.rig.chain import ARM_FIELDS, CAMERA_FIELDS, TURNTABLE_FIELDS, ChainErrors
 from gonio.rig.geocal_noise import FrameNoise, cholesky
+from gonio.rig.geocal_residuals import Observed, errors_at, forward_jacobian, residual_blocks
+from gonio.rig.geocal_residuals import extended_source_shift, rotvec  # noqa: F401  (their home before; re-exported)
 
 __all__ = ["CameraObservation", "HighlightObservation", "extended_source_shift", "GeoCalResult", "DegeneratePoses", "calibrate_geometry",
            "calibration_plan", "calibrated_rig_text", "RANK_TOL", "MAX_SIGMA"]
@@ -106,37 +109,6 @@ class HighlightObservation:
     source_radius_m: float = 0.0
 
 
-def extended_source_shift(image, C, R, f0, radius_m) -> np.ndarray:
-    """Shift (N, 2), in normalized image coordinates, of the intensity centroid of the light's reflection off the
-    projection of its centre's mirror image ``image`` (N, 3), seen from camera centres ``C`` (N, 3) with rotations
-    ``R`` (N, 3, 3), for a reflector of Schlick reflectance ``F(cos θ) = f0 + (1 − f0)(1 − cos θ)⁵`` (Schlick
-    1994, eq. 15) and a uniform (Lambertian) emitting disc of radius ``radius_m`` (N,) facing the camera.
-
-    Across the disc's image (radius ``ρ = radius / depth``) the reflectance varies with the ray's incidence on
-    the plane z = 0, ``cos θ = −u_z`` for the ray ``u ∝ Rᵀ (x, y, 1)``: at first order the weights are
-    ``1 + g·(x − x₀)`` with ``g = ∇ ln F`` at the centre, and the first moment of a uniform disc so weighted is
-    ``ρ² g / 4`` (the centroid of a linearly weighted disc: ``∫ x (1 + g x) dA / ∫ (1 + g x) dA = g ⟨x²⟩``,
-    ``⟨x²⟩ = ρ²/4``). On black glass (f0 0.04) at 65° incidence with a 10 mm disc at 0.8 m this is ~0.05 px at a
-    380 px focal length: larger than the centroid's own σ, and the same sign at every azimuth (the bias of the light
-    arm's parameters it otherwise causes: docs/uncertainty.md). The disc's foreshortening (its normal within a
-    few degrees of the line of sight on a calibration plan) changes ``ρ²`` by < 1 %, and the terms of order ρ⁴ are
-    far below the centroid's noise."""
-    v = np.einsum("nij,nj->ni", R, image - C)
-    x0 = v[:, :2] / v[:, 2:3]
-    f0 = np.broadcast_to(np.asarray(f0, dtype=np.float64), (len(v),))
-
-    def ln_f(xy):
-        ray = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
-        u = np.einsum("nji,nj->ni", R, ray)                # Rᵀ ray: the ray in the sample frame
-        cos_t = np.clip(-u[:, 2] / np.linalg.norm(u, axis=1), 0.0, 1.0)
-        return np.log(f0 + (1.0 - f0) * (1.0 - cos_t) ** 5)
-
-    h = 1e-4
-    g = np.stack([(ln_f(x0 + e) - ln_f(x0 - e)) / (2 * h) for e in (np.array([h, 0.0]), np.array([0.0, h]))], axis=1)
-    rho = np.asarray(radius_m, dtype=np.float64) / v[:, 2]
-    return (rho ** 2 / 4.0)[:, None] * g
-
-
 @dataclass
 class GeoCalResult:
     """Estimated errors, their standard uncertainties (same units; NaN: not identified), residuals."""
@@ -173,15 +145,6 @@ class GeoCalResult:
         return out
 
 
-def rotvec(R):
-    """Rotation vector (rad) of rotation matrices ``(..., 3, 3)`` near the identity (small angle:
-    the antisymmetric part, exact to second order; Murray, Li & Sastry 1994, §2.2)."""
-    return 0.5 * np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
-
-
-_rotvec = rotvec
-
-
 def _whiteners(obs, unit: float):
     """(N, n, n) matrices W with Wᵀ W = cov⁻¹ (so W r has unit covariance), or None if any observation has
     no covariance (then the block is weighted by its scatter alone). ``unit`` scales cov to the residual's unit."""
@@ -191,47 +154,8 @@ def _whiteners(obs, unit: float):
     return np.linalg.inv(cholesky(covs))
 
 
-def _residual_blocks(rig, errors: ChainErrors, cams, highs, *, highlight_camera: str = "chain", white=None):
-    """Residuals per observation kind. ``highlight_camera``: ``"chain"`` projects the light's mirror image
-    with the camera pose of the chain being estimated (the board poses of those frames are camera
-    observations too), ``"board"`` with each frame's own ChArUco pose. ``white``: per-kind whitening
-    matrices (:func:`_whiteners`); a whitened block is named ``*_w`` (unitless)."""
-    out = {}
-    white = white or {}
-    if cams:
-        j = np.stack([c.joints for c in cams])
-        _, pc, R = chain_forward(rig, errors, j)
-        obs_p = np.stack([c.position for c in cams])
-        obs_R = np.stack([c.R for c in cams])
-        dp = (pc - obs_p) * 1e3
-        dr = np.degrees(rotvec(R @ np.swapaxes(obs_R, -1, -2)))
-        if white.get("camera") is not None:
-            out["camera_w"] = (white["camera"] @ np.concatenate([dp, dr], axis=1)[..., None])[..., 0].ravel()
-        else:
-            out["camera_mm"] = dp.ravel()
-            out["camera_deg"] = dr.ravel()
-    if highs:
-        j = np.stack([h.joints for h in highs])
-        pl, pc, Rc = chain_forward(rig, errors, j)
-        image = pl * np.array([1.0, 1.0, -1.0])  # mirror image in the sample plane z = 0
-        if highlight_camera == "board":
-            pc = np.stack([h.position for h in highs])
-            Rc = np.stack([h.R for h in highs])
-        v = (Rc @ (image - pc)[..., None])[..., 0]
-        xy = v[:, :2] / v[:, 2:3]
-        radius = np.array([h.source_radius_m for h in highs], dtype=np.float64)
-        if np.any(radius > 0):  # an extended source's centroid is not its centre's image (extended_source_shift)
-            xy = xy + extended_source_shift(image, pc, Rc, np.array([h.f0 for h in highs], dtype=np.float64), radius)
-        d = (xy - np.stack([h.xy for h in highs])) * 1e3
-        if white.get("highlight") is not None:
-            out["highlight_w"] = (white["highlight"] @ d[..., None])[..., 0].ravel()
-        else:
-            out["highlight_mrad"] = d.ravel()
-    return out
-
-
 def _clusters(keys, n_cam: int, n_high: int) -> np.ndarray:
-    """Observation index of every residual row, in :func:`_residual_blocks`'s sorted block order."""
+    """Observation index of every residual row, in :func:`gonio.rig.geocal_residuals.residual_blocks`'s sorted block order."""
     per = {"camera_w": 6, "camera_mm": 3, "camera_deg": 3, "highlight_w": 2, "highlight_mrad": 2}
     out = []
     for k in keys:
@@ -280,7 +204,7 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
     ``weighted``: residuals whitened by each frame's covariance (detectors + joints, sized by variance
     components: :mod:`gonio.rig.geocal_noise`) when every observation has one and ``highlight_camera`` is
     ``"chain"``; else by each observation's own covariance where every observation of a kind has one (then
-    rescaled by the kind's scatter); ``highlight_camera``: see :func:`_residual_blocks`.
+    rescaled by the kind's scatter); ``highlight_camera``: see :func:`gonio.rig.geocal_residuals.residual_blocks`.
     ``reject_outliers``: rounds of outlier rejection (per-frame covariances only): frames whose whitened χ² has
     a probability below :data:`OUTLIER_P` are dropped and the estimate repeated (:attr:`GeoCalResult.rejected`).
     ``start``: ``"hand-eye"`` starts the camera arm from the closed-form robot-world/hand-eye solution of the
@@ -304,16 +228,17 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
         started = _hand_eye_start(rig, cams, x, names)
     nfev = 0
     has_cov = all(o.cov is not None for o in cams + highs)
+    observed = Observed.of(cams, highs)
     noise = FrameNoise(rig, cams, highs) if weighted and has_cov and highlight_camera == "chain" else None
+    # fun(p, idx): the residual vector at x with x[idx] = p (n,), or one row per row of p (K, n) (a batch:
+    # forward_jacobian's columns); ``obs``: perturbed observations (the systematic errors' propagation below)
     if noise is not None:
         # per-frame covariances: the detectors' own plus the joints' scatter, sized by variance components
         # (gonio.rig.geocal_noise); refreshed at every pass
         state = {"W": noise.whiteners(ChainErrors.from_vector(x))}
 
-        def fun(p, idx, cams=None, highs=None):
-            v = x.copy()
-            v[idx] = p
-            return noise.whitened(ChainErrors.from_vector(v), state["W"], cams, highs)
+        def fun(p, idx, obs=None):
+            return noise.whitened(errors_at(x, idx, p), state["W"], obs)
 
         def refresh():
             e = ChainErrors.from_vector(x)
@@ -326,23 +251,24 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
         # rescaled by its scatter
         white = {"camera": _whiteners(cams, 1.0), "highlight": _whiteners(highs, 1e3)} if weighted else {}
         kw = {"highlight_camera": highlight_camera, "white": white}
-        state = {"scale": {k: 1.0 for k in _residual_blocks(rig, ChainErrors(), cams, highs, **kw)}}
+        state = {"scale": {k: 1.0 for k in residual_blocks(rig, ChainErrors(), observed, **kw)}}
 
-        def fun(p, idx, cams=cams, highs=highs):
-            v = x.copy()
-            v[idx] = p
-            blocks = _residual_blocks(rig, ChainErrors.from_vector(v), cams, highs, **kw)
-            return np.concatenate([blocks[k] / state["scale"][k] for k in sorted(blocks)])
+        def fun(p, idx, obs=None):
+            blocks = residual_blocks(rig, errors_at(x, idx, p), observed if obs is None else obs, **kw)
+            return np.concatenate([blocks[k] / state["scale"][k] for k in sorted(blocks)], axis=-1)
 
         def refresh():
-            blocks = _residual_blocks(rig, ChainErrors.from_vector(x), cams, highs, **kw)
+            blocks = residual_blocks(rig, ChainErrors.from_vector(x), observed, **kw)
             state["scale"] = {k: max(float(np.sqrt(np.mean(r ** 2))), 1e-12) for k, r in blocks.items()}
 
-        cid = _clusters(sorted(_residual_blocks(rig, ChainErrors(), cams, highs, **kw)), len(cams), len(highs))
+        cid = _clusters(sorted(residual_blocks(rig, ChainErrors(), observed, **kw)), len(cams), len(highs))
+
+    def jac(p, idx):  # scipy's own '2-point' Jacobian, all columns in one batch (gonio.rig.geocal_residuals)
+        return forward_jacobian(fun, p, idx)
 
     idx = list(free)
     for _ in range(3):  # solve, drop what the data cannot determine, re-estimate the observations' noise
-        sol = least_squares(fun, x[idx], args=(idx,), method="lm", x_scale=1.0)
+        sol = least_squares(fun, x[idx], jac=jac, args=(idx,), method="lm", x_scale=1.0)
         x[idx] = sol.x
         nfev += sol.nfev
         J = sol.jac
@@ -357,7 +283,7 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
                 x[i] = 0.0
             idx = [i for i in idx if i not in bad]
         refresh()
-    sol = least_squares(fun, x[idx], args=(idx,), method="lm")
+    sol = least_squares(fun, x[idx], jac=jac, args=(idx,), method="lm")
     x[idx] = sol.x
     nfev += sol.nfev
     r = sol.fun
@@ -419,7 +345,7 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
             systematics.append(([rotated(c, axis, e) for c in cams], [shifted(h, axis, e) for h in highs], e,
                                 principal_point_sigma))
     for cams_e, highs_e, h, sigma_e in systematics:
-        dr = (fun(sol.x, idx, cams=cams_e, highs=highs_e) - r) / h
+        dr = (fun(sol.x, idx, Observed.of(cams_e, highs_e)) - r) / h
         dx = -A @ (sol.jac.T @ dr)
         var = var + (dx * sigma_e) ** 2
         full = full + np.outer(dx * sigma_e, dx * sigma_e)
@@ -433,7 +359,7 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
         else:
             sigma[names[i]] = float(sig[k])
             kept.append(k)
-    blocks = _residual_blocks(rig, ChainErrors.from_vector(x), cams, highs, highlight_camera=highlight_camera)
+    blocks = residual_blocks(rig, ChainErrors.from_vector(x), observed, highlight_camera=highlight_camera)
     info = {}
     if noise is not None:
         c = noise.components

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
+from gonio.rig.geocal_residuals import Observed, batch_shape, residual_blocks
+
 __all__ = ["FrameNoise", "COMPONENTS", "OBLIQUE_DEG"]
 
 #: Angle (degrees) between the camera's optical axis and the board's normal beyond which a board pose belongs
@@ -96,28 +98,22 @@ class FrameNoise:
         self.oblique = view > OBLIQUE_DEG
         self.components = np.array([1.0, 1.0, 1.0, JOINT_SIGMA_START_DEG ** 2])
         self.n_frames = len(self.cam_only) + len(self.pair_h) + len(self.high_only)
+        self.observed = Observed.of(self.cams, self.highs)
 
     # -- residuals -------------------------------------------------------------------------------------
-    def raw(self, errors, joints_delta=None, cams=None, highs=None):
-        """Raw residuals ``(cams (Nc, 6), highs (Nh, 2))`` at ``errors`` (joints shifted by ``joints_delta``,
-        rad, applied to every observation: for :meth:`jacobians`); ``cams``/``highs``: perturbed copies of
-        the observations (same frames) in place of the session's."""
-        from gonio.rig.geocal import _residual_blocks
-
-        cams = self.cams if cams is None else cams
-        highs = self.highs if highs is None else highs
-
-        def shift(obs):
-            if joints_delta is None:
-                return obs
-            from dataclasses import replace
-
-            return [replace(o, joints=np.asarray(o.joints) + joints_delta) for o in obs]
-
-        b = _residual_blocks(self.rig, errors, shift(cams), shift(highs))
-        rc = (np.concatenate([b["camera_mm"].reshape(-1, 3), b["camera_deg"].reshape(-1, 3)], axis=1)
-              if cams else np.zeros((0, 6)))
-        rh = b["highlight_mrad"].reshape(-1, 2) if highs else np.zeros((0, 2))
+    def raw(self, errors, joints_delta=None, obs=None):
+        """Raw residuals ``(cams (..., Nc, 6), highs (..., Nh, 2))`` at ``errors`` (one chain, or a batch:
+        :mod:`gonio.rig.geocal_residuals`), the joints shifted by ``joints_delta`` (rad, applied to every
+        observation: for :meth:`jacobians`); ``obs``: perturbed copies of the observations
+        (:class:`gonio.rig.geocal_residuals.Observed`, same frames) in place of the session's."""
+        obs = self.observed if obs is None else obs
+        if joints_delta is not None:
+            obs = obs.shifted(joints_delta)
+        batch = batch_shape(errors)
+        b = residual_blocks(self.rig, errors, obs)
+        rc = (np.concatenate([b["camera_mm"].reshape(batch + (-1, 3)), b["camera_deg"].reshape(batch + (-1, 3))], axis=-1)
+              if obs.n_cams else np.zeros(batch + (0, 6)))
+        rh = b["highlight_mrad"].reshape(batch + (-1, 2)) if obs.n_highs else np.zeros(batch + (0, 2))
         return rc, rh
 
     def jacobians(self, errors, h: float = 1e-6):
@@ -134,7 +130,8 @@ class FrameNoise:
 
     def group_vectors(self, rc, rh):
         """The residual vectors of the three frame groups (board only, board + highlight, highlight only)."""
-        return [rc[self.cam_only], np.concatenate([rc[self.pair_c], rh[self.pair_h]], axis=1), rh[self.high_only]]
+        return [rc[..., self.cam_only, :], np.concatenate([rc[..., self.pair_c, :], rh[..., self.pair_h, :]], axis=-1),
+                rh[..., self.high_only, :]]
 
     def group_covariances(self, Jc, Jh, components=None):
         """Covariances of the three frame groups' residual vectors for the variance ``components``."""
@@ -185,11 +182,13 @@ class FrameNoise:
             out.append(np.linalg.inv(cholesky(C)) if len(C) else np.zeros(C.shape))
         return out
 
-    def whitened(self, errors, W, cams=None, highs=None):
-        """The whitened residual vector (all frames) at ``errors``; ``cams``/``highs``: perturbed copies of the
-        observations (same frames), for the systematic errors' propagation."""
-        rc, rh = self.raw(errors, cams=cams, highs=highs)
-        return np.concatenate([(w @ r[..., None])[..., 0].ravel() for w, r in zip(W, self.group_vectors(rc, rh))])
+    def whitened(self, errors, W, obs=None):
+        """The whitened residual vector (all frames) at ``errors`` ((K, ...) for a batch of K chains); ``obs``:
+        perturbed copies of the observations (same frames), for the systematic errors' propagation."""
+        rc, rh = self.raw(errors, obs=obs)
+        batch = rc.shape[:-2]
+        return np.concatenate([(w @ r[..., None])[..., 0].reshape(batch + (-1,))
+                               for w, r in zip(W, self.group_vectors(rc, rh))], axis=-1)
 
     def clusters(self) -> np.ndarray:
         """Frame index of every row of :meth:`whitened`."""

@@ -42,7 +42,7 @@ def _shah(RA, tA, RB, tB):
     n = len(RA)
     I3 = np.eye(3)
     K = np.concatenate([np.concatenate([np.kron(I3, RA[i]), -np.kron(RB[i].T, I3)], axis=1) for i in range(n)])
-    v = np.linalg.svd(K)[2][-1]
+    v = np.linalg.svd(K, full_matrices=False)[2][-1]  # Vt alone: the thin SVD gives the same Vt, without U (9n × 9n)
     Y = v[:9].reshape(3, 3, order="F")  # vec() is column-major in the Kronecker identity
     Z = v[9:].reshape(3, 3, order="F")
     s = np.sign(np.linalg.det(Y)) * abs(np.linalg.det(Y)) ** (-1.0 / 3.0)
