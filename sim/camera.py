@@ -401,6 +401,8 @@ class SimCamera:
         self._t_power = clock.now() if clock is not None else 0.0  #: power-on: the sensor starts at ambient
         self._dsnu: np.ndarray | None = None
         self._prnu: np.ndarray | None = None
+        self._zero: np.ndarray | None = None  #: the electron rate of a light-off frame (:meth:`_no_light`)
+        self._low = sensor_noise.LowValues()  #: a dark set's values below the Poisson threshold, per exposure
 
     @property
     def scene(self) -> SimScene:
@@ -671,16 +673,26 @@ class SimCamera:
             raise ConfigError.field(None, "camera.gain", gain, "must be in [1, 64]")
         level = self.light_level()
         t0 = self.clock.now() if self.clock is not None else 0.0
-        rate = self.electron_rate()
         temp = self.sensor_temperature()
         dark_e = np.float32(sn.dark_rate(temp) * exposure)
         scale = np.float32(level * exposure)
+        # light off: the electrons are the dark signal alone (rate · 0 = 0 for any finite rate), nothing is rendered
+        rate = self._no_light() if scale == 0 else self.electron_rate()
         pattern = self._dark_pattern(rate.shape)
         if sn.linear:
-            pixels = (sensor_noise.expose_compiled if sensor_noise.compiled_available() else sensor_noise.expose_numpy)(
+            kw = {}
+            if sensor_noise.compiled_available():
+                expose = sensor_noise.expose_compiled
+                if scale == 0:  # a dark set's frames at one exposure have the same means: gathered once
+                    # (the DSNU pattern is made once per frame shape: its id and the shape name it)
+                    kw = dict(memo=self._low, key=(float(dark_e), id(pattern), rate.shape, sn.dsnu))
+            else:
+                expose = sensor_noise.expose_numpy
+            pixels = expose(
                 rate, scale, pattern, dark_e, self._rng, self._normal_indices, normal_table(), POISSON_EXACT_BELOW,
                 read_noise=sn.read_noise_e, full_well=sn.full_well, gain_k=sn.dn_per_electron * gain,
-                black=sn.black_level, saturation=sn.saturation, dtype=np.uint8 if sn.bit_depth == 8 else np.uint16)
+                black=sn.black_level, saturation=sn.saturation, dtype=np.uint8 if sn.bit_depth == 8 else np.uint16,
+                **kw)
         else:
             mean_e = sensor_noise.means_numpy(rate, scale, pattern, dark_e)
             draws = sensor_noise.draw(self._rng, self._normal_indices, mean_e, POISSON_EXACT_BELOW)
@@ -697,6 +709,17 @@ class SimCamera:
                      black_level=float(sn.black_level), timestamp=t0, linear=sn.linear,
                      meta={"device": "sim", "light_output": level,
                            **({"sensor_temp_c": round(temp, 1)} if sn.reports_temperature else {})})
+
+    def _no_light(self) -> np.ndarray:
+        """The electron rate of a frame with the light off, zero everywhere (H, W, 3), float32, read-only (cached):
+        its means are the dark signal alone, as a rendered rate times the zero light output makes them (bit for bit:
+        x · 0 + d = d for any finite x), without rendering the scene."""
+        c = self.calibration
+        shape = (c.height, c.width, 3)
+        if self._zero is None or self._zero.shape != shape:
+            self._zero = np.zeros(shape, dtype=np.float32)
+            self._zero.flags.writeable = False
+        return self._zero
 
     def _normal_indices(self, shape) -> np.ndarray:
         """Uniform 16-bit integers of ``shape``: ``Generator.integers(0, 2¹⁶, dtype=uint16)``'s, the indices of

@@ -34,7 +34,8 @@ import importlib.util
 
 import numpy as np
 
-__all__ = ["draw", "frame_numpy", "means_numpy", "expose_numpy", "expose_compiled", "compiled_available"]
+__all__ = ["draw", "frame_numpy", "means_numpy", "expose_numpy", "expose_compiled", "compiled_available",
+           "LowValues"]
 
 #: 2²³ in float32: float32 numbers at or above it are integers, and ``(x + 2²³) − 2²³`` rounds 0 ≤ x < 2²³ to an
 #: integer, half to even (IEEE 754 round-to-nearest on the sum; Goldberg, "What every computer scientist should
@@ -292,29 +293,60 @@ def _compiled():
     return jit(_pass1), jit(_pass2), jit(_pass2_one_mean)
 
 
+class LowValues:
+    """The values below the Poisson threshold of the last frame :func:`expose_compiled` exposed under a ``key``: their
+    indices (C order), their means floored at 0 (float64), ``e^−mean`` and whether they are every value of the frame
+    (a dark frame's, at exposures whose dark signal stays below the threshold). A caller that knows two frames have the
+    same means (a dark set: several light-off frames at one exposure, whose means are the dark signal alone) passes the
+    same key, and the second frame reuses them instead of gathering them and computing the exponentials again (and
+    skips the first pass when they are every value: the second pass writes each one). One key at a time: a dark set
+    takes its exposures one after the other."""
+
+    __slots__ = ("key", "pos", "lam", "p0", "every")
+
+    def __init__(self):
+        self.key = self.pos = self.lam = self.p0 = None
+        self.every = False
+
+
 def expose_compiled(rate, scale, pattern, dark_e, rng, normal_indices, table, below, *, read_noise, full_well, gain_k,
-                    black, saturation, dtype=np.uint16) -> np.ndarray:
+                    black, saturation, dtype=np.uint16, memo: LowValues | None = None, key=None) -> np.ndarray:
     """:func:`expose_numpy` in two numba passes: every value by the normal approximation, block by block, and the
     means below ``below`` gathered (:func:`_pass1`); then, with the uniforms drawn for those, their Poisson values
     written over the first pass's (:func:`_pass2`; :func:`_pass2_one_mean` when they all have one mean, as a dark
     frame's do). The same random numbers drawn in the same order and the same operations on each value: the same
-    frame bit for bit."""
+    frame bit for bit.
+
+    ``memo`` and ``key``: the caller's promise that frames exposed under one ``key`` have the same means (the same
+    ``rate · scale + pattern · dark_e`` and ``below``); their values below the threshold are gathered once
+    (:class:`LowValues`). Still the same frame bit for bit: the same numbers are drawn and the same operations done
+    on each value."""
     f32 = np.float32
     pass1, pass2, pass2_one_mean = _compiled()
     idx = np.ascontiguousarray(normal_indices(rate.shape)).reshape(-1)
-    rate1 = np.ascontiguousarray(rate, dtype=f32).reshape(-1)
-    pat1 = rate1 if pattern is None else np.ascontiguousarray(pattern, dtype=f32).reshape(-1)
     out = np.empty(rate.shape, dtype=dtype)
     out1 = out.reshape(-1)
-    pos = np.empty(rate1.size, dtype=np.intp)
-    lam = np.empty(rate1.size, dtype=np.float64)
     conv = (f32(full_well), f32(gain_k), f32(black), f32(saturation))
-    n = pass1(rate1, pat1, f32(scale), f32(dark_e), pattern is not None, idx, table, f32(below), f32(read_noise ** 2),
-              *conv, out1, pos, lam)
-    if n:
+    known = memo is not None and key is not None and memo.key == key
+    if not (known and memo.every):  # every value by the normal approximation, the low ones gathered
+        rate1 = np.ascontiguousarray(rate, dtype=f32).reshape(-1)
+        pat1 = rate1 if pattern is None else np.ascontiguousarray(pattern, dtype=f32).reshape(-1)
+        pos = np.empty(rate1.size, dtype=np.intp)
+        lam = np.empty(rate1.size, dtype=np.float64)
+        n = pass1(rate1, pat1, f32(scale), f32(dark_e), pattern is not None, idx, table, f32(below),
+                  f32(read_noise ** 2), *conv, out1, pos, lam)
+        if known:
+            assert n == memo.lam.size, "sensor_noise: frames exposed under one key must have the same means"
+    if known:
+        pos, lam, p0 = memo.pos, memo.lam, memo.p0
+        n = lam.size
+    elif n:
         lam = lam[:n]
         p0 = np.negative(lam)
         np.exp(p0, out=p0)  # np.exp(-lam) in one array instead of two (fresh pages cost more than the exp)
+        if memo is not None and key is not None:
+            memo.key, memo.pos, memo.lam, memo.p0, memo.every = key, pos[:n], lam, p0, n == out1.size
+    if n:
         u = rng.random(n)
         one = n > 1 and lam[0] >= ONE_MEAN_FROM and lam.min() == lam.max() and p0.min() == p0.max()
         if not (one and pass2_one_mean(pos, idx, table, lam[0], p0[0], u, RECIPROCALS, f32(read_noise), *conv, out1,
