@@ -61,12 +61,9 @@ def node_values(source, grid: PriorGrid = DEFAULT_GRID) -> np.ndarray:
 
 def cell_weight(grid: PriorGrid) -> np.ndarray:
     """Each node's share of the MERL cells above the horizon (its trilinear weights summed over them), (G,)."""
-    from gonio.prior.grid import merl_cell_angles
-
     out = np.zeros(grid.size)
     for i in range(0, 90, 15):  # 15 θh rows at a time: ~250k cells, bounded memory
-        TH, TD, PD, ok = merl_cell_angles(slice(i, i + 15))
-        out += np.asarray(grid.weights_angles(TH[ok], TD[ok], PD[ok]).sum(axis=0)).ravel()
+        out += np.asarray(grid.weights_merl(slice(i, i + 15)).sum(axis=0)).ravel()
     return out / out.sum()
 
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["PriorGrid", "DEFAULT_GRID", "merl_cell_angles"]
+__all__ = ["PriorGrid", "DEFAULT_GRID", "merl_cell_angles", "merl_above"]
 
 
 def merl_cell_angles(theta_h_rows=slice(None)):
@@ -34,9 +34,26 @@ def merl_cell_angles(theta_h_rows=slice(None)):
     from gonio.io.merl import cell_centres
 
     th, td, pd = cell_centres()
-    TH, TD, PD = np.meshgrid(th[theta_h_rows], td, pd, indexing="ij")
-    a, b = np.cos(TD) * np.cos(TH), np.sin(TD) * np.cos(PD) * np.sin(TH)
-    return TH, TD, PD, (a - b > 0) & (a + b > 0)
+    th = th[theta_h_rows]
+    TH, TD, PD = np.meshgrid(th, td, pd, indexing="ij")
+    return TH, TD, PD, merl_above(theta_h_rows)
+
+
+def merl_above(theta_h_rows=slice(None)) -> np.ndarray:
+    """:func:`merl_cell_angles`'s ``above`` alone, ``(rows, 90, 180)``."""
+    from gonio.io.merl import cell_centres
+
+    th, td, pd = cell_centres()
+    return _merl_above(th[theta_h_rows], td, pd)
+
+
+def _merl_above(th, td, pd) -> np.ndarray:
+    """``above`` from the 1-D axes: the products of the per-axis factors, broadcast (the trigonometry on
+    90 + 90 + 180 angles, not on every cell)."""
+    ct, st = np.cos(th)[:, None, None], np.sin(th)[:, None, None]
+    cd, sd = np.cos(td)[None, :, None], np.sin(td)[None, :, None]
+    a, b = cd * ct, sd * np.cos(pd)[None, None, :] * st
+    return (a - b > 0) & (a + b > 0)
 
 
 @dataclass(frozen=True)
@@ -104,19 +121,31 @@ class PriorGrid:
         x_p = p / math.pi * (self.n_p - 1)
         return x_h, x_d, x_p
 
-    def weights_angles(self, theta_h, theta_d, phi_d):
-        """Sparse ``(n, G)`` CSR matrix of trilinear weights (8 per row, summing to 1) at the given angles."""
-        from scipy.sparse import csr_matrix
-
-        xs = self.coords(np.ravel(theta_h), np.ravel(theta_d), np.ravel(phi_d))
+    def _axes(self, xs):
+        """Per axis: the lower node index (clamped so the upper one exists) and the fraction towards the upper."""
         idx, frac = [], []
         for x, n in zip(xs, self.shape):
             i0 = np.minimum(np.floor(x).astype(np.intp), n - 2)
             idx.append(i0)
             frac.append(np.clip(x - i0, 0.0, 1.0))
-        n = xs[0].shape[0]
+        return idx, frac
+
+    def _csr(self, corners, n: int):
+        """The ``(n, G)`` CSR matrix of 8 weights a row; ``corners`` yields (corner k, its node columns, its
+        weights), each ``(n,)``, in the order k = 0..7 of (θh, θd, φd) offsets (0|1, 0|1, 0|1)."""
+        from scipy.sparse import csr_matrix
+
         cols = np.empty((n, 8), dtype=np.intp)
         vals = np.empty((n, 8), dtype=np.float64)
+        for k, col, val in corners:
+            cols[:, k] = col
+            vals[:, k] = val
+        indptr = np.arange(0, 8 * n + 1, 8)
+        return csr_matrix((vals.ravel(), cols.ravel(), indptr), shape=(n, self.size))
+
+    def _corners(self, idx, frac, pick=None):
+        """(k, columns, weights) of the 8 corners; with axes broadcast against each other, ``pick`` (a flat index)
+        takes the cells wanted from the broadcast grid."""
         k = 0
         for a in (0, 1):
             wa = frac[0] if a else 1.0 - frac[0]
@@ -124,11 +153,34 @@ class PriorGrid:
                 wb = frac[1] if b else 1.0 - frac[1]
                 for c in (0, 1):
                     wc = frac[2] if c else 1.0 - frac[2]
-                    cols[:, k] = ((idx[0] + a) * self.n_d + idx[1] + b) * self.n_p + idx[2] + c
-                    vals[:, k] = wa * wb * wc
+                    col = ((idx[0] + a) * self.n_d + idx[1] + b) * self.n_p + idx[2] + c
+                    val = wa * wb * wc
+                    if pick is not None:
+                        col, val = col.ravel()[pick], val.ravel()[pick]
+                    yield k, col, val
                     k += 1
-        indptr = np.arange(0, 8 * n + 1, 8)
-        return csr_matrix((vals.ravel(), cols.ravel(), indptr), shape=(n, self.size))
+
+    def weights_angles(self, theta_h, theta_d, phi_d):
+        """Sparse ``(n, G)`` CSR matrix of trilinear weights (8 per row, summing to 1) at the given angles."""
+        xs = self.coords(np.ravel(theta_h), np.ravel(theta_d), np.ravel(phi_d))
+        idx, frac = self._axes(xs)
+        return self._csr(self._corners(idx, frac), xs[0].shape[0])
+
+    def weights_merl(self, theta_h_rows=slice(None)):
+        """:meth:`weights_angles` at the MERL cell centres above the horizon of the θh rows ``theta_h_rows``, in C
+        order (``weights_angles(θh[above], θd[above], φd[above])`` with :func:`merl_cell_angles`'s arrays), the same
+        matrix bit for bit: the grid is separable, so coordinates, node indices and fractions are computed per
+        axis (90 + 90 + 180 values) and each corner's weight is their product broadcast over the cells."""
+        from gonio.io.merl import cell_centres
+
+        th, td, pd = cell_centres()
+        th = th[theta_h_rows]
+        pick = np.flatnonzero(_merl_above(th, td, pd))
+        idx, frac = self._axes(self.coords(th, td, pd))
+        shape = [(-1, 1, 1), (1, -1, 1), (1, 1, -1)]
+        idx = [i.reshape(s) for i, s in zip(idx, shape)]
+        frac = [f.reshape(s) for f, s in zip(frac, shape)]
+        return self._csr(self._corners(idx, frac, pick), pick.size)
 
     def weights(self, wi, wo):
         """Trilinear weights (sparse ``(n, G)``) of direction pairs ``wi``, ``wo`` (``(n, 3)``)."""

@@ -197,12 +197,12 @@ class Posterior:
         """The reconstruction on the MERL grid: a :class:`gonio.io.merl.MerlTable` with ``values`` and
         ``sigma`` in every cell above the horizon (NaN below it, as MERL files mark them)."""
         from gonio.io.merl import SHAPE, MerlTable
-        from gonio.prior.grid import merl_cell_angles
+        from gonio.prior.grid import merl_above
 
-        th, td, pd, above = merl_cell_angles()
+        above = merl_above()
         values = np.full(SHAPE + (3,), np.nan)
         sigma = np.full(SHAPE + (3,), np.nan)
-        h = self.prior.grid.weights_angles(th[above], td[above], pd[above])
+        h = self.prior.grid.weights_merl()
         values[above], sigma[above] = self._predict(h, np.ones(h.shape[0], dtype=bool))
         return MerlTable(values, sigma)
 
