@@ -219,3 +219,21 @@ def test_cell_directions_are_the_inverse_of_the_half_difference_map_at_every_cel
     np.testing.assert_allclose(wi, wi2, atol=1e-14)
     np.testing.assert_allclose(wo, wo2, atol=1e-14)
     assert np.array_equal(above, (wi2[..., 2] > 0) & (wo2[..., 2] > 0))
+
+
+def test_cell_directions_are_computed_once_and_shared_read_only():
+    """The φh = 0 directions are one process-wide read-only copy (a caller cannot change what the next one gets);
+    another φh gives new arrays, the φh = 0 ones turned about z."""
+    wi, wo, above = cell_directions()
+    again = cell_directions(0.0)
+    assert all(a is b for a, b in zip((wi, wo, above), again))
+    for a in (wi, wo, above):
+        assert not a.flags.writeable
+        with pytest.raises(ValueError):
+            a[0, 0, 0] = 0
+    wi_t, wo_t, above_t = cell_directions(0.7)
+    assert wi_t.flags.writeable and wi_t is not wi and np.array_equal(above_t, above)
+    c, s = np.cos(0.7), np.sin(0.7)
+    np.testing.assert_array_equal(wi_t[..., 0], c * wi[..., 0] - s * wi[..., 1])
+    np.testing.assert_array_equal(wo_t[..., 1], s * wo[..., 0] + c * wo[..., 1])
+    np.testing.assert_array_equal(wi_t[..., 2], wi[..., 2])

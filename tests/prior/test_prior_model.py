@@ -158,3 +158,24 @@ def test_the_cube_root_weights_follow_what_was_measured(synthetic_prior):
     wb = Posterior.start(pr).update(wi, wo, bright, 0.01 * bright + 1e-4).cbrt_weight()
     wd = Posterior.start(pr).update(wi, wo, dark, 0.01 * dark + 1e-4).cbrt_weight()
     assert not np.allclose(wb / wb.sum(), wd / wd.sum(), rtol=0.05)
+
+
+@pytest.mark.parametrize("grid, rows", [(GRID, slice(None)), (PriorGrid(56, 24, 20), slice(30, 45)),
+                                        (PriorGrid(2, 3, 512), slice(0, 15))])
+def test_the_merl_cells_weights_built_per_axis_are_the_angles_weights_bit_for_bit(grid, rows):
+    """PriorGrid.weights_merl (per-axis coordinates, each corner's weight a broadcast product; what Posterior.table
+    and build.cell_weight use) is weights_angles at merl_cell_angles' cells above the horizon: the same CSR matrix,
+    bit for bit; merl_above is merl_cell_angles' horizon mask."""
+    from gonio.io.merl import cell_directions
+    from gonio.prior.grid import merl_above, merl_cell_angles
+
+    th, td, pd, above = merl_cell_angles(rows)
+    wi, wo, _ = cell_directions()
+    # the horizon test agrees with the cell directions' (both cos θ > 0) wherever it is not at rounding level
+    clear = (np.minimum(wi[rows][..., 2], wo[rows][..., 2]) ** 2) > 1e-20
+    assert np.array_equal(above[clear], (wi[rows][..., 2] > 0)[clear] & (wo[rows][..., 2] > 0)[clear])
+    assert np.array_equal(merl_above(rows), above)
+    a, b = grid.weights_angles(th[above], td[above], pd[above]), grid.weights_merl(rows)
+    assert a.shape == b.shape == (int(above.sum()), grid.size)
+    for x, y in ((a.indptr, b.indptr), (a.indices, b.indices), (a.data, b.data)):
+        assert x.dtype == y.dtype and np.array_equal(x, y)
