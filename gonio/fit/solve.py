@@ -130,21 +130,25 @@ _ACTIVE_SETS: dict[tuple, tuple[np.ndarray, ...]] = {}
 def _active_sets(lo: np.ndarray, hi: np.ndarray, K: int):
     """Every active set of :func:`bounded_lsq_batch` in :func:`bounded_lsq`'s order (itertools.product of
     free / lower / upper per variable): ``free`` (C, K) bool, the bound values ``fixval`` (C, K) (0 where free),
-    ``~free`` as a (C, K) mask and the K x K identity; cached per bounds (a fit calls this thousands of times with
-    the same few bounds, and building them cost more than the solves)."""
-    key = (K, np.asarray(lo, dtype=np.float64).tobytes(), np.asarray(hi, dtype=np.float64).tobytes())
+    ``~free`` as a (C, K) mask and the K x K identity. The sets depend only on which bounds are finite, so they are
+    cached per that pattern (a fit calls this thousands of times, and building them cost more than the solves; a
+    linked colour's upper bound moves with the shape, so caching per bound value missed every time); the bound
+    values are filled in per call."""
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    lo_finite, hi_finite = tuple(np.isfinite(lo).tolist()), tuple(np.isfinite(hi).tolist())
+    key = (K, lo_finite, hi_finite)
     hit = _ACTIVE_SETS.get(key)
     if hit is None:
-        lo_finite, hi_finite = tuple(np.isfinite(lo)), tuple(np.isfinite(hi))
         options = [["free"] + (["lo"] if lf else []) + (["hi"] if hf else []) for lf, hf in zip(lo_finite, hi_finite)]
         combos = list(itertools.product(*options))
-        free = np.array([[c == "free" for c in combo] for combo in combos], dtype=bool).reshape(len(combos), len(options))
-        fixval = np.array([[lo[k] if c == "lo" else hi[k] if c == "hi" else 0.0 for k, c in enumerate(combo)]
-                           for combo in combos], dtype=np.float64).reshape(len(combos), len(options))
-        if len(_ACTIVE_SETS) > 64:
-            _ACTIVE_SETS.clear()
-        _ACTIVE_SETS[key] = hit = (free, fixval, ~free, np.eye(K))
-    return hit
+        C = len(combos)
+        free = np.array([[c == "free" for c in combo] for combo in combos], dtype=bool).reshape(C, len(options))
+        at_lo = np.array([[c == "lo" for c in combo] for combo in combos], dtype=bool).reshape(C, len(options))
+        at_hi = np.array([[c == "hi" for c in combo] for combo in combos], dtype=bool).reshape(C, len(options))
+        _ACTIVE_SETS[key] = hit = (free, at_lo, at_hi, ~free, np.eye(K))
+    free, at_lo, at_hi, bound, eye = hit
+    fixval = np.where(at_lo, lo, np.where(at_hi, hi, 0.0))
+    return free, fixval, bound, eye
 
 
 def _solve_free_blocks(G: np.ndarray, b: np.ndarray, free: np.ndarray, fixval: np.ndarray) -> np.ndarray:
