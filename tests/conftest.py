@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 
 # One BLAS/OpenMP thread per process, set before anything imports numpy (the xdist workers import this file
 # first): the suite runs at least one worker per core (`-n 3` in addopts on 2 cores), so a second BLAS thread
@@ -16,6 +17,20 @@ import shutil
 # it. A value set by the caller is kept.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+
+# Bytecode, kept out of the source tree: every process of a run (this one, the xdist workers, the `gonio` processes
+# the tests start, all of which inherit the environment) reads and writes compiled modules, and pytest's rewritten
+# test modules, under PYC_CACHE (in pytest's own cache directory, .pytest_cache/, which git ignores and
+# `pytest --cache-clear` empties) instead of compiling gonio, sim and every test module from source again in each
+# process. Where PYTHONDONTWRITEBYTECODE is set (as on the reference machine) nothing else would keep them: each of
+# the three workers compiled and rewrote everything (collection: ~10 CPU s per worker, ~3 s from a warm cache) and
+# each `gonio` subprocess compiled gonio again (~0.8 CPU s). Bytecode is never written beside the sources (that
+# is what PYTHONDONTWRITEBYTECODE is usually set to prevent); a PYTHONPYCACHEPREFIX set by the caller is kept.
+PYC_CACHE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), ".pytest_cache", "pycache")
+os.environ["PYTHONPYCACHEPREFIX"] = os.environ.get("PYTHONPYCACHEPREFIX") or PYC_CACHE
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+sys.pycache_prefix = os.environ["PYTHONPYCACHEPREFIX"]  # this process too: its imports from here on
+sys.dont_write_bytecode = False
 
 import pytest  # noqa: E402
 from hypothesis import HealthCheck, settings  # noqa: E402
@@ -104,6 +119,40 @@ def default_session_measured(tmp_path_factory):
     camera), measured once per test run (:func:`measured_once`; the modules that use it share a group,
     :data:`SAME_WORKER`). Read-only: copy it (shutil.copytree) to change it."""
     return measured_once(tmp_path_factory, "default-session", ["measure", "--sim", "--quiet"])
+
+
+def _stale_share(roots) -> float:
+    """The share of the Python files under ``roots`` (gonio's and the simulator's sources) without bytecode at
+    least as new as the source in this process's cache (:data:`PYC_CACHE`): 1.0 on a fresh clone."""
+    import importlib.util
+
+    sources = [os.path.join(d, n) for r in roots for d, _, names in os.walk(r) for n in names if n.endswith(".py")]
+    stale = 0
+    for src in sources:
+        try:
+            stale += os.stat(importlib.util.cache_from_source(src)).st_mtime < os.stat(src).st_mtime
+        except FileNotFoundError:
+            stale += 1
+    return stale / max(len(sources), 1)
+
+
+def pytest_configure(config):
+    """On a cold bytecode cache (:data:`PYC_CACHE`; a fresh clone, another Python or pytest, ``--cache-clear``), the
+    controller of an xdist run fills it once before the workers start (a collection in one process: compiling the
+    libraries, gonio, the simulator and rewriting the test modules, ~13 CPU s), instead of each of the workers
+    doing all of that at the same moment (~3 × 12 CPU s on a fresh clone). A warm cache is left as it is: a
+    module changed since is compiled by the first process that imports it."""
+    import subprocess
+
+    if (getattr(config, "workerinput", None) is not None or not config.getoption("numprocesses", 0)
+            or config.getoption("dist", "no") == "no" or config.getoption("collectonly")):
+        return
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    if _stale_share([os.path.join(root, "gonio"), os.path.join(root, "sim")]) < 0.5:
+        return
+    subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-n", "0", "-p", "no:cacheprovider",
+                    *config.args], cwd=config.invocation_params.dir, stdout=subprocess.DEVNULL,
+                   stderr=subprocess.DEVNULL, check=False)  # its errors, if any, are the workers' to report
 
 
 def pytest_addoption(parser):
