@@ -199,26 +199,29 @@ def _rz(a):
 def _arm(e: dict, az, el, radius_m: float):
     """Device position (lab frame, m) and orientation ``Q`` (..., 3, 3) of one arm (module docstring). The
     fields of ``e`` are numbers, or arrays (a batch of parameter vectors, :meth:`ChainErrors.from_vectors`)
-    that broadcast against ``az`` and ``el``."""
-    d = np.radians
+    that broadcast against ``az`` and ``el``: the same products and sums either way."""
+    one = isinstance(e["d_az_deg"], float)  # one chain: Python numbers (NumPy's per-call cost on scalars avoided)
+    d, vec = (math.radians, _vec3) if one else (np.radians, _vecs)
     A = _rx(np.asarray(d(e["tilt_x_deg"]))) @ _ry(np.asarray(d(e["tilt_y_deg"])))
     Raz = A @ _rz(az + d(e["d_az_deg"]))
-    Q = Raz @ _rx(np.broadcast_to(d(e["nonorth_deg"]), np.broadcast_shapes(np.shape(az), np.shape(e["nonorth_deg"])))) \
-        @ _ry(el + d(e["d_el_deg"]))
-    c = _vec(e["axis_x_mm"], e["axis_y_mm"], 0.0) * 1e-3 + _apply(Raz, _vec(e["arc_x_mm"], 0.0, e["arc_z_mm"]) * 1e-3)
-    p = c + _apply(Q, _vec(0.0, e["lateral_mm"] * 1e-3, radius_m + e["d_radius_mm"] * 1e-3))
-    return p, Q
+    nonorth = d(e["nonorth_deg"])
+    N = np.full_like(az, nonorth) if one else np.broadcast_to(nonorth, np.broadcast_shapes(np.shape(az), np.shape(nonorth)))
+    Q = Raz @ _rx(N) @ _ry(el + d(e["d_el_deg"]))
+    arc = vec(e["arc_x_mm"], 0.0, e["arc_z_mm"]) * 1e-3
+    dev = vec(0.0, e["lateral_mm"] * 1e-3, radius_m + e["d_radius_mm"] * 1e-3)
+    c = vec(e["axis_x_mm"], e["axis_y_mm"], 0.0) * 1e-3 + (Raz @ arc if one else (Raz @ arc[..., None])[..., 0])
+    return c + (Q @ dev if one else (Q @ dev[..., None])[..., 0]), Q
 
 
-def _vec(x, y, z) -> np.ndarray:
-    """The vectors ``(x, y, z)`` (..., 3) of numbers or broadcasting arrays."""
+def _vec3(x, y, z) -> np.ndarray:
+    """The vector ``(x, y, z)`` (3,) of numbers."""
+    return np.array([x, y, z])
+
+
+def _vecs(x, y, z) -> np.ndarray:
+    """The vectors ``(x, y, z)`` (..., 3) of broadcasting numbers or arrays."""
     x, y, z = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (x, y, z)))
     return np.stack([x, y, z], axis=-1)
-
-
-def _apply(M, v) -> np.ndarray:
-    """``M v`` for matrices ``M`` (..., 3, 3) and vectors ``v`` (3,) or (..., 3) (broadcasting)."""
-    return M @ v if v.ndim == 1 else (M @ v[..., None])[..., 0]
 
 
 def chain_forward(rig, errors: ChainErrors, joints):
@@ -243,26 +246,28 @@ def chain_forward(rig, errors: ChainErrors, joints):
     x, z = Q[..., :, 1], -Q[..., :, 2]
     R = np.stack([x, np.cross(z, x), z], axis=-2)
     m = errors.camera
-    turned = np.broadcast_to(np.asarray(m.get("mount_x_deg", 0.0), dtype=np.float64) != 0, R.shape[:-2])
-    turned = turned | (np.asarray(m.get("mount_y_deg", 0.0)) != 0) | (np.asarray(m.get("mount_z_deg", 0.0)) != 0)
-    if np.any(turned):
-        d = np.radians
-        M = (_rx(np.asarray(d(m["mount_x_deg"]))) @ _ry(np.asarray(d(m["mount_y_deg"])))
-             @ _rz(np.asarray(d(m["mount_z_deg"]))))
-        if np.all(turned):
+    mx, my, mz = m.get("mount_x_deg", 0.0), m.get("mount_y_deg", 0.0), m.get("mount_z_deg", 0.0)
+    one = isinstance(mx, float) and isinstance(my, float) and isinstance(mz, float)
+    turned = (mx or my or mz) if one else np.broadcast_to((np.asarray(mx) != 0) | (np.asarray(my) != 0)
+                                                         | (np.asarray(mz) != 0), R.shape[:-2])
+    if turned if one else np.any(turned):
+        d = math.radians if one else np.radians
+        M = _rx(np.asarray(d(mx))) @ _ry(np.asarray(d(my))) @ _rz(np.asarray(d(mz)))
+        if one or np.all(turned):
             R = M @ R
         else:  # a batch whose mounting rotations are zero in some rows: those keep R untouched (as alone)
             R = R.copy()
-            R[turned] = (np.broadcast_to(M, R.shape) [turned] @ R[turned])
+            R[turned] = np.broadcast_to(M, R.shape)[turned] @ R[turned]
     if s is not None:  # lab → sample frame: the turntable's rotation, inverted
         t = errors.turntable
-        T = (_rx(np.asarray(np.radians(t["tilt_x_deg"]))) @ _ry(np.asarray(np.radians(t["tilt_y_deg"])))
-             @ _rz(s + np.radians(t["d_az_deg"])))
+        d = math.radians if isinstance(t["d_az_deg"], float) else np.radians
+        T = _rx(np.asarray(d(t["tilt_x_deg"]))) @ _ry(np.asarray(d(t["tilt_y_deg"]))) @ _rz(s + d(t["d_az_deg"]))
         Tt = np.swapaxes(T, -1, -2)
         pl = (Tt @ pl[..., None])[..., 0]
         pc = (Tt @ pc[..., None])[..., 0]
         R = R @ T
-    h = _vec(0.0, 0.0, errors.sample_height_mm * 1e-3)
+    dh = errors.sample_height_mm * 1e-3
+    h = _vec3(0.0, 0.0, dh) if isinstance(dh, float) else _vecs(0.0, 0.0, dh)
     return pl - h, pc - h, R
 
 

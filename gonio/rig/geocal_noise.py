@@ -218,12 +218,12 @@ class FrameNoise:
         """Frames (:meth:`clusters` indices) whose whitened residual χ² has a probability below ``p_value``
         under their covariance (χ² with the frame's residual count as degrees of freedom): a board pose or a
         highlight the detector got wrong (a corner on a reflection, a highlight cut by the tile's edge)."""
-        from scipy.stats import chi2
+        from scipy.special import chdtrc  # χ²'s survival function: scipy.stats.chi2.sf's, without importing scipy.stats
 
         cid = self.clusters()
         q = np.bincount(cid, whitened ** 2, minlength=self.n_frames)
         dof = np.bincount(cid, minlength=self.n_frames)
-        return [int(k) for k in np.flatnonzero(chi2.sf(q, np.maximum(dof, 1)) < p_value)]
+        return [int(k) for k in np.flatnonzero(chdtrc(np.maximum(dof, 1), q) < p_value)]
 
     def without(self, frames) -> tuple[list, list, list[str]]:
         """``(cams, highs, what)``: the observations without the given frames (a board pose and its highlight go
