@@ -92,6 +92,19 @@ def _usable(samples: SampleSet, include_flagged: bool) -> tuple[np.ndarray, int,
     return keep, n_flagged, int(np.sum(~valid))
 
 
+def _cells(cell: np.ndarray, count: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The flat indices of the cells that hold samples (sorted) and each sample's slot among them: per-cell sums
+    are ``np.bincount(slot, x)`` — the same sums, in the same sample order, as ``np.bincount(cell, x,
+    minlength=N_CELLS)[has]`` without its 1.46 M-long arrays. ``count``: ``np.bincount(cell, minlength=N_CELLS)``
+    if known."""
+    if count is None:
+        count = np.bincount(cell, minlength=N_CELLS)
+    has = np.flatnonzero(count)
+    slot_of = np.empty(N_CELLS, dtype=np.intp)
+    slot_of[has] = np.arange(has.size)
+    return has, slot_of[cell]
+
+
 def _weights(f: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """Inverse-variance weights 1/σ², with σ floored at 1e-12 × max|f| (so σ = 0 data weigh equally)."""
     floor = 1e-12 * float(np.max(np.abs(f))) if f.size else 0.0
@@ -141,9 +154,9 @@ def _check_isotropy(s: SampleSet, cell: np.ndarray, ph: np.ndarray, tol: float, 
     # divide out the variation across each cell: the isotropic table of cell means, interpolated
     # trilinearly at every sample's own position (φh ignored), is what an isotropic BRDF would give.
     w0 = _weights(y, sy)
-    has = np.bincount(cell, minlength=N_CELLS) > 0
+    has, slot = _cells(cell)
     mean = np.full(N_CELLS, np.nan)
-    mean[has] = np.bincount(cell, w0 * y, minlength=N_CELLS)[has] / np.bincount(cell, w0, minlength=N_CELLS)[has]
+    mean[has] = np.bincount(slot, w0 * y, minlength=has.size) / np.bincount(slot, w0, minlength=has.size)
     grid = MerlTable(np.broadcast_to(mean.reshape(SHAPE)[..., None], SHAPE + (3,)))
     iso = grid.lookup(s.wi[sel], s.wo[sel], "trilinear")[:, 0]
     scale = np.where(np.abs(iso) > 1e-300, iso, 1.0)
@@ -316,13 +329,13 @@ def tabulate(samples: SampleSet, *, fill_deg: float = DEFAULT_FILL_DEG, include_
     count = np.bincount(cell, minlength=N_CELLS)
     values = np.full((N_CELLS, 3), np.nan)
     sigma = np.full((N_CELLS, 3), np.nan)
-    has = count > 0
+    has, slot = _cells(cell, count)
     for c in range(3):
-        wsum = np.bincount(cell, w[:, c], minlength=N_CELLS)[has]
-        values[has, c] = np.bincount(cell, w[:, c] * s.f[:, c], minlength=N_CELLS)[has] / wsum
+        wsum = np.bincount(slot, w[:, c], minlength=has.size)
+        values[has, c] = np.bincount(slot, w[:, c] * s.f[:, c], minlength=has.size) / wsum
         sigma[has, c] = 1.0 / np.sqrt(wsum)
     values, sigma = values.reshape(SHAPE + (3,)), sigma.reshape(SHAPE + (3,))
-    measured = has.reshape(SHAPE)
+    measured = (count > 0).reshape(SHAPE)
     wi, wo, above = cell_directions(0.0)
     filled = _fill_holes(values, sigma, measured, above, fill_deg, wi, wo)
     table = MerlTable(values, sigma, count.reshape(SHAPE))
