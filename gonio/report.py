@@ -29,7 +29,7 @@ import numpy as np
 from gonio.errors import ConfigError
 from gonio.page import Page, text
 from gonio.render import png_bytes, white_point
-from gonio.report_figures import (coverage_figure, model_styles, plotly, residual_figure, slice_angles,
+from gonio.report_figures import (coverage_figure, model_styles, plotly_js, residual_figure, slice_angles,
                                   slice_figure)
 
 __all__ = ["Entry", "load_entries", "build_report", "report_page", "sphere_panel", "slice_figure", "fit_table",
@@ -336,8 +336,7 @@ def report_page(entries: Sequence[Entry], *, title: str = "gonio report", lead_h
     """The report as a :class:`gonio.page.Page` (Plotly's JavaScript inlined: no network needed);
     ``lead_html`` (escaped markup) comes first, under the title — the viewer's controls;
     ``same_origin``: the page may load images and data from its own server (the viewer)."""
-    offline = plotly()
-    page = Page(title, STYLE, same_origin=same_origin).script(offline.get_plotlyjs(), head=True)
+    page = Page(title, STYLE, same_origin=same_origin).script(plotly_js(), head=True)
     page.add(f"<h1>{text(title)}</h1>{lead_html}")
     styles = model_styles(entries)
     if len(entries) > 1:

@@ -10,6 +10,7 @@ gets one labelled tick per decade, or 1-2-5 ticks when the data span less (:func
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -31,6 +32,12 @@ MODEL_DASHES = ("dash", "dot", "dashdot", "longdash", "longdashdot")
 MEASURED, TABLE = "#000000", "#7f7f7f"
 #: A slice's log axis shows at most this many decades below its largest value.
 MAX_DECADES = 5.0
+
+
+@functools.lru_cache(maxsize=1)
+def plotly_js() -> str:
+    """Plotly's JavaScript (``plotly.offline.get_plotlyjs()``, 4.8 MB read from its package), read once a process."""
+    return plotly().get_plotlyjs()
 
 
 def plotly():

@@ -193,3 +193,22 @@ def test_api_plot_title_with_every_hostile_string_renders(tmp_path):
         path = plots.save(fig, tmp_path / "c.svg")
         ET.parse(path)
         assert fig.get_suptitle() == title
+
+
+
+@pytest.mark.parametrize("source, refused", [
+    ("a</script>b", True), ("x</SCRIPT y", True), ("</ScRiPt", True), ("<!-- c", True), ("if (a<!--b) {}", True),
+    ("var s = '</scrİpt' + '</ſcript' + '</scr\u0131pt';", False), ("a < b && c > d; '</div>'", False),
+    ("x = '<\\/script>'; y = '</scrip' + 't>';", False)])
+def test_a_page_refuses_exactly_the_scripts_an_html_parser_would_end_or_change(source, refused):
+    """Page.script refuses an inline script holding ``</script`` in any ASCII letter case (where an HTML parser
+    ends the element) or ``<!--``: the same verdict as ``"</script" in source.lower() or "<!--" in source``
+    (non-ASCII look-alikes İ, ſ, ı pass, as the parser does not end the element at them)."""
+    from gonio.page import Page
+
+    assert refused == ("</script" in source.lower() or "<!--" in source)
+    if refused:
+        with pytest.raises(ValueError, match="must not contain"):
+            Page("t").script(source)
+    else:
+        assert Page("t").script(source).scripts == [source]
