@@ -69,12 +69,53 @@ def bounded_lsq_batch(G: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarr
     the free rows of G a = b with each bound variable's row replaced by aₖ = its bound, which is the free block's
     system with the bound variables moved to the right-hand side — and all of them are solved in one call; each
     problem keeps its feasible candidate of least ½ aᵀGa − bᵀa (the first in active-set order on a tie).
+
+    Most problems are settled before the enumeration: the active set that clipping the unconstrained solution
+    suggests (each variable beyond a bound held at it) is solved, and its point is the minimum if it satisfies the
+    Karush–Kuhn–Tucker conditions — its free variables within their bounds, and the objective's gradient Ga − b
+    pointing into the box at each held one (≥ 0 at a lower bound, ≤ 0 at an upper one), which for a convex
+    quadratic suffice (Nocedal & Wright, *Numerical Optimization*, 2nd ed., Thm. 16.4) — the point the enumeration
+    finds, to rounding. The others (a wrong guess, a degenerate multiplier) are enumerated.
     """
     K = b.shape[-1]
-    free, fixval, ok_free, eye = _active_sets(lo, hi, K)  # (C, K) each, cached per bounds
     stack = b.shape[:-1]
     Gs = np.asarray(G, dtype=np.float64).reshape((-1, K, K))
     bs = np.asarray(b, dtype=np.float64).reshape((-1, K))
+    best, good = _kkt_guess(Gs, bs, lo, hi)
+    if not good.all():
+        best[~good] = _enumerated(Gs[~good], bs[~good], lo, hi)
+    return np.minimum(np.maximum(best.reshape(stack + (K,)), lo), hi)  # np.clip's answer, less overhead
+
+
+def _kkt_guess(Gs: np.ndarray, bs: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(x (P, K), good (P,))``: the solution of each problem's clipped active set (:func:`bounded_lsq_batch`) and
+    whether it satisfies the Karush–Kuhn–Tucker conditions (then it is the minimum)."""
+    P, K = bs.shape
+    none = (np.zeros((P, K)), np.zeros(P, dtype=bool))
+    with np.errstate(all="ignore"):
+        try:
+            a = np.linalg.solve(Gs, bs[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            return none
+        at_lo, at_hi = a < lo, a > hi
+        free = ~(at_lo | at_hi)
+        A = np.where(free[:, :, None], Gs, _active_sets(lo, hi, K)[3])  # free rows of G, unit rows for held ones
+        rhs = np.where(free, bs, np.where(at_lo, lo, hi))
+        try:
+            x = np.linalg.solve(A, rhs[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            return none
+        grad = np.einsum("pij,pj->pi", Gs, x) - bs
+        good = (np.isfinite(a).all(-1) & np.isfinite(x).all(-1)
+                & np.all(~free | ((x >= lo - 1e-12) & (x <= hi + 1e-12)), axis=-1)
+                & np.all(~at_lo | (grad >= 0.0), axis=-1) & np.all(~at_hi | (grad <= 0.0), axis=-1))
+    return x, good
+
+
+def _enumerated(Gs: np.ndarray, bs: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The enumeration of :func:`bounded_lsq_batch` (every active set of every problem), unclipped: (P, K)."""
+    K = bs.shape[-1]
+    free, fixval, ok_free, eye = _active_sets(lo, hi, K)  # (C, K) each, cached per pattern of finite bounds
     x = _two_colours(Gs, bs, free, fixval) if K == 2 else None
     if x is None:
         A = np.where(free[:, None, :, None], Gs[None], eye)  # (C, P, K, K): free rows of G, unit rows for bound ones
@@ -91,7 +132,7 @@ def bounded_lsq_batch(G: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarr
     p = np.arange(x.shape[1])
     best = x[j, p]
     best[~np.isfinite(val[j, p])] = 0.0
-    return np.minimum(np.maximum(best.reshape(stack + (K,)), lo), hi)  # np.clip's answer, less overhead
+    return best
 
 
 def _two_colours(G: np.ndarray, b: np.ndarray, free: np.ndarray, fixval: np.ndarray) -> np.ndarray | None:

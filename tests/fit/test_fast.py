@@ -121,6 +121,24 @@ def test_batched_bounded_lsq_equals_the_scalar_one():
     assert np.any(got == 0.0) and np.any(got == 1.0)  # bounds were active in some problems
 
 
+@pytest.mark.parametrize("k", [2, 3])
+def test_the_kkt_shortcut_is_the_enumerated_minimum_where_it_applies(k):
+    """bounded_lsq_batch first solves the active set that clipping suggests and keeps it where the KKT conditions
+    hold (gonio.fit.solve._kkt_guess): there it is the enumeration's answer; elsewhere the enumeration decides."""
+    from gonio.fit.solve import _enumerated, _kkt_guess
+
+    lo, hi = np.zeros(k), np.r_[1.0, np.full(k - 1, np.inf)]
+    rng = np.random.default_rng(11)
+    A = rng.normal(size=(400, 8, k))
+    G = np.einsum("nij,nik->njk", A, A)
+    b = rng.normal(scale=2.0, size=(400, k))
+    x, good = _kkt_guess(G, b, lo, hi)
+    want = _enumerated(G, b, lo, hi)
+    assert 0.3 < good.mean() < 1.0  # settles most, not all
+    np.testing.assert_allclose(x[good], want[good], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(bounded_lsq_batch(G, b, lo, hi), np.clip(want, lo, hi), rtol=1e-9, atol=1e-12)
+
+
 @pytest.mark.parametrize("singular", [False, True])
 def test_two_colours_in_closed_form_equal_the_scalar_solver(singular):
     """K = 2 (a diffuse and a specular weight) is solved in closed form (gonio.fit.solve._two_colours); a singular
