@@ -699,18 +699,19 @@ def _partner(name: str, other: str) -> str:
     return f"{name.rsplit('.', 1)[0]}.{other}" if "." in name else other
 
 
-def add_report(r: FitResult, d: FitData) -> None:
+def add_report(r: FitResult, d: FitData, scored: tuple | None = None) -> None:
     """Fill ``r.metrics`` (:mod:`gonio.fit.metrics`), ``r.goodness`` (:mod:`gonio.fit.gof`) and ``r.energy``
     (:mod:`gonio.fit.energy`); a note when the model does not fit or the fitted parameters do not conserve
-    energy."""
+    energy. ``scored = (values, goodness, energy)``: what a caller computed already for this result on these data
+    (:func:`gonio.fit.select.select` scores every candidate so), not computed again."""
     from gonio.fit.energy import albedo_check
     from gonio.fit.gof import goodness_of_fit
     from gonio.fit.metrics import metrics
 
-    m = np.asarray(r.model.eval(d.wi, d.wo), dtype=np.float64)
+    m, goodness, energy = scored or (np.asarray(r.model.eval(d.wi, d.wo), dtype=np.float64), None, None)
     r.metrics = metrics(r.model, d, values=m)
-    r.goodness = goodness_of_fit(m, d, LOSSES[r.loss], r.n_params)
-    r.energy = albedo_check(r.model)
+    r.goodness = goodness if goodness is not None else goodness_of_fit(m, d, LOSSES[r.loss], r.n_params)
+    r.energy = energy if energy is not None else albedo_check(r.model)
     if not r.energy["ok"]:
         r.notes.append(f"not energy conserving: directional albedo {r.energy['albedo_max']:.3g} > 1 at "
                        f"theta_i = {r.energy['theta_deg']:g} deg")

@@ -479,10 +479,12 @@ def _practically_equivalent(win: dict, eligible: list, ok: list, fits: dict, d, 
 
 
 def _score_row(r: FitResult, name: str, d, d_val, lossobj, criterion: str, big: bool, folds: int, seed: int,
-               fit_kw: dict, bar, held_out: HeldOut | None = None) -> dict:
+               fit_kw: dict, bar, held_out: HeldOut | None = None, scored: dict | None = None) -> dict:
     """The selection table's row of candidate ``name`` fitted as ``r``: its criterion's score (held-out error
     over ``folds`` folds or on ``d_val``, AIC/BIC, an image error), what is not identified, whether it fits the
-    data (:func:`gonio.fit.gof.goodness_of_fit`) and conserves energy; raises :data:`CANDIDATE_ERRORS`."""
+    data (:func:`gonio.fit.gof.goodness_of_fit`) and conserves energy; raises :data:`CANDIDATE_ERRORS`. The model's
+    values, the goodness of fit and the energy check are kept in ``scored[name]`` (the winner's report reuses them:
+    :func:`gonio.fit.fit.add_report`)."""
     from gonio.fit.energy import albedo_check
 
     row = {"model": name, "n_params": r.n_params, "loss": r.loss, "cost": r.cost, "rms_rel": r.rms_rel,
@@ -507,9 +509,12 @@ def _score_row(r: FitResult, name: str, d, d_val, lossobj, criterion: str, big: 
                       if "value" in v and "." in k and k.rsplit(".", 1)[1] in _WIDTHS)
     if unident:
         row["unidentified"] = f"parameters not identified by the data: {', '.join(unident)}"
-    g = goodness_of_fit(r.model.eval(d.wi, d.wo), d, lossobj, r.n_params, seed=seed)
+    values = np.asarray(r.model.eval(d.wi, d.wo), dtype=np.float64)
+    g = goodness_of_fit(values, d, lossobj, r.n_params, seed=seed)
     row["fits"], row["fit_ratio"] = g["fits"], g["ratio"]
     energy = albedo_check(r.model)
+    if scored is not None:
+        scored[name] = (values, g, energy, seed)
     row["albedo_max"] = energy["albedo_max"]
     if not energy["ok"]:
         row["unphysical"] = (f"not energy conserving: directional albedo {energy['albedo_max']:.3g} > 1 at "
@@ -583,6 +588,7 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
     n_fits = len(candidates) * (1 + (folds if criterion == "cv" and not big else 0)) + 1
     bar = _progress(n_fits, progress, "select")
     rows, fits, first_error = [], {}, None
+    scored: dict = {}
     from gonio.fit.energy import albedo_check
 
     done = {} if _done is None else _done
@@ -604,7 +610,7 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
         try:  # a candidate that fails on all samples or in a fold is a failed row, never the end of the selection
             r = fit(d, name, loss=lossobj.name, seed=seed, **fit_kw)
             bar.update(1)
-            row = _score_row(r, name, d, d_val, lossobj, criterion, big, folds, seed, fit_kw, bar, held_out)
+            row = _score_row(r, name, d, d_val, lossobj, criterion, big, folds, seed, fit_kw, bar, held_out, scored)
         except CANDIDATE_ERRORS as exc:
             whole = r is None and isinstance(exc, GonioError)  # its fit on all samples: its own message
             first_error = first_error or (exc if whole else DataError(f"{name}: {_one_line(exc)}"))
@@ -747,8 +753,14 @@ def select(data, candidates: Sequence[str] | None = None, *, criterion: str = "a
             notes.append(f"{len(d_all)} samples: the winner's parameters and uncertainties are those of its fit on "
                          f"{SELECT_N} samples (not refitted on all; its error measures are on all samples)")
         from gonio.fit.fit import add_report
+        from gonio.fit.gof import GOF_N
 
-        add_report(fits[win["model"]], d_all)
+        # its values, goodness of fit and energy check as scored, where that was on the same samples (the goodness
+        # of fit's seed picks its subset only above GOF_N samples; the report's is 0)
+        hit = scored.get(win["model"]) if d is d_all else None
+        if hit is not None and hit[3] != 0 and len(d_all) > GOF_N:
+            hit = (hit[0], None, hit[2], hit[3])
+        add_report(fits[win["model"]], d_all, None if hit is None else hit[:3])
     bar.update(1)
     bar.close()
     sel = Selection(fits[win["model"]], criterion, rows, fits, adjustment)

@@ -128,3 +128,22 @@ def test_a_candidate_whose_cross_validation_fold_fails_is_a_failed_row():
     assert "usable samples" in bad["reason"]  # the fold's own one line: too few samples for its tables
     with pytest.raises(DataError, match="dupuy2015: its fit on cross-validation fold 1 of 5 failed"):
         select((s.wi[idx], s.wo[idx], s.f[idx]), ("dupuy2015",), folds=5)
+
+
+def test_the_winner_s_report_reuses_its_scoring_and_equals_a_fresh_one(monkeypatch):
+    """select scores every candidate's goodness of fit and energy; the winner's report takes them from there (one
+    energy check per candidate, none again) and equals the report made afresh."""
+    import gonio.fit.energy as energy
+    from gonio.fit.data import prepare
+    from gonio.fit.fit import add_report
+
+    s = synth("microfacet", {"kd": [0.3, 0.2, 0.1], "ks": 0.5, "alpha": 0.2}, n=300)
+    calls = []
+    real = energy.albedo_check
+    monkeypatch.setattr(energy, "albedo_check", lambda model: calls.append(model) or real(model))
+    sel = select(s, ("lambert", "microfacet"))
+    assert len(calls) == 2 and sel.winner.model_name == "microfacet"
+    w = sel.winner
+    kept = (w.goodness, w.energy, w.metrics)
+    add_report(w, prepare(s))
+    assert (w.goodness, w.energy, w.metrics) == kept
