@@ -199,8 +199,15 @@ def _rz(a):
 def _arm(e: dict, az, el, radius_m: float):
     """Device position (lab frame, m) and orientation ``Q`` (..., 3, 3) of one arm (module docstring). The
     fields of ``e`` are numbers, or arrays (a batch of parameter vectors, :meth:`ChainErrors.from_vectors`)
-    that broadcast against ``az`` and ``el``: the same products and sums either way."""
+    that broadcast against ``az`` and ``el``: the same products and sums either way. A batch computes each
+    distinct arm once (:func:`_distinct_rows`)."""
     one = isinstance(e["d_az_deg"], float)  # one chain: Python numbers (NumPy's per-call cost on scalars avoided)
+    if not one and np.ndim(az) <= 1 and np.ndim(el) <= 1:
+        rows = _distinct_rows(e)
+        if rows is not None:
+            rows, back = rows
+            p, Q = _arm({k: e[k][rows] for k in ARM_FIELDS}, az, el, radius_m)
+            return p[back], Q[back]
     d, vec = (math.radians, _vec3) if one else (np.radians, _vecs)
     A = _rx(np.asarray(d(e["tilt_x_deg"]))) @ _ry(np.asarray(d(e["tilt_y_deg"])))
     Raz = A @ _rz(az + d(e["d_az_deg"]))
@@ -211,6 +218,24 @@ def _arm(e: dict, az, el, radius_m: float):
     dev = vec(0.0, e["lateral_mm"] * 1e-3, radius_m + e["d_radius_mm"] * 1e-3)
     c = vec(e["axis_x_mm"], e["axis_y_mm"], 0.0) * 1e-3 + (Raz @ arc if one else (Raz @ arc[..., None])[..., 0])
     return c + (Q @ dev if one else (Q @ dev[..., None])[..., 0]), Q
+
+
+def _distinct_rows(e: dict):
+    """``(rows, back)`` for a batch of arm fields (each (K, 1)) in which rows repeat the first, bit for bit — a
+    Jacobian's columns for the other arm's parameters, or for the camera's mounting rotation, leave this arm as
+    its first row has it — the rows to compute (the first and those that differ from it) and, for every row,
+    which of them it is; None if no row repeats the first."""
+    try:
+        bits = np.stack([np.asarray(e[k], dtype=np.float64).reshape(-1) for k in ARM_FIELDS], axis=1).view(np.int64)
+    except ValueError:  # fields of different shapes: no rows to compare
+        return None
+    differ = np.any(bits != bits[0], axis=1)
+    if differ.all() or differ.sum() == len(bits) - 1:
+        return None
+    rows = np.concatenate([[0], np.flatnonzero(differ)])
+    back = np.zeros(len(bits), dtype=np.intp)
+    back[rows] = np.arange(len(rows))
+    return rows, back
 
 
 def _vec3(x, y, z) -> np.ndarray:

@@ -104,12 +104,13 @@ class FrameNoise:
     def raw(self, errors, joints_delta=None, obs=None):
         """Raw residuals ``(cams (..., Nc, 6), highs (..., Nh, 2))`` at ``errors`` (one chain, or a batch:
         :mod:`gonio.rig.geocal_residuals`), the joints shifted by ``joints_delta`` (rad, applied to every
-        observation: for :meth:`jacobians`); ``obs``: perturbed copies of the observations
+        observation: for :meth:`jacobians`; (B, 1, 4): B shifts at once, a leading axis of B); ``obs``: perturbed copies of the observations
         (:class:`gonio.rig.geocal_residuals.Observed`, same frames) in place of the session's."""
         obs = self.observed if obs is None else obs
+        batch = batch_shape(errors)
         if joints_delta is not None:
             obs = obs.shifted(joints_delta)
-        batch = batch_shape(errors)
+            batch = batch + np.shape(joints_delta)[:-2]
         b = residual_blocks(self.rig, errors, obs)
         rc = (np.concatenate([b["camera_mm"].reshape(batch + (-1, 3)), b["camera_deg"].reshape(batch + (-1, 3))], axis=-1)
               if obs.n_cams else np.zeros(batch + (0, 6)))
@@ -117,14 +118,16 @@ class FrameNoise:
         return rc, rh
 
     def jacobians(self, errors, h: float = 1e-6):
-        """∂r/∂q (per degree of joint) of every observation: ``((Nc, 6, 4), (Nh, 2, 4))`` (central differences)."""
-        jc, jh = [], []
+        """∂r/∂q (per degree of joint) of every observation: ``((Nc, 6, 4), (Nh, 2, 4))`` (central differences;
+        the eight shifted joint sets in one evaluation, :meth:`raw`)."""
+        steps = []
         for k in range(4):
             e = np.zeros(4)
             e[k] = h
-            (cp, hp), (cm, hm) = self.raw(errors, e), self.raw(errors, -e)
-            jc.append((cp - cm) / (2 * h))
-            jh.append((hp - hm) / (2 * h))
+            steps += [e, -e]
+        rc, rh = self.raw(errors, np.stack(steps)[:, None, :])
+        jc = [(rc[2 * k] - rc[2 * k + 1]) / (2 * h) for k in range(4)]
+        jh = [(rh[2 * k] - rh[2 * k + 1]) / (2 * h) for k in range(4)]
         per_deg = math.pi / 180.0
         return np.stack(jc, -1) * per_deg, np.stack(jh, -1) * per_deg
 
@@ -135,15 +138,29 @@ class FrameNoise:
 
     def group_covariances(self, Jc, Jh, components=None):
         """Covariances of the three frame groups' residual vectors for the variance ``components``."""
-        sf, so, sh, sq = self.components if components is None else components
-        Cc = self.C_cam * np.where(self.oblique, so, sf)[:, None, None] + sq * Jc @ np.swapaxes(Jc, 1, 2)
-        Ch = self.C_high * sh + sq * Jh @ np.swapaxes(Jh, 1, 2)
-        Jp = np.concatenate([Jc[self.pair_c], Jh[self.pair_h]], axis=1)
-        Cp = np.zeros((len(self.pair_h), 8, 8))
-        Cp[:, :6, :6] = self.C_cam[self.pair_c] * np.where(self.oblique[self.pair_c], so, sf)[:, None, None]
-        Cp[:, 6:, 6:] = self.C_high[self.pair_h] * sh
+        return self._covariances(self._group_parts(Jc, Jh), self.components if components is None else components)
+
+    def _group_parts(self, Jc, Jh):
+        """The parts of the three groups' covariances that the components scale, each frame's own (taken once
+        for the many component values :meth:`estimate_components` tries): ``(C_board, oblique, J)`` of the
+        board-only frames, ``(C_board, oblique, C_highlight, J)`` of the paired ones, ``(C_highlight, J)``."""
+        c, pc, ph, h = self.cam_only, self.pair_c, self.pair_h, self.high_only
+        return ((self.C_cam[c], self.oblique[c], Jc[c]),
+                (self.C_cam[pc], self.oblique[pc], self.C_high[ph], np.concatenate([Jc[pc], Jh[ph]], axis=1)),
+                (self.C_high[h], Jh[h]))
+
+    @staticmethod
+    def _covariances(parts, components):
+        """:meth:`group_covariances` from :meth:`_group_parts`: ``s_board · C_board ⊕ s_highlight · C_highlight +
+        σ_q² J Jᵀ`` per frame (module docstring)."""
+        sf, so, sh, sq = components
+        (Cc, oc, Jc), (Cpc, op, Cph, Jp), (Ch, Jh) = parts
+        cam = Cc * np.where(oc, so, sf)[:, None, None] + sq * Jc @ np.swapaxes(Jc, 1, 2)
+        Cp = np.zeros((len(Jp), 8, 8))
+        Cp[:, :6, :6] = Cpc * np.where(op, so, sf)[:, None, None]
+        Cp[:, 6:, 6:] = Cph * sh
         Cp += sq * Jp @ np.swapaxes(Jp, 1, 2)
-        return [Cc[self.cam_only], Cp, Ch[self.high_only]]
+        return [cam, Cp, Ch * sh + sq * Jh @ np.swapaxes(Jh, 1, 2)]
 
     # -- variance components --------------------------------------------------------------------------
     def estimate_components(self, errors) -> np.ndarray:
@@ -154,12 +171,13 @@ class FrameNoise:
         Jc, Jh = self.jacobians(errors)
         vecs = self.group_vectors(rc, rh)
         free = np.array([np.any(~self.oblique), np.any(self.oblique), len(self.highs) > 0, True])
+        parts = self._group_parts(Jc, Jh)
 
         def nll(logc):
             comp = self.components.copy()
             comp[free] = np.exp(logc)
             total = 0.0
-            for r, C in zip(vecs, self.group_covariances(Jc, Jh, comp)):
+            for r, C in zip(vecs, self._covariances(parts, comp)):
                 if not len(r):
                     continue
                 L = cholesky(C)

@@ -51,14 +51,15 @@ class Observed:
 
     @property
     def n_cams(self) -> int:
-        return len(self.cam_joints)
+        return self.cam_joints.shape[-2]
 
     @property
     def n_highs(self) -> int:
-        return len(self.high_joints)
+        return self.high_joints.shape[-2]
 
     def shifted(self, joints_delta) -> "Observed":
-        """The same observations with every joint vector shifted by ``joints_delta`` (rad)."""
+        """The same observations with every joint vector shifted by ``joints_delta`` (rad): (4,), or (B, 1, 4) for
+        B shifts at once (the joints then (B, N, 4), every residual with a leading axis of B)."""
         from dataclasses import replace
 
         return replace(self, cam_joints=self.cam_joints + joints_delta, high_joints=self.high_joints + joints_delta)
@@ -121,18 +122,19 @@ def errors_at(x: np.ndarray, idx, p) -> ChainErrors:
 
 
 def residual_blocks(rig, errors: ChainErrors, obs: Observed, *, highlight_camera: str = "chain", white=None):
-    """Residuals per observation kind, (..., m_kind) (a leading batch axis for a batch of chains).
+    """Residuals per observation kind, (..., m_kind) (a leading batch axis for a batch of chains, or for a batch of
+    joint shifts: :meth:`Observed.shifted`).
     ``highlight_camera``: ``"chain"`` projects the light's mirror image with the camera pose of the chain being
     estimated (the board poses of those frames are camera observations too), ``"board"`` with each frame's own
     ChArUco pose. ``white``: per-kind whitening matrices (:func:`gonio.rig.geocal._whiteners`); a whitened block is
     named ``*_w`` (unitless)."""
     out = {}
     white = white or {}
-    batch = batch_shape(errors)
     if obs.n_cams:
         _, pc, R = chain_forward(rig, errors, obs.cam_joints)
         dp = (pc - obs.cam_position) * 1e3
         dr = np.degrees(rotvec(R @ np.swapaxes(obs.cam_R, -1, -2)))
+        batch = dp.shape[:-2]
         if white.get("camera") is not None:
             out["camera_w"] = (white["camera"] @ np.concatenate([dp, dr], axis=-1)[..., None])[..., 0].reshape(batch + (-1,))
         else:
@@ -148,6 +150,7 @@ def residual_blocks(rig, errors: ChainErrors, obs: Observed, *, highlight_camera
         if np.any(obs.high_radius > 0):  # an extended source's centroid is not its centre's image (extended_source_shift)
             xy = xy + extended_source_shift(image, pc, Rc, obs.high_f0, obs.high_radius)
         d = (xy - obs.high_xy) * 1e3
+        batch = d.shape[:-2]
         if white.get("highlight") is not None:
             out["highlight_w"] = (white["highlight"] @ d[..., None])[..., 0].reshape(batch + (-1,))
         else:

@@ -1,5 +1,5 @@
-"""The calibration's residuals for a batch of chains (gonio.rig.geocal_residuals): every row is, bit for bit, the
-residual vector of its chain alone — for both layouts, the whitened and raw blocks, the board's camera and the
+"""The calibration's residuals for a batch of chains (gonio.rig.geocal_residuals) or of joint shifts: every row is,
+bit for bit, the residual vector of its chain (its shift) alone — for both layouts, the whitened and raw blocks, the board's camera and the
 extended source — so the all-columns-at-once Jacobian is scipy's own '2-point' Jacobian exactly, and the
 calibration's solution and uncertainties are those of the one-column-at-a-time finite differences."""
 
@@ -21,13 +21,17 @@ from sim.as_built import AsBuilt, observe
 N_PARAMS = len(ChainErrors().names())
 
 
-def _batch(rng, k=6):
+def _batch(rng, k=7):
     """Parameter vectors: the declared chain, one without a mounting rotation, one with a single mounting angle,
-    and random ones (a batch mixing rows with and without the mounting rotation)."""
+    two that keep one arm of the first (the light's, the camera's: chain_forward computes such an arm once) and
+    random ones (a batch mixing rows with and without the mounting rotation)."""
     V = rng.normal(0.0, 0.5, (k, N_PARAMS))
     V[0] = 0.0
     V[1, 22:25] = 0.0
     V[2, 23:25] = 0.0
+    V[3], V[4] = 0.0, 0.0
+    V[3, 12] = 0.3                # camera.d_el_deg: the light arm as row 0's
+    V[4, [1, 6, 23]] = 0.2        # light.d_el_deg, light.axis_y_mm, camera.mount_y_deg: the camera arm as row 0's
     return V
 
 
@@ -93,3 +97,20 @@ def test_the_batched_jacobian_is_scipys_two_point_jacobian(observations):
     assert J.shape == ref.shape == (len(fun(p, idx)), len(idx))
     np.testing.assert_array_equal(J, ref)
     assert J.flags["F_CONTIGUOUS"] == ref.flags["F_CONTIGUOUS"]  # the same memory order: same BLAS results after
+
+
+def test_the_joint_jacobians_of_a_batch_of_shifts_are_each_shift_alone(observations):
+    """FrameNoise.jacobians evaluates its eight joint shifts in one batch: the same central differences, bit for
+    bit, as the residuals at each shift alone."""
+    rig, cams, highs = observations
+    noise = FrameNoise(rig, cams, highs)
+    errors = ChainErrors.from_vector(np.random.default_rng(4).normal(0.0, 0.3, N_PARAMS))
+    Jc, Jh = noise.jacobians(errors)
+    h = 1e-6
+    for k in range(4):
+        e = np.zeros(4)
+        e[k] = h
+        (cp, hp), (cm, hm) = noise.raw(errors, e), noise.raw(errors, -e)
+        np.testing.assert_array_equal(Jc[..., k], (cp - cm) / (2 * h) * (np.pi / 180.0))
+        np.testing.assert_array_equal(Jh[..., k], (hp - hm) / (2 * h) * (np.pi / 180.0))
+    assert Jc.shape == (len(cams), 6, 4) and Jh.shape == (len(highs), 2, 4) and np.all(np.abs(Jh).sum(-1) > 0)
