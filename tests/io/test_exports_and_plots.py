@@ -98,11 +98,25 @@ def test_npz_round_trip_without_pickle(tmp_path):
         read_npz(tmp_path / "junk.npz")
 
 
-def test_cli_export_all_formats(npz_session, tmp_path, capsys):
-    out = tmp_path / "t.binary"
-    assert main(["export", str(npz_session), "--format", "merl", "-o", str(out), "--fill-deg", "1"]) == 0
+@pytest.fixture(scope="module")
+def merl_filled(npz_session, tmp_path_factory):
+    """``gonio export SESSION.npz --format merl --fill-deg 1``: the table (read only by the tests) and what the
+    command printed."""
+    import contextlib
+    import io
+
+    out = tmp_path_factory.mktemp("merl") / "t.binary"
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        code = main(["export", str(npz_session), "--format", "merl", "-o", str(out), "--fill-deg", "1"])
+    return code, out, buf.getvalue()
+
+
+def test_cli_export_all_formats(npz_session, merl_filled, tmp_path, capsys):
+    code, out, printed = merl_filled
+    assert code == 0
     assert out.stat().st_size == FILE_SIZE
-    assert "cells:" in capsys.readouterr().out
+    assert "cells:" in printed
     table = read_merl(out)
     # the exported table reproduces the model at measured cells to within noise and cell size
     s = session_samples().good()
@@ -177,10 +191,10 @@ def test_plots_render_non_trivial_png(npz_session, tmp_path, kind):
     assert colourful.mean() > 0.002  # data drawn in colour, not just axes
 
 
-def test_plot_merl_input_and_bad_model(npz_session, tmp_path, capsys):
+def test_plot_merl_input_and_bad_model(npz_session, merl_filled, tmp_path, capsys):
     pytest.importorskip("matplotlib", reason="matplotlib is the optional 'plots' extra")
-    out = tmp_path / "t.binary"
-    assert main(["export", str(npz_session), "--format", "merl", "-o", str(out), "--fill-deg", "1"]) == 0
+    code, out, _ = merl_filled
+    assert code == 0
     for kind in ("polar", "inplane", "coverage"):
         png = tmp_path / f"m_{kind}.png"
         assert main(["plot", str(out), "--kind", kind, "--theta-i", "30", "-o", str(png)]) == 0
