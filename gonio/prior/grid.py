@@ -130,22 +130,21 @@ class PriorGrid:
             frac.append(np.clip(x - i0, 0.0, 1.0))
         return idx, frac
 
-    def _csr(self, corners, n: int):
-        """The ``(n, G)`` CSR matrix of 8 weights a row; ``corners`` yields (corner k, its node columns, its
-        weights), each ``(n,)``, in the order k = 0..7 of (θh, θd, φd) offsets (0|1, 0|1, 0|1)."""
+    def _csr(self, cols: np.ndarray, vals: np.ndarray):
+        """The ``(n, G)`` CSR matrix of 8 weights a row: ``cols``, ``vals`` (n, 8), corner k = 0..7 of (θh, θd, φd)
+        offsets (0|1, 0|1, 0|1) in C order."""
         from scipy.sparse import csr_matrix
 
+        n = cols.shape[0]
+        return csr_matrix((vals.ravel(), cols.ravel(), np.arange(0, 8 * n + 1, 8)), shape=(n, self.size))
+
+    def weights_angles(self, theta_h, theta_d, phi_d):
+        """Sparse ``(n, G)`` CSR matrix of trilinear weights (8 per row, summing to 1) at the given angles."""
+        xs = self.coords(np.ravel(theta_h), np.ravel(theta_d), np.ravel(phi_d))
+        idx, frac = self._axes(xs)
+        n = xs[0].shape[0]
         cols = np.empty((n, 8), dtype=np.intp)
         vals = np.empty((n, 8), dtype=np.float64)
-        for k, col, val in corners:
-            cols[:, k] = col
-            vals[:, k] = val
-        indptr = np.arange(0, 8 * n + 1, 8)
-        return csr_matrix((vals.ravel(), cols.ravel(), indptr), shape=(n, self.size))
-
-    def _corners(self, idx, frac, pick=None):
-        """(k, columns, weights) of the 8 corners; with axes broadcast against each other, ``pick`` (a flat index)
-        takes the cells wanted from the broadcast grid."""
         k = 0
         for a in (0, 1):
             wa = frac[0] if a else 1.0 - frac[0]
@@ -153,34 +152,34 @@ class PriorGrid:
                 wb = frac[1] if b else 1.0 - frac[1]
                 for c in (0, 1):
                     wc = frac[2] if c else 1.0 - frac[2]
-                    col = ((idx[0] + a) * self.n_d + idx[1] + b) * self.n_p + idx[2] + c
-                    val = wa * wb * wc
-                    if pick is not None:
-                        col, val = col.ravel()[pick], val.ravel()[pick]
-                    yield k, col, val
+                    cols[:, k] = ((idx[0] + a) * self.n_d + idx[1] + b) * self.n_p + idx[2] + c
+                    vals[:, k] = wa * wb * wc
                     k += 1
-
-    def weights_angles(self, theta_h, theta_d, phi_d):
-        """Sparse ``(n, G)`` CSR matrix of trilinear weights (8 per row, summing to 1) at the given angles."""
-        xs = self.coords(np.ravel(theta_h), np.ravel(theta_d), np.ravel(phi_d))
-        idx, frac = self._axes(xs)
-        return self._csr(self._corners(idx, frac), xs[0].shape[0])
+        return self._csr(cols, vals)
 
     def weights_merl(self, theta_h_rows=slice(None)):
         """:meth:`weights_angles` at the MERL cell centres above the horizon of the θh rows ``theta_h_rows``, in C
         order (``weights_angles(θh[above], θd[above], φd[above])`` with :func:`merl_cell_angles`'s arrays), the same
         matrix bit for bit: the grid is separable, so coordinates, node indices and fractions are computed per
-        axis (90 + 90 + 180 values) and each corner's weight is their product broadcast over the cells."""
+        axis (90 + 90 + 180 values); a cell's 8 weights are (wθh · wθd) · wφd, the first factor from a (θh, θd)
+        table and the second from a φd one (the product :meth:`weights_angles` forms, in its order), and its 8
+        columns its lower corner's node plus the corners' fixed offsets."""
         from gonio.io.merl import cell_centres
 
         th, td, pd = cell_centres()
         th = th[theta_h_rows]
         pick = np.flatnonzero(_merl_above(th, td, pd))
-        idx, frac = self._axes(self.coords(th, td, pd))
-        shape = [(-1, 1, 1), (1, -1, 1), (1, 1, -1)]
-        idx = [i.reshape(s) for i, s in zip(idx, shape)]
-        frac = [f.reshape(s) for f, s in zip(frac, shape)]
-        return self._csr(self._corners(idx, frac, pick), pick.size)
+        (ih, id_, ip), (fh, fd, fp) = self._axes(self.coords(th, td, pd))
+        # per (θh, θd) row: the 4 products wa·wb of corners (a, b) in C order; per φd: the 2 weights wc of c
+        w_ab = np.stack([(fh if a else 1.0 - fh)[:, None] * (fd if b else 1.0 - fd)[None, :]
+                         for a in (0, 1) for b in (0, 1)], axis=-1).reshape(-1, 4)
+        w_c = np.stack([1.0 - fp, fp], axis=-1)
+        row, k_p = np.divmod(pick, len(pd))
+        vals = (w_ab[row][:, :, None] * w_c[k_p][:, None, :]).reshape(-1, 8)
+        k_h, k_d = np.divmod(row, len(td))
+        base = (ih[k_h] * self.n_d + id_[k_d]) * self.n_p + ip[k_p]
+        offsets = np.array([(a * self.n_d + b) * self.n_p + c for a in (0, 1) for b in (0, 1) for c in (0, 1)])
+        return self._csr(base[:, None] + offsets[None, :], vals)
 
     def weights(self, wi, wo):
         """Trilinear weights (sparse ``(n, G)``) of direction pairs ``wi``, ``wo`` (``(n, 3)``)."""
