@@ -68,9 +68,15 @@ class HighlightSearch:
 
 
 def _gray(pixels, black_level: float) -> np.ndarray:
+    """The channels' mean less the black level. The mean is a left fold of the channel planes, divided by their
+    count: what ``np.mean(axis=2)`` computes, in its order, without NumPy's slow reduction over a short last axis
+    (~10x the time on a 640 × 480 × 3 frame)."""
     img = np.asarray(pixels, dtype=np.float64)
     if img.ndim == 3:
-        img = img.mean(axis=2)
+        total = img[..., 0].copy()
+        for k in range(1, img.shape[2]):
+            total += img[..., k]
+        img = total / img.shape[2]
     return img - float(black_level)
 
 
@@ -104,9 +110,9 @@ def detect_highlight(pixels, calib: CameraCalibration, *, black_level: float = 0
     mask = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
     if mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any():
         return None, f"highlight at pixel ({c}, {r}) larger than the {2 * W + 1} px window (out of focus or not the light)"
-    raw = np.asarray(pixels)
+    raw = np.asarray(pixels)[r0:r1, c0:c1]  # the window's raw values (the brightest channel): the spot's only
     raw = raw.max(axis=2) if raw.ndim == 3 else raw
-    if saturation is not None and np.any(raw[r0:r1, c0:c1][mask] >= np.floor(saturation) - 0.5):
+    if saturation is not None and np.any(raw[mask] >= np.floor(saturation) - 0.5):
         return None, "saturated"
     outside = smooth.copy()
     outside[max(r0, 0):r1, max(c0, 0):c1] = -np.inf
