@@ -32,7 +32,7 @@ import numpy as np
 
 from gonio.errors import DataError
 from gonio.geometry import half_diff_from_dirs
-from gonio.io.merl import N_CELLS, N_PHI_D, N_THETA_D, SHAPE, MerlTable, cell_directions
+from gonio.io.merl import N_CELLS, N_PHI_D, N_THETA_D, SHAPE, MerlTable, cell_directions, trilinear
 from gonio.io.merl_index import reference_index
 from gonio.samples import SampleSet
 
@@ -157,8 +157,8 @@ def _check_isotropy(s: SampleSet, cell: np.ndarray, ph: np.ndarray, tol: float, 
     has, slot = _cells(cell)
     mean = np.full(N_CELLS, np.nan)
     mean[has] = np.bincount(slot, w0 * y, minlength=has.size) / np.bincount(slot, w0, minlength=has.size)
-    grid = MerlTable(np.broadcast_to(mean.reshape(SHAPE)[..., None], SHAPE + (3,)))
-    iso = grid.lookup(s.wi[sel], s.wo[sel], "trilinear")[:, 0]
+    iso = trilinear(mean.reshape(SHAPE + (1,)), np.asarray(s.wi[sel], dtype=np.float64),
+                    np.asarray(s.wo[sel], dtype=np.float64))[:, 0]
     scale = np.where(np.abs(iso) > 1e-300, iso, 1.0)
     y, sy = y[sel] / scale, sy[sel] / np.abs(scale)
     w = _weights(y, sy)

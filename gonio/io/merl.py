@@ -45,6 +45,7 @@ __all__ = [
     "cell_centres",
     "cell_directions",
     "MerlTable",
+    "trilinear",
     "read_merl",
     "write_merl",
 ]
@@ -222,48 +223,18 @@ class MerlTable:
         wi, wo = np.broadcast_arrays(wi, wo)
         if method not in ("nearest", "trilinear"):
             raise ValueError(f"MerlTable.lookup: method = {method!r}: must be 'nearest' or 'trilinear'")
+        if method == "trilinear":
+            return trilinear(self.values, wi, wo)
         th, _, td, pd = reference_half_diff(wi, wo)
-        if method == "nearest":
-            i_h, i_d, i_p = half_diff_index(th, td, pd)
-            out = self.values[i_h, i_d, i_p]
-        else:
-            # wi == wo: the reference's acos(wi · h) of a dot product rounded above 1 is NaN; θd is 0 there
-            td = np.where(np.isnan(td) & np.isfinite(th), 0.0, td)
-            out = self._trilinear(*grid_coords(th, td, pd))
+        i_h, i_d, i_p = half_diff_index(th, td, pd)
         above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
-        return np.where(above[..., None], out, 0.0)
+        return np.where(above[..., None], self.values[i_h, i_d, i_p], 0.0)
 
     def lookup_angles(self, theta_i, phi_i, theta_o, phi_o, method: str = "trilinear") -> np.ndarray:
         """:meth:`lookup` at angles (radians), the directions built as the reference reader builds
         them, so ``method="nearest"`` returns exactly what ``lookup_brdf_val(θi, φi, θo, φo)`` returns."""
         wi, wo = directions_from_angles(theta_i, phi_i, theta_o, phi_o)
         return self.lookup(wi, wo, method=method)
-
-    def _trilinear(self, u_h, u_d, u_p) -> np.ndarray:
-        def edge(u, n):
-            x = np.clip(u - 0.5, 0.0, n - 1)
-            i0 = np.minimum(np.floor(x).astype(np.intp), n - 2)
-            return i0, i0 + 1, x - i0
-
-        h0, h1, th = edge(u_h, N_THETA_H)
-        d0, d1, td = edge(u_d, N_THETA_D)
-        x = u_p - 0.5
-        f = np.floor(x)
-        tp = x - f
-        p0 = np.mod(f, N_PHI_D).astype(np.intp)
-        p1 = np.mod(p0 + 1, N_PHI_D)
-        acc = np.zeros(np.shape(u_h) + (3,))
-        wsum = np.zeros(np.shape(u_h) + (3,))
-        for ih, wh in ((h0, 1 - th), (h1, th)):
-            for id_, wd in ((d0, 1 - td), (d1, td)):
-                for ip, wp in ((p0, 1 - tp), (p1, tp)):
-                    v = self.values[ih, id_, ip]
-                    ok = np.isfinite(v)
-                    w = (wh * wd * wp)[..., None] * ok
-                    acc += w * np.where(ok, v, 0.0)
-                    wsum += w
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(wsum > 1e-12, acc / np.where(wsum > 0, wsum, 1.0), np.nan)
 
     def to_samples(self, phi_h: float = 0.0, sigma_rel: float = 0.01) -> SampleSet:
         """The measured cells above the horizon as a :class:`SampleSet` at the cell-centre directions.
@@ -280,6 +251,45 @@ class MerlTable:
             sigma = np.maximum(sigma_rel * np.abs(f), floor)
         n = _rows(self.count, keep) if self.count is not None else None
         return SampleSet(_rows(wi, keep), _rows(wo, keep), f, sigma, n_pixels=n)
+
+
+def trilinear(values: np.ndarray, wi, wo) -> np.ndarray:
+    """:meth:`MerlTable.lookup`'s ``"trilinear"`` on a grid ``values`` of shape ``(90, 90, 180, C)`` (any number of
+    channels C, e.g. 1 for a single table of means), at broadcast direction pairs ``wi``, ``wo`` (float64); the
+    method is in that docstring."""
+    th, _, td, pd = reference_half_diff(wi, wo)
+    # wi == wo: the reference's acos(wi · h) of a dot product rounded above 1 is NaN; θd is 0 there
+    td = np.where(np.isnan(td) & np.isfinite(th), 0.0, td)
+    out = _trilinear(values, *grid_coords(th, td, pd))
+    above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
+    return np.where(above[..., None], out, 0.0)
+
+
+def _trilinear(values: np.ndarray, u_h, u_d, u_p) -> np.ndarray:
+    def edge(u, n):
+        x = np.clip(u - 0.5, 0.0, n - 1)
+        i0 = np.minimum(np.floor(x).astype(np.intp), n - 2)
+        return i0, i0 + 1, x - i0
+
+    h0, h1, th = edge(u_h, N_THETA_H)
+    d0, d1, td = edge(u_d, N_THETA_D)
+    x = u_p - 0.5
+    f = np.floor(x)
+    tp = x - f
+    p0 = np.mod(f, N_PHI_D).astype(np.intp)
+    p1 = np.mod(p0 + 1, N_PHI_D)
+    acc = np.zeros(np.shape(u_h) + values.shape[3:])
+    wsum = np.zeros(np.shape(u_h) + values.shape[3:])
+    for ih, wh in ((h0, 1 - th), (h1, th)):
+        for id_, wd in ((d0, 1 - td), (d1, td)):
+            for ip, wp in ((p0, 1 - tp), (p1, tp)):
+                v = values[ih, id_, ip]
+                ok = np.isfinite(v)
+                w = (wh * wd * wp)[..., None] * ok
+                acc += w * np.where(ok, v, 0.0)
+                wsum += w
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(wsum > 1e-12, acc / np.where(wsum > 0, wsum, 1.0), np.nan)
 
 
 def _rows(a: np.ndarray, flat: np.ndarray) -> np.ndarray:
