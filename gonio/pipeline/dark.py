@@ -339,8 +339,10 @@ class DarkCache:
             acc, black = None, 0.0
             for _ in range(self.n_frames):
                 frame, px = self._grab(exposure, gain)
-                px = px.astype(np.float32)
-                acc = px if acc is None else acc + px
+                if acc is None:
+                    acc = px.astype(np.float32)
+                else:  # in place: each value cast to float32 and added, as acc + px.astype(float32) does
+                    np.add(acc, px, out=acc, dtype=np.float32)
                 black = frame.black_level
                 self.captures += 1
             self._black = float(black)

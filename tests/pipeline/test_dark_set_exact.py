@@ -74,3 +74,23 @@ def test_frames_under_one_key_are_the_reference_whatever_came_between():
         assert got.tobytes() == want.tobytes(), (dark_e, key)
     assert rng_a.random() == rng_b.random()
     assert memo.key == ("b", 28.0) and not memo.every  # 28 e × DSNU: some means above the threshold
+
+
+def test_a_dark_cache_mean_is_the_frames_float32_sum_over_n():
+    """gonio.pipeline.dark.DarkCache accumulates its frames in place: the mean is (((f1 + f2) + f3) + f4) / 4 in
+    float32 of the same frames (a second camera with the same seed gives them), bit for bit."""
+    from gonio.pipeline.dark import DarkCache
+    from sim.camera import SceneLight
+    from sim.clock import SimClock
+
+    cam, ref = _camera(0.3, 4), _camera(0.3, 4)
+    light = SceneLight(SimClock())
+    cam._light_output = ref._light_output = light.output
+    darks = DarkCache(cam, cam.calibration, light=light, n_frames=4)
+    for t in (0.004, 1.6):
+        got = darks.get(t)  # the light switched off for its frames, and on again
+        light.set_light(False)
+        frames = [ref.capture(t).pixels.astype(np.float32) for _ in range(4)]
+        want = (((frames[0] + frames[1]) + frames[2]) + frames[3]) / np.float32(4)
+        assert got.mean.dtype == np.float32 and got.mean.tobytes() == want.tobytes()
+        assert got.n == 4 and darks.captures == (4 if t == 0.004 else 8)
