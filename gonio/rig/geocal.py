@@ -198,7 +198,7 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
                        principal_point_sigma: float = PRINCIPAL_POINT_SIGMA,
                        board_origin_sigma_mm: float = BOARD_ORIGIN_SIGMA_MM,
                        board_rotation_sigma_deg: float = BOARD_ROTATION_SIGMA_DEG,
-                       reject_outliers: int = 2) -> GeoCalResult:
+                       reject_outliers: int = 2, jacobian: str = "batched") -> GeoCalResult:
     """Estimate the rig's :class:`ChainErrors` from camera and highlight observations (module docstring).
 
     ``weighted``: residuals whitened by each frame's covariance (detectors + joints, sized by variance
@@ -209,7 +209,12 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
     a probability below :data:`OUTLIER_P` are dropped and the estimate repeated (:attr:`GeoCalResult.rejected`).
     ``start``: ``"hand-eye"`` starts the camera arm from the closed-form robot-world/hand-eye solution of the
     board poses (:func:`gonio.rig.handeye.camera_arm_start`; arms layout), ``"declared"`` from the declared
-    geometry (all errors 0)."""
+    geometry (all errors 0). ``jacobian``: ``"batched"`` takes the least squares' forward differences with all
+    columns in one evaluation (:func:`gonio.rig.geocal_residuals.forward_jacobian`), ``"2-point"`` lets scipy take
+    them one column at a time: the same Jacobian, the same result bit for bit, slower (the reference
+    ``benchmarks calibration_solver`` and tests/rig/test_geocal_batch.py compare with)."""
+    if jacobian not in ("batched", "2-point"):
+        raise ConfigError(f"jacobian = {jacobian!r}: expected 'batched' or '2-point'")
     cams, highs = list(cams), list(highs)
     if check:
         check_pose_set(rig, cams, highs)
@@ -263,8 +268,10 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
 
         cid = _clusters(sorted(residual_blocks(rig, ChainErrors(), observed, **kw)), len(cams), len(highs))
 
-    def jac(p, idx):  # scipy's own '2-point' Jacobian, all columns in one batch (gonio.rig.geocal_residuals)
+    def batched(p, idx):  # scipy's own '2-point' Jacobian, all columns in one batch (gonio.rig.geocal_residuals)
         return forward_jacobian(fun, p, idx)
+
+    jac = batched if jacobian == "batched" else "2-point"
 
     idx = list(free)
     for _ in range(3):  # solve, drop what the data cannot determine, re-estimate the observations' noise
@@ -375,7 +382,7 @@ def calibrate_geometry(rig, cams, highs, *, check: bool = True, highlight_camera
                                      principal_point_sigma=principal_point_sigma,
                                      board_origin_sigma_mm=board_origin_sigma_mm,
                                      board_rotation_sigma_deg=board_rotation_sigma_deg,
-                                     reject_outliers=reject_outliers - 1)
+                                     reject_outliers=reject_outliers - 1, jacobian=jacobian)
             res.rejected = what + res.rejected
             res.nfev += nfev
             return res
