@@ -94,3 +94,19 @@ def test_a_dark_cache_mean_is_the_frames_float32_sum_over_n():
         want = (((frames[0] + frames[1]) + frames[2]) + frames[3]) / np.float32(4)
         assert got.mean.dtype == np.float32 and got.mean.tobytes() == want.tobytes()
         assert got.n == 4 and darks.captures == (4 if t == 0.004 else 8)
+
+
+def test_the_normal_table_is_the_scipy_quantiles_one_bit_for_bit():
+    """sim.camera.normal_table from Wichura's AS 241 is the float32 table made from scipy.special.ndtri (every
+    simulated frame's noise draws from it: sessions stay the same), and inverse_normal is ndtri within 2e-15
+    relative from 1e-300 to 1 − 1e-16."""
+    from scipy.special import ndtri
+
+    from sim.camera import inverse_normal
+
+    p = (np.arange(1 << 16, dtype=np.float64) + 0.5) / (1 << 16)
+    q = ndtri(p)
+    want = (q / np.sqrt(np.mean(q * q))).astype(np.float32)
+    assert normal_table().tobytes() == want.tobytes()
+    p = np.concatenate([np.logspace(-300, -1, 2000), np.linspace(0.01, 0.99, 2001), 1 - np.logspace(-16, -1, 500)])
+    assert (np.abs(inverse_normal(p) - ndtri(p)) <= 2e-15 * np.abs(ndtri(p))).all()  # p = ½: both 0
