@@ -262,8 +262,11 @@ class Projection:
         extra = hook(shape) if hook is not None else None
         return self.hi if extra is None else np.minimum(self.hi, extra)
 
-    #: Points remembered by :meth:`__call__` (the last ones evaluated).
-    MEMO = 32
+    #: Points remembered by :meth:`__call__` (the last ones evaluated): enough for a whole coordinate scan
+    #: (:func:`gonio.fit.fit._coordinate_scan`: 2 cycles × 17 points per shape parameter), whose second cycle and
+    #: later lines return to points of the first more than 32 evaluations apart. An entry is a cost and K × 3
+    #: colours (~100 bytes).
+    MEMO = 256
 
     def __call__(self, shape) -> tuple[float, np.ndarray]:
         """``(cost, colour (K, 3))`` at ``shape``. A point asked for again (a line search or a quasi-Newton step

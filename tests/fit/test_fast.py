@@ -254,3 +254,30 @@ def test_weighted_gram_is_its_definition_over_every_block(n, per_channel):
     np.testing.assert_allclose(h, np.einsum("cn,jn,cn->cj", W, E, yT), rtol=1e-12, atol=1e-12)
     H2, none = weighted_gram(elems, w)
     assert none is None and np.array_equal(H2, H)
+
+
+def test_a_coordinate_scan_evaluates_each_point_once_with_the_same_answers(data, monkeypatch):
+    """A whole coordinate scan (gonio.fit.fit._coordinate_scan: its second cycle returns to points of the first far
+    apart) fits in the projection's memo: every distinct point is evaluated once, and each answer is the one a fresh
+    projection computes."""
+    from gonio.fit.fit import _coordinate_scan
+
+    L = Layout("ward", {})
+    w = np.ascontiguousarray(LOSSES["chi2"].weight(data.y, data.cos_i, data.sigma))
+    proj = Projection(make_basis(L, data), w, data.y, L.colour_lo, L.colour_hi)
+    evaluated = []
+    real = Projection._evaluate
+    monkeypatch.setattr(Projection, "_evaluate", lambda self, s: evaluated.append(np.array(s)) or real(self, s))
+    u_lo, u_hi, _ = L.search_space()
+    asked = []
+
+    def f(u):
+        asked.append(np.array(u))
+        return proj(L.to_shape(u))[0]
+
+    _coordinate_scan(f, L.to_u(L.default_shape()), np.inf, u_lo, u_hi)
+    distinct = {u.tobytes() for u in asked}
+    assert len(asked) > len(distinct) > 40 and len(evaluated) == len(distinct)
+    fresh = Projection(make_basis(L, data), w, data.y, L.colour_lo, L.colour_hi)
+    for u in asked[::7]:
+        assert proj(L.to_shape(u))[0] == fresh(L.to_shape(u))[0]
