@@ -138,11 +138,14 @@ def _stale_share(roots) -> float:
 
 def pytest_configure(config):
     """On a cold bytecode cache (:data:`PYC_CACHE`; a fresh clone, another Python or pytest, ``--cache-clear``), the
-    controller of an xdist run fills it once before the workers start (a collection in one process: compiling the
-    libraries, gonio, the simulator and rewriting the test modules, ~13 CPU s), instead of each of the workers
-    doing all of that at the same moment (~3 × 12 CPU s on a fresh clone). A warm cache is left as it is: a
-    module changed since is compiled by the first process that imports it."""
+    controller of an xdist run warms the caches once before the workers start, in two processes at once (one a core):
+    a collection (compiling the libraries, gonio and the simulator, rewriting the test modules: ~13 CPU s) and the
+    small simulated session (:data:`SMALL_SESSION`: numba compiles the simulator's kernels into its cache beside
+    them, sim/__pycache__, ~4 CPU s). Otherwise each of the workers did all of that at the same moment (~3 × 12 CPU s
+    of collection on a fresh clone, and each of them compiled the same kernels for its first simulated session).
+    A warm cache is left as it is: a module changed since is compiled by the first process that imports it."""
     import subprocess
+    import tempfile
 
     if (getattr(config, "workerinput", None) is not None or not config.getoption("numprocesses", 0)
             or config.getoption("dist", "no") == "no" or config.getoption("collectonly")):
@@ -150,9 +153,16 @@ def pytest_configure(config):
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     if _stale_share([os.path.join(root, "gonio"), os.path.join(root, "sim")]) < 0.5:
         return
-    subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-n", "0", "-p", "no:cacheprovider",
-                    *config.args], cwd=config.invocation_params.dir, stdout=subprocess.DEVNULL,
-                   stderr=subprocess.DEVNULL, check=False)  # its errors, if any, are the workers' to report
+    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}  # errors, if any, are the workers' to report
+    with tempfile.TemporaryDirectory(prefix="gonio-warm-") as tmp:
+        warming = [
+            subprocess.Popen([sys.executable, "-m", "pytest", "--collect-only", "-q", "-n", "0", "-p", "no:cacheprovider",
+                              *config.args], cwd=config.invocation_params.dir, **quiet),
+            subprocess.Popen([sys.executable, "-m", "gonio.cli.main", "measure", "--sim", *SMALL_SESSION,
+                              "--out", os.path.join(tmp, "s")], cwd=root, **quiet),
+        ]
+        for p in warming:
+            p.wait()
 
 
 def pytest_addoption(parser):
