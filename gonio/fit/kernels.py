@@ -383,6 +383,47 @@ def _oren_nayar_derivatives(data, layout, shape):
     return {"sigma": (None, [(da + db * _oren_nayar_term(data)) / 3.141592653589793])}
 
 
+def _nonzero(value) -> bool:
+    """Whether a held colour adds an offset to the basis (any channel not 0)."""
+    import numpy as np
+
+    return bool(np.any(np.asarray(value, dtype=np.float64) != 0.0))
+
+
+def _ward(data, layout, shape):
+    """Ward 1992's anisotropic model (:class:`gonio.brdf.ward.Ward`, eq. 5a) on cached geometry: bases kd → 1/π,
+    ks → exp(−(h_x²/α_x² + h_y²/α_y²)/h_z²) / (4π α_x α_y √(cos θi cos θo)) — the model's own expression, term for
+    term, on the half vector and √(cos θi cos θo) cached per dataset (:func:`_ward_geometry`), where the model's
+    evaluation formed the half vector and checked its inputs twice per shape (once per colour)."""
+    import numpy as np
+
+    from gonio.brdf.microfacet import clamp_alpha
+
+    hx, hy, hz2, root = _ward_geometry(data)
+    ax, ay = clamp_alpha(float(shape["alpha_x"])), clamp_alpha(float(shape["alpha_y"]))
+    with np.errstate(all="ignore"):  # as BRDF.eval
+        e = ((hx / ax) ** 2 + (hy / ay) ** 2) / hz2
+        spec = np.exp(-e) / (4.0 * np.pi * ax * ay * root)
+    return None, [_diffuse_column(data) if name == "kd" else spec for name in layout.colour]
+
+
+def _ward_geometry(data):
+    """h_x, h_y, max(h_z², tiny) and √max(cos θi cos θo, tiny) of :class:`gonio.brdf.ward.Ward` (its half vector and
+    guards), once per dataset."""
+    import numpy as np
+
+    from gonio.brdf.microfacet import _tiny, half_vector
+
+    cache = data.__dict__.setdefault("_kernel_cache", {})
+    if "ward" not in cache:
+        wi, wo = data.wi, data.wo
+        h = half_vector(wi, wo)
+        tiny = _tiny(wi)
+        cache["ward"] = (np.ascontiguousarray(h[:, 0]), np.ascontiguousarray(h[:, 1]),
+                         np.maximum(h[:, 2] ** 2, tiny), np.sqrt(np.maximum(wi[:, 2] * wo[:, 2], tiny)))
+    return cache["ward"]
+
+
 _oren_nayar.supports = lambda L: L.colour == ["albedo"] and L.shape == ["sigma"]
 _oren_nayar.derivatives = _oren_nayar_derivatives
 _oren_nayar_derivatives.supports = lambda L: True
@@ -390,7 +431,9 @@ _gtr.supports = lambda L: {"alpha", "gamma"} <= set(L.shape) and ("f0" in L.fixe
 _microfacet.supports = lambda L: L.shape in (["alpha"], ["alpha", "f0"]) and ("f0" in L.fixed or "f0" in L.shape)
 _lambert.supports = lambda L: L.colour == ["albedo"]
 _microfacet.derivatives = _microfacet_derivatives
-KERNELS.update({"lambert": _lambert, "microfacet": _microfacet, "gtr": _gtr, "oren-nayar": _oren_nayar})
+_ward.supports = lambda L: (L.shape == ["alpha_x", "alpha_y"] and set(L.colour) <= {"kd", "ks"}  # no offset:
+                            and all(k in L.colour or not _nonzero(L.fixed.get(k, 0.0)) for k in ("kd", "ks")))
+KERNELS.update({"lambert": _lambert, "microfacet": _microfacet, "gtr": _gtr, "oren-nayar": _oren_nayar, "ward": _ward})
 
 from gonio.fit.kernels_abc import KERNELS_ABC  # noqa: E402  (models for real measurements, issue 14)
 

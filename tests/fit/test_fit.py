@@ -94,6 +94,22 @@ def test_kernels_match_model_eval():
         np.testing.assert_allclose(np.broadcast_to(a if a.ndim == 2 else a[:, None], b.shape), b, rtol=1e-12)
 
 
+def test_the_ward_kernel_is_the_model_and_stays_out_where_a_held_colour_adds_an_offset():
+    """gonio.fit.kernels._ward: the model's own expression on cached geometry, so its basis is the model's (the
+    widths at their floor and ceiling included); a kd held at a non-zero value (an offset) keeps the model path."""
+    s = prepare(synth("ward", {"kd": 0.2, "ks": 0.5, "alpha_x": 0.1, "alpha_y": 0.3}, n=300))
+    for fixed in ({}, {"kd": 0.0}):
+        L = Layout("ward", fixed)
+        assert kernel_for(L) is not None
+        for shape in ([0.1, 0.3], [1e-4, 1.0], [0.05, 0.05]):
+            fast = Basis(L, s, kernel_for(L))(np.array(shape))
+            slow = Basis(L, s, None)(np.array(shape))
+            assert not np.any(slow[0])
+            for a, b in zip(fast[1], slow[1]):
+                np.testing.assert_allclose(np.repeat(a[:, None], 3, 1), b, rtol=1e-15, atol=0)
+    assert kernel_for(Layout("ward", {"kd": 0.1})) is None
+
+
 # -- degenerate inputs ------------------------------------------------------------------------------
 def test_too_few_samples_is_a_data_error():
     s = synth("microfacet", {"kd": 0.2, "ks": 0.5, "alpha": 0.3}, n=6).subset(slice(0, 2))
