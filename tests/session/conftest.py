@@ -27,6 +27,16 @@ def measured(tmp_path_factory):
     return measured_once(tmp_path_factory, "session-measured", ["measure", "--sim", *SMALL])
 
 
+def measured_shared(tmp_path_factory, argv: list[str]):
+    """``gonio ARGV --out DIR`` measured once per test run for every test module that asks for the same ``argv``
+    (tests/conftest.py ``measured_once``, named by a digest of ``argv``): ``DIR``, read-only."""
+    import hashlib
+
+    from tests.conftest import measured_once
+
+    return measured_once(tmp_path_factory, "sim-" + hashlib.sha1("\0".join(argv).encode()).hexdigest()[:12], argv)
+
+
 #: A small in-plane plan (degrees: θi, φi, θo, φo), all reachable on the default rig.
 POSES_DEG = [(30, 0, 30, 180), (45, 0, 20, 180), (20, 0, 50, 180), (60, 0, 40, 180), (10, 0, 30, 0),
              (40, 0, 60, 180), (0, 0, 45, 180), (50, 0, 10, 180)]

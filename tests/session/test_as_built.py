@@ -48,13 +48,15 @@ def test_the_simulator_places_camera_and_light_with_the_as_built_geometry():
     assert "as_built" not in SimRigConfig().to_dict()  # a perfect rig's manifest is unchanged
 
 
-def test_measure_sim_with_a_perfect_as_built_file_gives_the_same_samples(tmp_path):
+def test_measure_sim_with_a_perfect_as_built_file_gives_the_same_samples(tmp_path, tmp_path_factory):
+    from tests.session.conftest import measured_shared
+
     zero = tmp_path / "zero.toml"
     zero.write_text("[light]\nd_az_deg = 0.0\n[camera]\nlateral_mm = 0\n")
-    assert main(["measure", "--sim", *SMALL, "--out", str(tmp_path / "a")]) == 0
+    a_dir = measured_shared(tmp_path_factory, ["measure", "--sim", *SMALL])  # test_frame_faults' clean one too
     assert main(["measure", "--sim", *SMALL, "--sim-as-built", str(zero), "--out", str(tmp_path / "b")]) == 0
     assert main(["measure", "--sim", *SMALL, "--sim-as-built", "4", "--out", str(tmp_path / "c")]) == 0
-    (_, a), (_, b), (mc, c) = (load_session(tmp_path / x) for x in "abc")
+    (_, a), (_, b), (mc, c) = (load_session(x) for x in (a_dir, tmp_path / "b", tmp_path / "c"))
 
     def rows(s):
         return np.concatenate([s.wi, s.wo, np.reshape(s.f, (len(s.wi), -1))], axis=1)

@@ -12,7 +12,7 @@ import pytest
 
 from gonio.cli.main import main
 from gonio.session.store import SessionStore, load_session, scan_samples
-from tests.session.conftest import POSES_DEG, Session
+from tests.session.conftest import POSES_DEG, Session, measured_shared
 
 SMALL = ["--quiet", "--plan", "in_plane", "--theta-i-step", "30", "--theta-o-step", "30", "--theta-max", "60",
          "--sim-resolution", "240x180", "--seed", "3"]
@@ -20,9 +20,7 @@ SMALL = ["--quiet", "--plan", "in_plane", "--theta-i-step", "30", "--theta-o-ste
 
 @pytest.fixture(scope="module")
 def clean(tmp_path_factory):
-    d = tmp_path_factory.mktemp("clean") / "s"
-    assert main(["measure", "--sim", *SMALL, "--out", str(d)]) == 0
-    return load_session(d)[1]
+    return load_session(measured_shared(tmp_path_factory, ["measure", "--sim", *SMALL]))[1]
 
 
 def test_a_dead_camera_stops_the_session_in_one_line_and_resume_measures_everything(tmp_path, capsys, clean):

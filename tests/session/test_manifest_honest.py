@@ -21,9 +21,16 @@ SMALL = ["--quiet", "--plan", "in_plane", "--theta-i-step", "30", "--theta-o-ste
          "--sim-resolution", "240x180"]
 
 
-def test_sim_manifest_records_rig_text_calibration_and_detector(tmp_path, capsys):
-    d = tmp_path / "s"
-    assert main(["measure", "--sim", *SMALL, "--out", str(d)]) == 0
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    """``measure --sim`` with SMALL, measured once per test run (tests/session/conftest.py): read-only."""
+    from tests.session.conftest import measured_shared
+
+    return measured_shared(tmp_path_factory, ["measure", "--sim", *SMALL])
+
+
+def test_sim_manifest_records_rig_text_calibration_and_detector(small):
+    d = small
     m = json.loads((d / "manifest.json").read_text())
     text, _ = read_rig_text("default")
     assert m["rig"]["toml"] == text and m["rig"]["sha256"] == hashlib.sha256(text.encode()).hexdigest()
@@ -69,11 +76,10 @@ def test_detector_bin_matches_the_tile_area_at_the_reference_view():
     assert aperture_solid_angle(2.0, 0.0) == pytest.approx(2 * math.pi)  # hemisphere at contact
 
 
-def test_npz_export_carries_the_detector_solid_angle(tmp_path, capsys):
+def test_npz_export_carries_the_detector_solid_angle(tmp_path, capsys, small):
     from gonio.io.npz import read_npz
 
-    d = tmp_path / "s"
-    assert main(["measure", "--sim", *SMALL, "--out", str(d)]) == 0
+    d = small
     assert main(["export", str(d), "--format", "npz", "-o", str(tmp_path / "x.npz")]) == 0
     meta = read_npz(tmp_path / "x.npz").metadata
     m = json.loads((d / "manifest.json").read_text())
