@@ -333,13 +333,14 @@ def read_merl(path) -> MerlTable:
     if stored.size != 3 * N_CELLS:  # the file shrank between stat and read
         raise _read_error(path, f"truncated: {12 + stored.size * 8} bytes, expected {FILE_SIZE}")
     stored = stored.reshape((3,) + SHAPE)
-    bad = ~np.isfinite(stored)
-    if bad.any():
+    if not np.isfinite(stored).all():
+        bad = ~np.isfinite(stored)
         c, i, j, k = (int(x[0]) for x in np.nonzero(bad))
         raise _read_error(
             path, f"{int(bad.sum())} stored values are NaN or inf (first: channel {_CHANNELS[c]}, "
                   f"cell (θh {i}, θd {j}, φd {k}))")
-    values = np.moveaxis(stored, 0, -1) * SCALE
+    stored *= SCALE[:, None, None, None]  # in the array read (the values stored × scale, no copy)
+    values = np.moveaxis(stored, 0, -1)
     values[values < 0] = np.nan
     return MerlTable(values)
 
