@@ -738,7 +738,7 @@ class SimCamera:
                 expose = sensor_noise.expose_compiled
                 if scale == 0:  # a dark set's frames at one exposure have the same means: gathered once
                     # (the DSNU pattern is made once per frame shape: its id and the shape name it)
-                    kw = dict(memo=self._low, key=(float(dark_e), id(pattern), rate.shape, sn.dsnu))
+                    kw = dict(memo=self._low, key=(float(dark_e), id(pattern), rate.shape, sn.dsnu), dark=True)
             else:
                 expose = sensor_noise.expose_numpy
             pixels = expose(

@@ -293,6 +293,21 @@ def _compiled():
     return jit(_pass1), jit(_pass2), jit(_pass2_one_mean)
 
 
+def _all_below(pattern, dark_e, below) -> bool:
+    """Every mean ``fl(p · dark_e)`` (``dark_e`` without a pattern) of a zero-rate frame is below ``below``, in
+    float32 as :func:`_pass1` compares them."""
+    top = np.float32(dark_e) if pattern is None else np.float32(np.max(pattern)) * np.float32(dark_e)
+    return bool(top < np.float32(below))
+
+
+@functools.lru_cache(maxsize=4)
+def _positions(n: int) -> np.ndarray:
+    """``0 … n − 1`` (intp, read-only): the positions of a frame whose every value is a Poisson value."""
+    pos = np.arange(n, dtype=np.intp)
+    pos.flags.writeable = False
+    return pos
+
+
 class LowValues:
     """The values below the Poisson threshold of the last frame :func:`expose_compiled` exposed under a ``key``: their
     indices (C order), their means floored at 0 (float64), ``e^−mean`` and whether they are every value of the frame
@@ -310,7 +325,8 @@ class LowValues:
 
 
 def expose_compiled(rate, scale, pattern, dark_e, rng, normal_indices, table, below, *, read_noise, full_well, gain_k,
-                    black, saturation, dtype=np.uint16, memo: LowValues | None = None, key=None) -> np.ndarray:
+                    black, saturation, dtype=np.uint16, memo: LowValues | None = None, key=None,
+                    dark: bool = False) -> np.ndarray:
     """:func:`expose_numpy` in two numba passes: every value by the normal approximation, block by block, and the
     means below ``below`` gathered (:func:`_pass1`); then, with the uniforms drawn for those, their Poisson values
     written over the first pass's (:func:`_pass2`; :func:`_pass2_one_mean` when they all have one mean, as a dark
@@ -320,7 +336,12 @@ def expose_compiled(rate, scale, pattern, dark_e, rng, normal_indices, table, be
     ``memo`` and ``key``: the caller's promise that frames exposed under one ``key`` have the same means (the same
     ``rate · scale + pattern · dark_e`` and ``below``); their values below the threshold are gathered once
     (:class:`LowValues`). Still the same frame bit for bit: the same numbers are drawn and the same operations done
-    on each value."""
+    on each value.
+
+    ``dark``: the caller's promise that ``rate`` is zero everywhere (a light-off frame; the means are
+    ``pattern · dark_e`` in float32, ``dark_e`` without a pattern). When even the largest is below ``below``
+    (float32 rounding is monotonic: ``fl(p · d) ≤ fl(max(p) · d)``) every value is a Poisson value: their means
+    are made by one NumPy product instead of the first pass, whose values the second pass would all overwrite."""
     f32 = np.float32
     pass1, pass2, pass2_one_mean = _compiled()
     idx = np.ascontiguousarray(normal_indices(rate.shape)).reshape(-1)
@@ -328,7 +349,12 @@ def expose_compiled(rate, scale, pattern, dark_e, rng, normal_indices, table, be
     out1 = out.reshape(-1)
     conv = (f32(full_well), f32(gain_k), f32(black), f32(saturation))
     known = memo is not None and key is not None and memo.key == key
-    if not (known and memo.every):  # every value by the normal approximation, the low ones gathered
+    if not known and dark and _all_below(pattern, dark_e, below):  # every value's mean, as pass1 makes it
+        lam = (np.full(rate.size, f32(dark_e)) if pattern is None else
+               np.multiply(np.ascontiguousarray(pattern, dtype=f32).reshape(-1), f32(dark_e))).astype(np.float64)
+        np.maximum(lam, 0.0, out=lam)  # as _gather floors them (no NaN: a finite pattern and dark signal)
+        pos, n = _positions(lam.size), lam.size
+    elif not (known and memo.every):  # every value by the normal approximation, the low ones gathered
         rate1 = np.ascontiguousarray(rate, dtype=f32).reshape(-1)
         pat1 = rate1 if pattern is None else np.ascontiguousarray(pattern, dtype=f32).reshape(-1)
         pos = np.empty(rate1.size, dtype=np.intp)
