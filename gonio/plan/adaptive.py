@@ -414,12 +414,14 @@ def adaptive_plan(candidates: Plan, measure: Callable[[np.ndarray], SampleSet], 
 
 
 def fit_model(model: str = "lambert+ggx", **fit_kw) -> Callable[[SampleSet], Any]:
-    """A ``fit`` callable for the planner built on :func:`gonio.fit.fit` (lazy import)."""
+    """A ``fit`` callable for the planner built on :func:`gonio.fit.fit` (lazy import). The planner keeps the fitted
+    model only, so the fit's report (error measures, goodness of fit, albedo check) is not computed unless
+    ``report=True`` is passed."""
 
     def _fit(samples: SampleSet):
         from gonio.fit.fit import fit as do_fit
 
-        return do_fit(samples, model, **fit_kw).build()
+        return do_fit(samples, model, **{"report": False, **fit_kw}).build()
 
     return _fit
 
