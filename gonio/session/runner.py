@@ -667,7 +667,8 @@ class SessionRunner:
         result = RunResult(status="completed")
         # poses that gave nothing usable, by cause (gonio.session.usability), counted over the session's runs: a
         # resume goes on from the last run's counts (a session is judged whole, not one short resume at a time)
-        last = (getattr(self.store, "manifest", None) or {}).get("last_run")
+        entry = getattr(self.store, "manifest_entry", None)  # the stored field itself: read here, never changed
+        last = entry("last_run") if entry is not None else (getattr(self.store, "manifest", None) or {}).get("last_run")
         usable = Usability.from_dict(last.get("usability") if isinstance(last, dict) else None)
         total = len(self.plan)
         progress = _Progress(self.stream, total)

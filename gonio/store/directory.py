@@ -390,6 +390,7 @@ class SessionStore:
         self.directory = directory
         self._manifest = manifest
         self._encoded: dict | None = None  #: the last manifest write's text of its containers (write_json_atomic)
+        self._manifest_text: str | None = None  #: json.dumps of the manifest as last written (``manifest``'s copy)
         self._fd = fd
         self._records = {p: len(s) for p, (s, _m) in scan.records.items()}
         #: the ``meta`` of the last good record (the pose measured last), None in an empty store: a resumed run
@@ -543,7 +544,9 @@ class SessionStore:
     @property
     def manifest(self) -> dict:
         """The manifest as last written (a copy)."""
-        return json.loads(json.dumps(self._manifest))
+        if self._manifest_text is None:  # encoded once per write; each reader gets its own copy
+            self._manifest_text = json.dumps(self._manifest)
+        return json.loads(self._manifest_text)
 
     def manifest_entry(self, key: str) -> Any:
         """The stored value of the manifest's top-level field ``key`` (None if absent), not a copy: read it and
@@ -616,6 +619,7 @@ class SessionStore:
         reserved = {"format", "samples_file"} & set(fields)  # the store's own fields
         if reserved:
             raise ConfigError.field(None, "manifest", sorted(reserved)[0], "is managed by the store")
+        self._manifest_text = None
         for key, value in fields.items():
             old = self._manifest.get(str(key))
             if type(value) is dict and type(old) is dict and all(type(k) is str for k in value):
