@@ -121,50 +121,6 @@ def default_session_measured(tmp_path_factory):
     return measured_once(tmp_path_factory, "default-session", ["measure", "--sim", "--quiet"])
 
 
-def _stale_share(roots) -> float:
-    """The share of the Python files under ``roots`` (gonio's and the simulator's sources) without bytecode at
-    least as new as the source in this process's cache (:data:`PYC_CACHE`): 1.0 on a fresh clone."""
-    import importlib.util
-
-    sources = [os.path.join(d, n) for r in roots for d, _, names in os.walk(r) for n in names if n.endswith(".py")]
-    stale = 0
-    for src in sources:
-        try:
-            stale += os.stat(importlib.util.cache_from_source(src)).st_mtime < os.stat(src).st_mtime
-        except FileNotFoundError:
-            stale += 1
-    return stale / max(len(sources), 1)
-
-
-def pytest_configure(config):
-    """On a cold bytecode cache (:data:`PYC_CACHE`; a fresh clone, another Python or pytest, ``--cache-clear``), the
-    controller of an xdist run warms the caches once before the workers start, in two processes at once (one a core):
-    a collection (compiling the libraries, gonio and the simulator, rewriting the test modules: ~13 CPU s) and the
-    small simulated session (:data:`SMALL_SESSION`: numba compiles the simulator's kernels into its cache beside
-    them, sim/__pycache__, ~4 CPU s). Otherwise each of the workers did all of that at the same moment (~3 × 12 CPU s
-    of collection on a fresh clone, and each of them compiled the same kernels for its first simulated session).
-    A warm cache is left as it is: a module changed since is compiled by the first process that imports it."""
-    import subprocess
-    import tempfile
-
-    if (getattr(config, "workerinput", None) is not None or not config.getoption("numprocesses", 0)
-            or config.getoption("dist", "no") == "no" or config.getoption("collectonly")):
-        return
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    if _stale_share([os.path.join(root, "gonio"), os.path.join(root, "sim")]) < 0.5:
-        return
-    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}  # errors, if any, are the workers' to report
-    with tempfile.TemporaryDirectory(prefix="gonio-warm-") as tmp:
-        warming = [
-            subprocess.Popen([sys.executable, "-m", "pytest", "--collect-only", "-q", "-n", "0", "-p", "no:cacheprovider",
-                              *config.args], cwd=config.invocation_params.dir, **quiet),
-            subprocess.Popen([sys.executable, "-m", "gonio.cli.main", "measure", "--sim", *SMALL_SESSION,
-                              "--out", os.path.join(tmp, "s")], cwd=root, **quiet),
-        ]
-        for p in warming:
-            p.wait()
-
-
 def pytest_addoption(parser):
     parser.addoption("--port", default=None, help="serial port of a real Dynamixel bus (enables hardware tests)")
     parser.addoption("--controller-port", default=None, help="serial port of a real rig controller")
