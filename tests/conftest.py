@@ -89,6 +89,23 @@ def copy_small_session(small_session_measured):
     return copy
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _never_reads_realdata():
+    """Tests never depend on the real materials (../shared/realdata, $GONIO_REALDATA; benchmarks may use them): in
+    every test process the one lookup of that folder (:func:`gonio.prior.build_default.find_realdata`, which
+    ``benchmarks.bench_realdata`` and every benchmark go through) fails the test that reaches it, and
+    $GONIO_REALDATA is unset for the run (the processes the tests start inherit that)."""
+    import gonio.prior.build_default
+
+    def refuse(*_a, **_k):
+        raise AssertionError("a test looked for ../shared/realdata (tests never depend on it)")
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.delenv("GONIO_REALDATA", raising=False)
+        mp.setattr(gonio.prior.build_default, "find_realdata", refuse)
+        yield
+
+
 @pytest.fixture(autouse=True)
 def _writes_nothing_into_the_working_directory():
     """Tests write under ``tmp_path`` only: a file or directory that appears in the working directory (the

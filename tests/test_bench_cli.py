@@ -22,17 +22,8 @@ TRADES = [tr.name for tr in REPORT_TRADES if tr.name != "realdata"]
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
-    def no_realdata(*_a, **_k):
-        raise AssertionError("a smoke run looked for ../shared/realdata (tests never depend on it)")
-
-    import benchmarks.bench_realdata
-    import gonio.prior.build_default
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.delenv("GONIO_REALDATA", raising=False)
-        mp.setattr(benchmarks.bench_realdata, "find_realdata", no_realdata)
-        mp.setattr(gonio.prior.build_default, "find_realdata", no_realdata)
-        code = main(["bench", "--smoke", "-o", str(out)])
+    # a smoke run that looks for ../shared/realdata fails: tests/conftest.py's _never_reads_realdata
+    code = main(["bench", "--smoke", "-o", str(out)])
     return code, out
 
 
@@ -186,3 +177,15 @@ def test_sizes_order_and_the_smoke_size_runs_the_quick_code_where_a_trade_has_no
     assert len(_uniform_plans(Size.SMOKE)) < len(_uniform_plans(True)) < len(_uniform_plans(False))
     assert len(_brackets(Size.SMOKE)) < len(_brackets(True)) < len(_brackets(False))
     assert fitted_model(True) == fitted_model(False) == "lambert+2ggx" != fitted_model(Size.SMOKE)
+
+
+def test_no_test_can_look_for_the_real_materials():
+    """The suite's guard (tests/conftest.py): the realdata lookup every benchmark goes through fails inside a test,
+    whatever the machine holds, and $GONIO_REALDATA is unset."""
+    import os
+
+    import benchmarks.bench_realdata
+
+    with pytest.raises(AssertionError, match="realdata"):
+        benchmarks.bench_realdata.find_realdata()
+    assert "GONIO_REALDATA" not in os.environ
