@@ -36,7 +36,7 @@ def merl_cell_angles(theta_h_rows=slice(None)):
     th, td, pd = cell_centres()
     th = th[theta_h_rows]
     TH, TD, PD = np.meshgrid(th, td, pd, indexing="ij")
-    return TH, TD, PD, merl_above(theta_h_rows)
+    return TH, TD, PD, _merl_above(th, td, pd)
 
 
 def merl_above(theta_h_rows=slice(None)) -> np.ndarray:
