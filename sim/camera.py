@@ -454,8 +454,6 @@ class SimCamera:
         self._patch_scene = self._patch_cached = None
         self._closed = False
         self._t_power = clock.now() if clock is not None else 0.0  #: power-on: the sensor starts at ambient
-        self._dsnu: np.ndarray | None = None
-        self._prnu: np.ndarray | None = None
         self._zero: np.ndarray | None = None  #: the electron rate of a light-off frame (:meth:`_no_light`)
         self._low = sensor_noise.LowValues()  #: a dark set's values below the Poisson threshold, per exposure
 
@@ -507,9 +505,7 @@ class SimCamera:
         constant seed, not from the session's (the same sensor in every session); None without DSNU."""
         if self.sensor.dsnu <= 0.0:
             return None
-        if self._dsnu is None or self._dsnu.shape != tuple(shape):
-            self._dsnu = sensor_pattern(0x5E750, tuple(shape), float(self.sensor.dsnu))
-        return self._dsnu
+        return sensor_pattern(0x5E750, tuple(shape), float(self.sensor.dsnu))
 
     # -- rendering ------------------------------------------------------------------------------
     def _ray_maps(self) -> tuple[np.ndarray, np.ndarray]:
@@ -552,9 +548,7 @@ class SimCamera:
         None without PRNU."""
         if self.sensor.prnu <= 0.0:
             return None
-        if self._prnu is None or self._prnu.shape != tuple(shape):
-            self._prnu = sensor_pattern(0x9E5A, tuple(shape), float(self.sensor.prnu))
-        return self._prnu
+        return sensor_pattern(0x9E5A, tuple(shape), float(self.sensor.prnu))
 
     def electron_rate(self) -> np.ndarray:
         """Noiseless electrons per second per pixel at light output 1, shape (H, W, 3), float32 (cached)."""
