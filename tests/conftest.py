@@ -11,7 +11,7 @@ import shutil
 import sys
 
 # One BLAS/OpenMP thread per process, set before anything imports numpy (the xdist workers import this file
-# first): the suite runs at least one worker per core (`-n 3` in addopts on 2 cores), so a second BLAS thread
+# first): the suite runs at least one worker per core (`-n 4` in addopts on 2 cores), so a second BLAS thread
 # in each worker only contends for another worker's core; OpenBLAS's threads spin while they wait, which cost
 # about a quarter of the CPU time of the fit- and session-heavy tests. The `gonio` processes the tests start inherit
 # it. A value set by the caller is kept.
@@ -23,7 +23,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 # test modules, under PYC_CACHE (in pytest's own cache directory, .pytest_cache/, which git ignores and
 # `pytest --cache-clear` empties) instead of compiling gonio, sim and every test module from source again in each
 # process. Where PYTHONDONTWRITEBYTECODE is set (as on the reference machine) nothing else would keep them: each of
-# the three workers compiled and rewrote everything (collection: ~10 CPU s per worker, ~3 s from a warm cache) and
+# the workers each compiled and rewrote everything (collection: ~10 CPU s per worker, ~3 s from a warm cache) and
 # each `gonio` subprocess compiled gonio again (~0.8 CPU s). Bytecode is never written beside the sources (that
 # is what PYTHONDONTWRITEBYTECODE is usually set to prevent); a PYTHONPYCACHEPREFIX set by the caller is kept.
 PYC_CACHE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), ".pytest_cache", "pycache")
@@ -143,7 +143,7 @@ def pytest_addoption(parser):
     parser.addoption("--controller-port", default=None, help="serial port of a real rig controller")
 
 
-# -- scheduling on the cores (pytest-xdist, `-n 3 --dist loadgroup` in addopts) -------------------------
+# -- scheduling on the cores (pytest-xdist, `-n 4 --dist loadgroup` in addopts) -------------------------
 #: Modules whose module-scoped fixture is most of their cost (a whole `gonio bench --quick`, a simulated
 #: session, a browser): all their tests run on one worker (an ``xdist_group``), so the fixture runs once
 #: instead of once per worker that happens to receive one of them. Every other module whose tests use a
@@ -173,6 +173,45 @@ SAME_WORKER = {
 }
 
 
+#: Modules whose tests mostly wait rather than compute: on a serial line's timeouts and retries (servo bus, rig
+#: controller), on a GigE camera process (Aravis), on a browser (the report and viewer, with the modules SAME_WORKER
+#: puts in their group), on a child process that is killed. Each lane is one xdist group that a worker takes first and
+#: runs alone, beside the workers that run everything else: their waits then overlap the other tests' computation.
+#: Spread over all workers, several of them waited at once and left the cores idle (2026-11-27, 1,781 tests, CI=true,
+#: the idle machine: -n 3 without lanes 161 s with 75 of 322 core-seconds idle; -n 4 with the waiting tests interleaved
+#: among the others 146 s, 45 idle; -n 4 with these two lanes 127 s, 10 idle). Two lanes of about the same wall time;
+#: the other two workers keep both cores busy. Only where a test runs changes; every test still runs.
+WAITING_LANES = (
+    (  # the browser, the servo bus and the rig controller on ptys
+        "tests/report/test_hostile_names.py",
+        "tests/rig/test_servo_hardening.py",
+        "tests/rig/test_servo_setup.py",
+        "tests/protocol/test_controller_pty.py",
+        "tests/rig/test_rig_wire.py",
+        "tests/rig/test_rig_cli_controller.py",
+        "tests/rig/test_servo_waits.py",
+        "tests/protocol/test_emulator_spec.py",
+        "tests/rig/test_rig_cli_servo.py",
+        "tests/test_sim_pty.py",
+        "tests/rig/test_servo_move_guarded.py",
+        "tests/protocol/test_exchange.py",
+        "tests/protocol/test_exchanges.py",
+    ),
+    (  # GenICam cameras through Aravis, late servo replies, killed children
+        "tests/rig/test_aravis.py",
+        "tests/rig/test_aravis_frames.py",
+        "tests/rig/test_aravis_pixel_format.py",
+        "tests/rig/test_camera_characterise.py",
+        "tests/rig/test_camera.py",
+        "tests/session/test_bit_identical_resume.py",
+        "tests/rig/test_rig_dynamixel.py",
+        "tests/test_bench_robustness.py",
+        "tests/test_childproc.py",
+    ),
+)
+LANE_OF = {m: f"waiting-lane-{k}" for k, lane in enumerate(WAITING_LANES, 1) for m in lane}
+
+
 def _uses_a_module_fixture(item) -> bool:
     """Whether ``item`` uses a module-scoped fixture (its own module's or a conftest's, e.g. tests/io's
     session): a module-scoped fixture runs once per worker that receives one of the module's tests."""
@@ -194,7 +233,6 @@ SLOW_FIRST = (
     "tests/fit/test_session.py",
     "tests/api/test_readme.py",  # in tests/fit/test_session.py's group (SAME_WORKER)
     "tests/session/test_adaptive_session.py",
-    "tests/report/test_hostile_names.py",
     "tests/prior/test_sparse_adaptive.py",
     "tests/api/test_api.py",
     "tests/fit/test_select.py",
@@ -209,17 +247,12 @@ SLOW_FIRST = (
     "tests/session/test_measured_material.py",
     "tests/session/test_reliability.py",
     "tests/session/test_robust_session.py",
-    "tests/report/test_render_and_report.py",
-    "tests/rig/test_servo_hardening.py",
-    "tests/rig/test_aravis.py",
-    "tests/rig/test_camera_characterise.py",
     "tests/session/test_lab_time_estimate.py",
     "tests/io/test_exports_and_plots.py",
     "tests/session/test_frame_faults.py",
     "tests/fit/test_real_data.py",
     "tests/pipeline/test_tilted_sample.py",
     "tests/io/test_read_back_and_sniff.py",
-    "tests/protocol/test_controller_pty.py",
     "tests/rig/test_rig_kinematics_turntable_session.py",
 )
 
@@ -240,8 +273,13 @@ def pytest_collection_modifyitems(config, items):
 
     grouped = {module(item) for item in items if module(item) in SHARED_FIXTURE_MODULES or _uses_a_module_fixture(item)}
     grouped |= set(SAME_WORKER.values())
+    def lane(item) -> str | None:
+        return LANE_OF.get(module(item)) or LANE_OF.get(SAME_WORKER.get(module(item), ""))
+
     for item in items:
-        group = SAME_WORKER.get(module(item), module(item))
-        if group in grouped:
+        group = lane(item) or SAME_WORKER.get(module(item), module(item))
+        if group in grouped or group in LANE_OF.values():
             item.add_marker(pytest.mark.xdist_group(group))
-    items.sort(key=lambda item: rank.get(module(item), len(SLOW_FIRST)))  # stable: the rest keeps its order
+    # the lanes first (each is one work unit: a worker takes it and nothing else until it is nearly done), then the
+    # most expensive of the rest; stable: the rest keeps its order
+    items.sort(key=lambda item: (lane(item) is None, rank.get(module(item), len(SLOW_FIRST))))
