@@ -18,7 +18,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Table, time_call, time_median  # noqa: E402
+from benchmarks.common import Table, round_time, time_call, time_median  # noqa: E402
 from gonio.brdf import compiled, make  # noqa: E402
 from gonio.brdf.fresnel import schlick_rational_power  # noqa: E402
 from gonio.geometry import from_spherical  # noqa: E402
@@ -125,7 +125,7 @@ def _directions(n: int):
 
 def _models_and_schlick(wi, wo, quick: bool) -> list[Table]:
     n = len(wi)
-    min_time = 0.05 if quick else 0.3
+    min_time = round_time(quick)
     wi32, wo32 = wi.astype(np.float32), wo.astype(np.float32)
 
     t = Table(f"BRDF evaluations per second ({n:,} direction pairs per call, one core; float64 on the default path)",

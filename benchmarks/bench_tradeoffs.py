@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import Size, Table, size, time_call
+from benchmarks.common import Size, Table, round_time, size, time_call
 
 #: The simulated sample of the plan and capture trades: Lambert + a broad and a narrow GGX lobe.
 MATERIAL = {"model": "lambert+2ggx",
@@ -442,7 +442,7 @@ def merl_table(quick: bool = False) -> Table:
         f = m.eval(wi, wo)
         ok = f.max(axis=-1) > 1e-6 * f.max()
         for method in ("nearest", "trilinear"):
-            secs = time_call(lambda: table.lookup(wi, wo, method=method), min_time=0.05 if quick else 0.3, repeat=2)
+            secs = time_call(lambda: table.lookup(wi, wo, method=method), min_time=round_time(quick), repeat=2)
             g = table.lookup(wi, wo, method=method)
             if method == "nearest":
                 s0 = secs

@@ -75,6 +75,13 @@ class Table:
         return "\n".join(lines) + "\n"
 
 
+def round_time(quick) -> float:
+    """``min_time`` of :func:`time_call` at the run's :class:`Size`: 0.3 s a round, 0.05 s at the quick size, 0 at
+    the smoke size (one call a round: a smoke run checks that every table is made from the same calls on the same
+    inputs; its timings mean little)."""
+    return {Size.FULL: 0.3, Size.QUICK: 0.05, Size.SMOKE: 0.0}[size(quick)]
+
+
 def time_call(fn: Callable[[], object], *, min_time: float = 0.2, repeat: int = 3) -> float:
     """Seconds per call of ``fn``: best of ``repeat`` rounds, each running ≥ ``min_time`` seconds."""
     fn()  # warm up (imports, caches)
