@@ -228,8 +228,10 @@ def test_camera_frames_are_the_same_with_and_without_numba(bench_factory, lamber
 def test_poisson_by_inversion_follows_the_poisson_law(lam):
     """sim.sensor_noise.poisson_inversion draws Poisson(λ): χ² goodness of fit over the cells with ≥ 5 expected
     counts (200 000 draws; the 0.999 quantile of χ² bounds it, a fixed seed), mean and variance within 4 standard
-    errors."""
-    from scipy import stats
+    errors. Poisson's pmf exp(k·ln λ − ln k! − λ) and χ²'s quantile 2·P⁻¹(dof/2, q) (P the regularized lower incomplete
+    gamma function) from scipy.special: what scipy.stats.poisson.pmf and chi2.ppf compute (their _pmf and _ppf), bit for
+    bit, without importing scipy.stats (~0.4 CPU s in the worker that runs this)."""
+    from scipy.special import gammaincinv, gammaln, xlogy
 
     from sim import sensor_noise
 
@@ -237,7 +239,8 @@ def test_poisson_by_inversion_follows_the_poisson_law(lam):
     lam_a = np.full(n, lam)
     k = sensor_noise.poisson_inversion(lam_a, np.exp(-lam_a), np.random.default_rng(int(lam * 100)).random(n))
     counts = np.bincount(k, minlength=int(lam + 10 * np.sqrt(lam) + 10))
-    expected = stats.poisson.pmf(np.arange(counts.size), lam) * n
+    k_all = np.arange(counts.size)
+    expected = np.exp(xlogy(k_all, lam) - gammaln(k_all + 1) - lam) * n
     cells = expected >= 5
     rest_obs, rest_exp = n - counts[cells].sum(), n - expected[cells].sum()
     chi2 = np.sum((counts[cells] - expected[cells]) ** 2 / expected[cells])
@@ -245,7 +248,7 @@ def test_poisson_by_inversion_follows_the_poisson_law(lam):
     if rest_exp >= 5:
         chi2 += (rest_obs - rest_exp) ** 2 / rest_exp
         dof += 1
-    assert chi2 < stats.chi2.ppf(0.999, max(dof, 1))
+    assert chi2 < 2 * gammaincinv(max(dof, 1) / 2, 0.999)
     assert abs(k.mean() - lam) < 4 * np.sqrt(lam / n)
     assert abs(k.var() - lam) < 4 * lam * np.sqrt(2 / n) + 4 * np.sqrt(lam / n)
 
