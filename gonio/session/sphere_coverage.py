@@ -95,16 +95,16 @@ def plan_cells(plan, rig, calib, sphere: Sphere, **kw) -> np.ndarray:
 
 @functools.lru_cache(maxsize=1)
 def _cell_centre_cosines() -> tuple[np.ndarray, np.ndarray]:
-    """``(cos θi, cos θo)`` (N_CELLS,) of every MERL cell centre's directions at φh = 0
-    (:func:`gonio.geometry.dirs_from_half_diff` of :func:`gonio.io.merl.cell_centres`), computed once per process
-    (1.46 million direction pairs, ~0.5 s; they depend on nothing but MERL's grid) and read-only."""
-    from gonio.geometry import dirs_from_half_diff
-    from gonio.io.merl import cell_centres
+    """``(cos θi, cos θo)`` (N_CELLS,) of every MERL cell centre's directions at φh = 0, read-only: the z components
+    of :func:`gonio.io.merl.cell_directions`, which every process computes once from the grid's separable factors
+    (~0.03 s, where :func:`gonio.geometry.dirs_from_half_diff` of the 1.46 million centres took ~0.3 s). cos θi is
+    dirs_from_half_diff's to the bit; cos θo differs by at most 4.4e-16 (it takes wi·h as cos θd exactly where
+    :func:`gonio.geometry.reflect` sums the dot product), while no cell's cos θi or cos θo lies within 8e-7 of 0 or
+    within 1e-6 of cos 80°: the valid and reachable cells are the same (tests/plan/test_sphere_plan.py)."""
+    from gonio.io.merl import cell_directions
 
-    th, td, pd = cell_centres()
-    TH, TD, PD = np.meshgrid(th, td, pd, indexing="ij")
-    wi, wo = dirs_from_half_diff(TH.ravel(), 0.0, TD.ravel(), PD.ravel())
-    cos_i, cos_o = np.ascontiguousarray(wi[:, 2]), np.ascontiguousarray(wo[:, 2])
+    wi, wo, _ = cell_directions()
+    cos_i, cos_o = np.ascontiguousarray(wi[..., 2]).ravel(), np.ascontiguousarray(wo[..., 2]).ravel()
     cos_i.flags.writeable = cos_o.flags.writeable = False
     return cos_i, cos_o
 

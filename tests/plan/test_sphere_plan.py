@@ -202,3 +202,20 @@ def test_theta_d_reach_is_remembered_by_value_and_is_the_computation(rig):
     assert len(set(computed)) == 3  # the three questions have different answers
     for _ in range(2):  # computed (or remembered) the first time, remembered the second
         assert [sc.theta_d_reach(rig, calib, s, theta_o=math.radians(t), step=step) for s, t in args] == computed
+
+
+def test_cell_centre_cosines_are_those_of_dirs_from_half_diff():
+    """sphere_coverage takes the cell centres' cosines from gonio.io.merl.cell_directions: cos θi to the bit, cos θo
+    within 4.4e-16 of gonio.geometry.dirs_from_half_diff's, and the valid and reachable cells the same."""
+    from gonio.geometry import dirs_from_half_diff
+    from gonio.io.merl import cell_centres
+    from gonio.session.sphere_coverage import _cell_centre_cosines, reachable_cells
+
+    th, td, pd = cell_centres()
+    TH, TD, PD = np.meshgrid(th, td, pd, indexing="ij")
+    wi, wo = dirs_from_half_diff(TH.ravel(), 0.0, TD.ravel(), PD.ravel())
+    cos_i, cos_o = _cell_centre_cosines()
+    assert np.array_equal(cos_i, wi[:, 2]) and np.max(np.abs(cos_o - wo[:, 2])) <= 4.5e-16
+    assert np.array_equal(valid_cells(), (wi[:, 2] > 0) & (wo[:, 2] > 0))
+    c = math.cos(math.radians(80.0))
+    assert np.array_equal(reachable_cells((0, 89)), (wi[:, 2] > 0) & (wo[:, 2] > 0) & (wi[:, 2] >= c) & (wo[:, 2] >= c))
