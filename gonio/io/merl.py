@@ -139,13 +139,19 @@ def _cell_directions_at_zero() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     dx, dy = sd * np.cos(pd)[None, None, :], sd * np.sin(pd)[None, None, :]
     wi = np.empty(SHAPE + (3,))
     wo = np.empty(SHAPE + (3,))
-    wi[..., 0] = ct * dx + st * cd
+    # each full-size product and sum straight into its component (out=): no (90, 90, 180) temporaries, which
+    # halved the page faults (4,355 -> 2,075) of this first use in a process; the same operations in the same order
+    wi_x, wi_z = wi[..., 0], wi[..., 2]
+    np.multiply(ct, dx, out=wi_x)
+    wi_x += st * cd  # wi_x = ct·dx + st·cd
     wi[..., 1] = dy
-    wi[..., 2] = ct * cd - st * dx
-    wo[..., 0] = 2.0 * cd * st - wi[..., 0]
-    wo[..., 1] = -dy
-    wo[..., 2] = 2.0 * cd * ct - wi[..., 2]
-    above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
+    np.multiply(st, dx, out=wi_z)
+    np.subtract(ct * cd, wi_z, out=wi_z)  # wi_z = ct·cd − st·dx
+    np.subtract(2.0 * cd * st, wi_x, out=wo[..., 0])
+    np.negative(dy, out=wo[..., 1])
+    np.subtract(2.0 * cd * ct, wi_z, out=wo[..., 2])
+    above = wi_z > 0.0
+    above &= wo[..., 2] > 0.0
     for a in (wi, wo, above):
         a.flags.writeable = False
     return wi, wo, above
