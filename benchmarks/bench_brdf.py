@@ -18,7 +18,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Table, round_time, time_call, time_median  # noqa: E402
+from benchmarks.common import Table, round_time, time_call, time_median, timed_calls  # noqa: E402
 from gonio.brdf import compiled, make  # noqa: E402
 from gonio.brdf.fresnel import schlick_rational_power  # noqa: E402
 from gonio.geometry import from_spherical  # noqa: E402
@@ -99,7 +99,7 @@ def _evaluation_table(wi, wo, repeat: int) -> Table:
 def run(quick: bool = False) -> list[Table]:
     n = 50_000 if quick else 1_000_000
     wi, wo = _directions(n)
-    return [_evaluation_table(wi, wo, 3 if quick else 5), *_models_and_schlick(wi, wo, quick)]
+    return [_evaluation_table(wi, wo, timed_calls(quick)), *_models_and_schlick(wi, wo, quick)]
 
 MODELS = [
     ("lambert", {"albedo": 0.5}),
@@ -125,7 +125,7 @@ def _directions(n: int):
 
 def _models_and_schlick(wi, wo, quick: bool) -> list[Table]:
     n = len(wi)
-    min_time = round_time(quick)
+    min_time, reps = round_time(quick), timed_calls(quick, 3, 3)
     wi32, wo32 = wi.astype(np.float32), wo.astype(np.float32)
 
     t = Table(f"BRDF evaluations per second ({n:,} direction pairs per call, one core; float64 on the default path)",
@@ -134,8 +134,8 @@ def _models_and_schlick(wi, wo, quick: bool) -> list[Table]:
     for name, params in MODELS:
         m = make(name, **params)
         label = name + (f" ({params['distribution']})" if "distribution" in params else "")
-        s64 = time_median(lambda: m.eval(wi, wo), repeat=3)  # CPU time, as the evaluation table
-        s32 = time_median(lambda: m.eval(wi32, wo32, dtype=np.float32), repeat=3)
+        s64 = time_median(lambda: m.eval(wi, wo), repeat=reps)  # CPU time, as the evaluation table
+        s32 = time_median(lambda: m.eval(wi32, wo32, dtype=np.float32), repeat=reps)
         f64 = m.eval(wi32.astype(np.float64), wo32.astype(np.float64))
         f32 = m.eval(wi32, wo32, dtype=np.float32).astype(np.float64)
         big = f64 > 1e-6 * f64.max()  # relative error where the value is not negligible
@@ -145,8 +145,8 @@ def _models_and_schlick(wi, wo, quick: bool) -> list[Table]:
         path = "compiled" if compiled.wanted(m, wi, np.dtype(np.float64), "auto") else "numpy"
         t.add(label, path, n / s64 / 1e6, s64 / base, n / s32 / 1e6, s64 / s32, float(rel.max()),
               float(np.quantile(rel, 0.99)))
-    t.notes.append("CPU time, median of 3 calls. float64 runs on the compiled path where the model has one and "
-                   "numba is installed (float32 is NumPy only), so the f32 speed-up is < 1 there.")
+    t.notes.append(f"CPU time, median of {reps} call{'s' * (reps > 1)}. float64 runs on the compiled path where the "
+                   "model has one and numba is installed (float32 is NumPy only), so the f32 speed-up is < 1 there.")
     t.notes.append("float32 error: relative to float64 evaluation of the same (float32) directions, over "
                    "values above 1e-6 of the maximum: the error of float32 arithmetic alone.")
 

@@ -82,6 +82,12 @@ def round_time(quick) -> float:
     return {Size.FULL: 0.3, Size.QUICK: 0.05, Size.SMOKE: 0.0}[size(quick)]
 
 
+def timed_calls(quick, full: int = 5, quick_n: int = 3) -> int:
+    """``repeat`` of :func:`time_median` at the run's :class:`Size`: ``full`` calls, ``quick_n`` at the quick size,
+    1 at the smoke size (after the warm-up call, as at every size; see :func:`round_time`)."""
+    return {Size.FULL: full, Size.QUICK: quick_n, Size.SMOKE: 1}[size(quick)]
+
+
 def time_call(fn: Callable[[], object], *, min_time: float = 0.2, repeat: int = 3) -> float:
     """Seconds per call of ``fn``: best of ``repeat`` rounds, each running ≥ ``min_time`` seconds."""
     fn()  # warm up (imports, caches)

@@ -170,10 +170,11 @@ def test_bench_robustness_writes_the_robustness_tables(tmp_path, monkeypatch, ca
 
 def test_sizes_order_and_the_smoke_size_runs_the_quick_code_where_a_trade_has_no_smaller_one():
     from benchmarks.bench_tradeoffs import _brackets, _uniform_plans, fitted_model
-    from benchmarks.common import Size, round_time, size
+    from benchmarks.common import Size, round_time, size, timed_calls
 
     assert [size(False), size(True), size(Size.SMOKE)] == [Size.FULL, Size.QUICK, Size.SMOKE]
     assert round_time(False) > round_time(True) > round_time(Size.SMOKE) == 0.0  # smoke: one timed call a round
+    assert timed_calls(False) > timed_calls(True) > timed_calls(Size.SMOKE) == 1
     assert not Size.FULL and Size.QUICK and Size.SMOKE  # `if quick:` takes the quick branch at the smoke size
     assert len(_uniform_plans(Size.SMOKE)) < len(_uniform_plans(True)) < len(_uniform_plans(False))
     assert len(_brackets(Size.SMOKE)) < len(_brackets(True)) < len(_brackets(False))
