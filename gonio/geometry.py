@@ -91,7 +91,11 @@ def to_spherical(v) -> tuple[np.ndarray, np.ndarray]:
     φ = atan2(y, x) wrapped to [0, 2π). At the pole (x = y = 0) φ is undefined and returned as 0.
     """
     v = _vec(v)
-    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    return _spherical_xyz(v[..., 0], v[..., 1], v[..., 2])
+
+
+def _spherical_xyz(x, y, z) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`to_spherical` of the vectors with components ``x``, ``y``, ``z``."""
     theta = np.arctan2(np.hypot(x, y), z)
     phi = np.mod(np.arctan2(y, x), 2.0 * np.pi)
     # mod can return exactly 2π for tiny negative angles; keep the half-open interval.
@@ -216,12 +220,16 @@ def half_diff_from_dirs(wi, wo) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
     Singular points: at θh = 0, φh is returned as 0 (:func:`to_spherical`); for wi = −wo,
     h is taken as +z (:func:`half_vector`), so θh = 0 and d = wi. Inputs need not be unit vectors.
     """
-    wi = normalize(wi)
-    wo = normalize(wo)
-    h = half_vector(wi, wo)
-    theta_h, phi_h = to_spherical(h)
-    d = rotate_y(rotate_z(wi, -phi_h), -theta_h)
-    theta_d, phi_d = to_spherical(d)
+    wi, wo = np.broadcast_arrays(normalize(wi), normalize(wo))
+    ix, iy, iz = wi[..., 0], wi[..., 1], wi[..., 2]
+    theta_h, phi_h = _spherical_xyz(*half_vector_xyz(ix, iy, iz, wo[..., 0], wo[..., 1], wo[..., 2],
+                                                     np.finfo(np.float64).tiny))
+    # d = rotate_y(rotate_z(wi, −φh), −θh), component by component (the same operations, without the (..., 3)
+    # arrays of each rotation: ~25 % less time on a MERL table's 9·10⁵ pairs)
+    c, s = np.cos(-phi_h), np.sin(-phi_h)
+    x1, y1 = c * ix - s * iy, s * ix + c * iy
+    c, s = np.cos(-theta_h), np.sin(-theta_h)
+    theta_d, phi_d = _spherical_xyz(c * x1 + s * iz, y1, -s * x1 + c * iz)
     return theta_h, phi_h, theta_d, phi_d
 
 

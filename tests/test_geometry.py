@@ -122,6 +122,22 @@ def test_rusinkiewicz_vectorized_matches_scalar():
         np.testing.assert_allclose([b[idx] for b in batch], single, atol=1e-14)
 
 
+def test_half_diff_from_dirs_is_its_docstring_to_the_bit():
+    """half_diff_from_dirs rotates wi component by component: the very numbers of rotate_y(rotate_z(wi, −φh), −θh)
+    with h = half_vector(wi, wo), wi = −wo and zero vectors included, broadcasting a single wi."""
+    rng = np.random.default_rng(5)
+    wi, wo = rng.normal(size=(2, 2000, 3))
+    wo[:5] = -wi[:5]
+    wi[5:8] = 0.0
+    for a, b in ((wi, wo), (wi[0], wo), (wi[:, None][:4], wo[None, :6])):
+        th, ph, td, pd = g.half_diff_from_dirs(a, b)
+        a, b = g.normalize(a), g.normalize(b)
+        th0, ph0 = g.to_spherical(g.half_vector(a, b))
+        td0, pd0 = g.to_spherical(g.rotate_y(g.rotate_z(a, -ph0), -th0))
+        for x, y in ((th, th0), (ph, ph0), (td, td0), (pd, pd0)):
+            assert x.shape == y.shape and np.array_equal(x, y)
+
+
 def test_normal_transform_inverse_transpose_under_nonuniform_scale():
     # A 45° plane x + y = 0 squashed along x: normals transformed like points go wrong.
     m = np.diag([2.0, 1.0, 1.0])

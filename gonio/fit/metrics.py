@@ -43,7 +43,8 @@ def _hd_coords(wi, wo) -> np.ndarray:
     vector in the (x, z) plane and the difference vector, folded to φd ∈ [0, π) (reciprocity)."""
     th, _, td, pd = half_diff_from_dirs(wi, wo)
     pd = np.mod(pd, np.pi)
-    return np.stack([np.sin(th), np.cos(th), np.sin(td) * np.cos(pd), np.sin(td) * np.sin(pd), np.cos(td)], axis=-1)
+    sd = np.sin(td)
+    return np.stack([np.sin(th), np.cos(th), sd * np.cos(pd), sd * np.sin(pd), np.cos(td)], axis=-1)
 
 
 def sphere_geometry(angle_deg: float, pixels: int = IMAGE_PIXELS):
