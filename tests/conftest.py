@@ -32,6 +32,53 @@ os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 sys.pycache_prefix = os.environ["PYTHONPYCACHEPREFIX"]  # this process too: its imports from here on
 sys.dont_write_bytecode = False
 
+
+def link_installed_bytecode(prefix: str) -> int:
+    """Hard-link the bytecode the installation already holds (the standard library's and site-packages'
+    ``__pycache__/*.pyc``) into ``prefix``'s layout (where :func:`importlib.util.cache_from_source` looks under a
+    prefix), once per cache; returns how many files were linked. Under a prefix Python reads no ``__pycache__``
+    beside a source, so in a fresh clone every process compiled numpy, scipy, numba, pytest ... from source until
+    one had written them, the workers all at once while collecting: measured on fresh clones, `pytest -n 4 -k` of
+    no test took 26.5-34 CPU s, 22-23 after linking (~17,600 files, ~0.8 s once). Import still checks each file
+    against its source (mtime, size) and writes a stale one anew (a new file: the installation's is untouched).
+    Where linking fails (another filesystem, no permission) the libraries compile into the cache as before."""
+    import hashlib
+    import sysconfig
+
+    paths = sysconfig.get_paths()
+    roots = sorted({os.path.realpath(paths[k]) for k in ("stdlib", "platstdlib", "purelib", "platlib")})
+    roots = [r for r in roots if not any(r.startswith(o + os.sep) for o in roots if o != r)]
+    suffix = f".{sys.implementation.cache_tag}.pyc"  # the unoptimized bytecode, as imports ask for it
+    marker = os.path.join(prefix, f".installed-bytecode-{hashlib.sha256(repr(roots).encode()).hexdigest()[:16]}")
+    if os.path.exists(marker):
+        return 0
+    linked = 0
+    try:
+        for root in roots:
+            for d, _, files in os.walk(root):
+                if os.path.basename(d) != "__pycache__":
+                    continue
+                target = prefix + os.path.dirname(d)  # cache_from_source: the prefix + the source's directory
+                for f in (f for f in files if f.endswith(suffix)):
+                    os.makedirs(target, exist_ok=True)
+                    try:
+                        os.link(os.path.join(d, f), os.path.join(target, f))
+                        linked += 1
+                    except FileExistsError:
+                        pass
+    except OSError:  # not linkable here: leave it to the imports, and do not try again each run
+        pass
+    try:
+        os.makedirs(prefix, exist_ok=True)
+        open(marker, "w").close()
+    except OSError:
+        pass
+    return linked
+
+
+if "PYTEST_XDIST_WORKER" not in os.environ:  # the controller, before it starts the workers
+    link_installed_bytecode(sys.pycache_prefix)
+
 import pytest  # noqa: E402
 from hypothesis import HealthCheck, settings  # noqa: E402
 
