@@ -90,16 +90,22 @@ def _neighbour_pairs(data, seed: int) -> tuple[np.ndarray, np.ndarray]:
     whose values differ (a sample listed twice is not a neighbour) — the pairs of the residual-structure test. They
     depend on the data only, so they are found once and cached on the data (a selection tests every candidate on the
     same samples)."""
-    from gonio.fit.metrics import _hd_coords, data_tree
+    from gonio.fit.metrics import _hd_coords, data_tree, geometry_cache
 
     cache = data.__dict__.setdefault("_kernel_cache", {})
     key = ("gof_pairs", int(seed))
     if key not in cache:
         n = len(data)
-        idx = np.arange(n)
-        if n > GOF_N:
-            idx = np.sort(np.random.default_rng(seed).choice(n, GOF_N, replace=False))
-        _, nb = data_tree(data).query(_hd_coords(data.wi[idx], data.wo[idx]), k=min(4, n))
+        geometry = geometry_cache(data)  # the samples tested and their 4 nearest: the directions decide them
+        if key not in geometry:
+            idx = np.arange(n)
+            if n > GOF_N:
+                idx = np.sort(np.random.default_rng(seed).choice(n, GOF_N, replace=False))
+            nb = data_tree(data).query(_hd_coords(data.wi[idx], data.wo[idx]), k=min(4, n))[1]
+            idx.setflags(write=False)
+            nb.setflags(write=False)
+            geometry[key] = idx, nb
+        idx, nb = geometry[key]
         same = np.all(data.y[nb] == data.y[idx][:, None, :], axis=-1)
         same[:, 0] |= nb[:, 0] == idx
         first = np.argmax(~same, axis=1)

@@ -79,3 +79,25 @@ def test_the_neighbour_pairs_are_found_once_and_give_the_uncached_answer():
     fresh = prepare((s.wi, s.wo, s.f))  # no cache: the pairs found anew
     assert goodness_of_fit(m * 1.1, fresh, LOSSES["robust"], 3)["rho"] == again["rho"]
     assert first["rho"] != again["rho"]
+
+
+def test_data_sets_with_the_same_directions_share_their_tree_and_neighbours_not_their_pairs(monkeypatch):
+    """gonio.fit.metrics.geometry_cache: the k-d tree and the 4 nearest neighbours of the samples tested depend on the
+    directions alone, so a second data set with the very same directions (another table of the same MERL cells) takes
+    them from the first; the pairs, which skip neighbours with equal values, are its own and those found unshared."""
+    from gonio.fit import gof, metrics
+
+    rng = np.random.default_rng(3)
+    n = metrics.SHARED_GEOMETRY_MIN
+    wi, wo = (np.abs(rng.normal(size=(n, 3))) + [0, 0, 0.5] for _ in range(2))
+    y1 = rng.uniform(0.1, 1.0, (n, 3))
+    y2 = np.ones((n, 3))  # every neighbour with the same values: no pair
+    a, b, c = prepare((wi, wo, y1)), prepare((wi, wo, y2)), prepare((wo, wi, y1))
+    assert metrics.data_tree(a) is metrics.data_tree(b) and metrics.data_tree(c) is not metrics.data_tree(a)
+    shared = [gof._neighbour_pairs(d, 0) for d in (a, b)]
+    monkeypatch.setattr(metrics, "SHARED_GEOMETRY_MIN", n + 1)
+    for d, got in zip((prepare((wi, wo, y1)), prepare((wi, wo, y2))), shared):
+        want = gof._neighbour_pairs(d, 0)
+        assert metrics.data_tree(d) is not metrics.data_tree(a)
+        assert all(np.array_equal(x, w) for x, w in zip(got, want))
+    assert len(shared[0][0]) == gof.GOF_N and len(shared[1][0]) == 0
