@@ -138,14 +138,15 @@ def copy_small_session(small_session_measured):
 
 @pytest.fixture(scope="session", autouse=True)
 def _never_reads_realdata():
-    """Tests never depend on the real materials (../shared/realdata, $GONIO_REALDATA; benchmarks may use them): in
+    """Tests never depend on the real materials (the folder benchmarks find beside the repository or in
+    $GONIO_REALDATA; benchmarks may use them): in
     every test process the one lookup of that folder (:func:`gonio.prior.build_default.find_realdata`, which
     ``benchmarks.bench_realdata`` and every benchmark go through) fails the test that reaches it, and
     $GONIO_REALDATA is unset for the run (the processes the tests start inherit that)."""
     import gonio.prior.build_default
 
     def refuse(*_a, **_k):
-        raise AssertionError("a test looked for ../shared/realdata (tests never depend on it)")
+        raise AssertionError("a test looked for the real materials (find_realdata; tests never depend on them)")
 
     with pytest.MonkeyPatch.context() as mp:
         mp.delenv("GONIO_REALDATA", raising=False)

@@ -15,14 +15,14 @@ from benchmarks.report import Trade, write_report
 from gonio.cli.main import main
 
 #: The trades with a plot and a marked default: all but the real materials, which need $GONIO_REALDATA
-#: (unset here: tests never depend on /work/shared/realdata) and then say so in a note.
+#: (unset here: tests never depend on the real materials' folder) and then say so in a note.
 TRADES = [tr.name for tr in REPORT_TRADES if tr.name != "realdata"]
 
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
-    # a smoke run that looks for ../shared/realdata fails: tests/conftest.py's _never_reads_realdata
+    # a smoke run that looks for the real materials' folder fails: tests/conftest.py's _never_reads_realdata
     code = main(["bench", "--smoke", "-o", str(out)])
     return code, out
 
