@@ -139,8 +139,7 @@ def copy_small_session(small_session_measured):
 @pytest.fixture(scope="session", autouse=True)
 def _never_reads_realdata():
     """Tests never depend on the real materials (the folder benchmarks find beside the repository or in
-    $GONIO_REALDATA; benchmarks may use them): in
-    every test process the one lookup of that folder (:func:`gonio.prior.build_default.find_realdata`, which
+    $GONIO_REALDATA; benchmarks may use them): in every test process the one lookup of that folder (:func:`gonio.prior.build_default.find_realdata`, which
     ``benchmarks.bench_realdata`` and every benchmark go through) fails the test that reaches it, and
     $GONIO_REALDATA is unset for the run (the processes the tests start inherit that)."""
     import gonio.prior.build_default
