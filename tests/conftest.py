@@ -136,12 +136,20 @@ def copy_small_session(small_session_measured):
     return copy
 
 
+@pytest.fixture(scope="session")
+def suite_conftest():
+    """This module as pytest loaded it, for the tests of its own machinery (importing it again as ``tests.conftest``
+    would run its set-up a second time, and ``import conftest`` finds whichever directory's conftest.py comes first)."""
+    return sys.modules[__name__]
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _never_reads_realdata():
     """Tests never depend on the real materials (the folder benchmarks find beside the repository or in
-    $GONIO_REALDATA; benchmarks may use them): in every test process the one lookup of that folder (:func:`gonio.prior.build_default.find_realdata`, which
-    ``benchmarks.bench_realdata`` and every benchmark go through) fails the test that reaches it, and
-    $GONIO_REALDATA is unset for the run (the processes the tests start inherit that)."""
+    $GONIO_REALDATA; benchmarks may use them): in every test process the one lookup of that folder
+    (:func:`gonio.prior.build_default.find_realdata`, which ``benchmarks.bench_realdata`` and every benchmark go
+    through) fails the test that reaches it, and $GONIO_REALDATA is unset for the run (the processes the tests
+    start inherit that)."""
     import gonio.prior.build_default
 
     def refuse(*_a, **_k):

@@ -24,8 +24,7 @@ def test_a_child_process_writes_bytecode_into_the_cache_not_beside_the_source(tm
     assert not (tmp_path / "__pycache__").exists()  # nothing beside the source
 
 
-
-def test_the_installed_bytecode_is_linked_into_a_new_cache_once(tmp_path):
+def test_the_installed_bytecode_is_linked_into_a_new_cache_once(tmp_path, suite_conftest):
     """conftest.link_installed_bytecode: a new cache gets the installation's own compiled modules (the same files,
     linked), which a process importing under that prefix reads instead of compiling the sources again; a second call
     links nothing. Where the cache is on another filesystem than the installation nothing is linked."""
@@ -35,8 +34,7 @@ def test_the_installed_bytecode_is_linked_into_a_new_cache_once(tmp_path):
 
     import numpy
 
-    from tests.conftest import link_installed_bytecode
-
+    link_installed_bytecode = suite_conftest.link_installed_bytecode
     prefix = str(tmp_path / "pyc")
     linked = link_installed_bytecode(prefix)
     same_fs = os.stat(tmp_path).st_dev == os.stat(sysconfig.get_paths()["purelib"]).st_dev
@@ -56,7 +54,8 @@ def test_the_installed_bytecode_is_linked_into_a_new_cache_once(tmp_path):
     assert linked > 1000
     for module in (json, numpy):
         assert os.path.samefile(installed(module), in_cache(module)), module
-    child = [sys.executable, "-c", "import numpy, importlib.util; print(importlib.util.cache_from_source(numpy.__file__))"]
+    child = [sys.executable, "-c",
+             "import numpy, importlib.util; print(importlib.util.cache_from_source(numpy.__file__))"]
     out = subprocess.run(child, env={**os.environ, "PYTHONPYCACHEPREFIX": prefix}, capture_output=True, text=True,
                          check=True).stdout.strip()
     assert out == in_cache(numpy) and os.path.samefile(out, installed(numpy))  # read, not compiled anew
