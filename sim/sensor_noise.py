@@ -428,9 +428,10 @@ def expose_compiled(rate, scale, pattern, dark_e, rng, normal_indices, table, be
             memo.key, memo.pos, memo.lam, memo.p0, memo.every = key, pos[:n], lam, p0, n == out1.size
     if n:
         u = rng.random(n)
-        one = n > 1 and lam[0] >= ONE_MEAN_FROM and lam.min() == lam.max() and p0.min() == p0.max()
+        top = lam.max()
+        one = n > 1 and lam[0] >= ONE_MEAN_FROM and lam.min() == top and p0.min() == p0.max()
         if not (one and pass2_one_mean(pos, idx, table, lam[0], p0[0], u, RECIPROCALS, f32(read_noise), *conv, out1,
                                        np.empty(ONE_MEAN_TABLE), np.empty(ONE_MEAN_GUIDE, dtype=np.int64))):
-            search = pass2_lanes if lam.max() >= LANES_FROM else pass2
+            search = pass2_lanes if top >= LANES_FROM else pass2
             search(pos, idx, table, lam, p0, u, RECIPROCALS, f32(read_noise), *conv, out1)
     return out
