@@ -136,11 +136,16 @@ def copy_small_session(small_session_measured):
     return copy
 
 
+#: This module, taken while it runs: pytest imports every directory's conftest.py under the one name ``conftest``,
+#: so sys.modules["conftest"] is another directory's later on.
+_THIS_MODULE = sys.modules[__name__]
+
+
 @pytest.fixture(scope="session")
 def suite_conftest():
     """This module as pytest loaded it, for the tests of its own machinery (importing it again as ``tests.conftest``
-    would run its set-up a second time, and ``import conftest`` finds whichever directory's conftest.py comes first)."""
-    return sys.modules[__name__]
+    would run its set-up a second time, and ``conftest`` names whichever directory's conftest.py was loaded last)."""
+    return _THIS_MODULE
 
 
 @pytest.fixture(scope="session", autouse=True)
