@@ -35,7 +35,7 @@ from gonio.fit.layout import (CHANNELS, Basis, Layout, SubSpace, auto_tied, link
                               resolve_fixed, separated)
 from gonio.fit.losses import LOSSES, Loss, get_loss
 from gonio.fit.result import FitResult
-from gonio.fit.solve import Projection, ProfiledProjection, jtj_from_elements, shared_weights
+from gonio.fit.solve import Projection, ProfiledProjection, jtj_from_elements
 
 METHODS = ("auto", "varpro", "plain")
 #: How the lobes of a sum repeating a lobe get their colours (``chroma`` of :func:`fit`).
@@ -71,12 +71,6 @@ def heuristics(data: FitData) -> dict[str, Any]:
     above = m > thr
     width = float(th[above].max()) if above.any() and peak.mean() > 0 else float("nan")
     return {"floor_albedo": (np.pi * floor).tolist(), "peak": peak.tolist(), "width_deg": width}
-
-
-def _channel_weights(w: np.ndarray) -> np.ndarray:
-    """``w`` (N, 3) as one column (N,) when every channel has the same weight (the cosine loss), else as is."""
-    w1 = shared_weights(w)
-    return w if w1 is None else w1
 
 
 class _Problem:
@@ -141,7 +135,7 @@ class _Problem:
         if self.loss.linear and self.jacobian is not None:
             colour, shape = self.L.unpack(p)
             elems, C = self.jacobian.jacobian(self.d, self.L, colour, shape)
-            return jtj_from_elements(elems, C, _channel_weights(self.loss.weights_of(self.d)))
+            return jtj_from_elements(elems, C, self.loss.channel_weights_of(self.d))
         if self.loss.linear and self.basis is not None and self.basis.separable:
             return self._jtj_linear(p)
         P = p.size

@@ -55,11 +55,32 @@ class Loss:
         data and remembered on it (a fit asks for them several times: the projection, the uncertainties, the
         costs; the robust loss's cost 0.13 CPU s a time on a MERL table). Read-only: the data's arrays are not
         changed after :func:`gonio.fit.data.prepare` (their geometry is cached on them the same way)."""
+        return self._remembered(d, "weights", lambda: self.weight(d.y, d.cos_i, d.sigma))
+
+    def root_weights_of(self, d) -> np.ndarray:
+        """√``weight`` at the samples of ``d``, remembered on it like :meth:`weights_of` (every cost of a fit
+        takes it: :meth:`residuals_of`)."""
+        return self._remembered(d, "root weights", lambda: np.sqrt(self.weights_of(d)))
+
+    def channel_weights_of(self, d) -> np.ndarray:
+        """:meth:`weights_of` as :func:`gonio.fit.solve.weighted_gram` reads it, remembered on ``d``: one column
+        (N,) when every channel has the same weight (:func:`gonio.fit.solve.shared_weights`), else (N, 3) laid
+        out channels first (the transpose of a contiguous (3, N) array), so no call copies it."""
+        from gonio.fit.solve import shared_weights
+
+        def make():
+            w = self.weights_of(d)
+            w1 = shared_weights(w)
+            return np.ascontiguousarray(w.T).T if w1 is None else w1
+
+        return self._remembered(d, "channel weights", make)
+
+    def _remembered(self, d, what: str, make) -> np.ndarray:
         cache = d.__dict__.setdefault("_kernel_cache", {})
-        key = ("weights", self.name)
+        key = (what, self.name)
         w = cache.get(key)
         if w is None:
-            w = self.weight(d.y, d.cos_i, d.sigma)
+            w = make()
             if w.flags.writeable:
                 w.setflags(write=False)
             cache[key] = w
@@ -67,9 +88,9 @@ class Loss:
 
     def residuals_of(self, m: np.ndarray, d) -> np.ndarray:
         """``residual`` of model values ``m`` at all samples of ``d``: the same numbers, from the remembered weights
-        (:meth:`weights_of`) where the residual is defined by them (``by_weight``)."""
+        (:meth:`root_weights_of`) where the residual is defined by them (``by_weight``)."""
         if self.by_weight:
-            return (m - d.y) * np.sqrt(self.weights_of(d))
+            return (m - d.y) * self.root_weights_of(d)
         return self.residual(m, d.y, d.cos_i, d.sigma)
 
 

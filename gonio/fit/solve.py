@@ -376,28 +376,40 @@ def weighted_gram(elems, w: np.ndarray, yT: np.ndarray | None = None):
     matrix of the elementary vectors: each block is read from memory once for all channels and every
     pair (i, j), where one dot product per pair and channel read the whole vectors J²/2 times
     (memory-bound: 20x slower on a MERL table's 4e5 samples). The same sums, in another order (to ~1e-15).
+    E_b and E_b w_b are formed block by block in two (J, GRAM_BLOCK) buffers that stay in the cache (a
+    whole J x N copy of the vectors went through memory first, and ``w.T`` was copied on every call); the
+    same products of the same numbers. Per-channel ``w`` is read channels first: pass ``wT.T`` of a
+    C-contiguous (3, N) ``wT`` (as :class:`Projection` and :class:`ProfiledProjection` do) and no copy is made.
     """
     J = len(elems)
     w = np.asarray(w, dtype=np.float64)
     N = w.shape[0]
-    E = np.empty((J, N))
-    for j, e in enumerate(elems):
-        E[j] = e
     per_channel = w.ndim != 1
     W = np.ascontiguousarray(w.T) if per_channel else w[None]
     C = W.shape[0]
     H = np.zeros((C, J, J))
     h = None if yT is None else np.zeros((3, J))
+    E = np.empty((J, min(N, GRAM_BLOCK)))
+    WE = np.empty_like(E)
+    vectors = []
+    for j, e in enumerate(elems):
+        if np.ndim(e) == 0:
+            E[j] = e  # a constant vector: the same in every block
+        else:
+            vectors.append((j, e))
     for s in range(0, N, GRAM_BLOCK):
-        Eb = E[:, s:s + GRAM_BLOCK]
+        n = min(GRAM_BLOCK, N - s)
+        Eb, We = E[:, :n], WE[:, :n]
+        for j, e in vectors:
+            Eb[j] = e[s:s + n]
         for c in range(C):
-            We = Eb * W[c, s:s + GRAM_BLOCK]
+            np.multiply(Eb, W[c, s:s + n], out=We)
             H[c] += We @ Eb.T
             if yT is not None:
                 if per_channel:
-                    h[c] += We @ yT[c, s:s + GRAM_BLOCK]
+                    h[c] += We @ yT[c, s:s + n]
                 else:
-                    h += yT[:, s:s + GRAM_BLOCK] @ We.T
+                    h += yT[:, s:s + n] @ We.T
     H3 = H if per_channel else np.broadcast_to(H[0], (3, J, J))
     return H3, h
 
@@ -435,7 +447,7 @@ class ProfiledProjection:
         self.profile, self.L, self.data = profile, layout, data
         self.t_index = t_index
         w1 = shared_weights(w)
-        self.w = np.ascontiguousarray(w) if w1 is None else w1
+        self.w = np.ascontiguousarray(w.T).T if w1 is None else w1  # channels first in memory (weighted_gram)
         self.yT = np.ascontiguousarray(data.y.T)
         self.c0 = np.einsum("nc,nc,nc->c", data.y, w, data.y)
         self.lo, self.hi = layout.colour_lo, layout.colour_hi

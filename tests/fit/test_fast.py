@@ -256,6 +256,42 @@ def test_weighted_gram_is_its_definition_over_every_block(n, per_channel):
     assert none is None and np.array_equal(H2, H)
 
 
+@pytest.mark.parametrize("per_channel", [False, True])
+def test_weighted_gram_is_the_sum_of_its_blocks_products_to_the_bit(per_channel):
+    """weighted_gram of 2.5 blocks is, bit for bit, the blocks' own weighted_gram added in order (each block's
+    products depend on that block's numbers only: not on how the whole vectors or weights are laid out), and
+    per-channel weights read channels first (the transpose of a contiguous (3, N) array) give the same bits."""
+    n = 2 * GRAM_BLOCK + GRAM_BLOCK // 2
+    rng = np.random.default_rng(7)
+    elems = [1.0 / np.pi, rng.random(n) * 1e3, rng.normal(size=n)]
+    w = rng.random((n, 3)) if per_channel else rng.random(n)
+    yT = np.ascontiguousarray(rng.normal(size=(3, n)))
+    H, h = weighted_gram(elems, w, yT)
+    H_sum, h_sum = np.zeros_like(H), np.zeros_like(h)
+    for s in range(0, n, GRAM_BLOCK):
+        b = slice(s, s + GRAM_BLOCK)
+        Hb, hb = weighted_gram([e if np.ndim(e) == 0 else e[b].copy() for e in elems], w[b].copy(), yT[:, b].copy())
+        H_sum += Hb
+        h_sum += hb
+    assert np.array_equal(H, H_sum) and np.array_equal(h, h_sum)
+    if per_channel:
+        HT, hT = weighted_gram(elems, np.ascontiguousarray(w.T).T, yT)
+        assert np.array_equal(HT, H) and np.array_equal(hT, h)
+
+
+def test_remembered_weights_give_the_losses_own_residuals_and_weights(data):
+    """The weights a loss remembers on the data (root_weights_of, channel_weights_of) are the bits of its
+    own formulas: the robust loss's residuals from them equal _robust_residual's, and the channel weights
+    are weights_of's values (one shared column for the cosine loss)."""
+    robust, cosine = LOSSES["robust"], LOSSES["cosine"]
+    m = data.y * 1.1 + 0.01
+    assert np.array_equal(robust.residuals_of(m, data), robust.residual(m, data.y, data.cos_i, data.sigma))
+    assert np.array_equal(robust.channel_weights_of(data), robust.weights_of(data))
+    assert robust.channel_weights_of(data).T.flags.c_contiguous
+    assert np.array_equal(cosine.channel_weights_of(data), cosine.weights_of(data)[:, 0])
+    assert robust.root_weights_of(data) is robust.root_weights_of(data)
+
+
 def test_a_coordinate_scan_evaluates_each_point_once_with_the_same_answers(data, monkeypatch):
     """A whole coordinate scan (gonio.fit.fit._coordinate_scan: its second cycle returns to points of the first far
     apart) fits in the projection's memo: every distinct point is evaluated once, and each answer is the one a fresh
