@@ -26,7 +26,7 @@ from gonio.errors import ConfigError, HardwareError
 from gonio.geometry import dot, normalize, to_local
 from gonio.pipeline.target import CameraCalibration, CameraPose, NoiseModel, TargetLayout, surface_frame
 from gonio.rig.interfaces import Clock, Frame, PhotodiodeReading
-from sim import sensor_noise
+from sim import compiled, sensor_noise
 
 __all__ = ["SensorModel", "SimScene", "SimCamera", "SceneLight", "normal_table", "board_texture",
            "blurred_board_texture"]
@@ -590,7 +590,7 @@ class SimCamera:
         x, y = (a.astype(np.float32) for a in self._ray_maps())
         w, h = s.layout.charuco.size
         inv = 1.0 / s.texel
-        points = board_points_compiled if sensor_noise.compiled_available() else board_points_numpy
+        points = compiled.pick(board_points_compiled, board_points_numpy)
         px, py, hit, mx, my = points(x, y, self._pose.R, C, inv, (w / 2 * inv - 0.5, h / 2 * inv - 0.5))
         tex = self._board_texture()
         footprint = np.linalg.norm(C) / c.K[0, 0] / s.texel  # texels per pixel at the board centre
@@ -614,7 +614,7 @@ class SimCamera:
         f32 = np.float32
         px, py, hit, albedo = self._board_view()
         S_ = self._light_pos
-        shade = shade_board_compiled if sensor_noise.compiled_available() else shade_board_numpy
+        shade = compiled.pick(shade_board_compiled, shade_board_numpy)
         irr, rate = shade(px, py, hit, albedo, f32(S_[0]), f32(S_[1]), f32(S_[2] ** 2),
                           f32(s.light_intensity * max(S_[2], 0.0)),
                           np.asarray(self.sensor.responsivity, dtype=np.float32) / f32(np.pi))
@@ -728,13 +728,11 @@ class SimCamera:
         pattern = self._dark_pattern(rate.shape)
         if sn.linear:
             kw = {}
-            if sensor_noise.compiled_available():
-                expose = sensor_noise.expose_compiled
-                if scale == 0:  # a dark set's frames at one exposure have the same means: gathered once
-                    # (the DSNU pattern is made once per frame shape: its id and the shape name it)
-                    kw = dict(memo=self._low, key=(float(dark_e), id(pattern), rate.shape, sn.dsnu), dark=True)
-            else:
-                expose = sensor_noise.expose_numpy
+            expose = compiled.pick(sensor_noise.expose_compiled, sensor_noise.expose_numpy)
+            if expose is sensor_noise.expose_compiled and scale == 0:
+                # a dark set's frames at one exposure have the same means: gathered once (the DSNU pattern is made
+                # once per frame shape: its id and the shape name it)
+                kw = dict(memo=self._low, key=(float(dark_e), id(pattern), rate.shape, sn.dsnu), dark=True)
             pixels = expose(
                 rate, scale, pattern, dark_e, self._rng, self._normal_indices, normal_table(), POISSON_EXACT_BELOW,
                 read_noise=sn.read_noise_e, full_well=sn.full_well, gain_k=sn.dn_per_electron * gain,

@@ -2,12 +2,13 @@
 digital numbers.
 
 :class:`sim.camera.SimCamera` hands a frame's electron rates to :func:`expose_compiled` (numba, used when numba,
-the ``fast`` extra, is installed: one vectorized pass over every value by the normal approximation, which also
-gathers the values below the Poisson threshold, then a pass over those alone, instead of ~20 whole-array
-operations) or to its reference :func:`expose_numpy` (whole-array NumPy operations). Both draw the frame's random
-numbers with NumPy in one fixed order (:func:`draw`: the normal table's indices, then one uniform per Poisson
-value) and then do the same IEEE operations in the same order and precision on them, so they give the same frame
-bit for bit (tests/pipeline/test_fast_paths_exact.py), and a seed gives the same samples with or without numba.
+the ``fast`` extra, is installed and pays in the process, :mod:`sim.compiled`: one vectorized pass over every value
+by the normal approximation, which also gathers the values below the Poisson threshold, then a pass over those
+alone, instead of ~20 whole-array operations) or to its reference :func:`expose_numpy` (whole-array NumPy operations).
+Both draw the frame's random numbers with NumPy in one fixed order (:func:`draw`: the normal table's indices, then
+one uniform per Poisson value) and then do the same IEEE operations in the same order and precision on them, so they
+give the same frame bit for bit (tests/pipeline/test_fast_paths_exact.py), and a seed gives the same samples with or
+without numba.
 
 Noise model (EMVA Standard 1288 R4.0, 2021, §2: shot noise Poisson in the electrons, read noise Gaussian):
 

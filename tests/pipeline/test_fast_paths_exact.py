@@ -212,16 +212,47 @@ def test_sensor_chain_compiled_with_the_poisson_values_in_a_few_blocks_is_the_re
 
 
 def test_camera_frames_are_the_same_with_and_without_numba(bench_factory, lambert, monkeypatch):
-    """A seed gives the same frames whichever implementation of the sensor chain runs (sim.sensor_noise)."""
-    from sim import sensor_noise
+    """A seed gives the same frames whichever implementations of the sensor chain (sim.sensor_noise) and the board's
+    rendering run (sim.compiled.use_compiled)."""
+    from sim import compiled as paths
 
     frames = {}
     for compiled in (True, False):
-        monkeypatch.setattr(sensor_noise, "compiled_available", lambda: compiled)
+        monkeypatch.setattr(paths, "use_compiled", lambda: compiled)
         bench = bench_factory(lambert, seed=4)
         bench.place(30, 20, 40, 200)
         frames[compiled] = [bench.camera.capture(t).pixels for t in (1e-4, 0.01, 0.2)]
     assert all(a.tobytes() == b.tobytes() for a, b in zip(frames[True], frames[False]))
+
+
+def test_frames_take_the_numpy_paths_until_they_have_cost_the_compiled_paths_price(bench_factory, lambert, monkeypatch):
+    """sim.compiled: in a process without numba, a frame's sensor chain and board rendering take the NumPy paths, whose
+    CPU time is counted; once it reaches COLD_SECONDS, or once numba is loaded, the compiled ones."""
+    import sim.camera as camera
+    from sim import compiled as paths
+    from sim import sensor_noise
+
+    ran = []
+    for mod, name in ((sensor_noise, "expose_compiled"), (sensor_noise, "expose_numpy"),
+                      (camera, "board_points_compiled"), (camera, "board_points_numpy"),
+                      (camera, "shade_board_compiled"), (camera, "shade_board_numpy")):
+        def recorded(*args, _f=getattr(mod, name), _name=name, **kw):
+            ran.append(_name.rsplit("_", 1)[1])
+            return _f(*args, **kw)
+
+        monkeypatch.setattr(mod, name, recorded)
+    monkeypatch.setattr(paths, "_NUMPY_SECONDS", [0.0])
+    bench = bench_factory(lambert, seed=4)
+    for pose, spent, warm, want in (((30, 20, 40, 200), 0.0, False, "numpy"),
+                                    ((20, 10, 30, 150), paths.COLD_SECONDS, False, "compiled"),
+                                    ((30, 20, 40, 200), 0.0, True, "compiled")):
+        paths._NUMPY_SECONDS[0] = spent
+        monkeypatch.setattr(paths, "_warm", lambda warm=warm: warm)  # False: as if numba were not loaded
+        ran.clear()
+        bench.place(*pose)  # a new pose: the board is rendered again
+        bench.camera.capture(0.01)
+        assert ran == [want] * 3, (spent, warm)
+        assert (paths._NUMPY_SECONDS[0] > spent) == (want == "numpy")
 
 
 @pytest.mark.parametrize("lam", [0.02, 0.6, 3.7, 12.0, 29.9])
