@@ -62,20 +62,35 @@ def draw(rng: np.random.Generator, normal_indices, mean_e: np.ndarray, below: fl
 
 def poisson_inversion(lam: np.ndarray, p0: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Poisson(``lam``) by sequential-search inversion of the uniforms ``u`` (see the module docstring;
-    Devroye 1986 §X.3.3), vectorized: each step advances the values whose search has not ended."""
-    k = np.zeros(lam.size, dtype=np.int64)
-    p, cdf = p0.copy(), p0.copy()
-    act = np.flatnonzero(u > cdf)
-    j = 0
-    while act.size:
+    Devroye 1986 §X.3.3), the searches side by side as :func:`_search_lanes` runs them compiled: at step ``j`` every
+    value whose search goes on advances with the same operations in the same order (so each gets its own search's
+    ``k``), by whole-array operations; the values whose search ended are dropped once they are half of those left."""
+    out = np.zeros(lam.size, dtype=np.int64)
+    idx = np.flatnonzero(u > p0)  # the values whose search takes a first step
+    lam, p, u = lam[idx], p0[idx], u[idx]
+    cdf = p.copy()
+    k = np.zeros(idx.size, dtype=np.int64)
+    alive = np.ones(idx.size, dtype=bool)
+    live, j = idx.size, 0
+    while live:
         j += 1
-        k[act] = j
-        pa = p[act] * (lam[act] * (1.0 / j))
-        ca = cdf[act]
-        cn = ca + pa
-        p[act], cdf[act] = pa, cn
-        act = act[(cn != ca) & (u[act] > cn)]
-    return k
+        act = u > cdf
+        act &= alive  # the search's loop condition: step j is taken, k = j
+        k += act
+        pn = lam * (1.0 / j)
+        pn *= p
+        cn = cdf + pn
+        np.not_equal(cn, cdf, out=alive)
+        alive &= act  # the term changed the sum: the next step's condition decides
+        p, cdf = pn, cn
+        live = np.count_nonzero(alive)
+        if live and live < alive.size // 2:
+            out[idx] = k
+            keep = np.flatnonzero(alive)
+            idx, lam, p, cdf, u, k = idx[keep], lam[keep], p[keep], cdf[keep], u[keep], k[keep]
+            alive = np.ones(idx.size, dtype=bool)
+    out[idx] = k
+    return out
 
 
 def electrons_numpy(mean_e, table, idx, low, lam, p0, u, *, read_noise) -> np.ndarray:

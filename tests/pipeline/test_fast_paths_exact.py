@@ -268,7 +268,8 @@ def test_poisson_by_inversion_follows_the_poisson_law(lam):
 
     n = 200_000
     lam_a = np.full(n, lam)
-    k = sensor_noise.poisson_inversion(lam_a, np.exp(-lam_a), np.random.default_rng(int(lam * 100)).random(n))
+    u = np.random.default_rng(int(lam * 100)).random(n)
+    k = sensor_noise.poisson_inversion(lam_a, np.exp(-lam_a), u)
     counts = np.bincount(k, minlength=int(lam + 10 * np.sqrt(lam) + 10))
     k_all = np.arange(counts.size)
     expected = np.exp(xlogy(k_all, lam) - gammaln(k_all + 1) - lam) * n
@@ -282,6 +283,48 @@ def test_poisson_by_inversion_follows_the_poisson_law(lam):
     assert chi2 < 2 * gammaincinv(max(dof, 1) / 2, 0.999)
     assert abs(k.mean() - lam) < 4 * np.sqrt(lam / n)
     assert abs(k.var() - lam) < 4 * lam * np.sqrt(2 / n) + 4 * np.sqrt(lam / n)
+
+
+def test_poisson_inversion_gives_each_value_its_own_search_s_k():
+    """sim.sensor_noise.poisson_inversion (the searches side by side, the ended ones dropped now and then) gives each
+    value the k of its own sequential search (the module docstring's, one value after the other here), for means from
+    0 to 30 mixed and uniforms equal to a partial sum of their search, just below and just above it, 0, the largest
+    below 1 and random ones."""
+    from sim import sensor_noise
+
+    def search(lam, p0, u):  # one value: the smallest k with u ≤ its partial sum, or where a term stops changing it
+        k, p, cdf = 0, p0, p0
+        while u > cdf:
+            k += 1
+            p = p * (lam * (1.0 / k))
+            if cdf + p == cdf:
+                break
+            cdf = cdf + p
+        return k
+
+    rng = np.random.default_rng(3)
+    lams = np.concatenate([[0.0, 1e-300, 0.013, 0.77, 1.0, 3.3, 17.9, 29.999], rng.uniform(0.0, 30.0, 40)])
+    lam, u = [], []
+    for m in lams:
+        p0 = np.exp(-np.array([m]))[0]
+        sums, p, j = [p0], p0, 0  # the search's partial sums
+        while True:
+            j += 1
+            p = p * (m * (1.0 / j))
+            if sums[-1] + p == sums[-1]:
+                break
+            sums.append(sums[-1] + p)
+        s = np.array(sums)
+        us = np.concatenate([s, np.nextafter(s, 0.0), np.nextafter(s, 1.0), [0.0, np.nextafter(1.0, 0.0)],
+                             rng.random(50)])
+        u.append(us[us < 1.0])
+        lam.append(np.full(u[-1].size, m))
+    lam, u = np.concatenate(lam), np.concatenate(u)
+    order = rng.permutation(lam.size)  # the means mixed, as a frame's are
+    lam, u = lam[order], u[order]
+    p0 = np.exp(-lam)
+    k = sensor_noise.poisson_inversion(lam, p0, u)
+    assert k.dtype == np.int64 and k.tolist() == [search(*v) for v in zip(lam, p0, u)]
 
 
 def test_sensor_chain_rounds_half_to_even_and_clips_as_numpy_does():
