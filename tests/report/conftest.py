@@ -20,7 +20,21 @@ from gonio.io.merl import MerlTable, cell_directions, write_merl
 from tests.debian import require
 
 ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
-        "--disable-component-update", "--disable-sync"]
+        "--disable-component-update", "--disable-sync",
+        # V8 records source positions as it compiles, instead of parsing a function again when they are first asked
+        # for: under Playwright's DevTools session they are (a plain headless Chromium does not ask), and parsing
+        # Plotly's 4.8 MB script again cost ~0.3 CPU s of every page's renderer
+        "--js-flags=--no-enable-lazy-source-positions"]
+#: Features off beside Playwright's own (PLAYWRIGHT_DISABLED; a second --disable-features replaces the first): every
+#: browser context is a window whose omnibox popup is a WebUI page preloaded in a renderer of its own (~0.4 CPU s each)
+NOT_NEEDED = ["WebUIOmniboxPopup", "WebUIOmniboxAimPopup"]
+#: Playwright's --disable-features (1.65); :func:`browser` checks the running browser's command line and adds any
+#: it is missing
+PLAYWRIGHT_DISABLED = ["AvoidUnnecessaryBeforeUnloadCheckSync", "DestroyProfileOnBrowserClose", "HttpsUpgrades",
+                       "HttpsFirstBalancedModeAutoEnable", "LensOverlay", "MediaRouter", "PaintHolding",
+                       "ThirdPartyStoragePartitioning", "AvoidCorsURLLoaderRestartOnRedirect", "TcpPortRandomizationWin",
+                       "OptimizationHints", "NetworkTimeServiceQuerying", "AimEnabled", "PreconnectToSearch",
+                       "msForceBrowserSignIn", "msEdgeUpdateLaunchServicesPreferredVersion"]
 
 
 def _digest(d: Path) -> dict:
@@ -73,6 +87,18 @@ def report(inputs, tmp_path_factory):
     return SimpleNamespace(path=out, stdout=buf.getvalue(), before=before, after=_digest(session))
 
 
+def _launch(p, disabled: list[str]):
+    return p.chromium.launch(executable_path=shutil.which("chromium"), args=[*ARGS, "--disable-features=" + ",".join(disabled)])
+
+
+def _disabled_features(b) -> list[list[str]]:
+    """The ``--disable-features`` lists of the running browser's command line, in order (Playwright's first)."""
+    cdp = b.new_browser_cdp_session()
+    line = cdp.send("SystemInfo.getInfo")["commandLine"]
+    cdp.detach()
+    return [a.split("=", 1)[1].split(",") for a in line.split() if a.startswith("--disable-features=")]
+
+
 @pytest.fixture(scope="session")
 def browser():
     """One headless Debian Chromium for every browser test of the run (Playwright drives it)."""
@@ -80,7 +106,11 @@ def browser():
     from playwright import sync_api
 
     with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=shutil.which("chromium"), args=ARGS)
+        b = _launch(p, PLAYWRIGHT_DISABLED + NOT_NEEDED)
+        missing = [f for f in _disabled_features(b)[0] if f not in PLAYWRIGHT_DISABLED]
+        if missing:  # another Playwright, which disables more: its features and ours
+            b.close()
+            b = _launch(p, PLAYWRIGHT_DISABLED + missing + NOT_NEEDED)
         yield b
         b.close()
 
