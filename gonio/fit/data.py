@@ -64,12 +64,25 @@ class FitData:
         """``(rms_rel, chi2_red)`` of model values ``m`` (N, 3) against these samples: the cosine-weighted relative
         RMS ``sqrt(Σ (cos θi (m − y))² / Σ (cos θi y)²)`` and, with σ, the reduced chi-square
         ``Σ ((m − y)/σ)² / (3N − n_params)`` (Bevington & Robinson, Data Reduction and Error Analysis, §11.1)."""
-        c = self.cos_i[:, None]
-        rms_rel = float(np.sqrt(np.sum((c * (m - self.y)) ** 2) / max(float(np.sum((c * self.y) ** 2)), 1e-300)))
+        r = m - self.y
+        rms_rel = float(np.sqrt(np.sum((self.cos_i[:, None] * r) ** 2) / max(self._cosine_norm, 1e-300)))
         chi2_red = None
         if self.sigma is not None:
-            chi2_red = float(np.sum(((m - self.y) / self.sigma) ** 2) / max(3 * len(self) - n_params, 1))
+            chi2_red = float(np.sum((r / self.sigma) ** 2) / max(3 * len(self) - n_params, 1))
         return rms_rel, chi2_red
+
+    @cached_property
+    def _cosine_norm(self) -> float:
+        """Σ (cos θi y)², the denominator of :meth:`fit_quality`'s rms_rel (the same for every model)."""
+        return float(np.sum((self.cos_i[:, None] * self.y) ** 2))
+
+    @cached_property
+    def yT(self) -> np.ndarray:
+        """The values channels first, (3, N) C-contiguous, read-only (what :class:`gonio.fit.solve.Projection` and
+        :class:`gonio.fit.solve.ProfiledProjection` sum over)."""
+        yT = np.ascontiguousarray(self.y.T)
+        yT.setflags(write=False)
+        return yT
 
     @cached_property
     def cos_i(self) -> np.ndarray:

@@ -753,8 +753,9 @@ def within_bounds(prob: _Problem, L: Layout, basis, lossobj: Loss, p: np.ndarray
     beyond += [f"{n} = {shape[j]:.4g}" for j, n in enumerate(L.shape) if shape2[j] != shape[j]]
     colour2 = np.clip(colour, L.colour_lo[:, None], hi[:, None])
     if basis is not None and basis.separable and lossobj.linear:
-        w = (lossobj.weight or LOSSES["cosine"].weight)(prob.d.y, prob.d.cos_i, prob.d.sigma)
-        _, colour2 = Projection(basis, np.ascontiguousarray(w), prob.d.y, L.colour_lo, L.colour_hi)(shape2)
+        wl = lossobj if lossobj.weight else LOSSES["cosine"]
+        _, colour2 = Projection(basis, np.ascontiguousarray(wl.weights_of(prob.d)), prob.d.y, L.colour_lo, L.colour_hi,
+                                (wl.weights_T_of(prob.d), prob.d.yT))(shape2)
         colour2 = np.clip(colour2, L.colour_lo[:, None], hi[:, None])
     q = L.pack(colour2, shape2)
     notes.append(f"the solver ended outside the parameters' ranges ({'; '.join(beyond)}): projected back onto them")
@@ -787,18 +788,22 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
         colour, shape = optimum
         if separable and lossobj.linear:  # colours solved again at the held value
             w = lossobj.weights_of(d)
-            _, colour = Projection(basis, np.ascontiguousarray(w), d.y, L.colour_lo, L.colour_hi)(shape)
+            _, colour = Projection(basis, np.ascontiguousarray(w), d.y, L.colour_lo, L.colour_hi,
+                                   (lossobj.weights_T_of(d), d.yT))(shape)
         p = L.pack(colour, shape)
         cost = prob.cost(p)
     elif method == "varpro":
-        w = (lossobj if lossobj.weight else LOSSES["cosine"]).weights_of(d)
+        wl = lossobj if lossobj.weight else LOSSES["cosine"]
+        w = wl.weights_of(d)
         profile = prob.profile
 
         def projection(data_, w_, basis_=None):
             if profile is not None:  # the tied parameter is minimized exactly inside (kernels.PROFILES)
-                return ProfiledProjection(profile, L, data_, w_, L.shape.index(profile.tied))
+                return ProfiledProjection(profile, L, data_, w_, L.shape.index(profile.tied),
+                                          wl.weights_T_of(d) if data_ is d else None)
             basis_ = basis_ or make_basis(L, data_, use_kernels=kernel == "auto", seed=seed)
-            return Projection(basis_, np.ascontiguousarray(w_), data_.y, L.colour_lo, L.colour_hi)
+            return Projection(basis_, np.ascontiguousarray(w_), data_.y, L.colour_lo, L.colour_hi,
+                              (wl.weights_T_of(d), d.yT) if data_ is d else None)
 
         space = (separated(L) or L) if profile is None else SubSpace(L, [j for j, n in enumerate(L.shape) if n != profile.tied])
         proj = projection(d, w, basis)

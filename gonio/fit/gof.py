@@ -57,7 +57,7 @@ def goodness_of_fit(model_values: np.ndarray, data, loss, n_params: int, seed: i
         dof = max(3 * n - n_params, 1)
         c2 = float(np.sum(((m - data.y) / data.sigma) ** 2))
         out.update(chi2=c2, dof=dof, chi2_red=c2 / dof, chi2_p=float(chdtrc(dof, c2)))
-    res = loss.residual(m, data.y, data.cos_i, data.sigma)
+    res = loss.residuals_of(m, data)
     rho = rho_p = None
     pairs = _neighbour_pairs(data, seed) if n >= 10 else None
     if pairs is not None:
@@ -75,7 +75,7 @@ def goodness_of_fit(model_values: np.ndarray, data, loss, n_params: int, seed: i
         ratio, p = 1.0 / max(1.0 - rho, 1e-12), rho_p
     else:
         ratio, p = None, None
-    ref = loss.residual(np.zeros_like(m), data.y, data.cos_i, data.sigma)
+    ref = loss.residuals_of(np.zeros_like(m), data)
     rel = float(np.sqrt(np.sum(res * res) / max(float(np.sum(ref * ref)), 1e-300)))
     out["ratio"], out["rel"] = ratio, rel
     misfit = ratio is not None and ratio > MAX_RATIO and p is not None and p < P_MIN

@@ -69,11 +69,14 @@ class Loss:
         from gonio.fit.solve import shared_weights
 
         def make():
-            w = self.weights_of(d)
-            w1 = shared_weights(w)
-            return np.ascontiguousarray(w.T).T if w1 is None else w1
+            w1 = shared_weights(self.weights_of(d))
+            return self.weights_T_of(d).T if w1 is None else w1
 
         return self._remembered(d, "channel weights", make)
+
+    def weights_T_of(self, d) -> np.ndarray:
+        """:meth:`weights_of` channels first, (3, N) C-contiguous, remembered on ``d``."""
+        return self._remembered(d, "weights channels first", lambda: np.ascontiguousarray(self.weights_of(d).T))
 
     def _remembered(self, d, what: str, make) -> np.ndarray:
         cache = d.__dict__.setdefault("_kernel_cache", {})

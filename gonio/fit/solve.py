@@ -224,12 +224,14 @@ class Projection:
     the same way (Björck, *Numerical Methods for Least Squares Problems*, SIAM 1996, §2.2.1).
     """
 
-    def __init__(self, basis, w: np.ndarray, y: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    def __init__(self, basis, w: np.ndarray, y: np.ndarray, lo: np.ndarray, hi: np.ndarray, channels_first=None):
         self.basis, self.w, self.y, self.lo, self.hi = basis, w, y, lo, hi
         self.n_evals = 0
         self.w1 = shared_weights(w)
         self._c0 = np.einsum("nc,nc,nc->c", y, w, y)
-        self._wT = self._yT = None  # channels-first copies of w and y, made on first use
+        # channels-first copies of w and y, (3, N) C-contiguous: the caller's (``channels_first = (wT, yT)``, the
+        # ones remembered on the data: Loss.weights_T_of, FitData.yT), else made on first use
+        self._wT, self._yT = (None, None) if channels_first is None else channels_first
 
     def normal_equations(self, shape):
         f0, cols = self._last = self.basis(shape)
@@ -441,14 +443,18 @@ class ProfiledProjection:
         Weights of the linear loss.
     t_index : int
         Position of the tied parameter in ``layout.shape``.
+    wT : ndarray (3, N), optional
+        ``w`` channels first, C-contiguous (the data's remembered copy, :meth:`gonio.fit.losses.Loss.weights_T_of`).
     """
 
-    def __init__(self, profile, layout, data, w: np.ndarray, t_index: int):
+    def __init__(self, profile, layout, data, w: np.ndarray, t_index: int, wT: np.ndarray | None = None):
         self.profile, self.L, self.data = profile, layout, data
         self.t_index = t_index
         w1 = shared_weights(w)
-        self.w = np.ascontiguousarray(w.T).T if w1 is None else w1  # channels first in memory (weighted_gram)
-        self.yT = np.ascontiguousarray(data.y.T)
+        if w1 is None:  # channels first in memory (weighted_gram): the caller's (3, N) copy ``wT`` if given
+            wT = np.ascontiguousarray(w.T) if wT is None else wT
+        self.w = wT.T if w1 is None else w1
+        self.yT = data.yT  # remembered on the data (a second projection of the same data shares it)
         self.c0 = np.einsum("nc,nc,nc->c", data.y, w, data.y)
         self.lo, self.hi = layout.colour_lo, layout.colour_hi
         u_lo, u_hi, is_log = layout.search_space()

@@ -290,6 +290,17 @@ def test_remembered_weights_give_the_losses_own_residuals_and_weights(data):
     assert robust.channel_weights_of(data).T.flags.c_contiguous
     assert np.array_equal(cosine.channel_weights_of(data), cosine.weights_of(data)[:, 0])
     assert robust.root_weights_of(data) is robust.root_weights_of(data)
+    assert np.array_equal(robust.weights_T_of(data), robust.weights_of(data).T) and np.array_equal(data.yT, data.y.T)
+    L = Layout("ward", {})
+    w = np.ascontiguousarray(robust.weights_of(data))
+    shape = np.array([0.2, 0.3])[:L.S]
+    alone = Projection(make_basis(L, data), w, data.y, L.colour_lo, L.colour_hi)(shape)
+    given = Projection(make_basis(L, data), w, data.y, L.colour_lo, L.colour_hi,
+                       (robust.weights_T_of(data), data.yT))(shape)
+    assert alone[0] == given[0] and np.array_equal(alone[1], given[1])
+    c = data.cos_i[:, None]
+    m = data.y * 1.1 + 0.01
+    assert data.fit_quality(m, 2)[0] == float(np.sqrt(np.sum((c * (m - data.y)) ** 2) / np.sum((c * data.y) ** 2)))
 
 
 def test_a_coordinate_scan_evaluates_each_point_once_with_the_same_answers(data, monkeypatch):
