@@ -84,3 +84,29 @@ def test_filled_cells_stay_filled_through_an_npz(tmp_path):
                  str(tmp_path / "s2.npz")]) == 0
     s2 = gonio.load(tmp_path / "s2.npz")
     assert s2.filled is not None and int(s2.filled.sum()) == int(merl.filled.sum())
+
+
+def test_savez_deflated_is_savez_compressed_at_another_level(tmp_path):
+    """gonio.io.npz.savez_deflated writes np.savez_compressed's archive (the same entries, each entry's same
+    uncompressed bytes: sizes and CRC-32 equal) at the faster DEFLATE level, and np.load reads the same arrays."""
+    import zipfile
+
+    from gonio.io.npz import NPZ_LEVEL, savez_deflated
+
+    rng = np.random.default_rng(3)
+    table = rng.random((9, 9, 18, 3))
+    table[rng.random(table.shape[:3]) < 0.7] = np.nan
+    arrays = {"samples/wi": rng.normal(size=(500, 3)), "table/values": table, "table/count": np.arange(7, dtype=np.int32),
+              "table/filled": rng.random((4, 5)) < 0.5, "metadata": np.array(['{"é": 1}'])}
+    with open(tmp_path / "numpy.npz", "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+    with open(tmp_path / "gonio.npz", "wb") as fh:
+        savez_deflated(fh, arrays)
+    with zipfile.ZipFile(tmp_path / "numpy.npz") as a, zipfile.ZipFile(tmp_path / "gonio.npz") as b:
+        assert [(i.filename, i.file_size, i.CRC, i.compress_type) for i in a.infolist()] == \
+               [(i.filename, i.file_size, i.CRC, i.compress_type) for i in b.infolist()]
+    with np.load(tmp_path / "numpy.npz") as a, np.load(tmp_path / "gonio.npz") as b:
+        assert a.files == b.files
+        for k in a.files:
+            assert a[k].dtype == b[k].dtype and np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f")
+    assert NPZ_LEVEL == 1
