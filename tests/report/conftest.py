@@ -23,8 +23,10 @@ ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--
         "--disable-component-update", "--disable-sync",
         # V8 records source positions as it compiles, instead of parsing a function again when they are first asked
         # for: under Playwright's DevTools session they are (a plain headless Chromium does not ask), and parsing
-        # Plotly's 4.8 MB script again cost ~0.3 CPU s of every page's renderer
-        "--js-flags=--no-enable-lazy-source-positions"]
+        # Plotly's 4.8 MB script again cost ~0.3 CPU s of every page's renderer. --max-opt=1: no tier above
+        # Sparkplug (V8's baseline compiler); optimising Plotly's functions with Maglev and Turbofan in the background
+        # cost a page more (~0.08 CPU s) than it saved in pages that live a second or two
+        "--js-flags=--no-enable-lazy-source-positions --max-opt=1"]
 #: Features off beside Playwright's own (PLAYWRIGHT_DISABLED; a second --disable-features replaces the first): every
 #: browser context is a window whose omnibox popup is a WebUI page preloaded in a renderer of its own (~0.4 CPU s each)
 NOT_NEEDED = ["WebUIOmniboxPopup", "WebUIOmniboxAimPopup"]
