@@ -44,6 +44,7 @@ from gonio.pipeline.target import CameraCalibration, CameraPose, TargetLayout
 from gonio.rig.control_table import load_control_table
 from gonio.rig.interfaces import Frame
 from gonio.rig.kinematics import Rig, load_rig
+from sim import compiled
 from sim.as_built import AsBuilt, observe, parse_as_built
 from sim.camera import SensorModel, SimCamera, SimScene
 from sim.clock import SimClock
@@ -417,7 +418,13 @@ class SimRig:
         rows = [[self._angle(j, g[j.servo_id]) for j in self.rig.joints] for g in self.servo_bus.goal_log]
         return np.array(rows, dtype=np.float64).reshape(-1, len(self.rig.joints))
 
-    # -- per-pose hook and faults ---------------------------------------------------------------
+    # -- per-session and per-pose hooks, and faults -----------------------------------------------
+    def expect_poses(self, poses: int) -> None:
+        """A session of ``poses`` poses is about to start: the camera's frames take numba's compiled paths from the
+        first if NumPy's would cost more (:func:`sim.compiled.expect`; the same frames either way)."""
+        c = self.sim_camera.calibration
+        compiled.expect(c.width * c.height * 3, poses)
+
     def begin_pose(self, index: int) -> None:
         """Reseed the camera noise, the photodiode noise and the link faults from ``(seed, index)``
         (:func:`sim.seeding.pose_rng`) so a pose's frames and readings do not depend on what was simulated

@@ -223,6 +223,9 @@ def run_session(store, plan, rig: OpenRig, *, on_pose=None, progress: TextIO | b
                                settings=RunnerSettings(timing=manifest_timing(manifest)), **common)
     if kind != "adaptive":
         runner.on_pose = on_pose
+        expect = getattr(rig, "expect_poses", None)  # the simulator prepares for the session's size
+        if expect is not None:
+            expect(len(plan))
     if manifest.get("keep_pixels") is True and kind == "plan":
         runner.keep_pixels_dir = Path(store.directory) / "pixels"
     result = runner.run()

@@ -32,15 +32,16 @@ __all__ = ["OpenRig", "open_rig", "open_rig_from_manifest", "open_hardware_rig",
 class OpenRig:
     """An opened rig: ``devices`` (:class:`gonio.session.runner.Devices`), the camera ``calibration``, the target
     ``layout``, ``record`` (the manifest entries describing the rig: mode, rig, material, target, calibration,
-    detector, and ``sim`` or ``hardware``), ``before_pose`` (the simulator's per-pose hook, None on a rig) and
-    ``exposure_range`` (s) of the camera where known. Close it (or leave its ``with`` block) to switch the light
-    off and release everything."""
+    detector, and ``sim`` or ``hardware``), ``before_pose`` and ``expect_poses`` (the simulator's per-pose and
+    per-session hooks, None on a rig) and ``exposure_range`` (s) of the camera where known. Close it (or leave its
+    ``with`` block) to switch the light off and release everything."""
 
     devices: object
     calibration: object
     layout: object
     record: dict
     before_pose: object = None
+    expect_poses: object = None
     exposure_range: tuple[float, float] | None = None
     camera_label: str = "the camera"
     hold: bool = False  #: keep the servos' torque on when closing (arms do not drop); default: released
@@ -216,7 +217,8 @@ def _start_sim(record, rig, *, material_brdf, config, hold, exposure_range=None,
         stack.close()
         raise
     return OpenRig(devices=devices, calibration=calibration if calibration is not None else sim.calibration,
-                   layout=sim.layout, record=record, before_pose=sim.begin_pose, exposure_range=exposure_range,
+                   layout=sim.layout, record=record, before_pose=sim.begin_pose, expect_poses=sim.expect_poses,
+                   exposure_range=exposure_range,
                    camera_label="the simulated camera", hold=hold, _stack=stack)
 
 

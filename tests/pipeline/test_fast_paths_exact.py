@@ -242,6 +242,7 @@ def test_frames_take_the_numpy_paths_until_they_have_cost_the_compiled_paths_pri
 
         monkeypatch.setattr(mod, name, recorded)
     monkeypatch.setattr(paths, "_NUMPY_SECONDS", [0.0])
+    monkeypatch.setattr(paths, "_BOUGHT", [False])  # no session of this process forecast more
     bench = bench_factory(lambert, seed=4)
     for pose, spent, warm, want in (((30, 20, 40, 200), 0.0, False, "numpy"),
                                     ((20, 10, 30, 150), paths.COLD_SECONDS, False, "compiled"),
@@ -253,6 +254,22 @@ def test_frames_take_the_numpy_paths_until_they_have_cost_the_compiled_paths_pri
         bench.camera.capture(0.01)
         assert ran == [want] * 3, (spent, warm)
         assert (paths._NUMPY_SECONDS[0] > spent) == (want == "numpy")
+
+
+def test_a_session_forecast_to_cost_numpy_more_than_the_price_takes_the_compiled_paths_from_its_first_frame(
+        monkeypatch):
+    """sim.compiled.expect: a session whose NumPy frames would cost COLD_SECONDS or more (its dark set and poses,
+    from the frame's size) takes the compiled paths at once; a smaller one keeps renting."""
+    from sim import compiled as paths
+
+    monkeypatch.setattr(paths, "_warm", lambda: False)  # as if numba were not loaded
+    monkeypatch.setattr(paths, "_NUMPY_SECONDS", [0.0])
+    monkeypatch.setattr(paths, "_BOUGHT", [False])
+    for values, poses in ((240 * 180 * 3, 12), (0, 10 ** 6), (240 * 180 * 3, 60)):  # ~0.25 s, 0, ~0.38 s
+        paths.expect(values, poses)
+        assert not paths.use_compiled(), (values, poses)
+    paths.expect(320 * 240 * 3, 38)  # the quick start's session: ~0.57 s
+    assert paths.use_compiled()
 
 
 @pytest.mark.parametrize("lam", [0.02, 0.6, 3.7, 12.0, 29.9])

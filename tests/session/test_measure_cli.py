@@ -13,7 +13,11 @@ SMALL = ["--sim", "--quiet", "--sim-resolution", "240x180", "--plan", "in_plane"
          "--theta-o-step", "30", "--theta-max", "60"]
 
 
-def test_measure_sim_runs_a_session_and_reports_samples_lab_and_wall_time(tmp_path, capsys):
+def test_measure_sim_runs_a_session_and_reports_samples_lab_and_wall_time(tmp_path, capsys, monkeypatch):
+    from sim import compiled
+
+    expected = []  # the simulator is told the session's size before its first frame (sim.compiled.expect)
+    monkeypatch.setattr(compiled, "expect", lambda values, poses: expected.append((values, poses)))
     d = tmp_path / "s"
     assert main(["measure", *SMALL, "--out", str(d)]) == 0
     out = capsys.readouterr().out
@@ -22,6 +26,7 @@ def test_measure_sim_runs_a_session_and_reports_samples_lab_and_wall_time(tmp_pa
     assert manifest["exit_status"] == "completed" and manifest["mode"] == "sim"
     assert manifest["material"]["model"] == "microfacet" and manifest["sim"]["width"] == 240
     assert len(samples) > 0 and set(samples.pose.tolist()) == set(range(len(manifest["plan"]["poses"])))
+    assert expected == [(240 * 180 * 3, len(manifest["plan"]["poses"]))]
     # resuming a completed session measures nothing and changes no sample
     before = (d / "samples.jsonl").read_bytes()
     assert main(["resume", str(d), "--quiet"]) == 0
