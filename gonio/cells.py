@@ -20,6 +20,7 @@ import numpy as np
 
 from gonio.io.merl import N_CELLS, SHAPE, MerlTable
 from gonio.io.merl_index import half_diff_index
+from gonio.samples import all_channels
 
 __all__ = ["CellAccumulator"]
 
@@ -40,7 +41,7 @@ class CellAccumulator:
         or σ ≤ 0 in any channel are refused (counted in :attr:`refused`). Returns how many were added."""
         f = np.asarray(f, dtype=np.float64).reshape(-1, 3)
         s = np.asarray(sigma, dtype=np.float64).reshape(-1, 3)
-        ok = np.all(np.isfinite(f) & np.isfinite(s) & (s > 0), axis=1)
+        ok = all_channels(np.isfinite(f) & np.isfinite(s) & (s > 0))
         self.refused += int((~ok).sum())
         if not ok.any():
             return 0

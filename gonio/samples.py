@@ -36,6 +36,16 @@ FLAG_NAMES = {
 }
 
 
+def all_channels(mask: np.ndarray) -> np.ndarray:
+    """``np.all(mask, axis=-1)`` of a boolean array: for the usual (..., 3) RGB case as two element-wise ands of
+    the channels (the same booleans; NumPy's reduction over a last axis of 3 runs its loop once per pixel, ~8x the
+    time: 21 vs 2.6 ms for a MERL table's 1.46e6 cells)."""
+    mask = np.asarray(mask, dtype=bool)
+    if mask.ndim == 0 or mask.shape[-1] != 3:
+        return np.all(mask, axis=-1)
+    return mask[..., 0] & mask[..., 1] & mask[..., 2]
+
+
 def flag_names(flags: int) -> list[str]:
     """Names of the bits set in ``flags``."""
     return [name for bit, name in FLAG_NAMES.items() if int(flags) & bit]

@@ -34,7 +34,7 @@ from gonio.errors import DataError
 from gonio.geometry import half_diff_from_dirs
 from gonio.io.merl import N_CELLS, N_PHI_D, N_THETA_D, SHAPE, MerlTable, cell_directions, trilinear
 from gonio.io.merl_index import reference_index
-from gonio.samples import SampleSet
+from gonio.samples import SampleSet, all_channels
 
 __all__ = ["IsotropyCheck", "Tabulation", "check_isotropy", "tabulate", "DEFAULT_FILL_DEG"]
 
@@ -84,8 +84,8 @@ def _usable(samples: SampleSet, include_flagged: bool) -> tuple[np.ndarray, int,
     flagged = samples.flags != 0
     valid = (
         (samples.wi[:, 2] > 0) & (samples.wo[:, 2] > 0)
-        & np.all(np.isfinite(samples.f), axis=1) & np.all(np.isfinite(samples.sigma), axis=1)
-        & np.all(samples.sigma >= 0, axis=1)
+        & all_channels(np.isfinite(samples.f)) & all_channels(np.isfinite(samples.sigma))
+        & all_channels(samples.sigma >= 0)
     )
     keep = valid if include_flagged else valid & ~flagged
     n_flagged = 0 if include_flagged else int(np.sum(flagged & valid))

@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from gonio.samples import all_channels
+
 __all__ = ["MAX_RATIO", "P_MIN", "PRACTICAL_REL", "GOF_N", "goodness_of_fit", "describe"]
 
 #: Residual variance over noise variance (χ²_red, or 1/(1 − ρ)) above which a model does not fit.
@@ -106,7 +108,7 @@ def _neighbour_pairs(data, seed: int) -> tuple[np.ndarray, np.ndarray]:
             nb.setflags(write=False)
             geometry[key] = idx, nb
         idx, nb = geometry[key]
-        same = np.all(data.y[nb] == data.y[idx][:, None, :], axis=-1)
+        same = all_channels(data.y[nb] == data.y[idx][:, None, :])
         same[:, 0] |= nb[:, 0] == idx
         first = np.argmax(~same, axis=1)
         ok = ~same[np.arange(idx.size), first]

@@ -30,7 +30,7 @@ import numpy as np
 from gonio.errors import DataError
 from gonio.io.merl_index import directions_from_angles, half_diff_index, reference_half_diff, reference_index
 from gonio.io.outputs import written_atomically
-from gonio.samples import SampleSet
+from gonio.samples import SampleSet, all_channels
 
 __all__ = [
     "N_THETA_H",
@@ -208,7 +208,7 @@ class MerlTable:
     @property
     def measured(self) -> np.ndarray:
         """(90, 90, 180) bool: cells with a value in every channel."""
-        return np.all(np.isfinite(self.values), axis=-1)
+        return all_channels(np.isfinite(self.values))
 
     def lookup(self, wi, wo, method: str = "trilinear") -> np.ndarray:
         """BRDF (1/sr, RGB) at direction pairs ``wi``, ``wo`` of shape ``(..., 3)``.

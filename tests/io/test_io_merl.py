@@ -237,3 +237,19 @@ def test_cell_directions_are_computed_once_and_shared_read_only():
     np.testing.assert_array_equal(wi_t[..., 0], c * wi[..., 0] - s * wi[..., 1])
     np.testing.assert_array_equal(wo_t[..., 1], s * wo[..., 0] + c * wo[..., 1])
     np.testing.assert_array_equal(wi_t[..., 2], wi[..., 2])
+
+
+@pytest.mark.parametrize("shape", [(3,), (7, 3), (90, 90, 180, 3), (5, 4, 3), (6, 2), (4,), ()])
+def test_all_channels_is_np_all_over_the_last_axis(shape):
+    """gonio.samples.all_channels (MerlTable.measured, tabulation's and the cell accumulator's valid samples, the
+    goodness-of-fit's equal neighbours) gives np.all(mask, axis=-1), for RGB arrays and any other last axis; and a
+    table's measured cells are those finite in every channel."""
+    from gonio.samples import all_channels
+
+    rng = np.random.default_rng(len(shape))
+    mask = rng.random(shape) < 0.8
+    assert np.array_equal(all_channels(mask), np.all(mask, axis=-1))
+    if shape == (90, 90, 180, 3):
+        values = np.where(mask, rng.random(shape), np.where(rng.random(shape) < 0.5, np.nan, np.inf))
+        measured = MerlTable(values).measured
+        assert measured.shape == SHAPE and np.array_equal(measured, np.all(np.isfinite(values), axis=-1))
