@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from gonio.brdf import compiled
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,3 +47,17 @@ def test_without_numba_the_version_says_numpy_and_how_to_get_the_compiled_path(m
         assert compiled.describe_path().startswith("NumPy (numba is not installed")
     finally:
         compiled.available.cache_clear()
+
+
+def test_a_first_version_option_is_answered_as_the_parser_answers_it(capsys):
+    """`gonio --version` is answered before the parser is built (which imports every command's module): the same line
+    and the same exit as the parser's own --version action, whatever follows it."""
+    from gonio.cli.main import _parser, main
+
+    got = []
+    for call in (lambda: main(["--version"]), lambda: main(["--version", "measure", "--bogus"]),
+                 lambda: _parser().parse_known_args(["--version"])):
+        with pytest.raises(SystemExit) as exit_:
+            call()
+        got.append((exit_.value.code, capsys.readouterr()))
+    assert got[0] == got[1] == got[2] and got[0][0] == 0 and got[0][1].out.startswith("gonio ")

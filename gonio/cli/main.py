@@ -16,14 +16,19 @@ from gonio.errors import GonioError
 COMMANDS = ["models", "servo", "controller", "camera", "measure", "calibrate", "fit", "tabulate", "export", "plot", "plan", "prior", "reconstruct", "status", "repair", "report", "bench"]
 
 
+def _version_line() -> str:
+    """What ``gonio --version`` prints: the version and the BRDF evaluation path
+    (:func:`gonio.brdf.compiled.describe_path`), found only when asked."""
+    from gonio.brdf.compiled import describe_path
+
+    return f"gonio {__version__}; BRDF evaluation: {describe_path()}"
+
+
 class _Version(argparse.Action):
-    """``gonio --version``: the version and the BRDF evaluation path (:func:`gonio.brdf.compiled.describe_path`),
-    found only when asked."""
+    """``gonio --version`` (:func:`_version_line`), then exit."""
 
     def __call__(self, parser, namespace, values, option_string=None):
-        from gonio.brdf.compiled import describe_path
-
-        print(f"gonio {__version__}; BRDF evaluation: {describe_path()}")
+        print(_version_line())
         parser.exit()
 
 
@@ -88,6 +93,11 @@ def _check_common(args) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    if list(sys.argv[1:] if argv is None else argv)[:1] == ["--version"]:
+        # what the parser does with a first --version (prints, exits), without building it: that imports every
+        # command's module (~0.05 CPU s, a third of `gonio --version`)
+        print(_version_line())
+        raise SystemExit(0)
     parser = _parser()
     args, extra = parser.parse_known_args(argv)
     if extra:
