@@ -286,16 +286,35 @@ def _trilinear(values: np.ndarray, u_h, u_d, u_p) -> np.ndarray:
     p1 = np.mod(p0 + 1, N_PHI_D)
     acc = np.zeros(np.shape(u_h) + values.shape[3:])
     wsum = np.zeros(np.shape(u_h) + values.shape[3:])
+    read = _cell_reader(values)
     for ih, wh in ((h0, 1 - th), (h1, th)):
         for id_, wd in ((d0, 1 - td), (d1, td)):
+            whd = wh * wd  # the first product of wh · wd · wp, once for both φd corners
+            row = (ih * N_THETA_D + id_) * N_PHI_D
             for ip, wp in ((p0, 1 - tp), (p1, tp)):
-                v = values[ih, id_, ip]
+                v = values[ih, id_, ip] if read is None else read(row + ip)
                 ok = np.isfinite(v)
-                w = (wh * wd * wp)[..., None] * ok
+                w = (whd * wp)[..., None] * ok
                 acc += w * np.where(ok, v, 0.0)
                 wsum += w
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(wsum > 1e-12, acc / np.where(wsum > 0, wsum, 1.0), np.nan)
+
+
+def _cell_reader(values: np.ndarray):
+    """``read(flat)``: ``values[ih, id, ip]`` of a grid ``values`` (90, 90, 180, C) at flat cell indices
+    ``flat = (ih · 90 + id) · 180 + ip``, one ``np.take`` on a flat view (2.3x faster than indexing with three index
+    arrays: 8 corners of 2e5 lookups 117 -> 48 ms) — for a C-ordered grid, or one laid out channels first (as
+    :func:`read_merl` returns the file's); the same values. None for another layout (index it as the grid)."""
+    C = values.shape[-1]
+    if values.flags.c_contiguous:
+        rows = values.reshape(-1, C)
+        return lambda flat: np.take(rows, flat, axis=0)
+    channels = np.moveaxis(values, -1, 0)
+    if channels.flags.c_contiguous:
+        planes = channels.reshape(C, -1)
+        return lambda flat: np.moveaxis(np.take(planes, flat, axis=1), 0, -1)
+    return None
 
 
 def _rows(a: np.ndarray, flat: np.ndarray) -> np.ndarray:

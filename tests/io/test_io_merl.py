@@ -253,3 +253,31 @@ def test_all_channels_is_np_all_over_the_last_axis(shape):
         values = np.where(mask, rng.random(shape), np.where(rng.random(shape) < 0.5, np.nan, np.inf))
         measured = MerlTable(values).measured
         assert measured.shape == SHAPE and np.array_equal(measured, np.all(np.isfinite(values), axis=-1))
+
+
+def test_trilinear_reads_the_same_cells_whatever_the_grid_layout(independent_file):
+    """The trilinear lookup's corner values (gonio.io.merl._cell_reader: one np.take on a flat view of a C-ordered
+    grid or of a channels-first one, as read_merl returns a file's) are the grid's values[ih, id, ip], and the lookup
+    gives the same bits for a table read from a file, its C-ordered copy and a Fortran-ordered one (indexed as a
+    grid), with holes and on a one-channel grid."""
+    from gonio.io.merl import _cell_reader, trilinear
+
+    table = read_merl(independent_file)
+    rng = np.random.default_rng(11)
+    values = table.values.copy()
+    values[rng.random(SHAPE) < 0.3] = np.nan
+    ih, id_, ip = rng.integers(0, 90, 1000), rng.integers(0, 90, 1000), rng.integers(0, 180, 1000)
+    flat = (ih * 90 + id_) * 180 + ip
+    for grid in (table.values, np.ascontiguousarray(table.values), values, values[..., :1].copy()):
+        assert np.array_equal(_cell_reader(grid)(flat), grid[ih, id_, ip], equal_nan=True)
+        assert np.array_equal(_cell_reader(grid)(flat.reshape(20, 50)),  # any shape, e.g. (lights, pixels)
+                              grid[ih.reshape(20, 50), id_.reshape(20, 50), ip.reshape(20, 50)], equal_nan=True)
+    assert _cell_reader(np.asfortranarray(values)) is None
+    wi, wo = rng.normal(size=(2, 5000, 3))
+    wi[:, 2], wo[:, 2] = np.abs(wi[:, 2]), np.abs(wo[:, 2])
+    wi, wo = wi / np.linalg.norm(wi, axis=1)[:, None], wo / np.linalg.norm(wo, axis=1)[:, None]
+    wo[:10] = wi[:10]
+    for a, b in ((table.values, np.ascontiguousarray(table.values)), (values, np.asfortranarray(values))):
+        assert trilinear(a, wi, wo).tobytes() == trilinear(b, wi, wo).tobytes()
+        assert trilinear(a, wi.reshape(50, 100, 3), wo.reshape(50, 100, 3)).tobytes() == \
+               trilinear(b, wi.reshape(50, 100, 3), wo.reshape(50, 100, 3)).tobytes()
