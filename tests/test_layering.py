@@ -6,7 +6,10 @@ import ast
 import functools
 from pathlib import Path
 
+import pytest
+
 import gonio
+from gonio.errors import ConfigError
 from gonio.plugins import plugin
 
 FORBIDDEN = ("sim", "benchmarks", "tests")
@@ -37,6 +40,9 @@ def test_gonio_never_imports_sim_or_benchmarks():
 def test_the_simulator_is_found_through_the_entry_points():
     assert plugin("sim.rig").SimRig.__module__ == "sim.rig"
     assert hasattr(plugin("benchmarks.report"), "write_report")
+    assert plugin("sim.rig") is plugin("sim.rig")  # looked up once per process
+    with pytest.raises(ConfigError, match="not installed"):
+        plugin("sim.no_such_plugin")
 
 
 # -- the package graph (issue 31 item 3): layers point one way -----------------------------------------------------
