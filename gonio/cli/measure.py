@@ -179,10 +179,10 @@ def _say_plan(plan, store, quiet: bool, rig) -> None:
     if quiet:
         return
     from gonio.plan import estimate_plan
-    from gonio.session.recording import manifest_timing
+    from gonio.session.recording import store_timing
     from gonio.session.runner import format_lab_time
 
-    timing = manifest_timing(store.manifest)
+    timing = store_timing(store)
     est = estimate_plan(plan, rig, timing)
     dropped = f", {plan.n_dropped} dropped ({plan.dropped_summary()})" if plan.n_dropped else ""
     eta = (f", estimated lab time {format_lab_time(est.optimized)} incl. {format_lab_time(est.startup)} of darks and "

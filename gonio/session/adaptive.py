@@ -204,9 +204,8 @@ class AdaptiveSession:
         from gonio.session.runner import SessionRunner
 
         self.store, self.devices, self.stream = store, devices, stream
-        manifest = store.manifest
         where = f"{store.directory}/manifest.json"
-        ad = manifest.get("adaptive")
+        ad = store.manifest_entry("adaptive")  # read only (the rounds are copied): not a copy of ~1 MB
         if not isinstance(ad, Mapping) or ad.get("format") != ADAPTIVE_FORMAT:
             raise DataError(f"{where}: adaptive.format = {ad.get('format') if isinstance(ad, Mapping) else ad!r}: "
                             f"expected an adaptive session, format {ADAPTIVE_FORMAT}")
@@ -249,9 +248,7 @@ class AdaptiveSession:
     # -- samples --------------------------------------------------------------------------------
     def _round_samples(self) -> list[SampleSet]:
         """The stored samples of each round, ``pose`` = candidate index."""
-        from gonio.store.directory import load_session
-
-        _, samples = load_session(self.store.directory)
+        samples = self.store.samples()
         out = []
         for r in self.rounds:
             first, cand = r["first_pose"], np.asarray(r["candidate_index"], dtype=np.int64)

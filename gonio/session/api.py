@@ -27,7 +27,7 @@ from typing import Callable, TextIO
 
 from gonio.errors import ConfigError, DataError
 from gonio.session.options import TimingOptions, check_exposures, check_session_dir, default_session_dir
-from gonio.session.recording import check_plan_against_records, manifest_timing
+from gonio.session.recording import check_plan_against_records, store_timing
 from gonio.session.rigs import OpenRig, open_rig, open_rig_from_manifest
 from gonio.session.runner import PoseEvent
 from gonio.session.usability import STATUS_PREFIX as UNUSABLE_PREFIX, UNUSABLE_EXIT
@@ -205,8 +205,9 @@ def run_session(store, plan, rig: OpenRig, *, on_pose=None, progress: TextIO | b
               f"Status 0x{bits:02X}) cleared by a reboot; if its cause is not known, stop (Ctrl-C) and check the arm",
               file=sys.stderr)
     resume_cmd = f"gonio resume {store.directory}"
-    manifest = store.manifest  # a copy (of up to ~1 MB: an adaptive session's candidates), taken once
-    kind = "calibration" if "geocal" in manifest else "adaptive" if "adaptive" in manifest else "plan"
+    # the fields read, not a copy of the manifest (up to ~1 MB: an adaptive session's candidates)
+    has = store.has_manifest_entry
+    kind = "calibration" if has("geocal") else "adaptive" if has("adaptive") else "plan"
     common = dict(before_pose=rig.before_pose, resume_command=resume_cmd, stream=_stream(progress))
     if kind == "calibration":
         from gonio.session.geocal_session import CalibrationRunner
@@ -216,17 +217,17 @@ def run_session(store, plan, rig: OpenRig, *, on_pose=None, progress: TextIO | b
         from gonio.session.adaptive import AdaptiveSession
 
         runner = AdaptiveSession(store, devices, rig.calibration, rig.layout,
-                                 settings=RunnerSettings(timing=manifest_timing(manifest)), **common)
+                                 settings=RunnerSettings(timing=store_timing(store)), **common)
         runner.runner.on_pose = on_pose
     else:
         runner = SessionRunner(plan, store, devices, rig.calibration, rig.layout,
-                               settings=RunnerSettings(timing=manifest_timing(manifest)), **common)
+                               settings=RunnerSettings(timing=store_timing(store)), **common)
     if kind != "adaptive":
         runner.on_pose = on_pose
         expect = getattr(rig, "expect_poses", None)  # the simulator prepares for the session's size
         if expect is not None:
             expect(len(plan))
-    if manifest.get("keep_pixels") is True and kind == "plan":
+    if store.manifest_entry("keep_pixels") is True and kind == "plan":
         runner.keep_pixels_dir = Path(store.directory) / "pixels"
     result = runner.run()
     _record_sphere_centre(store, rig)

@@ -146,6 +146,12 @@ def manifest_timing(manifest):
         raise ConfigError(f"manifest.json: {exc}") from None
 
 
+def store_timing(store):
+    """:func:`manifest_timing` of an open store's manifest, from its ``timing`` field alone (the manifest is not
+    copied: an adaptive session's is up to ~1 MB)."""
+    return manifest_timing({"timing": store.manifest_entry("timing")})
+
+
 #: The simulated rig's settings a manifest may hold, with their ranges (a crafted manifest must not
 #: make the simulator allocate a 100,000-pixel-wide frame or take a table for a number).
 SIM_RANGES = {"seed": (0, 2 ** 32 - 1, int), "width": (64, 4096, int), "height": (48, 4096, int),

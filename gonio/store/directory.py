@@ -351,12 +351,16 @@ def load_session(path) -> tuple[dict, SampleSet]:
     return manifest, samples
 
 
-def load_session_records(path) -> tuple[dict, SampleSet, dict]:
-    """:func:`load_session` plus each pose's record metadata (``{pose: meta}``: joints, board pose, ...)."""
+def load_session_records(path, manifest: Mapping[str, Any] | None = None) -> tuple[dict, SampleSet, dict]:
+    """:func:`load_session` plus each pose's record metadata (``{pose: meta}``: joints, board pose, ...).
+
+    ``manifest``: the directory's manifest as last written, from a caller that holds it (:meth:`SessionStore.samples`):
+    not read and parsed again (an adaptive session's is up to ~1 MB, read after every round), and not changed (the
+    result's is a shallow copy)."""
     d = Path(path)
     if d.is_file() and d.name == MANIFEST:
         d = d.parent
-    manifest = _read_manifest(d)
+    manifest = _read_manifest(d) if manifest is None else dict(manifest)
     scan = scan_samples(_samples_path(d, manifest))
     if scan.damaged:  # every good sample is kept; say what was skipped (one line through the CLI)
         import warnings
@@ -547,6 +551,15 @@ class SessionStore:
         if self._manifest_text is None:  # encoded once per write; each reader gets its own copy
             self._manifest_text = json.dumps(self._manifest)
         return json.loads(self._manifest_text)
+
+    def samples(self) -> SampleSet:
+        """The stored samples as :func:`load_session` reads them from :attr:`directory`, with the manifest this store
+        last wrote instead of the file's (the same data) parsed again."""
+        return load_session_records(self.directory, self._manifest)[1]
+
+    def has_manifest_entry(self, key: str) -> bool:
+        """Whether the manifest has a top-level field ``key`` (whatever its value), without copying it."""
+        return key in self._manifest
 
     def manifest_entry(self, key: str) -> Any:
         """The stored value of the manifest's top-level field ``key`` (None if absent), not a copy: read it and

@@ -390,3 +390,36 @@ def test_record_depth_check_is_the_depth_of_every_node():
     assert len({_depth_by_node(v, 99) for v in values}) > 20  # depths 1 to 40
     for limit in (1, 10, 32):
         assert [_depth(v, limit) for v in values] == [_depth_by_node(v, limit) for v in values], limit
+
+
+def test_an_open_store_reads_its_samples_as_load_session_does(tmp_path):
+    """SessionStore.samples (an adaptive session reads its rounds' samples with it, with the manifest it holds
+    instead of the file's parsed again) gives load_session's samples bit for bit, with the same warnings: as
+    appended, a pose stored again, records beyond the plan left out, a damaged record, a torn last line; the
+    store's manifest is not changed by it. has_manifest_entry and store_timing read what a copy would have."""
+    import warnings
+
+    from gonio.session.recording import manifest_timing, store_timing
+
+    def read(f):
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            return f(), [str(x.message) for x in w]
+
+    def check(n, n_warnings):
+        (got, w_store), (want, w_load) = read(store.samples), read(lambda: load_session(tmp_path / "s")[1])
+        assert same(got, want) and len(got) == n and w_store == w_load and len(w_store) == n_warnings
+
+    store = SessionStore.create(tmp_path / "s", {"plan": {"n_poses": 4}, "geocal": None, "timing": {"darks": "model"}})
+    for p in (2, 0, 1, 2):
+        store.append(p, samples_for(p + 10 * (p == 2)))
+    check(6, 0)
+    store.update_manifest(plan={"n_poses": 2})  # pose 2 now lies beyond the plan
+    check(4, 1)
+    with open(tmp_path / "s" / SAMPLES, "ab") as f:  # a damaged record, then a torn last line
+        f.write(b'{"pose": 1, "damaged\n{"pose": 1, "torn')
+    check(4, 2)
+    assert store.manifest == json.loads((tmp_path / "s" / MANIFEST).read_text())  # no damaged_records added
+    assert store.has_manifest_entry("geocal") and "geocal" in store.manifest and not store.has_manifest_entry("adaptive")
+    assert store_timing(store) == manifest_timing(store.manifest)
+    store.close()
