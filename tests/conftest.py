@@ -13,9 +13,11 @@ import sys
 # One BLAS/OpenMP thread per process, set before anything imports numpy (the xdist workers import this file
 # first): the suite runs at least one worker per core (`-n 4` in addopts on 2 cores), so a second BLAS thread
 # in each worker only contends for another worker's core; OpenBLAS's threads spin while they wait, which cost
-# about a quarter of the CPU time of the fit- and session-heavy tests. The `gonio` processes the tests start inherit
-# it. A value set by the caller is kept.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+# about a quarter of the CPU time of the fit- and session-heavy tests. OpenCV's own thread pool likewise (its board
+# detection: the same corners; the calibrating and lab-time tests, three interleaved pairs, 11.3-11.7 -> 10.9-11.1
+# CPU s, mostly the threads' system time). The `gonio` processes the tests start inherit it. A value set by the
+# caller is kept.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENCV_FOR_THREADS_NUM"):
     os.environ.setdefault(_var, "1")
 
 # Bytecode, kept out of the source tree: every process of a run (this one, the xdist workers, the `gonio` processes
