@@ -276,13 +276,16 @@ def resume(directory, *, rig: OpenRig | None = None, rig_file: str | None = None
     True
     """
     from gonio.plan.plan import Plan
-    from gonio.store.directory import MANIFEST, SessionStore, _read_manifest, _samples_path, scan_samples
+    from gonio.store.directory import (MANIFEST, SessionStore, _read_manifest, _samples_path, read_manifest_bytes,
+                                       scan_samples)
 
     d = Path(directory)
     if not (d / MANIFEST).is_file():
         raise ConfigError.field(None, "session directory", str(directory), "is not a gonio session (no manifest.json)")
-    # read once for both checks below (read-only: the store reads the file again under its lock)
-    manifest = _read_manifest(d)
+    # read once for both checks below (read-only: the store reads the file again under its lock, and parses it
+    # again only if it changed)
+    known = read_manifest_bytes(d)
+    manifest = known[1]
     plan = Plan.from_dict(manifest.get("plan"), source=str(d / MANIFEST))
     scan = scan_samples(_samples_path(d, manifest))
     if _all_measured(manifest, plan, scan):
@@ -297,7 +300,7 @@ def resume(directory, *, rig: OpenRig | None = None, rig_file: str | None = None
                              kind="calibration" if "geocal" in manifest else "plan", manifest=_read_manifest(d),
                              nothing_to_resume=True, simulated=manifest.get("mode") == "sim")
     check_plan_against_records(d, manifest, plan, scan)  # before the store marks the session as resumed
-    store = SessionStore.open(d)
+    store = SessionStore.open(d, known=known)  # takes the manifest over: not used here after
     opened = None
     try:
         manifest = store.manifest

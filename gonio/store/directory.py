@@ -289,7 +289,20 @@ def _killed_run(manifest: Mapping[str, Any], scan: ScanResult) -> dict | None:
             "lab_time_s": max(times) if times else 0.0, "wall_time_s": None, "stopped": None}
 
 
-def _read_manifest(d: Path) -> dict:
+def _read_manifest(d: Path, known: tuple[bytes, dict] | None = None) -> dict:
+    """The manifest of session directory ``d``, checked. ``known``: ``(bytes, manifest)`` of an earlier read
+    (:func:`read_manifest_bytes`), whose manifest is returned, not parsed again, when the file still holds those
+    bytes (an adaptive session's manifest is up to ~1 MB)."""
+    return _read_manifest_bytes(d, known)[1]
+
+
+def read_manifest_bytes(d: Path) -> tuple[bytes, dict]:
+    """``(the file's bytes, the manifest)`` of session directory ``d``: :func:`_read_manifest` with the bytes it
+    parsed, for a later read (:meth:`SessionStore.open`'s ``known``) to compare with."""
+    return _read_manifest_bytes(d, None)
+
+
+def _read_manifest_bytes(d: Path, known: tuple[bytes, dict] | None) -> tuple[bytes, dict]:
     path = d / MANIFEST
     if d.is_file():
         raise DataError(f"{d}: is a file, not a session directory (the directory gonio measure --out made)")
@@ -298,6 +311,8 @@ def _read_manifest(d: Path) -> dict:
     if not path.exists() and not path.is_symlink():
         raise DataError(f"{path}: no session manifest (is {d} a session directory?)")
     data = read_file_nofollow(path, MAX_MANIFEST, "manifest")
+    if known is not None and known[0] == data:
+        return known
     try:
         manifest = json.loads(data.decode("utf-8"))
     except RecursionError:
@@ -307,7 +322,7 @@ def _read_manifest(d: Path) -> dict:
     if not isinstance(manifest, dict) or manifest.get("format") != STORE_FORMAT:
         got = manifest.get("format") if isinstance(manifest, dict) else type(manifest).__name__
         raise DataError(f"{path}: format = {got!r}: expected a gonio session manifest, format {STORE_FORMAT}")
-    return manifest
+    return data, manifest
 
 
 def missing_poses(manifest, present: int) -> int:
@@ -475,14 +490,18 @@ class SessionStore:
         return cls(d, full, fd, ScanResult())
 
     @classmethod
-    def open(cls, directory, *, resume: bool = True) -> "SessionStore":
+    def open(cls, directory, *, resume: bool = True, known: tuple[bytes, dict] | None = None) -> "SessionStore":
         """Reopen a session to resume it: checks every record, drops a torn last line (cutting the file
         back), moves damaged records to ``quarantine.jsonl`` (:meth:`repair`; their poses are measured
         again), and marks the manifest as running again (a ``resumes`` entry; ``resume=False`` opens it
         only to record its end, e.g. a session with nothing left). A run that was killed (no recorded
-        end) gets its ``runs`` entry now, from its records' lab time, so the session's lab time keeps it."""
+        end) gets its ``runs`` entry now, from its records' lab time, so the session's lab time keeps it.
+
+        ``known``: :func:`read_manifest_bytes` of the directory from a read before this one (a resume's checks);
+        the store takes its manifest over (the caller must not use it after) when the file, read again here,
+        holds the same bytes, instead of parsing them again."""
         d = Path(directory)
-        manifest = _read_manifest(d)
+        manifest = _read_manifest(d, known)
         path = _samples_path(d, manifest)
         try:
             fd = os.open(path, os.O_RDWR | os.O_APPEND | os.O_NOFOLLOW)

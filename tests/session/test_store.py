@@ -423,3 +423,23 @@ def test_an_open_store_reads_its_samples_as_load_session_does(tmp_path):
     assert store.has_manifest_entry("geocal") and "geocal" in store.manifest and not store.has_manifest_entry("adaptive")
     assert store_timing(store) == manifest_timing(store.manifest)
     store.close()
+
+
+def test_open_takes_over_an_earlier_read_of_the_same_manifest_and_parses_a_changed_one(tmp_path):
+    """SessionStore.open(known=read_manifest_bytes(d)) (a resume's checks read the manifest before the lock) reads
+    the file again under its lock: the same bytes, and the earlier parse is the store's manifest, not parsed again;
+    other bytes (a write in between) are parsed. Either way the store's manifest is the file's as a fresh open reads it."""
+    from gonio.store.directory import read_manifest_bytes
+
+    d = make(tmp_path)
+    known = read_manifest_bytes(d)
+    assert known[0] == (d / MANIFEST).read_bytes() and known[1] == json.loads(known[0])
+    store = SessionStore.open(d, known=known)
+    assert store._manifest is known[1] and store.manifest["resumes"][-1]["previous_exit_status"] is None
+    store.update_manifest(material="changed")
+    store.close()
+    on_disk = json.loads((d / MANIFEST).read_text())
+    store = SessionStore.open(d, known=known)  # stale: the file changed since
+    assert store._manifest is not known[1] and store.manifest["material"] == "changed"
+    assert len(store.manifest["resumes"]) == len(on_disk["resumes"]) + 1
+    store.close()
