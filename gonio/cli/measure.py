@@ -261,10 +261,10 @@ def run_resume(args) -> int:
             where = ", ".join("line %s" % r["line"] for r in q[:5])
             print(f"repaired {store.directory}: {len(q)} damaged record(s) moved to quarantine.jsonl ({where}); "
                   "their poses are measured again", file=sys.stderr)
-        m = store.manifest
-        adapting = isinstance(m.get("adaptive"), dict) and m["adaptive"].get("stop") is None
+        ad, plan = store.manifest_entry("adaptive"), store.manifest_entry("plan")  # read only, not a copy (~1 MB)
+        adapting = isinstance(ad, dict) and ad.get("stop") is None
         if not args.quiet:
-            print(f"resuming {store.directory}: {len(remaining)} of {len(m['plan']['poses'])} poses remaining"
+            print(f"resuming {store.directory}: {len(remaining)} of {len(plan['poses'])} poses remaining"
                   + ("; then adapting from the stored samples" if adapting else ""), file=sys.stderr)
 
     result = resume(args.dir, rig_file=args.rig, servo_port=args.servo_port, controller_port=args.controller_port,

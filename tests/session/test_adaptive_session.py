@@ -184,8 +184,9 @@ def test_ctrl_c_finishes_the_pose_then_resume_continues_adapting(tmp_path, refer
     assert manifest["exit_status"] == "interrupted" and manifest["adaptive"]["stop"] is None
     assert _records(d) < N_POSES and len(manifest["adaptive"]["rounds"]) >= 2
     capsys.readouterr()
+    n, done = len(manifest["plan"]["poses"]), _records(d)
     assert main(["resume", str(d)]) == 0
-    assert "then adapting from the stored samples" in capsys.readouterr().err
+    assert f"{n - done} of {n} poses remaining; then adapting from the stored samples" in capsys.readouterr().err
     _check_resumed(d, *reference, planned_before=len(manifest["adaptive"]["rounds"]), same_poses=False)
 
 
