@@ -27,6 +27,7 @@ from gonio.geometry import dot, normalize, to_local
 from gonio.pipeline.target import CameraCalibration, CameraPose, NoiseModel, TargetLayout, surface_frame
 from gonio.rig.interfaces import Clock, Frame, PhotodiodeReading
 from sim import compiled, sensor_noise
+from sim.compile_lock import serialized
 
 __all__ = ["SensorModel", "SimScene", "SimCamera", "SceneLight", "normal_table", "board_texture",
            "blurred_board_texture"]
@@ -138,7 +139,7 @@ def _shade_board_kernel():
 
     # error_model="numpy": a division by zero gives inf as NumPy's does instead of raising (no check in the loop,
     # which then vectorizes)
-    return numba.njit(cache=True, nogil=True, error_model="numpy")(_shade_board_loop)
+    return serialized(numba.njit(cache=True, nogil=True, error_model="numpy")(_shade_board_loop))
 
 
 def shade_board_compiled(px, py, hit, albedo, sx, sy, sz2, intensity_z, k):
@@ -201,7 +202,7 @@ def _board_points_loop(x, y, r, c, above, inv, ox, oy, px, py, hit, mx, my):
 def _board_points_kernel():
     import numba
 
-    return numba.njit(cache=True, nogil=True, error_model="numpy")(_board_points_loop)
+    return serialized(numba.njit(cache=True, nogil=True, error_model="numpy")(_board_points_loop))
 
 
 def board_points_compiled(x, y, R, C, inv, origin):
@@ -215,6 +216,11 @@ def board_points_compiled(x, y, R, C, inv, origin):
                            bool(C[2] > 0), f32(inv), f32(origin[0]), f32(origin[1]),
                            *(a.reshape(-1) for a in (px, py, hit, mx, my)))
     return px, py, hit, mx, my
+
+
+# the numba kernels each compiled path calls (sim.compiled.pick asks whether another process is compiling them)
+shade_board_compiled.kernels = lambda: (_shade_board_kernel(),)
+board_points_compiled.kernels = lambda: (_board_points_kernel(),)
 
 
 @functools.lru_cache(maxsize=8)

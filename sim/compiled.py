@@ -8,6 +8,7 @@ import functools
 import sys
 import time
 
+from sim import compile_lock
 from sim.sensor_noise import compiled_available
 
 __all__ = ["use_compiled", "pick", "expect", "COLD_SECONDS"]
@@ -52,10 +53,29 @@ def use_compiled() -> bool:
     return compiled_available() and (_warm() or _BOUGHT[0] or _NUMPY_SECONDS[0] >= COLD_SECONDS)
 
 
+#: The compiled paths this process has taken (their kernels compiled or loaded from numba's cache, or being so).
+_STARTED: set = set()
+
+
+def _compiling_elsewhere(compiled) -> bool:
+    """Until this process first takes ``compiled``: whether another process is compiling one of its kernels now
+    (``compiled.kernels()``, :func:`sim.compile_lock.busy`). Once taken, a kernel it has not compiled yet (other
+    argument types) waits for its lock instead (:func:`sim.compile_lock.serialized`)."""
+    if compiled in _STARTED:
+        return False
+    kernels = getattr(compiled, "kernels", None)
+    if kernels is not None and compile_lock.busy(kernels()):
+        return True
+    _STARTED.add(compiled)
+    return False
+
+
 def pick(compiled, reference):
     """``compiled`` if :func:`use_compiled`, else ``reference`` (its bit-for-bit NumPy twin), whose calls' CPU time
-    (this thread's) counts toward :data:`COLD_SECONDS`."""
-    if use_compiled():
+    (this thread's) counts toward :data:`COLD_SECONDS`. ``reference`` too while another process is compiling
+    ``compiled``'s kernels before this one has taken it (:func:`_compiling_elsewhere`): one process compiles each,
+    the others keep making the same frames with NumPy until numba's cache holds it, then load it from there."""
+    if use_compiled() and not _compiling_elsewhere(compiled):
         return compiled
 
     @functools.wraps(reference)

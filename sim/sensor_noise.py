@@ -359,8 +359,10 @@ def _compiled():
 
     for f in (_dn, _poisson_dn, _block, _gather, _search_lanes):
         register_jitable(f)
+    from sim.compile_lock import serialized
+
     jit = numba.njit(cache=True, nogil=True)
-    return jit(_pass1), jit(_pass2), jit(_pass2_one_mean), jit(_pass2_lanes)
+    return tuple(serialized(jit(f)) for f in (_pass1, _pass2, _pass2_one_mean, _pass2_lanes))
 
 
 def _all_below(pattern, dark_e, below) -> bool:
@@ -451,3 +453,6 @@ def expose_compiled(rate, scale, pattern, dark_e, rng, normal_indices, table, be
             search = pass2_lanes if top >= LANES_FROM else pass2
             search(pos, idx, table, lam, p0, u, RECIPROCALS, f32(read_noise), *conv, out1)
     return out
+
+
+expose_compiled.kernels = _compiled  # the numba kernels it calls (for sim.compiled.pick)
