@@ -61,3 +61,42 @@ def test_the_installed_bytecode_is_linked_into_a_new_cache_once(tmp_path, suite_
     assert out == in_cache(numpy) and os.path.samefile(out, installed(numpy))  # read, not compiled anew
     assert importlib.util.cache_from_source(numpy.__file__) != out  # (this process: the suite's own cache)
     assert link_installed_bytecode(prefix) == 0
+
+
+def test_a_test_module_is_rewritten_by_the_first_process_while_the_others_wait_and_read_it(tmp_path, suite_conftest):
+    """conftest.rewrite_each_module_once: pytest's assertion rewriting of a module with no rewritten pyc yet takes a
+    lock beside that pyc; a process that finds it held (another rewriting the module) waits, then reads the pyc the
+    other wrote instead of rewriting; one that gets the lock first rewrites and writes the pyc before letting go. A
+    lock left by a killed process stops nobody."""
+    import threading
+
+    import _pytest.assertion.rewrite as rewrite
+
+    assert suite_conftest.rewrite_each_module_once(rewrite) and rewrite._rewrite_test.once  # installed, and once
+    fn = tmp_path / "test_rewritten_once.py"
+    fn.write_text("def test_x():\n    assert 1 + 1 == 2\n")
+    pyc = rewrite.get_cache_dir(fn) / (fn.name[:-3] + rewrite.PYC_TAIL)
+    pyc.parent.mkdir(parents=True, exist_ok=True)
+    holder = subprocess.Popen([sys.executable, "-c", "import fcntl, sys, time; f = open(sys.argv[1], 'a'); "
+                               "fcntl.flock(f, fcntl.LOCK_EX); print('held', flush=True); time.sleep(120)",
+                               f"{pyc}.lock"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        got = []
+        waiter = threading.Thread(target=lambda: got.append(rewrite._rewrite_test(fn, None)))
+        waiter.start()
+        waiter.join(0.3)
+        assert waiter.is_alive()  # waits while the other process rewrites
+        # what the other process writes: a code object that rewriting this source would not give
+        marker = compile("WRITTEN_BY_THE_OTHER = True\n", str(fn), "exec")
+        with open(pyc, "wb") as f:
+            rewrite._write_pyc_fp(f, os.stat(fn), marker)
+    finally:
+        holder.kill()  # its lock goes with it
+        holder.wait()
+    waiter.join(30)
+    assert got and got[0][1].co_names == marker.co_names  # read, not rewritten again
+    pyc.unlink()
+    stat, co = rewrite._rewrite_test(fn, None)  # nobody holds the lock: rewritten here
+    test_x = next(c for c in co.co_consts if getattr(c, "co_name", None) == "test_x")
+    assert any(v.startswith("@py_assert") for v in test_x.co_varnames) and stat.st_size == fn.stat().st_size
