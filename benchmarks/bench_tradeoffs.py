@@ -291,6 +291,7 @@ def plan_table(quick: bool = False) -> Table:
     """Lab time vs BRDF error of uniform and adaptive plans, every row a simulated session end to end
     fitted the same way; the default's place relative to the knee is computed from the rows."""
     from gonio.plan.generators import make_plan
+    from sim import compiled
 
     f_truth = truth()
     wi, wo = eval_directions()
@@ -302,9 +303,14 @@ def plan_table(quick: bool = False) -> Table:
                "sample rel RMS err", "BRDF rel RMS err", "err vs default", "fit s"], baseline=1, default=1)
     rows: list[PlanRow] = []
     overhead, starts = None, 1 if quick else 4
+    uniform = [(kind, label, make_plan(kind, seed=0, **params), is_default)
+               for kind, label, params, is_default in _uniform_plans(quick)]
+    # the simulated camera's compiled paths from the first frame when the table's sessions together would cost NumPy
+    # more than their price (sim.compiled.expect: each session alone may forecast less; the same frames either way)
+    w, h = resolution(quick)
+    compiled.expect(w * h * 3, sum(len(plan) for _, _, plan, _ in uniform), sessions=len(uniform))
     with tempfile.TemporaryDirectory() as tmp:
-        for i, (kind, label, params, is_default) in enumerate(_uniform_plans(quick)):
-            plan = make_plan(kind, seed=0, **params)
+        for i, (kind, label, plan, is_default) in enumerate(uniform):
             try:
                 result, wall, s = simulate(plan, Path(tmp) / f"p{i}", resolution(quick))
                 rows.append(_session_row(kind, label, len(plan), result, wall, s, wi, wo, f_true, f_truth, is_default,

@@ -32,13 +32,14 @@ _BOUGHT = [False]  #: :func:`expect` forecast more than :data:`COLD_SECONDS` of 
 DARK_SET_SECONDS, POSE_SECONDS = 1.7e-6, 2.1e-8
 
 
-def expect(frame_values: int, poses: int) -> None:
-    """A session of ``poses`` poses with frames of ``frame_values`` values is about to start: when its NumPy frames
+def expect(frame_values: int, poses: int, sessions: int = 1) -> None:
+    """A session of ``poses`` poses with frames of ``frame_values`` values is about to start (or ``sessions`` of them,
+    ``poses`` in all, one dark set each, in this process one after another): when its NumPy frames
     would take :data:`COLD_SECONDS` or more (:data:`DARK_SET_SECONDS`, :data:`POSE_SECONDS`), the compiled paths from
     its first frame, instead of renting until the rent paid reaches the price and then buying as well (the forecast
     of ski rental with predictions: Purohit, Svitkina and Kumar, "Improving online algorithms via ML predictions",
     NeurIPS 2018; a forecast of less keeps the rule of :data:`COLD_SECONDS`)."""
-    if frame_values * (DARK_SET_SECONDS + poses * POSE_SECONDS) >= COLD_SECONDS:
+    if frame_values * (sessions * DARK_SET_SECONDS + poses * POSE_SECONDS) >= COLD_SECONDS:
         _BOUGHT[0] = True
 
 

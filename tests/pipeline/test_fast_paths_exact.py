@@ -271,6 +271,12 @@ def test_a_session_forecast_to_cost_numpy_more_than_the_price_takes_the_compiled
         assert not paths.use_compiled(), (values, poses)
     paths.expect(320 * 240 * 3, 38)  # the quick start's session: ~0.57 s
     assert paths.use_compiled()
+    # several sessions in one process, a dark set each: `gonio bench --smoke`'s plan table, 12 + 38 poses (~0.58 s)
+    monkeypatch.setattr(paths, "_BOUGHT", [False])
+    paths.expect(240 * 180 * 3, 12 + 38)  # as one session: ~0.36 s
+    assert not paths.use_compiled()
+    paths.expect(240 * 180 * 3, 12 + 38, sessions=2)
+    assert paths.use_compiled()
 
 
 @pytest.mark.parametrize("lam", [0.02, 0.6, 3.7, 12.0, 29.9])
