@@ -31,9 +31,10 @@ them into DN, rounded half to even and clipped to the sensor's range.
 from __future__ import annotations
 
 import functools
-import importlib.util
 
 import numpy as np
+
+from gonio.brdf.compiled import available as compiled_available  # numba installed (re-exported)
 
 __all__ = ["draw", "frame_numpy", "means_numpy", "expose_numpy", "expose_compiled", "compiled_available",
            "LowValues"]
@@ -121,10 +122,6 @@ def frame_numpy(mean_e, table, idx, low, lam, p0, u, *, read_noise, full_well, g
     return e.astype(dtype)
 
 
-@functools.lru_cache(maxsize=1)
-def compiled_available() -> bool:
-    """numba is installed (the ``fast`` extra)."""
-    return importlib.util.find_spec("numba") is not None
 
 
 def means_numpy(rate, scale, pattern, dark_e) -> np.ndarray:
