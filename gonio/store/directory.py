@@ -293,16 +293,12 @@ def _read_manifest(d: Path, known: tuple[bytes, dict] | None = None) -> dict:
     """The manifest of session directory ``d``, checked. ``known``: ``(bytes, manifest)`` of an earlier read
     (:func:`read_manifest_bytes`), whose manifest is returned, not parsed again, when the file still holds those
     bytes (an adaptive session's manifest is up to ~1 MB)."""
-    return _read_manifest_bytes(d, known)[1]
+    return read_manifest_bytes(d, known)[1]
 
 
-def read_manifest_bytes(d: Path) -> tuple[bytes, dict]:
+def read_manifest_bytes(d: Path, known: tuple[bytes, dict] | None = None) -> tuple[bytes, dict]:
     """``(the file's bytes, the manifest)`` of session directory ``d``: :func:`_read_manifest` with the bytes it
     parsed, for a later read (:meth:`SessionStore.open`'s ``known``) to compare with."""
-    return _read_manifest_bytes(d, None)
-
-
-def _read_manifest_bytes(d: Path, known: tuple[bytes, dict] | None) -> tuple[bytes, dict]:
     path = d / MANIFEST
     if d.is_file():
         raise DataError(f"{d}: is a file, not a session directory (the directory gonio measure --out made)")
