@@ -725,6 +725,13 @@ def colour_upper(L: Layout, basis, shape) -> np.ndarray:
     return hi if extra is None else np.minimum(hi, extra)
 
 
+def _data_projection(basis, loss: Loss, d: FitData, L: Layout) -> Projection:
+    """The colours' projection of all of ``d`` under ``loss``'s weights, with the channels-first copies of the
+    weights and values remembered on the data (:meth:`Loss.weights_T_of`, :attr:`FitData.yT`)."""
+    return Projection(basis, np.ascontiguousarray(loss.weights_of(d)), d.y, L.colour_lo, L.colour_hi,
+                      (loss.weights_T_of(d), d.yT))
+
+
 def within_bounds(prob: _Problem, L: Layout, basis, lossobj: Loss, p: np.ndarray, cost: float,
                   notes: list[str]) -> tuple[np.ndarray, float]:
     """``(p, cost)`` of a solver's answer made feasible: every fitting path (variable projection, a warm-started
@@ -754,8 +761,7 @@ def within_bounds(prob: _Problem, L: Layout, basis, lossobj: Loss, p: np.ndarray
     colour2 = np.clip(colour, L.colour_lo[:, None], hi[:, None])
     if basis is not None and basis.separable and lossobj.linear:
         wl = lossobj if lossobj.weight else LOSSES["cosine"]
-        _, colour2 = Projection(basis, np.ascontiguousarray(wl.weights_of(prob.d)), prob.d.y, L.colour_lo, L.colour_hi,
-                                (wl.weights_T_of(prob.d), prob.d.yT))(shape2)
+        _, colour2 = _data_projection(basis, wl, prob.d, L)(shape2)
         colour2 = np.clip(colour2, L.colour_lo[:, None], hi[:, None])
     q = L.pack(colour2, shape2)
     notes.append(f"the solver ended outside the parameters' ranges ({'; '.join(beyond)}): projected back onto them")
@@ -787,9 +793,7 @@ def _fit_layout(d: FitData, L: Layout, lossobj: Loss, *, n_starts, seed, method,
     if optimum is not None:
         colour, shape = optimum
         if separable and lossobj.linear:  # colours solved again at the held value
-            w = lossobj.weights_of(d)
-            _, colour = Projection(basis, np.ascontiguousarray(w), d.y, L.colour_lo, L.colour_hi,
-                                   (lossobj.weights_T_of(d), d.yT))(shape)
+            _, colour = _data_projection(basis, lossobj, d, L)(shape)
         p = L.pack(colour, shape)
         cost = prob.cost(p)
     elif method == "varpro":
